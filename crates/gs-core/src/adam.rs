@@ -1,0 +1,422 @@
+//! Adam with parameter groups: one learning-rate schedule per group, frozen groups that cost
+//! nothing, and state that can be saved and restored bit for bit.
+
+use rayon::prelude::*;
+
+use crate::GsError;
+
+/// A learning rate as a function of the step.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LrSchedule {
+    /// The same rate at every step.
+    Constant(f64),
+    /// `lr(t) = exp((1-u) ln start + u ln end)`, `u = clamp(t / steps, 0, 1)`: the schedule of
+    /// 3DGS positions and of CLIPGaussian (method.md).
+    Exponential {
+        /// Rate at step 0.
+        start: f64,
+        /// Rate at step `steps` and after.
+        end: f64,
+        /// Length of the decay, steps.
+        steps: u64,
+    },
+}
+
+impl LrSchedule {
+    /// The learning rate at `step` (0-based).
+    pub fn at(&self, step: u64) -> f64 {
+        match *self {
+            LrSchedule::Constant(lr) => lr,
+            LrSchedule::Exponential { start, end, steps } => {
+                if start <= 0.0 || end <= 0.0 {
+                    // ln is undefined: fall back to linear interpolation, which gives 0 at 0.
+                    let u = progress(step, steps);
+                    return (1.0 - u) * start + u * end;
+                }
+                let u = progress(step, steps);
+                ((1.0 - u) * start.ln() + u * end.ln()).exp()
+            }
+        }
+    }
+}
+
+fn progress(step: u64, steps: u64) -> f64 {
+    if steps == 0 {
+        1.0
+    } else {
+        (step as f64 / steps as f64).clamp(0.0, 1.0)
+    }
+}
+
+/// One parameter group: a name, a schedule, and whether it is trained at all.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GroupConfig {
+    /// Name of the group (e.g. `"means"`); saved state is matched by it.
+    pub name: String,
+    /// Learning rate per step.
+    pub schedule: LrSchedule,
+    /// A frozen group is never updated and needs no gradient.
+    pub frozen: bool,
+}
+
+impl GroupConfig {
+    /// A trained group.
+    pub fn new(name: impl Into<String>, schedule: LrSchedule) -> Self {
+        Self {
+            name: name.into(),
+            schedule,
+            frozen: false,
+        }
+    }
+
+    /// A frozen group.
+    pub fn frozen(name: impl Into<String>) -> Self {
+        Self {
+            name: name.into(),
+            schedule: LrSchedule::Constant(0.0),
+            frozen: true,
+        }
+    }
+}
+
+/// Adam hyper-parameters shared by all groups.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AdamHyper {
+    /// First-moment decay.
+    pub beta1: f64,
+    /// Second-moment decay.
+    pub beta2: f64,
+    /// Added to the root of the second moment; 1e-15 as in 3DGS and CLIPGaussian.
+    pub eps: f64,
+}
+
+impl Default for AdamHyper {
+    fn default() -> Self {
+        Self {
+            beta1: 0.9,
+            beta2: 0.999,
+            eps: 1e-15,
+        }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+struct Moments {
+    m: Vec<f32>,
+    v: Vec<f32>,
+}
+
+/// The Adam optimizer over a fixed list of parameter groups (PyTorch's update rule with bias
+/// correction).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Adam {
+    hyper: AdamHyper,
+    groups: Vec<GroupConfig>,
+    moments: Vec<Option<Moments>>,
+    step: u64,
+}
+
+const STATE_MAGIC: &[u8; 8] = b"CGADAM01";
+
+impl Adam {
+    /// An optimizer for `groups` whose sizes are `lens` (moments are allocated for trained groups
+    /// only).
+    ///
+    /// # Panics
+    /// If `groups` and `lens` differ in length.
+    pub fn new(groups: Vec<GroupConfig>, lens: &[usize], hyper: AdamHyper) -> Self {
+        assert_eq!(groups.len(), lens.len(), "one length per group");
+        let moments = groups
+            .iter()
+            .zip(lens)
+            .map(|(g, &n)| {
+                (!g.frozen).then(|| Moments {
+                    m: vec![0.0; n],
+                    v: vec![0.0; n],
+                })
+            })
+            .collect();
+        Self {
+            hyper,
+            groups,
+            moments,
+            step: 0,
+        }
+    }
+
+    /// The group configurations.
+    pub fn groups(&self) -> &[GroupConfig] {
+        &self.groups
+    }
+
+    /// Steps taken so far.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// The learning rate each group uses at the next step (0 for frozen groups).
+    pub fn current_lrs(&self) -> Vec<f64> {
+        self.groups
+            .iter()
+            .map(|g| {
+                if g.frozen {
+                    0.0
+                } else {
+                    g.schedule.at(self.step)
+                }
+            })
+            .collect()
+    }
+
+    /// One Adam step: `params[i]` is group `i`, `grads[i]` its gradient (ignored for frozen
+    /// groups, which may pass an empty slice).
+    ///
+    /// # Panics
+    /// If the number of groups or a trained group's length differs from construction.
+    pub fn step(&mut self, params: &mut [&mut [f32]], grads: &[&[f32]]) {
+        assert_eq!(
+            params.len(),
+            self.groups.len(),
+            "one parameter slice per group"
+        );
+        assert_eq!(
+            grads.len(),
+            self.groups.len(),
+            "one gradient slice per group"
+        );
+        let t = self.step + 1;
+        let AdamHyper { beta1, beta2, eps } = self.hyper;
+        let bc1 = 1.0 - beta1.powf(t as f64);
+        let bc2 = 1.0 - beta2.powf(t as f64);
+        for (i, (p, g)) in params.iter_mut().zip(grads).enumerate() {
+            let Some(mom) = self.moments[i].as_mut() else {
+                continue;
+            };
+            assert_eq!(
+                p.len(),
+                mom.m.len(),
+                "group {} changed size",
+                self.groups[i].name
+            );
+            assert_eq!(
+                g.len(),
+                p.len(),
+                "gradient of group {} has the wrong size",
+                self.groups[i].name
+            );
+            let lr = self.groups[i].schedule.at(self.step);
+            let step_size = (lr / bc1) as f32;
+            let inv_bc2_sqrt = (1.0 / bc2.sqrt()) as f32;
+            let (b1, b2, eps) = (beta1 as f32, beta2 as f32, eps as f32);
+            p.par_iter_mut()
+                .zip(g.par_iter())
+                .zip(mom.m.par_iter_mut().zip(mom.v.par_iter_mut()))
+                .with_min_len(4096)
+                .for_each(|((p, &g), (m, v))| {
+                    *m = b1 * *m + (1.0 - b1) * g;
+                    *v = b2 * *v + (1.0 - b2) * g * g;
+                    *p -= step_size * *m / (v.sqrt() * inv_bc2_sqrt + eps);
+                });
+        }
+        self.step = t;
+    }
+
+    /// The state (step count and every moment) as bytes, for checkpoints.
+    pub fn save_state(&self) -> Vec<u8> {
+        let mut out = Vec::new();
+        out.extend_from_slice(STATE_MAGIC);
+        out.extend_from_slice(&self.step.to_le_bytes());
+        out.extend_from_slice(&(self.groups.len() as u64).to_le_bytes());
+        for (g, m) in self.groups.iter().zip(&self.moments) {
+            out.extend_from_slice(&(g.name.len() as u64).to_le_bytes());
+            out.extend_from_slice(g.name.as_bytes());
+            let len = m.as_ref().map_or(u64::MAX, |m| m.m.len() as u64);
+            out.extend_from_slice(&len.to_le_bytes());
+            if let Some(m) = m {
+                for v in m.m.iter().chain(&m.v) {
+                    out.extend_from_slice(&v.to_le_bytes());
+                }
+            }
+        }
+        out
+    }
+
+    /// Restores state saved by [`Adam::save_state`] from an optimizer with the same groups
+    /// (names, sizes and frozen flags); anything else is an error that names the difference.
+    pub fn restore_state(&mut self, bytes: &[u8]) -> Result<(), GsError> {
+        let err = |m: String| GsError::OptimizerState(m);
+        let mut r = ByteReader { bytes, pos: 0 };
+        if r.take(8).ok_or_else(|| err("truncated header".into()))? != STATE_MAGIC {
+            return Err(err("not an optimizer state (bad magic)".into()));
+        }
+        let step = r.u64().ok_or_else(|| err("truncated step".into()))?;
+        let n = r.u64().ok_or_else(|| err("truncated group count".into()))?;
+        if n != self.groups.len() as u64 {
+            return Err(err(format!(
+                "{n} groups saved, {} expected",
+                self.groups.len()
+            )));
+        }
+        let mut restored = Vec::with_capacity(self.groups.len());
+        for (g, mine) in self.groups.iter().zip(&self.moments) {
+            let name_len = r.u64().ok_or_else(|| err("truncated name".into()))? as usize;
+            let name = r
+                .take(name_len)
+                .ok_or_else(|| err("truncated name".into()))?;
+            if name != g.name.as_bytes() {
+                return Err(err(format!(
+                    "group '{}' saved where '{}' was expected",
+                    String::from_utf8_lossy(name),
+                    g.name
+                )));
+            }
+            let len = r
+                .u64()
+                .ok_or_else(|| err(format!("truncated group '{}'", g.name)))?;
+            let expected = mine.as_ref().map_or(u64::MAX, |m| m.m.len() as u64);
+            if len != expected {
+                return Err(err(format!(
+                    "group '{}' was saved with {} values, {} expected",
+                    g.name,
+                    describe_len(len),
+                    describe_len(expected)
+                )));
+            }
+            if len == u64::MAX {
+                restored.push(None);
+                continue;
+            }
+            let mut read = || -> Option<Vec<f32>> {
+                let raw = r.take(4 * len as usize)?;
+                Some(
+                    raw.chunks_exact(4)
+                        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                        .collect(),
+                )
+            };
+            let m = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
+            let v = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
+            restored.push(Some(Moments { m, v }));
+        }
+        if r.pos != bytes.len() {
+            return Err(err(format!("{} trailing bytes", bytes.len() - r.pos)));
+        }
+        self.step = step;
+        self.moments = restored;
+        Ok(())
+    }
+}
+
+fn describe_len(len: u64) -> String {
+    if len == u64::MAX {
+        "no (frozen)".into()
+    } else {
+        len.to_string()
+    }
+}
+
+struct ByteReader<'a> {
+    bytes: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> ByteReader<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let end = self.pos.checked_add(n)?;
+        let s = self.bytes.get(self.pos..end)?;
+        self.pos = end;
+        Some(s)
+    }
+
+    fn u64(&mut self) -> Option<u64> {
+        self.take(8)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exponential_schedule_hits_both_ends_and_the_geometric_middle() {
+        let s = LrSchedule::Exponential {
+            start: 1e-4,
+            end: 1e-6,
+            steps: 100,
+        };
+        assert!((s.at(0) - 1e-4).abs() < 1e-18);
+        assert!((s.at(50) - 1e-5).abs() < 1e-15);
+        assert!((s.at(100) - 1e-6).abs() < 1e-18);
+        assert!((s.at(1000) - 1e-6).abs() < 1e-18);
+    }
+
+    /// Adam as PyTorch writes it, in f64, for one scalar.
+    fn reference(grads: &[f64], lr: f64) -> f64 {
+        let (b1, b2, eps) = (0.9f64, 0.999f64, 1e-15f64);
+        let (mut p, mut m, mut v) = (1.0f64, 0.0f64, 0.0f64);
+        for (t, g) in grads.iter().enumerate() {
+            let t = t as i32 + 1;
+            m = b1 * m + (1.0 - b1) * g;
+            v = b2 * v + (1.0 - b2) * g * g;
+            let mh = m / (1.0 - b1.powi(t));
+            let vh = v / (1.0 - b2.powi(t));
+            p -= lr * mh / (vh.sqrt() + eps);
+        }
+        p
+    }
+
+    #[test]
+    fn matches_the_pytorch_update_and_skips_frozen_groups() {
+        let groups = vec![
+            GroupConfig::new("a", LrSchedule::Constant(0.01)),
+            GroupConfig::frozen("b"),
+        ];
+        let mut adam = Adam::new(groups, &[1, 2], AdamHyper::default());
+        let mut a = vec![1.0f32];
+        let mut b = vec![5.0f32, 6.0];
+        let gs = [0.3, -0.2, 0.05, 1.5, -0.7];
+        for g in gs {
+            adam.step(&mut [&mut a, &mut b], &[&[g as f32], &[]]);
+        }
+        let want = reference(&gs, 0.01);
+        assert!((a[0] as f64 - want).abs() < 1e-6, "{} vs {want}", a[0]);
+        assert_eq!(b, vec![5.0, 6.0]);
+        assert_eq!(adam.step_count(), 5);
+    }
+
+    #[test]
+    fn saved_state_restores_exactly_and_mismatches_are_named() {
+        let groups = vec![
+            GroupConfig::new("means", LrSchedule::Constant(0.1)),
+            GroupConfig::frozen("scales"),
+        ];
+        let mut adam = Adam::new(groups.clone(), &[3, 3], AdamHyper::default());
+        let mut p = vec![0.5f32, -0.5, 2.0];
+        adam.step(&mut [&mut p, &mut []], &[&[0.1, 0.2, -0.3], &[]]);
+        let bytes = adam.save_state();
+        let mut copy = Adam::new(groups, &[3, 3], AdamHyper::default());
+        copy.restore_state(&bytes).unwrap();
+        assert_eq!(copy, adam);
+        let (mut p1, mut p2) = (p.clone(), p.clone());
+        adam.step(&mut [&mut p1, &mut []], &[&[0.4, 0.0, 0.1], &[]]);
+        copy.step(&mut [&mut p2, &mut []], &[&[0.4, 0.0, 0.1], &[]]);
+        assert_eq!(p1, p2);
+
+        let mut other = Adam::new(
+            vec![
+                GroupConfig::new("means", LrSchedule::Constant(0.1)),
+                GroupConfig::frozen("scales"),
+            ],
+            &[4, 3],
+            AdamHyper::default(),
+        );
+        let e = other.restore_state(&bytes).unwrap_err().to_string();
+        assert!(
+            e.contains("means") && e.contains('3') && e.contains('4'),
+            "{e}"
+        );
+        assert!(copy.restore_state(&bytes[..bytes.len() - 1]).is_err());
+        assert!(copy.restore_state(b"garbage!").is_err());
+    }
+}

@@ -1,0 +1,314 @@
+//! Pinhole cameras in OpenCV axes (x right, y down, z forward), intrinsics in pixels.
+
+use crate::mat::{self, M3, V3};
+use crate::GsError;
+
+/// A pinhole camera: world-to-camera rigid transform (OpenCV axes) and intrinsics in pixels.
+/// Pixel centres lie at `+0.5`: the pixel `(0, 0)` covers `[0, 1) x [0, 1)`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Camera {
+    /// World-to-camera rotation, row-major.
+    pub rotation: M3<f64>,
+    /// World-to-camera translation.
+    pub translation: V3<f64>,
+    /// Focal length along x, pixels.
+    pub fx: f64,
+    /// Focal length along y, pixels.
+    pub fy: f64,
+    /// Principal point x, pixels.
+    pub cx: f64,
+    /// Principal point y, pixels.
+    pub cy: f64,
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+}
+
+/// Focal length in pixels that gives the field of view `fov` (radians) over `pixels`.
+pub fn fov_to_focal(fov: f64, pixels: u32) -> f64 {
+    0.5 * pixels as f64 / (0.5 * fov).tan()
+}
+
+/// Field of view (radians) that the focal length `focal` (pixels) gives over `pixels`.
+pub fn focal_to_fov(focal: f64, pixels: u32) -> f64 {
+    2.0 * (0.5 * pixels as f64 / focal).atan()
+}
+
+impl Camera {
+    /// A camera from a world-to-camera transform (OpenCV axes) and intrinsics; checks that the
+    /// size is non-zero, the focal lengths positive and everything finite.
+    pub fn new(
+        rotation: M3<f64>,
+        translation: V3<f64>,
+        [fx, fy, cx, cy]: [f64; 4],
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let cam = Self {
+            rotation,
+            translation,
+            fx,
+            fy,
+            cx,
+            cy,
+            width,
+            height,
+        };
+        cam.validate()?;
+        Ok(cam)
+    }
+
+    fn validate(&self) -> Result<(), GsError> {
+        let bad =
+            |what: &str, value: String| Err(GsError::InvalidCamera(format!("{what} is {value}")));
+        if self.width == 0 || self.height == 0 {
+            return bad("the image size", format!("{}x{}", self.width, self.height));
+        }
+        for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
+            if !(v.is_finite() && v > 0.0) {
+                return bad(name, v.to_string());
+            }
+        }
+        for (name, v) in [("cx", self.cx), ("cy", self.cy)] {
+            if !v.is_finite() {
+                return bad(name, v.to_string());
+            }
+        }
+        let finite = self.rotation.iter().flatten().all(|v| v.is_finite())
+            && self.translation.iter().all(|v| v.is_finite());
+        if !finite {
+            return bad("the pose", "not finite".into());
+        }
+        Ok(())
+    }
+
+    /// A camera from a NeRF / Blender camera-to-world matrix (OpenGL axes: x right, y up,
+    /// z backward) and the horizontal field of view `fov_x` in radians, as in
+    /// `transforms_*.json`. The focal length is the same along both axes and the principal
+    /// point is the image centre, as INRIA 3DGS reads these files.
+    pub fn from_nerf(
+        c2w: [[f64; 4]; 4],
+        fov_x: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let focal = fov_to_focal(fov_x, width);
+        // OpenGL to OpenCV axes: negate the camera's y and z axes (columns 1 and 2).
+        let r_c2w: M3<f64> = [
+            [c2w[0][0], -c2w[0][1], -c2w[0][2]],
+            [c2w[1][0], -c2w[1][1], -c2w[1][2]],
+            [c2w[2][0], -c2w[2][1], -c2w[2][2]],
+        ];
+        let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
+        Self::from_centre(r_c2w, centre, focal, focal, width, height)
+    }
+
+    /// A camera from a COLMAP image pose: `qvec` `(w, x, y, z)` and `tvec` are the
+    /// world-to-camera rotation and translation (OpenCV axes), intrinsics in pixels.
+    pub fn from_colmap(
+        qvec: [f64; 4],
+        tvec: [f64; 3],
+        intrinsics: [f64; 4],
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let (q, n) = normalize4(qvec);
+        if !(n > 0.0 && n.is_finite()) {
+            return Err(GsError::InvalidCamera(format!(
+                "the COLMAP quaternion {qvec:?} has no direction"
+            )));
+        }
+        Self::new(mat::quat_to_rotation(q), tvec, intrinsics, width, height)
+    }
+
+    /// A camera at `eye` looking at `target`, with `up` the world direction that appears
+    /// upwards in the image, horizontal field of view `fov_x` (radians), principal point at the
+    /// centre.
+    pub fn look_at(
+        eye: V3<f64>,
+        target: V3<f64>,
+        up: V3<f64>,
+        fov_x: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let (forward, nf) =
+            mat::normalize3([target[0] - eye[0], target[1] - eye[1], target[2] - eye[2]]);
+        let (right, nr) = mat::normalize3(cross(forward, up));
+        if nf == 0.0 || nr == 0.0 {
+            return Err(GsError::InvalidCamera(format!(
+                "look_at from {eye:?} to {target:?} with up {up:?} has no orientation"
+            )));
+        }
+        let down = cross(forward, right);
+        // Camera-to-world rotation: columns are the camera's x (right), y (down), z (forward).
+        let r_c2w = [
+            [right[0], down[0], forward[0]],
+            [right[1], down[1], forward[1]],
+            [right[2], down[2], forward[2]],
+        ];
+        let focal = fov_to_focal(fov_x, width);
+        Self::from_centre(r_c2w, eye, focal, focal, width, height)
+    }
+
+    fn from_centre(
+        r_c2w: M3<f64>,
+        centre: V3<f64>,
+        fx: f64,
+        fy: f64,
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let rotation = mat::transpose(&r_c2w);
+        let rc = mat::mul_vec(&rotation, &centre);
+        let intrinsics = [fx, fy, 0.5 * width as f64, 0.5 * height as f64];
+        Self::new(
+            rotation,
+            [-rc[0], -rc[1], -rc[2]],
+            intrinsics,
+            width,
+            height,
+        )
+    }
+
+    /// The camera centre in world coordinates.
+    pub fn centre(&self) -> V3<f64> {
+        let c = mat::mul_t_vec(&self.rotation, &self.translation);
+        [-c[0], -c[1], -c[2]]
+    }
+
+    /// A world point in camera coordinates.
+    pub fn to_camera(&self, p: V3<f64>) -> V3<f64> {
+        let r = mat::mul_vec(&self.rotation, &p);
+        [
+            r[0] + self.translation[0],
+            r[1] + self.translation[1],
+            r[2] + self.translation[2],
+        ]
+    }
+
+    /// The pixel coordinates `(u, v)` (continuous, pixel centres at `+0.5`) and depth of a world
+    /// point, or `None` when it is not in front of the camera.
+    pub fn project(&self, p: V3<f64>) -> Option<([f64; 2], f64)> {
+        let c = self.to_camera(p);
+        (c[2] > 0.0).then(|| {
+            (
+                [
+                    self.fx * c[0] / c[2] + self.cx,
+                    self.fy * c[1] / c[2] + self.cy,
+                ],
+                c[2],
+            )
+        })
+    }
+
+    /// Number of pixels.
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// The same camera for an image downscaled by `factor` (intrinsics and size divided, size
+    /// rounded as 3DGS's `-r` option does).
+    pub fn downscaled(&self, factor: f64) -> Result<Self, GsError> {
+        let width = (self.width as f64 / factor).round() as u32;
+        let height = (self.height as f64 / factor).round() as u32;
+        let sx = width as f64 / self.width as f64;
+        let sy = height as f64 / self.height as f64;
+        Self::new(
+            self.rotation,
+            self.translation,
+            [self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy],
+            width,
+            height,
+        )
+    }
+}
+
+fn cross(a: V3<f64>, b: V3<f64>) -> V3<f64> {
+    [
+        a[1] * b[2] - a[2] * b[1],
+        a[2] * b[0] - a[0] * b[2],
+        a[0] * b[1] - a[1] * b[0],
+    ]
+}
+
+fn normalize4(q: [f64; 4]) -> ([f64; 4], f64) {
+    let n = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    if n > 0.0 {
+        ([q[0] / n, q[1] / n, q[2] / n, q[3] / n], n)
+    } else {
+        (q, 0.0)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn close(a: [f64; 2], b: [f64; 2]) -> bool {
+        (a[0] - b[0]).abs() < 1e-9 && (a[1] - b[1]).abs() < 1e-9
+    }
+
+    #[test]
+    fn nerf_camera_projects_known_points() {
+        // Blender camera at z = 4 looking down -z (identity rotation in OpenGL axes).
+        let c2w = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 4.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let fov = 2.0 * (0.5f64).atan(); // focal = width
+        let cam = Camera::from_nerf(c2w, fov, 100, 80).unwrap();
+        assert!((cam.fx - 100.0).abs() < 1e-9 && (cam.fy - 100.0).abs() < 1e-9);
+        let (uv, depth) = cam.project([0.0, 0.0, 0.0]).unwrap();
+        assert!(close(uv, [50.0, 40.0]) && (depth - 4.0).abs() < 1e-12);
+        // World +x is image right, world +y (OpenGL up) is image up, i.e. smaller v.
+        let (uv, _) = cam.project([1.0, 0.5, 0.0]).unwrap();
+        assert!(close(uv, [75.0, 27.5]), "{uv:?}");
+        assert!(cam.project([0.0, 0.0, 5.0]).is_none());
+        let c = cam.centre();
+        assert!((c[2] - 4.0).abs() < 1e-12 && c[0].abs() < 1e-12);
+    }
+
+    #[test]
+    fn colmap_camera_projects_known_points() {
+        // A 90 degree turn about y: world +x becomes the camera's -z... choose q for R = Ry(90).
+        let half = std::f64::consts::FRAC_PI_4;
+        let q = [half.cos(), 0.0, half.sin(), 0.0];
+        let cam =
+            Camera::from_colmap(q, [0.0, 0.0, 2.0], [200.0, 150.0, 64.0, 48.0], 128, 96).unwrap();
+        // R = Ry(90deg) maps world (-1,0,0) to (0,0,1); plus t gives camera (0,0,3).
+        let (uv, depth) = cam.project([-1.0, 0.0, 0.0]).unwrap();
+        assert!(
+            close(uv, [64.0, 48.0]) && (depth - 3.0).abs() < 1e-12,
+            "{uv:?} {depth}"
+        );
+        // World (-1, 0.3, 0.6) -> Ry: (z, y, -x) = (0.6, 0.3, 1) + t -> (0.6, 0.3, 3).
+        let (uv, _) = cam.project([-1.0, 0.3, 0.6]).unwrap();
+        assert!(
+            close(uv, [64.0 + 200.0 * 0.2, 48.0 + 150.0 * 0.1]),
+            "{uv:?}"
+        );
+    }
+
+    #[test]
+    fn look_at_centres_the_target_and_keeps_up_up() {
+        let cam = Camera::look_at([3.0, 0.0, 0.0], [0.0; 3], [0.0, 0.0, 1.0], 1.0, 64, 64).unwrap();
+        let (uv, depth) = cam.project([0.0; 3]).unwrap();
+        assert!(close(uv, [32.0, 32.0]) && (depth - 3.0).abs() < 1e-12);
+        let (uv, _) = cam.project([0.0, 0.0, 0.5]).unwrap();
+        assert!(uv[1] < 32.0, "up must be towards smaller v, got {uv:?}");
+        assert!(Camera::look_at([0.0; 3], [0.0; 3], [0.0, 0.0, 1.0], 1.0, 8, 8).is_err());
+    }
+
+    #[test]
+    fn invalid_intrinsics_are_rejected_by_name() {
+        let id = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let e = Camera::new(id, [0.0; 3], [0.0, 1.0, 1.0, 1.0], 4, 4).unwrap_err();
+        assert!(e.to_string().contains("fx"), "{e}");
+        let e = Camera::new(id, [0.0; 3], [1.0, 1.0, 1.0, 1.0], 0, 4).unwrap_err();
+        assert!(e.to_string().contains("0x4"), "{e}");
+    }
+}

@@ -1,0 +1,119 @@
+//! RGB images in memory: `f32` in `[0, 1]`, height x width x 3 (HWC), and PNG input/output.
+//! Pixel values are the PNG's 8-bit values divided by 255, with no gamma conversion, as 3DGS
+//! and CLIPGaussian read images.
+
+use std::path::Path;
+
+use crate::real::Real;
+use crate::GsError;
+
+/// An RGB image, `data[(y * width + x) * 3 + c]`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image<T: Real = f32> {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Interleaved RGB values, `[H, W, 3]`.
+    pub data: Vec<T>,
+}
+
+impl<T: Real> Image<T> {
+    /// An image of one colour.
+    pub fn filled(width: u32, height: u32, rgb: [T; 3]) -> Self {
+        let n = width as usize * height as usize;
+        let mut data = Vec::with_capacity(n * 3);
+        for _ in 0..n {
+            data.extend_from_slice(&rgb);
+        }
+        Self {
+            width,
+            height,
+            data,
+        }
+    }
+
+    /// Number of pixels.
+    pub fn pixel_count(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+
+    /// The RGB value at `(x, y)`.
+    pub fn pixel(&self, x: u32, y: u32) -> [T; 3] {
+        let i = (y as usize * self.width as usize + x as usize) * 3;
+        [self.data[i], self.data[i + 1], self.data[i + 2]]
+    }
+}
+
+impl Image<f32> {
+    /// Reads a PNG or JPEG file; an alpha channel, if any, is composited over `background`.
+    pub fn load(path: &Path, background: [f32; 3]) -> Result<Self, GsError> {
+        let img = image::open(path).map_err(|e| GsError::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        let rgba = img.to_rgba32f();
+        let (width, height) = rgba.dimensions();
+        let mut data = Vec::with_capacity(width as usize * height as usize * 3);
+        for p in rgba.pixels() {
+            let a = p[3];
+            for c in 0..3 {
+                data.push(p[c] * a + background[c] * (1.0 - a));
+            }
+        }
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
+    /// The image as 8-bit RGB, values clamped to `[0, 1]` and rounded.
+    pub fn to_rgb8(&self) -> image::RgbImage {
+        let bytes = self
+            .data
+            .iter()
+            .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
+            .collect();
+        image::RgbImage::from_raw(self.width, self.height, bytes)
+            .expect("data has width * height * 3 values")
+    }
+
+    /// Writes an 8-bit PNG. The file is written under a temporary name beside `path` and renamed,
+    /// so a failure never leaves a partial file at `path`.
+    pub fn save_png(&self, path: &Path) -> Result<(), GsError> {
+        save_rgb8_png(&self.to_rgb8(), path)
+    }
+
+    /// Images placed left to right on one canvas (heights may differ; the rest is black).
+    pub fn side_by_side(images: &[&Image]) -> Image {
+        let width = images.iter().map(|i| i.width).sum();
+        let height = images.iter().map(|i| i.height).max().unwrap_or(0);
+        let mut out = Image::filled(width, height, [0.0; 3]);
+        let mut x0 = 0usize;
+        for img in images {
+            for y in 0..img.height as usize {
+                let src = &img.data[y * img.width as usize * 3..(y + 1) * img.width as usize * 3];
+                let dst = (y * width as usize + x0) * 3;
+                out.data[dst..dst + src.len()].copy_from_slice(src);
+            }
+            x0 += img.width as usize;
+        }
+        out
+    }
+}
+
+/// Writes an 8-bit RGB PNG through a temporary file and a rename.
+pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> {
+    let err = |message: String| GsError::Image {
+        path: path.to_path_buf(),
+        message,
+    };
+    let tmp = path.with_extension("png.tmp");
+    img.save_with_format(&tmp, image::ImageFormat::Png)
+        .map_err(|e| err(e.to_string()))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        err(e.to_string())
+    })
+}

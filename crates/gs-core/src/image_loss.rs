@@ -1,0 +1,255 @@
+//! Image losses with their gradients: L1 and SSIM as 3DGS computes them (11x11 Gaussian window,
+//! sigma 1.5, zero padding, per channel, averaged over every pixel and channel).
+
+use rayon::prelude::*;
+
+use crate::real::Real;
+
+/// Side of the SSIM window, pixels.
+pub const SSIM_WINDOW: usize = 11;
+/// Standard deviation of the SSIM window, pixels.
+pub const SSIM_SIGMA: f64 = 1.5;
+const SSIM_C1: f64 = 0.01 * 0.01;
+const SSIM_C2: f64 = 0.03 * 0.03;
+
+/// A loss value and its gradient with respect to the first image (same layout as the image).
+#[derive(Clone, Debug, PartialEq)]
+pub struct LossGrad<T: Real = f32> {
+    /// The loss.
+    pub loss: T,
+    /// dL/d(image).
+    pub grad: Vec<T>,
+}
+
+/// Mean absolute difference of two equally long images and its gradient with respect to `a`
+/// (`sign(a - b) / n`, 0 where they are equal).
+///
+/// # Panics
+/// If the lengths differ.
+pub fn l1<T: Real>(a: &[T], b: &[T]) -> LossGrad<T> {
+    assert_eq!(a.len(), b.len(), "images of different sizes");
+    let inv_n = T::ONE / T::from_f64(a.len().max(1) as f64);
+    let loss = a
+        .iter()
+        .zip(b)
+        .fold(T::ZERO, |s, (x, y)| s + (*x - *y).abs())
+        * inv_n;
+    let grad = a
+        .iter()
+        .zip(b)
+        .map(|(x, y)| {
+            if x > y {
+                inv_n
+            } else if x < y {
+                -inv_n
+            } else {
+                T::ZERO
+            }
+        })
+        .collect();
+    LossGrad { loss, grad }
+}
+
+fn window<T: Real>() -> [T; SSIM_WINDOW] {
+    let half = (SSIM_WINDOW / 2) as f64;
+    let raw: [f64; SSIM_WINDOW] = std::array::from_fn(|i| {
+        (-((i as f64 - half).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp()
+    });
+    let sum: f64 = raw.iter().sum();
+    raw.map(|v| T::from_f64(v / sum))
+}
+
+/// Separable Gaussian blur of a `w` x `h` plane with zero padding ("same" size). The window is
+/// symmetric, so this is also its own transpose.
+fn blur<T: Real>(plane: &[T], w: usize, h: usize, k: &[T; SSIM_WINDOW]) -> Vec<T> {
+    let r = SSIM_WINDOW / 2;
+    let mut tmp = vec![T::ZERO; w * h];
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let src = &plane[y * w..(y + 1) * w];
+        for (x, out) in row.iter_mut().enumerate() {
+            let lo = x.saturating_sub(r);
+            let hi = (x + r).min(w - 1);
+            let mut s = T::ZERO;
+            for xx in lo..=hi {
+                s += k[xx + r - x] * src[xx];
+            }
+            *out = s;
+        }
+    });
+    let mut out = vec![T::ZERO; w * h];
+    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let lo = y.saturating_sub(r);
+        let hi = (y + r).min(h - 1);
+        for yy in lo..=hi {
+            let wgt = k[yy + r - y];
+            for (o, v) in row.iter_mut().zip(&tmp[yy * w..(yy + 1) * w]) {
+                *o += wgt * *v;
+            }
+        }
+    });
+    out
+}
+
+/// Mean SSIM of two `width` x `height` RGB images (HWC) and its gradient with respect to `a`.
+///
+/// # Panics
+/// If either image does not hold `width * height * 3` values.
+pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<T> {
+    let n = width * height;
+    assert_eq!(a.len(), 3 * n, "first image has the wrong size");
+    assert_eq!(b.len(), 3 * n, "second image has the wrong size");
+    let k = window::<T>();
+    let (c1, c2) = (T::from_f64(SSIM_C1), T::from_f64(SSIM_C2));
+    let two = T::from_f64(2.0);
+    let inv_count = T::ONE / T::from_f64((3 * n).max(1) as f64);
+    let mut total = T::ZERO;
+    let mut grad = vec![T::ZERO; 3 * n];
+    for ch in 0..3 {
+        let x: Vec<T> = (0..n).map(|i| a[3 * i + ch]).collect();
+        let y: Vec<T> = (0..n).map(|i| b[3 * i + ch]).collect();
+        let prod = |p: &[T], q: &[T]| p.iter().zip(q).map(|(u, v)| *u * *v).collect::<Vec<T>>();
+        let mu_x = blur(&x, width, height, &k);
+        let mu_y = blur(&y, width, height, &k);
+        let m_xx = blur(&prod(&x, &x), width, height, &k);
+        let m_yy = blur(&prod(&y, &y), width, height, &k);
+        let m_xy = blur(&prod(&x, &y), width, height, &k);
+        // Per-pixel SSIM and its partials with respect to mu_x, m_xx and m_xy, scaled by the
+        // weight of the mean.
+        let mut d_mu = vec![T::ZERO; n];
+        let mut d_xx = vec![T::ZERO; n];
+        let mut d_xy = vec![T::ZERO; n];
+        for i in 0..n {
+            let (mx, my) = (mu_x[i], mu_y[i]);
+            let a1 = two * mx * my + c1;
+            let a2 = two * (m_xy[i] - mx * my) + c2;
+            let b1 = mx * mx + my * my + c1;
+            let b2 = (m_xx[i] - mx * mx) + (m_yy[i] - my * my) + c2;
+            let den = b1 * b2;
+            let s = a1 * a2 / den;
+            total += s;
+            d_mu[i] = inv_count
+                * ((two * my * a2 - two * my * a1) / den
+                    - s * (two * mx * b2 - two * mx * b1) / den);
+            d_xx[i] = -inv_count * s / b2;
+            d_xy[i] = inv_count * two * a1 / den;
+        }
+        let g_mu = blur(&d_mu, width, height, &k);
+        let g_xx = blur(&d_xx, width, height, &k);
+        let g_xy = blur(&d_xy, width, height, &k);
+        for i in 0..n {
+            grad[3 * i + ch] = g_mu[i] + two * x[i] * g_xx[i] + y[i] * g_xy[i];
+        }
+    }
+    LossGrad {
+        loss: total * inv_count,
+        grad,
+    }
+}
+
+/// The 3DGS photometric loss `(1 - lambda) L1 + lambda (1 - SSIM)` and its gradient with
+/// respect to `a` (`lambda` = 0.2 in 3DGS and MiraGe).
+pub fn l1_dssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize, lambda: T) -> LossGrad<T> {
+    let l = l1(a, b);
+    let s = ssim(a, b, width, height);
+    let w1 = T::ONE - lambda;
+    LossGrad {
+        loss: w1 * l.loss + lambda * (T::ONE - s.loss),
+        grad: l
+            .grad
+            .iter()
+            .zip(&s.grad)
+            .map(|(g1, gs)| w1 * *g1 - lambda * *gs)
+            .collect(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    fn noise(seed: u64, n: usize) -> Vec<f64> {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        (0..n).map(|_| rng.random_range(0.0..1.0)).collect()
+    }
+
+    #[test]
+    fn ssim_of_an_image_with_itself_is_one() {
+        let a = noise(1, 3 * 20 * 13);
+        let s = ssim(&a, &a, 20, 13);
+        assert!((s.loss - 1.0).abs() < 1e-12);
+        assert!(s.grad.iter().all(|g| g.abs() < 1e-12));
+    }
+
+    #[test]
+    fn ssim_gradient_matches_finite_differences() {
+        let (w, h) = (17, 12);
+        let a = noise(2, 3 * w * h);
+        let b = noise(3, 3 * w * h);
+        let s = ssim(&a, &b, w, h);
+        let eps = 1e-6;
+        for idx in [0, 5, 100, 3 * w * h / 2, 3 * w * h - 1] {
+            let mut p = a.clone();
+            p[idx] += eps;
+            let mut m = a.clone();
+            m[idx] -= eps;
+            let fd = (ssim(&p, &b, w, h).loss - ssim(&m, &b, w, h).loss) / (2.0 * eps);
+            assert!(
+                (fd - s.grad[idx]).abs() < 1e-7 * (1.0 + fd.abs() * 1e3),
+                "{idx}: {fd} vs {}",
+                s.grad[idx]
+            );
+        }
+    }
+
+    #[test]
+    fn blur_is_the_normalized_2d_gaussian_window() {
+        let k = window::<f64>();
+        assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-15);
+        assert!((k[5] / k[6] - (1.0f64 / (2.0 * 1.5 * 1.5)).exp()).abs() < 1e-12);
+        // At the centre of an 11x11 plane the blur is the full 2D weighted sum.
+        let (w, h) = (11, 11);
+        let x = noise(4, w * h);
+        let direct: f64 = (0..w * h).map(|i| k[i / w] * k[i % w] * x[i]).sum();
+        assert!((blur(&x, w, h, &k)[5 * w + 5] - direct).abs() < 1e-12);
+        // At a corner, zero padding drops the taps outside.
+        let corner: f64 = (0..w * h)
+            .filter(|i| i / w <= 5 && i % w <= 5)
+            .map(|i| k[i / w + 5] * k[i % w + 5] * x[i])
+            .sum();
+        assert!((blur(&x, w, h, &k)[0] - corner).abs() < 1e-12);
+    }
+
+    #[test]
+    fn ssim_of_constant_images_in_the_interior() {
+        // Far from the border, constant images give (2 ab + C1) / (a^2 + b^2 + C1).
+        let (w, h) = (40, 40);
+        let a = vec![0.5f64; 3 * w * h];
+        let b = vec![0.25f64; 3 * w * h];
+        let s = ssim(&a, &b, w, h);
+        let interior = (2.0 * 0.5 * 0.25 + SSIM_C1) / (0.25 + 0.0625 + SSIM_C1);
+        // The border ring lowers the mean; the interior (30x30 of 40x40) dominates it.
+        assert!(
+            s.loss < interior && s.loss > 0.56 * interior,
+            "{} vs {interior}",
+            s.loss
+        );
+    }
+
+    #[test]
+    fn l1_and_its_gradient() {
+        let l = l1(&[0.5f64, 0.2, 0.7], &[0.1, 0.2, 0.9]);
+        assert!((l.loss - 0.2).abs() < 1e-12);
+        assert_eq!(l.grad, vec![1.0 / 3.0, 0.0, -1.0 / 3.0]);
+    }
+
+    #[test]
+    fn combined_loss_weights_both_terms() {
+        let (w, h) = (8, 8);
+        let a = noise(6, 3 * w * h);
+        let b = noise(7, 3 * w * h);
+        let c = l1_dssim(&a, &b, w, h, 0.2);
+        let want = 0.8 * l1(&a, &b).loss + 0.2 * (1.0 - ssim(&a, &b, w, h).loss);
+        assert!((c.loss - want).abs() < 1e-12);
+    }
+}

@@ -1,0 +1,56 @@
+//! gs-core: the shared machinery of every CLIPGaussian base model.
+//!
+//! - [`GaussianSet`]: structure-of-arrays Gaussian parameters (count fixed after construction).
+//! - [`Camera`]: pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
+//! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
+//! - [`adam`]: Adam with parameter groups, learning-rate schedules and saved state.
+//! - [`image_loss`]: L1 and SSIM with their gradients.
+//! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
+//!
+//! Conventions follow gsplat; see `docs/conventions.md` in the repository.
+
+pub mod adam;
+pub mod camera;
+pub mod gaussians;
+pub mod image;
+pub mod image_loss;
+pub mod mat;
+pub mod model;
+pub mod raster;
+pub mod real;
+pub mod sh;
+pub mod train;
+
+pub use camera::Camera;
+pub use gaussians::{GaussianGrads, GaussianSet};
+pub use image::Image;
+pub use real::Real;
+
+use std::path::PathBuf;
+
+/// Errors of gs-core: each names what was wrong and where.
+#[derive(Debug, thiserror::Error)]
+pub enum GsError {
+    /// A camera with an impossible size, intrinsics or pose.
+    #[error("invalid camera: {0}")]
+    InvalidCamera(String),
+    /// An image file that could not be read or written.
+    #[error("image {path}: {message}")]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// Saved optimizer state that does not fit the parameters it is restored into.
+    #[error("optimizer state: {0}")]
+    OptimizerState(String),
+    /// An input/output error on a named file.
+    #[error("{path}: {source}")]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+}

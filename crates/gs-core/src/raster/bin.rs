@@ -1,0 +1,94 @@
+//! Tile binning: each visible splat is listed in every 16x16 tile its square radius touches,
+//! and each tile's list is in front-to-back depth order.
+
+use rayon::prelude::*;
+
+use super::project::Splat;
+use super::TILE_SIZE;
+use crate::real::Real;
+
+/// Per-tile lists of splat indices, depth-sorted, stored back to back.
+#[derive(Clone, Debug)]
+pub(crate) struct TileBins {
+    /// Tiles per row.
+    pub tiles_x: usize,
+    /// Tile rows.
+    pub tiles_y: usize,
+    /// `offsets[t]..offsets[t+1]` is tile `t`'s range in `ids` (`tiles_x * tiles_y + 1` entries).
+    pub offsets: Vec<usize>,
+    /// Gaussian indices, grouped by tile, each group front to back.
+    pub ids: Vec<u32>,
+}
+
+/// The tile rectangle `[x0, x1) x [y0, y1)` a splat touches.
+fn tile_rect<T: Real>(s: &Splat<T>, tiles_x: usize, tiles_y: usize) -> [usize; 4] {
+    let t = TILE_SIZE as f64;
+    let r = s.radius.to_f64();
+    let (mx, my) = (s.mean2d[0].to_f64(), s.mean2d[1].to_f64());
+    // `as usize` saturates: negative values give 0 and huge radii give usize::MAX.
+    let lo = |v: f64, n: usize| ((v / t).floor().max(0.0) as usize).min(n);
+    let hi = |v: f64, n: usize| ((v / t).ceil().max(0.0) as usize).min(n);
+    [
+        lo(mx - r, tiles_x),
+        hi(mx + r, tiles_x),
+        lo(my - r, tiles_y),
+        hi(my + r, tiles_y),
+    ]
+}
+
+/// Bins the visible splats (`splats[i]` is `None` when culled) of a `width` x `height` image.
+pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32) -> TileBins {
+    let tiles_x = (width as usize).div_ceil(TILE_SIZE);
+    let tiles_y = (height as usize).div_ceil(TILE_SIZE);
+    let n_tiles = tiles_x * tiles_y;
+
+    let mut order: Vec<(T, u32)> = splats
+        .par_iter()
+        .enumerate()
+        .filter_map(|(i, s)| s.as_ref().map(|s| (s.depth, i as u32)))
+        .collect();
+    // Depths are finite (culling guarantees it); ties go to the lower index.
+    order.par_sort_unstable_by(|a, b| {
+        a.0.partial_cmp(&b.0)
+            .unwrap_or(std::cmp::Ordering::Equal)
+            .then(a.1.cmp(&b.1))
+    });
+    let rects: Vec<[usize; 4]> = order
+        .par_iter()
+        .map(|&(_, i)| {
+            let s = splats[i as usize]
+                .as_ref()
+                .expect("only visible splats are ordered");
+            tile_rect(s, tiles_x, tiles_y)
+        })
+        .collect();
+
+    let mut counts = vec![0usize; n_tiles + 1];
+    for r in &rects {
+        for ty in r[2]..r[3] {
+            for c in &mut counts[ty * tiles_x + r[0]..ty * tiles_x + r[1]] {
+                *c += 1;
+            }
+        }
+    }
+    let mut offsets = vec![0usize; n_tiles + 1];
+    for t in 0..n_tiles {
+        offsets[t + 1] = offsets[t] + counts[t];
+    }
+    let mut cursor = offsets[..n_tiles].to_vec();
+    let mut ids = vec![0u32; offsets[n_tiles]];
+    for (&(_, i), r) in order.iter().zip(&rects) {
+        for ty in r[2]..r[3] {
+            for t in ty * tiles_x + r[0]..ty * tiles_x + r[1] {
+                ids[cursor[t]] = i;
+                cursor[t] += 1;
+            }
+        }
+    }
+    TileBins {
+        tiles_x,
+        tiles_y,
+        offsets,
+        ids,
+    }
+}

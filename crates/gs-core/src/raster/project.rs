@@ -1,0 +1,430 @@
+//! Per-Gaussian projection (EWA splatting, gsplat conventions) and its exact backward.
+
+use crate::camera::Camera;
+use crate::gaussians::GaussianSet;
+use crate::mat::{self, M3, V3};
+use crate::real::Real;
+use crate::sh;
+
+use super::{EPS2D, NEAR_PLANE};
+
+/// The camera, cast once to the working precision.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct CameraT<T: Real> {
+    pub rotation: M3<T>,
+    pub translation: V3<T>,
+    pub centre: V3<T>,
+    pub fx: T,
+    pub fy: T,
+    pub cx: T,
+    pub cy: T,
+    /// Clamp limits of `x/z` and `y/z` in the Jacobian: `[-neg_x, pos_x]`, `[-neg_y, pos_y]`.
+    pub lim: [T; 4],
+    pub width: T,
+    pub height: T,
+}
+
+impl<T: Real> CameraT<T> {
+    pub fn new(cam: &Camera) -> Self {
+        let c = T::from_f64;
+        let tan_x = 0.5 * cam.width as f64 / cam.fx;
+        let tan_y = 0.5 * cam.height as f64 / cam.fy;
+        let lim = [
+            (cam.width as f64 - cam.cx) / cam.fx + 0.3 * tan_x,
+            cam.cx / cam.fx + 0.3 * tan_x,
+            (cam.height as f64 - cam.cy) / cam.fy + 0.3 * tan_y,
+            cam.cy / cam.fy + 0.3 * tan_y,
+        ];
+        let centre = cam.centre();
+        Self {
+            rotation: cam.rotation.map(|r| r.map(c)),
+            translation: cam.translation.map(c),
+            centre: centre.map(c),
+            fx: c(cam.fx),
+            fy: c(cam.fy),
+            cx: c(cam.cx),
+            cy: c(cam.cy),
+            lim: lim.map(c),
+            width: c(cam.width as f64),
+            height: c(cam.height as f64),
+        }
+    }
+}
+
+/// A projected Gaussian: what compositing needs.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Splat<T: Real> {
+    /// Centre in pixels.
+    pub mean2d: [T; 2],
+    /// Inverse of the 2D covariance (with `EPS2D`), upper triangle `[a, b, c]`.
+    pub conic: [T; 3],
+    /// Camera-space depth `z`.
+    pub depth: T,
+    /// Opacity after the sigmoid.
+    pub opacity: T,
+    /// RGB after SH evaluation, `+0.5` and clamping at 0.
+    pub color: [T; 3],
+    /// Square screen-space radius (3 sigma), pixels; 0 when culled.
+    pub radius: T,
+}
+
+/// Gradients of a loss with respect to one splat's compositing inputs.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct SplatGrad<T: Real> {
+    pub mean2d: [T; 2],
+    pub conic: [T; 3],
+    pub opacity: T,
+    pub color: [T; 3],
+    pub depth: T,
+}
+
+impl<T: Real> SplatGrad<T> {
+    pub fn add(&mut self, o: &Self) {
+        for k in 0..2 {
+            self.mean2d[k] += o.mean2d[k];
+        }
+        for k in 0..3 {
+            self.conic[k] += o.conic[k];
+            self.color[k] += o.color[k];
+        }
+        self.opacity += o.opacity;
+        self.depth += o.depth;
+    }
+}
+
+/// Intermediate values of one projection, kept for the backward pass.
+struct Forward<T: Real> {
+    p_cam: V3<T>,
+    qn: [T; 4],
+    q_norm: T,
+    rot: M3<T>,
+    scale: V3<T>,
+    cov_cam: M3<T>,
+    jac: [[T; 3]; 2],
+    clamped: [bool; 2],
+    u: [T; 2],
+    conic: [T; 3],
+    splat: Splat<T>,
+    dir: V3<T>,
+    dir_norm: T,
+    basis: [T; 16],
+    basis_grad: [[T; 3]; 16],
+    color_active: [bool; 3],
+}
+
+fn all_finite<T: Real>(v: &[T]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+fn forward<T: Real>(
+    g: &GaussianSet<T>,
+    i: usize,
+    cam: &CameraT<T>,
+    with_grad: bool,
+) -> Option<Forward<T>> {
+    if !g.is_valid(i) {
+        return None;
+    }
+    let c = T::from_f64;
+    let mean = [g.means[3 * i], g.means[3 * i + 1], g.means[3 * i + 2]];
+    let pr = mat::mul_vec(&cam.rotation, &mean);
+    let p_cam = [
+        pr[0] + cam.translation[0],
+        pr[1] + cam.translation[1],
+        pr[2] + cam.translation[2],
+    ];
+    let z = p_cam[2];
+    if !(z > c(NEAR_PLANE)) || !all_finite(&p_cam) {
+        return None;
+    }
+
+    let q = [
+        g.quats[4 * i],
+        g.quats[4 * i + 1],
+        g.quats[4 * i + 2],
+        g.quats[4 * i + 3],
+    ];
+    let q_norm = (q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3]).sqrt();
+    if !(q_norm > T::ZERO) || !q_norm.is_finite() {
+        return None;
+    }
+    let qn = q.map(|v| v / q_norm);
+    let rot = mat::quat_to_rotation(qn);
+    let scale = [
+        g.log_scales[3 * i].exp(),
+        g.log_scales[3 * i + 1].exp(),
+        g.log_scales[3 * i + 2].exp(),
+    ];
+    let m = rot.map(|row| [row[0] * scale[0], row[1] * scale[1], row[2] * scale[2]]);
+    let cov = mat::mul(&m, &mat::transpose(&m));
+    let cov_cam = mat::mul(
+        &mat::mul(&cam.rotation, &cov),
+        &mat::transpose(&cam.rotation),
+    );
+
+    let ux_raw = p_cam[0] / z;
+    let uy_raw = p_cam[1] / z;
+    let ux = ux_raw.clamp(-cam.lim[1], cam.lim[0]);
+    let uy = uy_raw.clamp(-cam.lim[3], cam.lim[2]);
+    let clamped = [ux != ux_raw, uy != uy_raw];
+    let jac = [
+        [cam.fx / z, T::ZERO, -cam.fx * ux / z],
+        [T::ZERO, cam.fy / z, -cam.fy * uy / z],
+    ];
+    // cov2d = J cov_cam J^T + eps2d I
+    let mut jc = [[T::ZERO; 3]; 2];
+    for r in 0..2 {
+        for k in 0..3 {
+            jc[r][k] =
+                jac[r][0] * cov_cam[0][k] + jac[r][1] * cov_cam[1][k] + jac[r][2] * cov_cam[2][k];
+        }
+    }
+    let dotj = |a: &[T; 3], b: &[T; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
+    let a = dotj(&jc[0], &jac[0]) + c(EPS2D);
+    let b = dotj(&jc[0], &jac[1]);
+    let cc = dotj(&jc[1], &jac[1]) + c(EPS2D);
+    let det = a * cc - b * b;
+    if !(det > T::ZERO) || !det.is_finite() {
+        return None;
+    }
+    let conic = [cc / det, -b / det, a / det];
+    let mid = c(0.5) * (a + cc);
+    let lambda = mid + (mid * mid - det).max(c(0.01)).sqrt();
+    let radius = (c(3.0) * lambda.sqrt()).ceil();
+    let mean2d = [
+        cam.fx * p_cam[0] / z + cam.cx,
+        cam.fy * p_cam[1] / z + cam.cy,
+    ];
+    if !all_finite(&conic) || !all_finite(&mean2d) || !radius.is_finite() {
+        return None;
+    }
+    let off_screen = mean2d[0] + radius <= T::ZERO
+        || mean2d[0] - radius >= cam.width
+        || mean2d[1] + radius <= T::ZERO
+        || mean2d[1] - radius >= cam.height;
+    if off_screen {
+        return None;
+    }
+
+    let opacity = g.opacity_logits[i].sigmoid();
+    let (dir, dir_norm) = mat::normalize3([
+        mean[0] - cam.centre[0],
+        mean[1] - cam.centre[1],
+        mean[2] - cam.centre[2],
+    ]);
+    let degree = g.sh_degree();
+    let (basis, basis_grad) = sh::basis(degree, dir, with_grad && degree > 0);
+    let k_rest = g.sh_coeffs() - 1;
+    let rest = &g.sh_rest[3 * k_rest * i..3 * k_rest * (i + 1)];
+    let mut color = [T::ZERO; 3];
+    let mut color_active = [false; 3];
+    for ch in 0..3 {
+        let mut v = basis[0] * g.sh_dc[3 * i + ch] + c(0.5);
+        for k in 0..k_rest {
+            v += basis[k + 1] * rest[3 * k + ch];
+        }
+        color_active[ch] = v > T::ZERO;
+        color[ch] = v.max(T::ZERO);
+    }
+
+    Some(Forward {
+        p_cam,
+        qn,
+        q_norm,
+        rot,
+        scale,
+        cov_cam,
+        jac,
+        clamped,
+        u: [ux, uy],
+        conic,
+        splat: Splat {
+            mean2d,
+            conic,
+            depth: z,
+            opacity,
+            color,
+            radius,
+        },
+        dir,
+        dir_norm,
+        basis,
+        basis_grad,
+        color_active,
+    })
+}
+
+/// Projects Gaussian `i`; `None` when it is culled (invalid parameters, depth at or below the
+/// near plane, degenerate covariance, or entirely off screen).
+pub(crate) fn project<T: Real>(g: &GaussianSet<T>, i: usize, cam: &CameraT<T>) -> Option<Splat<T>> {
+    forward(g, i, cam, false).map(|f| f.splat)
+}
+
+/// Which parameter arrays need a gradient.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Needs {
+    pub geometry: bool,
+    pub opacity: bool,
+    pub sh_dc: bool,
+    pub sh_rest: bool,
+}
+
+/// Gradients of Gaussian `i`'s parameters, except `sh_rest`: means (3), log-scales (3),
+/// quaternion (4), opacity logit (1), SH dc (3).
+pub(crate) type ParamGrad<T> = [T; 14];
+
+/// The backward of [`project`] for Gaussian `i` given the gradient `sg` of its splat. Writes the
+/// `sh_rest` gradient into `rest_grad` when asked for (`[K-1, 3]` of this Gaussian).
+pub(crate) fn project_backward<T: Real>(
+    g: &GaussianSet<T>,
+    i: usize,
+    cam: &CameraT<T>,
+    sg: &SplatGrad<T>,
+    needs: Needs,
+    rest_grad: Option<&mut [T]>,
+) -> ParamGrad<T> {
+    let mut out = [T::ZERO; 14];
+    let Some(f) = forward(g, i, cam, needs.geometry) else {
+        return out;
+    };
+    let c = T::from_f64;
+    let o = f.splat.opacity;
+    out[10] = sg.opacity * o * (T::ONE - o);
+
+    // Colour: d colour / d raw is 1 where the clamp at 0 is inactive.
+    let g_raw: [T; 3] = std::array::from_fn(|ch| {
+        if f.color_active[ch] {
+            sg.color[ch]
+        } else {
+            T::ZERO
+        }
+    });
+    for ch in 0..3 {
+        out[11 + ch] = f.basis[0] * g_raw[ch];
+    }
+    let k_rest = g.sh_coeffs() - 1;
+    if let Some(rg) = rest_grad {
+        for k in 0..k_rest {
+            for ch in 0..3 {
+                rg[3 * k + ch] = f.basis[k + 1] * g_raw[ch];
+            }
+        }
+    }
+    if !needs.geometry {
+        return out;
+    }
+
+    let mut g_mean = [T::ZERO; 3];
+    if k_rest > 0 {
+        let rest = &g.sh_rest[3 * k_rest * i..3 * k_rest * (i + 1)];
+        let mut g_dir = [T::ZERO; 3];
+        for k in 0..k_rest {
+            let w =
+                rest[3 * k] * g_raw[0] + rest[3 * k + 1] * g_raw[1] + rest[3 * k + 2] * g_raw[2];
+            for ax in 0..3 {
+                g_dir[ax] += w * f.basis_grad[k + 1][ax];
+            }
+        }
+        g_mean = mat::normalize3_backward(f.dir, f.dir_norm, g_dir);
+    }
+
+    // Conic -> 2D covariance: d(S^-1) = -S^-1 dS S^-1, with G the symmetric gradient of the conic.
+    let [ca, cb, cc] = f.conic;
+    let gm = [
+        [sg.conic[0], c(0.5) * sg.conic[1]],
+        [c(0.5) * sg.conic[1], sg.conic[2]],
+    ];
+    let inv = [[ca, cb], [cb, cc]];
+    let mut g_cov2d = [[T::ZERO; 2]; 2];
+    for r in 0..2 {
+        for s in 0..2 {
+            let mut v = T::ZERO;
+            for k in 0..2 {
+                for l in 0..2 {
+                    v += inv[r][k] * gm[k][l] * inv[l][s];
+                }
+            }
+            g_cov2d[r][s] = -v;
+        }
+    }
+
+    // cov2d = J Sc J^T: dSc = J^T G J, dJ = 2 G J Sc (G symmetric).
+    let jac = f.jac;
+    let mut g_cov_cam = [[T::ZERO; 3]; 3];
+    for (a, row) in g_cov_cam.iter_mut().enumerate() {
+        for (b, v) in row.iter_mut().enumerate() {
+            let mut s = T::ZERO;
+            for r in 0..2 {
+                for t in 0..2 {
+                    s += jac[r][a] * g_cov2d[r][t] * jac[t][b];
+                }
+            }
+            *v = s;
+        }
+    }
+    let mut g_jac = [[T::ZERO; 3]; 2];
+    for r in 0..2 {
+        for k in 0..3 {
+            let mut s = T::ZERO;
+            for t in 0..2 {
+                for l in 0..3 {
+                    s += g_cov2d[r][t] * jac[t][l] * f.cov_cam[l][k];
+                }
+            }
+            g_jac[r][k] = c(2.0) * s;
+        }
+    }
+
+    // Jacobian and mean2d -> camera-space position.
+    let [tx, ty, tz] = f.p_cam;
+    let (fx, fy) = (cam.fx, cam.fy);
+    let tz2 = tz * tz;
+    let mut g_p = [T::ZERO; 3];
+    g_p[2] += g_jac[0][0] * (-fx / tz2)
+        + g_jac[1][1] * (-fy / tz2)
+        + g_jac[0][2] * (fx * f.u[0] / tz2)
+        + g_jac[1][2] * (fy * f.u[1] / tz2);
+    let g_u = [g_jac[0][2] * (-fx / tz), g_jac[1][2] * (-fy / tz)];
+    for (ax, t) in [(0usize, tx), (1, ty)] {
+        if !f.clamped[ax] {
+            g_p[ax] += g_u[ax] / tz;
+            g_p[2] -= g_u[ax] * t / tz2;
+        }
+    }
+    g_p[0] += sg.mean2d[0] * fx / tz;
+    g_p[1] += sg.mean2d[1] * fy / tz;
+    g_p[2] -= (sg.mean2d[0] * fx * tx + sg.mean2d[1] * fy * ty) / tz2;
+    g_p[2] += sg.depth;
+    let g_world = mat::mul_t_vec(&cam.rotation, &g_p);
+    for ax in 0..3 {
+        out[ax] = g_mean[ax] + g_world[ax];
+    }
+
+    // cov_cam = W cov W^T: dcov = W^T dSc W; cov = M M^T: dM = 2 dcov M; M = R diag(s).
+    let w = &cam.rotation;
+    let g_cov = mat::mul(&mat::mul(&mat::transpose(w), &g_cov_cam), w);
+    let m = f.rot.map(|row| {
+        [
+            row[0] * f.scale[0],
+            row[1] * f.scale[1],
+            row[2] * f.scale[2],
+        ]
+    });
+    let g_m = mat::mul(&mat::add(&g_cov, &mat::transpose(&g_cov)), &m);
+    let mut g_rot = [[T::ZERO; 3]; 3];
+    for r in 0..3 {
+        for k in 0..3 {
+            g_rot[r][k] = g_m[r][k] * f.scale[k];
+        }
+    }
+    for k in 0..3 {
+        let g_s = g_m[0][k] * f.rot[0][k] + g_m[1][k] * f.rot[1][k] + g_m[2][k] * f.rot[2][k];
+        out[3 + k] = g_s * f.scale[k];
+    }
+    let g_qn = mat::quat_to_rotation_backward(f.qn, &g_rot);
+    let qdot = f.qn[0] * g_qn[0] + f.qn[1] * g_qn[1] + f.qn[2] * g_qn[2] + f.qn[3] * g_qn[3];
+    for k in 0..4 {
+        out[6 + k] = (g_qn[k] - f.qn[k] * qdot) / f.q_norm;
+    }
+    out
+}

@@ -1,0 +1,242 @@
+//! The generic training loop: pick a view, build its Gaussians, render, ask the objective for
+//! the loss and dL/dimage, back-propagate through the rasterizer and the base model, step Adam.
+
+use std::ops::ControlFlow;
+use std::time::{Duration, Instant};
+
+use rand::seq::SliceRandom;
+use rand::SeedableRng;
+use rand_chacha::ChaCha8Rng;
+
+use crate::adam::Adam;
+use crate::image::Image;
+use crate::model::{BaseModel, View};
+use crate::raster::{self, OutputGrads};
+
+/// Shuffle-without-replacement over view indices: every view once per epoch, in a fresh
+/// random order each epoch. Deterministic for a seed.
+#[derive(Clone, Debug)]
+pub struct ViewSampler {
+    rng: ChaCha8Rng,
+    count: usize,
+    pending: Vec<usize>,
+}
+
+impl ViewSampler {
+    /// A sampler over `count` views (at least one).
+    ///
+    /// # Panics
+    /// If `count` is 0.
+    pub fn new(count: usize, seed: u64) -> Self {
+        assert!(count > 0, "a view sampler needs at least one view");
+        Self {
+            rng: ChaCha8Rng::seed_from_u64(seed),
+            count,
+            pending: Vec::new(),
+        }
+    }
+
+    /// The next view index; refills and reshuffles when the epoch is used up.
+    pub fn next_view(&mut self) -> usize {
+        if self.pending.is_empty() {
+            self.pending = (0..self.count).collect();
+            self.pending.shuffle(&mut self.rng);
+        }
+        self.pending.pop().expect("refilled above")
+    }
+}
+
+/// What an objective returns for one rendered view.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ObjectiveValue {
+    /// The total loss.
+    pub loss: f32,
+    /// Named terms of the loss (already weighted), for logs.
+    pub terms: Vec<(String, f32)>,
+    /// dL/d(image), `[H, W, 3]`.
+    pub grad: Vec<f32>,
+}
+
+/// A loss on rendered images: given the view index and the render, the loss and its gradient.
+pub trait Objective {
+    /// Error type of the objective.
+    type Error: std::error::Error + Send + Sync + 'static;
+    /// Evaluates the loss of `image`, the render of view `view`.
+    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error>;
+}
+
+/// Settings of a training run.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TrainConfig {
+    /// Total number of steps; the run stops when the optimizer has taken this many.
+    pub steps: u64,
+    /// Seed of the view order.
+    pub seed: u64,
+    /// Background colour renders are composited over.
+    pub background: [f32; 3],
+}
+
+/// Progress of one step, passed to the callback.
+#[derive(Clone, Debug)]
+pub struct StepReport {
+    /// Steps completed, 1-based.
+    pub step: u64,
+    /// Total steps of the run.
+    pub steps: u64,
+    /// Index of the view used.
+    pub view: usize,
+    /// The objective's value.
+    pub value: ObjectiveValue,
+    /// Time spent rendering (forward).
+    pub render_time: Duration,
+    /// Time spent in the objective.
+    pub objective_time: Duration,
+    /// Time spent in the backward passes and the optimizer step.
+    pub backward_time: Duration,
+}
+
+/// Why a run stopped early.
+#[derive(Debug, thiserror::Error)]
+pub enum TrainError<E: std::error::Error + 'static> {
+    /// The objective failed.
+    #[error("objective failed at step {step}: {source}")]
+    Objective {
+        /// Step (1-based) at which it failed.
+        step: u64,
+        /// The objective's error.
+        source: E,
+    },
+    /// A loss or gradient was NaN or infinite; the parameters were left as they were before it.
+    #[error("non-finite {what} at step {step} (view {view}); parameters are unchanged from the step before")]
+    NonFinite {
+        /// Step (1-based).
+        step: u64,
+        /// The view.
+        view: usize,
+        /// What was not finite.
+        what: &'static str,
+    },
+}
+
+/// Trains `model` on `views` with `objective` and `adam` until `adam` has taken `config.steps`
+/// steps, calling `on_step` after each (return `ControlFlow::Break` to stop early, e.g. on
+/// Ctrl-C). A run resumed from a checkpoint passes the restored optimizer and a sampler advanced
+/// by the steps already taken ([`resumed_sampler`]).
+pub fn train<M, O, F>(
+    model: &mut M,
+    views: &[View],
+    objective: &mut O,
+    adam: &mut Adam,
+    sampler: &mut ViewSampler,
+    config: &TrainConfig,
+    mut on_step: F,
+) -> Result<(), TrainError<O::Error>>
+where
+    M: BaseModel,
+    O: Objective,
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
+    let mask = model.grad_mask(&trained);
+    let lens = model.group_lens();
+    while adam.step_count() < config.steps {
+        let step = adam.step_count() + 1;
+        let view_index = sampler.next_view();
+        let view = &views[view_index];
+
+        let t0 = Instant::now();
+        let gaussians = model.gaussians(view);
+        let rendered = raster::render(gaussians.as_ref(), &view.camera, config.background);
+        let t1 = Instant::now();
+        let value = objective
+            .evaluate(view_index, &rendered.image)
+            .map_err(|source| TrainError::Objective { step, source })?;
+        let t2 = Instant::now();
+        let non_finite = |what| TrainError::NonFinite {
+            step,
+            view: view_index,
+            what,
+        };
+        if !value.loss.is_finite() {
+            return Err(non_finite("loss"));
+        }
+        if !value.grad.iter().all(|g| g.is_finite()) {
+            return Err(non_finite("dL/dimage"));
+        }
+        let grads = raster::backward(
+            gaussians.as_ref(),
+            &view.camera,
+            &rendered,
+            &OutputGrads {
+                rgb: &value.grad,
+                alpha: None,
+                depth: None,
+            },
+            mask,
+        );
+        let mut group_grads: Vec<Vec<f32>> = lens
+            .iter()
+            .zip(&trained)
+            .map(|(&n, &t)| if t { vec![0.0; n] } else { Vec::new() })
+            .collect();
+        model.backward(view, &grads.gaussians, &trained, &mut group_grads);
+        drop(gaussians);
+        if !group_grads.iter().flatten().all(|g| g.is_finite()) {
+            return Err(non_finite("parameter gradient"));
+        }
+        let grad_refs: Vec<&[f32]> = group_grads.iter().map(|g| g.as_slice()).collect();
+        adam.step(&mut model.groups_mut(), &grad_refs);
+        let t3 = Instant::now();
+
+        let report = StepReport {
+            step,
+            steps: config.steps,
+            view: view_index,
+            value,
+            render_time: t1 - t0,
+            objective_time: t2 - t1,
+            backward_time: t3 - t2,
+        };
+        if on_step(&report).is_break() {
+            break;
+        }
+    }
+    Ok(())
+}
+
+/// A sampler in the state it has after `steps_done` draws, so a resumed run sees the same view
+/// order as an uninterrupted one.
+pub fn resumed_sampler(count: usize, seed: u64, steps_done: u64) -> ViewSampler {
+    let mut s = ViewSampler::new(count, seed);
+    for _ in 0..steps_done {
+        s.next_view();
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn sampler_visits_every_view_once_per_epoch() {
+        let mut s = ViewSampler::new(5, 3);
+        for _ in 0..4 {
+            let mut seen: Vec<usize> = (0..5).map(|_| s.next_view()).collect();
+            seen.sort_unstable();
+            assert_eq!(seen, vec![0, 1, 2, 3, 4]);
+        }
+    }
+
+    #[test]
+    fn resumed_sampler_continues_the_same_sequence() {
+        let mut full = ViewSampler::new(7, 11);
+        let all: Vec<usize> = (0..30).map(|_| full.next_view()).collect();
+        let mut resumed = resumed_sampler(7, 11, 12);
+        let rest: Vec<usize> = (0..18).map(|_| resumed.next_view()).collect();
+        assert_eq!(rest, all[12..]);
+        let mut other = ViewSampler::new(7, 12);
+        let other_seq: Vec<usize> = (0..30).map(|_| other.next_view()).collect();
+        assert_ne!(other_seq, all);
+    }
+}
