@@ -3,7 +3,10 @@
 
 use rayon::prelude::*;
 
+use crate::image::Image;
 use crate::real::Real;
+use crate::train::{Objective, ObjectiveValue};
+use crate::GsError;
 
 /// Side of the SSIM window, pixels.
 pub const SSIM_WINDOW: usize = 11;
@@ -146,20 +149,48 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
     }
 }
 
-/// The 3DGS photometric loss `(1 - lambda) L1 + lambda (1 - SSIM)` and its gradient with
-/// respect to `a` (`lambda` = 0.2 in 3DGS and MiraGe).
-pub fn l1_dssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize, lambda: T) -> LossGrad<T> {
-    let l = l1(a, b);
-    let s = ssim(a, b, width, height);
-    let w1 = T::ONE - lambda;
-    LossGrad {
-        loss: w1 * l.loss + lambda * (T::ONE - s.loss),
-        grad: l
-            .grad
-            .iter()
-            .zip(&s.grad)
-            .map(|(g1, gs)| w1 * *g1 - lambda * *gs)
-            .collect(),
+/// The fitting objective of 3DGS and MiraGe: `(1 - lambda) L1 + lambda (1 - SSIM)` against a
+/// target image per view.
+#[derive(Clone, Debug)]
+pub struct PhotometricObjective {
+    /// One target per view, in view order.
+    pub targets: Vec<Image>,
+    /// Weight of the D-SSIM term (0.2 in 3DGS and MiraGe).
+    pub lambda: f32,
+}
+
+impl Objective for PhotometricObjective {
+    type Error = GsError;
+
+    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, GsError> {
+        let target = &self.targets[view];
+        if (target.width, target.height) != (image.width, image.height) {
+            return Err(GsError::SizeMismatch {
+                view,
+                render_w: image.width,
+                render_h: image.height,
+                target_w: target.width,
+                target_h: target.height,
+            });
+        }
+        let (w, h) = (image.width as usize, image.height as usize);
+        let l = l1(&image.data, &target.data);
+        let s = ssim(&image.data, &target.data, w, h);
+        let w1 = 1.0 - self.lambda;
+        let d_ssim = 1.0 - s.loss;
+        Ok(ObjectiveValue {
+            loss: w1 * l.loss + self.lambda * d_ssim,
+            terms: vec![
+                ("l1".to_string(), w1 * l.loss),
+                ("d_ssim".to_string(), self.lambda * d_ssim),
+            ],
+            grad: l
+                .grad
+                .iter()
+                .zip(&s.grad)
+                .map(|(g1, gs)| w1 * g1 - self.lambda * gs)
+                .collect(),
+        })
     }
 }
 
@@ -244,12 +275,31 @@ mod tests {
     }
 
     #[test]
-    fn combined_loss_weights_both_terms() {
-        let (w, h) = (8, 8);
-        let a = noise(6, 3 * w * h);
-        let b = noise(7, 3 * w * h);
-        let c = l1_dssim(&a, &b, w, h, 0.2);
-        let want = 0.8 * l1(&a, &b).loss + 0.2 * (1.0 - ssim(&a, &b, w, h).loss);
-        assert!((c.loss - want).abs() < 1e-12);
+    fn photometric_objective_weights_both_terms_and_checks_sizes() {
+        let (w, h) = (8u32, 8u32);
+        let img = |seed| Image {
+            width: w,
+            height: h,
+            data: noise(seed, 3 * 64).iter().map(|v| *v as f32).collect(),
+        };
+        let (a, b) = (img(6), img(7));
+        let mut obj = PhotometricObjective {
+            targets: vec![b.clone()],
+            lambda: 0.2,
+        };
+        let v = obj.evaluate(0, &a).unwrap();
+        let l = l1(&a.data, &b.data);
+        let s = ssim(&a.data, &b.data, 8, 8);
+        assert!((v.loss - (0.8 * l.loss + 0.2 * (1.0 - s.loss))).abs() < 1e-6);
+        let g: Vec<f32> = l
+            .grad
+            .iter()
+            .zip(&s.grad)
+            .map(|(x, y)| 0.8 * x - 0.2 * y)
+            .collect();
+        assert_eq!(v.grad, g);
+        let small = Image::filled(4, 8, [0.0; 3]);
+        let e = obj.evaluate(0, &small).unwrap_err().to_string();
+        assert!(e.contains("4x8") && e.contains("8x8"), "{e}");
     }
 }

@@ -42,6 +42,22 @@ pub enum GsError {
         /// What went wrong.
         message: String,
     },
+    /// A render and its target differ in size.
+    #[error(
+        "view {view}: render is {render_w}x{render_h} but its target is {target_w}x{target_h}"
+    )]
+    SizeMismatch {
+        /// The view index.
+        view: usize,
+        /// Render width, pixels.
+        render_w: u32,
+        /// Render height, pixels.
+        render_h: u32,
+        /// Target width, pixels.
+        target_w: u32,
+        /// Target height, pixels.
+        target_h: u32,
+    },
     /// Saved optimizer state that does not fit the parameters it is restored into.
     #[error("optimizer state: {0}")]
     OptimizerState(String),

@@ -1,0 +1,92 @@
+//! Fitting: a random Gaussian set trained with L1 + D-SSIM towards renders of another scene.
+
+mod common;
+
+use std::ops::ControlFlow;
+
+use common::random_scene;
+use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
+use gs_core::gaussians::PARAM_NAMES;
+use gs_core::image_loss::PhotometricObjective;
+use gs_core::model::{BaseModel, View};
+use gs_core::raster::render;
+use gs_core::train::{train, Objective, TrainConfig, ViewSampler};
+use gs_core::{Camera, GaussianSet};
+
+fn ring_views(count: usize, size: u32) -> Vec<View> {
+    (0..count)
+        .map(|i| {
+            let a = i as f64 / count as f64 * std::f64::consts::TAU;
+            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
+            View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap())
+        })
+        .collect()
+}
+
+fn mean_loss(
+    model: &GaussianSet,
+    views: &[View],
+    obj: &mut PhotometricObjective,
+    bg: [f32; 3],
+) -> f32 {
+    let total: f32 = views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            obj.evaluate(i, &render(model, &v.camera, bg).image)
+                .unwrap()
+                .loss
+        })
+        .sum();
+    total / views.len() as f32
+}
+
+#[test]
+fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
+    let bg = [0.0; 3];
+    let views = ring_views(8, 40);
+    let target: GaussianSet = random_scene(1, 40, 1);
+    let targets = views
+        .iter()
+        .map(|v| render(&target, &v.camera, bg).image)
+        .collect();
+    let mut objective = PhotometricObjective {
+        targets,
+        lambda: 0.2,
+    };
+    let mut model: GaussianSet = random_scene(2, 150, 1);
+    let before = mean_loss(&model, &views, &mut objective, bg);
+
+    let lrs = [0.004, 0.01, 0.01, 0.05, 0.05, 0.0025];
+    let groups = PARAM_NAMES
+        .iter()
+        .zip(lrs)
+        .map(|(n, lr)| GroupConfig::new(*n, LrSchedule::Constant(lr)))
+        .collect();
+    let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
+    let config = TrainConfig {
+        steps: 800,
+        seed: 5,
+        background: bg,
+    };
+    let mut sampler = ViewSampler::new(views.len(), config.seed);
+    let mut reports = 0;
+    train(
+        &mut model,
+        &views,
+        &mut objective,
+        &mut adam,
+        &mut sampler,
+        &config,
+        |r| {
+            reports += 1;
+            assert!(r.value.loss.is_finite());
+            ControlFlow::Continue(())
+        },
+    )
+    .unwrap();
+    assert_eq!(reports, 800);
+    assert_eq!(model.len(), 150, "the count never changes");
+    let after = mean_loss(&model, &views, &mut objective, bg);
+    assert!(after * 10.0 < before, "loss {before} -> {after}");
+}
