@@ -35,6 +35,8 @@ pub trait Real:
     fn sqrt(self) -> Self;
     /// Natural exponential.
     fn exp(self) -> Self;
+    /// Natural logarithm.
+    fn ln(self) -> Self;
     /// Absolute value.
     fn abs(self) -> Self;
     /// Smallest integer not below `self`.
@@ -91,6 +93,10 @@ macro_rules! impl_real {
             #[inline]
             fn exp(self) -> Self {
                 <$t>::exp(self)
+            }
+            #[inline]
+            fn ln(self) -> Self {
+                <$t>::ln(self)
             }
             #[inline]
             fn abs(self) -> Self {

@@ -36,6 +36,33 @@ fn tile_rect<T: Real>(s: &Splat<T>, tiles_x: usize, tiles_y: usize) -> [usize; 4
     ]
 }
 
+/// True when some pixel centre of tile `(tx, ty)` has `sigma <= sigma_cut`, i.e. the splat may
+/// reach alpha `ALPHA_MIN` there. Tiles of the square bounding box that fail this have no pixel
+/// the splat contributes to, so leaving them out changes no output.
+fn touches_tile<T: Real>(s: &Splat<T>, tx: usize, ty: usize) -> bool {
+    let t = TILE_SIZE as f64;
+    let (x0, x1) = (tx as f64 * t + 0.5, (tx + 1) as f64 * t - 0.5);
+    let (y0, y1) = (ty as f64 * t + 0.5, (ty + 1) as f64 * t - 0.5);
+    let (mx, my) = (s.mean2d[0].to_f64(), s.mean2d[1].to_f64());
+    if (x0..=x1).contains(&mx) && (y0..=y1).contains(&my) {
+        return true;
+    }
+    let [a, b, c] = s.conic.map(|v| v.to_f64());
+    let sigma = |dx: f64, dy: f64| 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
+    // The minimum over the rectangle lies on an edge: minimise the 1D quadratic on each edge
+    // (offsets are mean - pixel, so an edge at x = X has dx = mx - X and dy in [my-y1, my-y0]).
+    let mut best = f64::INFINITY;
+    for dx in [mx - x0, mx - x1] {
+        let dy = (-b * dx / c).clamp(my - y1, my - y0);
+        best = best.min(sigma(dx, dy));
+    }
+    for dy in [my - y0, my - y1] {
+        let dx = (-b * dy / a).clamp(mx - x1, mx - x0);
+        best = best.min(sigma(dx, dy));
+    }
+    best <= s.sigma_cut.to_f64()
+}
+
 /// Bins the visible splats (`splats[i]` is `None` when culled) of a `width` x `height` image.
 pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32) -> TileBins {
     let tiles_x = (width as usize).div_ceil(TILE_SIZE);
@@ -64,10 +91,15 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
         .collect();
 
     let mut counts = vec![0usize; n_tiles + 1];
-    for r in &rects {
+    for (&(_, i), r) in order.iter().zip(&rects) {
+        let s = splats[i as usize]
+            .as_ref()
+            .expect("ordered splats are visible");
         for ty in r[2]..r[3] {
-            for c in &mut counts[ty * tiles_x + r[0]..ty * tiles_x + r[1]] {
-                *c += 1;
+            for tx in r[0]..r[1] {
+                if touches_tile(s, tx, ty) {
+                    counts[ty * tiles_x + tx] += 1;
+                }
             }
         }
     }
@@ -78,10 +110,16 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
     let mut cursor = offsets[..n_tiles].to_vec();
     let mut ids = vec![0u32; offsets[n_tiles]];
     for (&(_, i), r) in order.iter().zip(&rects) {
+        let s = splats[i as usize]
+            .as_ref()
+            .expect("ordered splats are visible");
         for ty in r[2]..r[3] {
-            for t in ty * tiles_x + r[0]..ty * tiles_x + r[1] {
-                ids[cursor[t]] = i;
-                cursor[t] += 1;
+            for tx in r[0]..r[1] {
+                if touches_tile(s, tx, ty) {
+                    let t = ty * tiles_x + tx;
+                    ids[cursor[t]] = i;
+                    cursor[t] += 1;
+                }
             }
         }
     }

@@ -21,19 +21,30 @@ pub(crate) struct Composited<T: Real> {
 }
 
 /// Alpha of a splat at a pixel centre with `exp(-sigma)` and the offsets `mean2d - pixel`;
-/// `None` when the splat is skipped there (`sigma < 0` or alpha below `ALPHA_MIN`).
+/// `None` when the splat is skipped there (`sigma < 0` or alpha below `ALPHA_MIN`; the
+/// `sigma_cut` pre-filter only spares the `exp` where alpha is surely below it).
 #[inline]
 fn splat_alpha<T: Real>(s: &Splat<T>, px: T, py: T) -> Option<(T, T, T, T)> {
     let dx = s.mean2d[0] - px;
     let dy = s.mean2d[1] - py;
     let half = T::from_f64(0.5);
     let sigma = half * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) + s.conic[1] * dx * dy;
-    if sigma < T::ZERO {
+    if sigma < T::ZERO || sigma > s.sigma_cut {
         return None;
     }
     let falloff = (-sigma).exp();
     let alpha = (s.opacity * falloff).min(T::from_f64(ALPHA_MAX));
     (alpha >= T::from_f64(ALPHA_MIN)).then_some((alpha, falloff, dx, dy))
+}
+
+/// Copies the splats of one tile list into `out`, contiguous and in list order, so the pixel
+/// loops read them from cache.
+fn gather<T: Real>(splats: &[Option<Splat<T>>], ids: &[u32], out: &mut Vec<Splat<T>>) {
+    out.clear();
+    out.extend(
+        ids.iter()
+            .map(|&g| splats[g as usize].expect("binned splats are visible")),
+    );
 }
 
 /// The pixels of tile `tx` inside band `ty`: `(x, y_in_band)` pairs.
@@ -73,9 +84,14 @@ pub(crate) fn forward<T: Real>(
             let band_rows = alpha.len() / width;
             let t_min = T::from_f64(TRANSMITTANCE_MIN);
             let half = T::from_f64(0.5);
+            let mut local = Vec::new();
             for tx in 0..bins.tiles_x {
                 let tile = ty * bins.tiles_x + tx;
-                let list = &bins.ids[bins.offsets[tile]..bins.offsets[tile + 1]];
+                gather(
+                    splats,
+                    &bins.ids[bins.offsets[tile]..bins.offsets[tile + 1]],
+                    &mut local,
+                );
                 for (x, y) in tile_pixels(tx, width, band_rows) {
                     let px = T::from_f64(x as f64) + half;
                     let py = T::from_f64((ty * TILE_SIZE + y) as f64) + half;
@@ -83,10 +99,7 @@ pub(crate) fn forward<T: Real>(
                     let mut c = [T::ZERO; 3];
                     let mut d = T::ZERO;
                     let mut last = 0u32;
-                    for (k, &gid) in list.iter().enumerate() {
-                        let s = splats[gid as usize]
-                            .as_ref()
-                            .expect("binned splats are visible");
+                    for (k, s) in local.iter().enumerate() {
                         let Some((a, _, _, _)) = splat_alpha(s, px, py) else {
                             continue;
                         };
@@ -151,10 +164,11 @@ pub(crate) fn backward<T: Real>(
             let half = T::from_f64(0.5);
             let one = T::ONE;
             let mut g_bg = [T::ZERO; 3];
+            let mut local = Vec::new();
             for tx in 0..bins.tiles_x {
                 let tile = ty * bins.tiles_x + tx;
                 let start = bins.offsets[tile];
-                let list = &bins.ids[start..bins.offsets[tile + 1]];
+                gather(splats, &bins.ids[start..bins.offsets[tile + 1]], &mut local);
                 let tile_slots =
                     &mut band_slots[start - band_start..bins.offsets[tile + 1] - band_start];
                 for (x, y) in tile_pixels(tx, width, band_rows) {
@@ -172,9 +186,7 @@ pub(crate) fn backward<T: Real>(
                     let mut behind = background;
                     let mut behind_depth = T::ZERO;
                     for k in (0..n_contrib[p] as usize).rev() {
-                        let s = splats[list[k] as usize]
-                            .as_ref()
-                            .expect("binned splats are visible");
+                        let s = &local[k];
                         let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
                             continue;
                         };

@@ -6,7 +6,7 @@ use crate::mat::{self, M3, V3};
 use crate::real::Real;
 use crate::sh;
 
-use super::{EPS2D, NEAR_PLANE};
+use super::{ALPHA_MIN, EPS2D, NEAR_PLANE};
 
 /// The camera, cast once to the working precision.
 #[derive(Clone, Copy, Debug)]
@@ -66,6 +66,9 @@ pub(crate) struct Splat<T: Real> {
     pub color: [T; 3],
     /// Square screen-space radius (3 sigma), pixels; 0 when culled.
     pub radius: T,
+    /// A pre-filter: at pixels where the Mahalanobis term `sigma` exceeds this, alpha is surely
+    /// below `ALPHA_MIN` (`ln(opacity / ALPHA_MIN)` plus a margin), so `exp` is not evaluated.
+    pub sigma_cut: T,
 }
 
 /// Gradients of a loss with respect to one splat's compositing inputs.
@@ -207,6 +210,11 @@ fn forward<T: Real>(
     }
 
     let opacity = g.opacity_logits[i].sigmoid();
+    let sigma_cut = if opacity > c(ALPHA_MIN) {
+        (opacity / c(ALPHA_MIN)).ln() + c(1e-3)
+    } else {
+        -T::ONE
+    };
     let (dir, dir_norm) = mat::normalize3([
         mean[0] - cam.centre[0],
         mean[1] - cam.centre[1],
@@ -245,6 +253,7 @@ fn forward<T: Real>(
             opacity,
             color,
             radius,
+            sigma_cut,
         },
         dir,
         dir_norm,
