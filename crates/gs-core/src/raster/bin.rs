@@ -130,3 +130,60 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
         ids,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// The tile test never drops a tile in which some pixel centre has `sigma <= sigma_cut`.
+    #[test]
+    fn tile_culling_has_no_false_negatives() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+        let mut kept = 0;
+        let mut dropped = 0;
+        for _ in 0..400 {
+            // A random positive-definite conic: R diag(1/l1, 1/l2) R^T.
+            let th: f64 = rng.random_range(0.0..3.2);
+            let (l1, l2): (f64, f64) = (rng.random_range(0.5..400.0), rng.random_range(0.5..40.0));
+            let (c, s) = (th.cos(), th.sin());
+            let conic = [
+                c * c / l1 + s * s / l2,
+                c * s * (1.0 / l1 - 1.0 / l2),
+                s * s / l1 + c * c / l2,
+            ];
+            let splat = Splat {
+                mean2d: [rng.random_range(-20.0..70.0), rng.random_range(-20.0..70.0)],
+                conic,
+                sigma_cut: rng.random_range(0.5..6.0),
+                ..Splat::default()
+            };
+            for ty in 0..3 {
+                for tx in 0..3 {
+                    let mut any = false;
+                    for py in ty * TILE_SIZE..(ty + 1) * TILE_SIZE {
+                        for px in tx * TILE_SIZE..(tx + 1) * TILE_SIZE {
+                            let dx = splat.mean2d[0] - (px as f64 + 0.5);
+                            let dy = splat.mean2d[1] - (py as f64 + 0.5);
+                            let sig = 0.5 * (conic[0] * dx * dx + conic[2] * dy * dy)
+                                + conic[1] * dx * dy;
+                            any |= sig <= splat.sigma_cut;
+                        }
+                    }
+                    let touched = touches_tile(&splat, tx, ty);
+                    assert!(touched || !any, "tile ({tx},{ty}) dropped for {splat:?}");
+                    if touched {
+                        kept += 1;
+                    } else {
+                        dropped += 1;
+                    }
+                }
+            }
+        }
+        // The test must see both outcomes to mean anything.
+        assert!(
+            kept > 100 && dropped > 100,
+            "kept {kept}, dropped {dropped}"
+        );
+    }
+}
