@@ -1,7 +1,9 @@
 //! Rasterizer forward and backward time against Gaussian count at 800x800, and the error of the
 //! f32 render and gradients against the f64 reference.
 //!
-//! `cargo bench -p gs-core --bench raster [-- COUNT...]` (default counts 10000 100000 1000000).
+//! `cargo bench -p gs-core --bench raster [-- [--volume] [--no-reference] COUNT...]` (default
+//! counts 10000 100000 1000000); `--volume` times the worst-case volume scene instead of the
+//! surface scene, `--no-reference` skips the f64 reference and the error columns.
 
 use std::time::Instant;
 
@@ -10,15 +12,54 @@ use gs_core::{Camera, GaussianSet, Real};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
-/// `n` Gaussians of SH degree 3 in a 2-unit cube seen from 4 units away, sized so that the
-/// image is covered a few layers deep whatever `n` is (scale ~ n^(-1/3)).
-fn scene(n: usize) -> GaussianSet<f64> {
+/// Which synthetic scene to time.
+#[derive(Clone, Copy, PartialEq)]
+enum Kind {
+    /// Gaussians on the surfaces of five spheres, sized to their spacing and mostly opaque, as
+    /// in a trained 3DGS object: pixels terminate after a few layers.
+    Surface,
+    /// Gaussians filling a 2-unit cube, sized so the image is covered tens of layers deep by
+    /// semi-transparent splats: the worst case, where few pixels terminate.
+    Volume,
+}
+
+/// `n` Gaussians of SH degree 3 of the given kind, seen from 4 units away.
+fn scene(n: usize, kind: Kind) -> GaussianSet<f64> {
     let mut rng = ChaCha8Rng::seed_from_u64(n as u64);
     let mut g = GaussianSet::<f64>::zeros(n, 3);
-    let base = (0.02 * (1e5 / n as f64).cbrt()).ln();
-    for v in &mut g.means {
-        *v = rng.random_range(-1.0..1.0);
+    let spheres = [
+        ([0.0, 0.0, 0.0], 0.7),
+        ([0.9, -0.4, 0.3], 0.35),
+        ([-0.9, 0.3, -0.2], 0.45),
+        ([0.3, 0.7, -0.6], 0.3),
+        ([-0.4, -0.7, 0.5], 0.3),
+    ];
+    let area: f64 = spheres
+        .iter()
+        .map(|(_, r)| 4.0 * std::f64::consts::PI * r * r)
+        .sum();
+    let spacing = (area / n as f64).sqrt();
+    for i in 0..n {
+        let p = match kind {
+            Kind::Volume => [0; 3].map(|_| rng.random_range(-1.0..1.0)),
+            Kind::Surface => {
+                let (c, r) = spheres[i % spheres.len()];
+                let z: f64 = rng.random_range(-1.0..1.0);
+                let phi = rng.random_range(0.0..std::f64::consts::TAU);
+                let s = (1.0 - z * z).sqrt();
+                [
+                    c[0] + r * s * phi.cos(),
+                    c[1] + r * s * phi.sin(),
+                    c[2] + r * z,
+                ]
+            }
+        };
+        g.means[3 * i..3 * i + 3].copy_from_slice(&p);
     }
+    let (base, logits) = match kind {
+        Kind::Volume => ((0.02 * (1e5 / n as f64).cbrt()).ln(), -2.0..3.0),
+        Kind::Surface => ((0.8 * spacing).ln(), 0.0..5.0),
+    };
     for v in &mut g.log_scales {
         *v = base + rng.random_range(-0.7..0.7);
     }
@@ -26,7 +67,7 @@ fn scene(n: usize) -> GaussianSet<f64> {
         *v = rng.random_range(-1.0..1.0);
     }
     for v in &mut g.opacity_logits {
-        *v = rng.random_range(-2.0..3.0);
+        *v = rng.random_range(logits.clone());
     }
     for v in &mut g.sh_dc {
         *v = rng.random_range(-1.5..1.5);
@@ -65,6 +106,12 @@ fn main() {
         .skip(1)
         .filter_map(|a| a.parse().ok())
         .collect();
+    let with_reference = !std::env::args().any(|a| a == "--no-reference");
+    let kind = if std::env::args().any(|a| a == "--volume") {
+        Kind::Volume
+    } else {
+        Kind::Surface
+    };
     let counts = if counts.is_empty() {
         vec![10_000, 100_000, 1_000_000]
     } else {
@@ -84,7 +131,7 @@ fn main() {
     println!("| Gaussians | visible | tile pairs | forward ms | backward ms | total ms | max abs err image | rel err means | rel err scales | rel err quats | rel err opacity | rel err sh |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for n in counts {
-        let g64 = scene(n);
+        let g64 = scene(n, kind);
         let g32: GaussianSet = g64.cast();
         let mut rng = ChaCha8Rng::seed_from_u64(7);
         let w64: Vec<f64> = (0..3 * cam.pixel_count())
@@ -99,6 +146,17 @@ fn main() {
             depth: None,
         };
         let (t_bwd, gr32) = time(|| backward(&g32, &cam, &r32, &out32, GradMask::ALL), 3);
+        if !with_reference {
+            println!(
+                "| {n} | {} | {} | {:.1} | {:.1} | {:.1} | - | - | - | - | - | - |",
+                r32.visible_count(),
+                r32.intersection_count(),
+                t_fwd * 1e3,
+                t_bwd * 1e3,
+                (t_fwd + t_bwd) * 1e3
+            );
+            continue;
+        }
 
         let r64 = render(&g64, &cam, bg);
         let out64 = OutputGrads {

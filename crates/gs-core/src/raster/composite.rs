@@ -1,6 +1,10 @@
 //! Front-to-back alpha compositing of binned splats per 16x16 tile, and its exact backward.
+//!
 //! Work is split by bands of one tile row, so every band owns a contiguous slice of the image
-//! and of the tile lists.
+//! and of the tile lists. Inside a tile the loops are splat-major: each splat visits only the
+//! pixels of the tile inside its box `mean2d +- extent` (elsewhere its alpha is below 1/255),
+//! and every pixel still sees its splats in depth order, so the result is that of the plain
+//! per-pixel loop.
 
 use rayon::prelude::*;
 
@@ -37,8 +41,7 @@ fn splat_alpha<T: Real>(s: &Splat<T>, px: T, py: T) -> Option<(T, T, T, T)> {
     (alpha >= T::from_f64(ALPHA_MIN)).then_some((alpha, falloff, dx, dy))
 }
 
-/// Copies the splats of one tile list into `out`, contiguous and in list order, so the pixel
-/// loops read them from cache.
+/// Copies the splats of one tile list into `out`, contiguous and in list order.
 fn gather<T: Real>(splats: &[Option<Splat<T>>], ids: &[u32], out: &mut Vec<Splat<T>>) {
     out.clear();
     out.extend(
@@ -47,11 +50,42 @@ fn gather<T: Real>(splats: &[Option<Splat<T>>], ids: &[u32], out: &mut Vec<Splat
     );
 }
 
-/// The pixels of tile `tx` inside band `ty`: `(x, y_in_band)` pairs.
-fn tile_pixels(tx: usize, width: usize, band_rows: usize) -> impl Iterator<Item = (usize, usize)> {
-    let x0 = tx * TILE_SIZE;
-    let x1 = (x0 + TILE_SIZE).min(width);
-    (0..band_rows).flat_map(move |y| (x0..x1).map(move |x| (x, y)))
+/// A tile's pixels: columns `x0..x0+w` of the image, rows `y0..y0+h` (image rows).
+#[derive(Clone, Copy)]
+struct TileRect {
+    x0: usize,
+    y0: usize,
+    w: usize,
+    h: usize,
+}
+
+impl TileRect {
+    fn new(tx: usize, ty: usize, width: usize, band_rows: usize) -> Self {
+        let x0 = tx * TILE_SIZE;
+        Self {
+            x0,
+            y0: ty * TILE_SIZE,
+            w: TILE_SIZE.min(width - x0),
+            h: band_rows,
+        }
+    }
+
+    /// Tile-local pixel ranges `(xs, ys)` inside the splat's box.
+    #[inline]
+    fn clip<T: Real>(&self, s: &Splat<T>) -> (std::ops::Range<usize>, std::ops::Range<usize>) {
+        // Pixel centres i + 0.5 in [m - e, m + e]  <=>  i in [m - e - 0.5, m + e - 0.5].
+        let range = |m: T, e: T, origin: usize, len: usize| {
+            let lo = (m - e - T::from_f64(0.5 + origin as f64)).ceil().to_f64();
+            let hi = (m + e - T::from_f64(0.5 + origin as f64)).floor().to_f64();
+            let lo = lo.max(0.0).min(len as f64) as usize;
+            let hi = (hi + 1.0).max(0.0).min(len as f64) as usize;
+            lo..hi.max(lo)
+        };
+        (
+            range(s.mean2d[0], s.extent[0], self.x0, self.w),
+            range(s.mean2d[1], s.extent[1], self.y0, self.h),
+        )
+    }
 }
 
 /// Composites every pixel over `background`.
@@ -85,6 +119,7 @@ pub(crate) fn forward<T: Real>(
             let t_min = T::from_f64(TRANSMITTANCE_MIN);
             let half = T::from_f64(0.5);
             let mut local = Vec::new();
+            const P: usize = TILE_SIZE * TILE_SIZE;
             for tx in 0..bins.tiles_x {
                 let tile = ty * bins.tiles_x + tx;
                 gather(
@@ -92,37 +127,57 @@ pub(crate) fn forward<T: Real>(
                     &bins.ids[bins.offsets[tile]..bins.offsets[tile + 1]],
                     &mut local,
                 );
-                for (x, y) in tile_pixels(tx, width, band_rows) {
-                    let px = T::from_f64(x as f64) + half;
-                    let py = T::from_f64((ty * TILE_SIZE + y) as f64) + half;
-                    let mut trans = T::ONE;
-                    let mut c = [T::ZERO; 3];
-                    let mut d = T::ZERO;
-                    let mut last = 0u32;
-                    for (k, s) in local.iter().enumerate() {
-                        let Some((a, _, _, _)) = splat_alpha(s, px, py) else {
-                            continue;
-                        };
-                        let next = trans * (T::ONE - a);
-                        if next < t_min {
-                            break;
+                let rect = TileRect::new(tx, ty, width, band_rows);
+                let mut trans = [T::ONE; P];
+                let mut color = [[T::ZERO; 3]; P];
+                let mut dep = [T::ZERO; P];
+                let mut last = [0u32; P];
+                let mut done = [false; P];
+                let mut remaining = rect.w * rect.h;
+                for (k, s) in local.iter().enumerate() {
+                    if remaining == 0 {
+                        break;
+                    }
+                    let (xs, ys) = rect.clip(s);
+                    for ly in ys {
+                        let py = T::from_f64((rect.y0 + ly) as f64) + half;
+                        for lx in xs.clone() {
+                            let q = ly * TILE_SIZE + lx;
+                            if done[q] {
+                                continue;
+                            }
+                            let px = T::from_f64((rect.x0 + lx) as f64) + half;
+                            let Some((a, _, _, _)) = splat_alpha(s, px, py) else {
+                                continue;
+                            };
+                            let next = trans[q] * (T::ONE - a);
+                            if next < t_min {
+                                done[q] = true;
+                                remaining -= 1;
+                                continue;
+                            }
+                            let w = a * trans[q];
+                            for ch in 0..3 {
+                                color[q][ch] += w * s.color[ch];
+                            }
+                            dep[q] += w * s.depth;
+                            trans[q] = next;
+                            last[q] = k as u32 + 1;
                         }
-                        let w = a * trans;
+                    }
+                }
+                for ly in 0..rect.h {
+                    for lx in 0..rect.w {
+                        let q = ly * TILE_SIZE + lx;
+                        let p = ly * width + rect.x0 + lx;
                         for ch in 0..3 {
-                            c[ch] += w * s.color[ch];
+                            rgb[3 * p + ch] = color[q][ch] + trans[q] * background[ch];
                         }
-                        d += w * s.depth;
-                        trans = next;
-                        last = k as u32 + 1;
+                        alpha[p] = T::ONE - trans[q];
+                        depth[p] = dep[q];
+                        final_t[p] = trans[q];
+                        n_contrib[p] = last[q];
                     }
-                    let p = y * width + x;
-                    for ch in 0..3 {
-                        rgb[3 * p + ch] = c[ch] + trans * background[ch];
-                    }
-                    alpha[p] = T::ONE - trans;
-                    depth[p] = d;
-                    final_t[p] = trans;
-                    n_contrib[p] = last;
                 }
             }
         });
@@ -146,6 +201,7 @@ pub(crate) fn backward<T: Real>(
     } = rendered;
     let background = *background;
     let width = rendered.image.width as usize;
+    let height = rendered.image.height as usize;
     let mut slots = vec![SplatGrad::<T>::default(); bins.ids.len()];
     let mut bands: Vec<(usize, &mut [SplatGrad<T>])> = Vec::with_capacity(bins.tiles_y);
     let mut rest: &mut [SplatGrad<T>] = &mut slots;
@@ -159,10 +215,10 @@ pub(crate) fn backward<T: Real>(
         .into_par_iter()
         .map(|(ty, band_slots)| {
             let band_start = bins.offsets[ty * bins.tiles_x];
-            let row0 = ty * TILE_SIZE;
-            let band_rows = TILE_SIZE.min(final_t.len() / width - row0);
+            let band_rows = TILE_SIZE.min(height - ty * TILE_SIZE);
             let half = T::from_f64(0.5);
             let one = T::ONE;
+            const P: usize = TILE_SIZE * TILE_SIZE;
             let mut g_bg = [T::ZERO; 3];
             let mut local = Vec::new();
             for tx in 0..bins.tiles_x {
@@ -171,52 +227,78 @@ pub(crate) fn backward<T: Real>(
                 gather(splats, &bins.ids[start..bins.offsets[tile + 1]], &mut local);
                 let tile_slots =
                     &mut band_slots[start - band_start..bins.offsets[tile + 1] - band_start];
-                for (x, y) in tile_pixels(tx, width, band_rows) {
-                    let p = (row0 + y) * width + x;
-                    let g_rgb = [grads.rgb[3 * p], grads.rgb[3 * p + 1], grads.rgb[3 * p + 2]];
-                    let g_a = grads.alpha.map_or(T::ZERO, |a| a[p]);
-                    let g_d = grads.depth.map_or(T::ZERO, |d| d[p]);
-                    let t_final = final_t[p];
-                    for ch in 0..3 {
-                        g_bg[ch] += t_final * g_rgb[ch];
-                    }
-                    let px = T::from_f64(x as f64) + half;
-                    let py = T::from_f64((row0 + y) as f64) + half;
-                    let mut trans = t_final;
-                    let mut behind = background;
-                    let mut behind_depth = T::ZERO;
-                    for k in (0..n_contrib[p] as usize).rev() {
-                        let s = &local[k];
-                        let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
-                            continue;
-                        };
-                        let one_minus = one - a;
-                        let t_before = trans / one_minus;
-                        let w = a * t_before;
-                        let slot = &mut tile_slots[k];
-                        let mut g_alpha = g_a * t_final / one_minus;
+                let rect = TileRect::new(tx, ty, width, band_rows);
+
+                // Per-pixel state, walked back to front from each pixel's last contributor.
+                let mut trans = [T::ZERO; P];
+                let mut behind = [background; P];
+                let mut behind_depth = [T::ZERO; P];
+                let mut count = [0u32; P];
+                let mut g_rgb = [[T::ZERO; 3]; P];
+                let mut g_a = [T::ZERO; P];
+                let mut g_d = [T::ZERO; P];
+                let mut t_final = [T::ZERO; P];
+                let mut max_count = 0usize;
+                for ly in 0..rect.h {
+                    for lx in 0..rect.w {
+                        let q = ly * TILE_SIZE + lx;
+                        let p = (rect.y0 + ly) * width + rect.x0 + lx;
+                        g_rgb[q] = [grads.rgb[3 * p], grads.rgb[3 * p + 1], grads.rgb[3 * p + 2]];
+                        g_a[q] = grads.alpha.map_or(T::ZERO, |a| a[p]);
+                        g_d[q] = grads.depth.map_or(T::ZERO, |d| d[p]);
+                        t_final[q] = final_t[p];
+                        trans[q] = final_t[p];
+                        count[q] = n_contrib[p];
+                        max_count = max_count.max(n_contrib[p] as usize);
                         for ch in 0..3 {
-                            slot.color[ch] += w * g_rgb[ch];
-                            g_alpha += t_before * (s.color[ch] - behind[ch]) * g_rgb[ch];
-                            behind[ch] = a * s.color[ch] + one_minus * behind[ch];
+                            g_bg[ch] += final_t[p] * g_rgb[q][ch];
                         }
-                        slot.depth += w * g_d;
-                        g_alpha += t_before * (s.depth - behind_depth) * g_d;
-                        behind_depth = a * s.depth + one_minus * behind_depth;
-                        trans = t_before;
-                        if s.opacity * falloff < T::from_f64(ALPHA_MAX) {
-                            // alpha = opacity * exp(-sigma) where the clamp is inactive.
-                            slot.opacity += g_alpha * falloff;
-                            if geometry {
-                                let g_sigma = -g_alpha * a;
-                                slot.conic[0] += g_sigma * half * dx * dx;
-                                slot.conic[1] += g_sigma * dx * dy;
-                                slot.conic[2] += g_sigma * half * dy * dy;
-                                slot.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
-                                slot.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
+                    }
+                }
+
+                for k in (0..max_count).rev() {
+                    let s = &local[k];
+                    let (xs, ys) = rect.clip(s);
+                    let mut acc = SplatGrad::<T>::default();
+                    for ly in ys {
+                        let py = T::from_f64((rect.y0 + ly) as f64) + half;
+                        for lx in xs.clone() {
+                            let q = ly * TILE_SIZE + lx;
+                            if k as u32 >= count[q] {
+                                continue;
+                            }
+                            let px = T::from_f64((rect.x0 + lx) as f64) + half;
+                            let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
+                                continue;
+                            };
+                            let one_minus = one - a;
+                            let t_before = trans[q] / one_minus;
+                            let w = a * t_before;
+                            let mut g_alpha = g_a[q] * t_final[q] / one_minus;
+                            for ch in 0..3 {
+                                acc.color[ch] += w * g_rgb[q][ch];
+                                g_alpha += t_before * (s.color[ch] - behind[q][ch]) * g_rgb[q][ch];
+                                behind[q][ch] = a * s.color[ch] + one_minus * behind[q][ch];
+                            }
+                            acc.depth += w * g_d[q];
+                            g_alpha += t_before * (s.depth - behind_depth[q]) * g_d[q];
+                            behind_depth[q] = a * s.depth + one_minus * behind_depth[q];
+                            trans[q] = t_before;
+                            if s.opacity * falloff < T::from_f64(ALPHA_MAX) {
+                                // alpha = opacity * exp(-sigma) where the clamp is inactive.
+                                acc.opacity += g_alpha * falloff;
+                                if geometry {
+                                    let g_sigma = -g_alpha * a;
+                                    acc.conic[0] += g_sigma * half * dx * dx;
+                                    acc.conic[1] += g_sigma * dx * dy;
+                                    acc.conic[2] += g_sigma * half * dy * dy;
+                                    acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
+                                    acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
+                                }
                             }
                         }
                     }
+                    tile_slots[k] = acc;
                 }
             }
             g_bg

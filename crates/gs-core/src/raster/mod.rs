@@ -242,3 +242,55 @@ pub fn backward<T: Real>(
         background: bg_grad,
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{Rng, SeedableRng};
+
+    /// Every pixel centre where a splat can reach alpha 1/255 lies inside its box
+    /// `mean2d +- extent`, which the splat-major compositing loops rely on.
+    #[test]
+    fn splat_extent_contains_every_contributing_pixel() {
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(4);
+        let mut g = GaussianSet::<f64>::zeros(300, 0);
+        for v in &mut g.means {
+            *v = rng.random_range(-1.0..1.0);
+        }
+        for v in &mut g.log_scales {
+            *v = rng.random_range(-5.0..-1.0);
+        }
+        for v in &mut g.quats {
+            *v = rng.random_range(-1.0..1.0);
+        }
+        for v in &mut g.opacity_logits {
+            *v = rng.random_range(-6.0..8.0);
+        }
+        let cam =
+            Camera::look_at([0.3, -0.2, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 1.0, 120, 90).unwrap();
+        let ct = CameraT::<f64>::new(&cam);
+        let mut checked = 0;
+        for i in 0..g.len() {
+            let Some(s) = project::project(&g, i, &ct) else {
+                continue;
+            };
+            let [mx, my] = s.mean2d;
+            for py in (my - 60.0).floor() as i64..(my + 60.0).ceil() as i64 {
+                for px in (mx - 60.0).floor() as i64..(mx + 60.0).ceil() as i64 {
+                    let (dx, dy) = (mx - (px as f64 + 0.5), my - (py as f64 + 0.5));
+                    let sigma =
+                        0.5 * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) + s.conic[1] * dx * dy;
+                    let alpha = (s.opacity * (-sigma).exp()).min(ALPHA_MAX);
+                    if alpha >= ALPHA_MIN {
+                        checked += 1;
+                        assert!(
+                            dx.abs() <= s.extent[0] && dy.abs() <= s.extent[1],
+                            "pixel ({px},{py}) outside the box of {s:?}"
+                        );
+                    }
+                }
+            }
+        }
+        assert!(checked > 1000, "only {checked} contributing pixels checked");
+    }
+}

@@ -69,6 +69,9 @@ pub(crate) struct Splat<T: Real> {
     /// A pre-filter: at pixels where the Mahalanobis term `sigma` exceeds this, alpha is surely
     /// below `ALPHA_MIN` (`ln(opacity / ALPHA_MIN)` plus a margin), so `exp` is not evaluated.
     pub sigma_cut: T,
+    /// Half-extents in x and y (pixels) of the ellipse `sigma <= sigma_cut`: outside the box
+    /// `mean2d +- extent` the splat contributes nothing.
+    pub extent: [T; 2],
 }
 
 /// Gradients of a loss with respect to one splat's compositing inputs.
@@ -215,6 +218,10 @@ fn forward<T: Real>(
     } else {
         -T::ONE
     };
+    // sigma = 0.5 d^T C^-1 d <= cut spans sqrt(2 cut C_xx) in x and sqrt(2 cut C_yy) in y,
+    // with C = cov2d (a, b, cc); one pixel of margin covers rounding.
+    let reach = (c(2.0) * sigma_cut.max(T::ZERO)).sqrt();
+    let extent = [reach * a.sqrt() + T::ONE, reach * cc.sqrt() + T::ONE];
     let (dir, dir_norm) = mat::normalize3([
         mean[0] - cam.centre[0],
         mean[1] - cam.centre[1],
@@ -254,6 +261,7 @@ fn forward<T: Real>(
             color,
             radius,
             sigma_cut,
+            extent,
         },
         dir,
         dir_norm,
