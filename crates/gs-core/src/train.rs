@@ -217,6 +217,77 @@ pub fn resumed_sampler(count: usize, seed: u64, steps_done: u64) -> ViewSampler 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::adam::{AdamHyper, GroupConfig, LrSchedule};
+    use crate::camera::Camera;
+    use crate::gaussians::{GaussianSet, PARAM_NAMES};
+
+    /// An objective whose gradient turns NaN at a chosen call.
+    struct PoisonAt(usize, usize);
+
+    impl Objective for PoisonAt {
+        type Error = std::io::Error;
+        fn evaluate(&mut self, _view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error> {
+            self.0 += 1;
+            let bad = self.0 == self.1;
+            Ok(ObjectiveValue {
+                loss: 1.0,
+                terms: Vec::new(),
+                grad: vec![if bad { f32::NAN } else { 0.01 }; image.data.len()],
+            })
+        }
+    }
+
+    #[test]
+    fn a_nan_gradient_stops_the_run_with_the_parameters_of_the_step_before() {
+        let cam =
+            Camera::look_at([0.0, 0.0, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 1.0, 16, 16).unwrap();
+        let views = vec![View::still(cam)];
+        let mut model = GaussianSet::zeros(4, 0);
+        for (i, m) in model.means.chunks_mut(3).enumerate() {
+            m[0] = 0.1 * i as f32;
+        }
+        let groups: Vec<GroupConfig> = PARAM_NAMES
+            .iter()
+            .map(|n| GroupConfig::new(*n, LrSchedule::Constant(0.01)))
+            .collect();
+        let run = |steps: u64, poison: usize| {
+            let mut model = model.clone();
+            let mut adam = Adam::new(groups.clone(), &model.group_lens(), AdamHyper::default());
+            let config = TrainConfig {
+                steps,
+                seed: 0,
+                background: [0.0; 3],
+            };
+            let result = train(
+                &mut model,
+                &views,
+                &mut PoisonAt(0, poison),
+                &mut adam,
+                &mut ViewSampler::new(1, 0),
+                &config,
+                |_| ControlFlow::Continue(()),
+            );
+            (model, adam.step_count(), result)
+        };
+        let (poisoned, steps_taken, result) = run(10, 3);
+        let err = result.unwrap_err();
+        assert!(
+            matches!(
+                err,
+                TrainError::NonFinite {
+                    step: 3,
+                    what: "dL/dimage",
+                    ..
+                }
+            ),
+            "{err}"
+        );
+        assert_eq!(steps_taken, 2);
+        let (clean, _, result) = run(2, usize::MAX);
+        result.unwrap();
+        assert_eq!(poisoned, clean);
+        assert_ne!(clean, model, "two steps must have moved the parameters");
+    }
 
     #[test]
     fn sampler_visits_every_view_once_per_epoch() {

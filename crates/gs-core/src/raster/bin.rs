@@ -80,48 +80,41 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
             .unwrap_or(std::cmp::Ordering::Equal)
             .then(a.1.cmp(&b.1))
     });
-    let rects: Vec<[usize; 4]> = order
-        .par_iter()
-        .map(|&(_, i)| {
-            let s = splats[i as usize]
-                .as_ref()
-                .expect("only visible splats are ordered");
-            tile_rect(s, tiles_x, tiles_y)
+    // (tile, Gaussian) pairs in depth order, found in parallel chunks.
+    let pairs: Vec<Vec<(u32, u32)>> = order
+        .par_chunks(2048)
+        .map(|chunk| {
+            let mut out = Vec::with_capacity(chunk.len() * 4);
+            for &(_, i) in chunk {
+                let s = splats[i as usize]
+                    .as_ref()
+                    .expect("only visible splats are ordered");
+                let r = tile_rect(s, tiles_x, tiles_y);
+                for ty in r[2]..r[3] {
+                    for tx in r[0]..r[1] {
+                        if touches_tile(s, tx, ty) {
+                            out.push(((ty * tiles_x + tx) as u32, i));
+                        }
+                    }
+                }
+            }
+            out
         })
         .collect();
 
-    let mut counts = vec![0usize; n_tiles + 1];
-    for (&(_, i), r) in order.iter().zip(&rects) {
-        let s = splats[i as usize]
-            .as_ref()
-            .expect("ordered splats are visible");
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                if touches_tile(s, tx, ty) {
-                    counts[ty * tiles_x + tx] += 1;
-                }
-            }
-        }
-    }
+    // Stable counting sort by tile keeps each tile's list in depth order.
     let mut offsets = vec![0usize; n_tiles + 1];
+    for &(t, _) in pairs.iter().flatten() {
+        offsets[t as usize + 1] += 1;
+    }
     for t in 0..n_tiles {
-        offsets[t + 1] = offsets[t] + counts[t];
+        offsets[t + 1] += offsets[t];
     }
     let mut cursor = offsets[..n_tiles].to_vec();
     let mut ids = vec![0u32; offsets[n_tiles]];
-    for (&(_, i), r) in order.iter().zip(&rects) {
-        let s = splats[i as usize]
-            .as_ref()
-            .expect("ordered splats are visible");
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                if touches_tile(s, tx, ty) {
-                    let t = ty * tiles_x + tx;
-                    ids[cursor[t]] = i;
-                    cursor[t] += 1;
-                }
-            }
-        }
+    for &(t, i) in pairs.iter().flatten() {
+        ids[cursor[t as usize]] = i;
+        cursor[t as usize] += 1;
     }
     TileBins {
         tiles_x,
