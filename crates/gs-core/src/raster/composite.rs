@@ -134,14 +134,19 @@ pub(crate) fn forward<T: Real>(
                 let mut last = [0u32; P];
                 let mut done = [false; P];
                 let mut remaining = rect.w * rect.h;
+                // Columns [alive_lo, alive_hi) of each row still hold every unfinished pixel.
+                let mut alive_lo = [0usize; TILE_SIZE];
+                let mut alive_hi = [rect.w; TILE_SIZE];
                 for (k, s) in local.iter().enumerate() {
                     if remaining == 0 {
                         break;
                     }
                     let (xs, ys) = rect.clip(s);
                     for ly in ys {
+                        let lo = xs.start.max(alive_lo[ly]);
+                        let hi = xs.end.min(alive_hi[ly]);
                         let py = T::from_f64((rect.y0 + ly) as f64) + half;
-                        for lx in xs.clone() {
+                        for lx in lo..hi {
                             let q = ly * TILE_SIZE + lx;
                             if done[q] {
                                 continue;
@@ -154,6 +159,13 @@ pub(crate) fn forward<T: Real>(
                             if next < t_min {
                                 done[q] = true;
                                 remaining -= 1;
+                                let row = &done[ly * TILE_SIZE..ly * TILE_SIZE + rect.w];
+                                while alive_lo[ly] < alive_hi[ly] && row[alive_lo[ly]] {
+                                    alive_lo[ly] += 1;
+                                }
+                                while alive_hi[ly] > alive_lo[ly] && row[alive_hi[ly] - 1] {
+                                    alive_hi[ly] -= 1;
+                                }
                                 continue;
                             }
                             let w = a * trans[q];
@@ -256,13 +268,40 @@ pub(crate) fn backward<T: Real>(
                     }
                 }
 
+                // Each row's columns by decreasing count; a pixel joins at the first k below its
+                // count, and [active_lo, active_hi) spans every pixel of the row that has joined.
+                let mut by_count = [[0u8; TILE_SIZE]; TILE_SIZE];
+                let mut joined = [0usize; TILE_SIZE];
+                let mut active_lo = [rect.w; TILE_SIZE];
+                let mut active_hi = [0usize; TILE_SIZE];
+                for ly in 0..rect.h {
+                    let order = &mut by_count[ly][..rect.w];
+                    for (lx, o) in order.iter_mut().enumerate() {
+                        *o = lx as u8;
+                    }
+                    order.sort_unstable_by_key(|&lx| {
+                        std::cmp::Reverse(count[ly * TILE_SIZE + lx as usize])
+                    });
+                }
+
                 for k in (0..max_count).rev() {
                     let s = &local[k];
                     let (xs, ys) = rect.clip(s);
                     let mut acc = SplatGrad::<T>::default();
                     for ly in ys {
+                        while joined[ly] < rect.w {
+                            let lx = by_count[ly][joined[ly]] as usize;
+                            if count[ly * TILE_SIZE + lx] as usize <= k {
+                                break;
+                            }
+                            active_lo[ly] = active_lo[ly].min(lx);
+                            active_hi[ly] = active_hi[ly].max(lx + 1);
+                            joined[ly] += 1;
+                        }
+                        let lo = xs.start.max(active_lo[ly]);
+                        let hi = xs.end.min(active_hi[ly]);
                         let py = T::from_f64((rect.y0 + ly) as f64) + half;
-                        for lx in xs.clone() {
+                        for lx in lo..hi {
                             let q = ly * TILE_SIZE + lx;
                             if k as u32 >= count[q] {
                                 continue;
