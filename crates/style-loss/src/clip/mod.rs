@@ -1,0 +1,119 @@
+//! CLIP (vision and text towers) in candle, from Hugging Face `transformers` checkpoints.
+//!
+//! Built only from ops whose backward exists, so gradients reach the input image (candle's own
+//! CLIP cuts the graph in its fused layer norm and softmax).
+
+mod config;
+mod preprocess;
+mod text;
+mod transformer;
+mod vision;
+
+use std::path::Path;
+
+use candle_core::{Device, Tensor};
+
+pub use config::{ClipConfig, ClipTextConfig, ClipVisionConfig};
+pub(crate) use preprocess::normalize_channels;
+pub use preprocess::{clip_preprocess, CLIP_MEAN, CLIP_STD};
+
+use crate::error::{Result, StyleLossError};
+use crate::nn::{l2_normalize, Linear};
+use crate::tensor_file::NamedTensors;
+use text::TextTower;
+use transformer::load_linear;
+use vision::VisionTower;
+
+/// A CLIP model: towers and projections into the joint embedding space.
+#[derive(Clone, Debug)]
+pub struct ClipModel {
+    config: ClipConfig,
+    vision: VisionTower,
+    visual_projection: Linear,
+    /// `None` once dropped with [`ClipModel::drop_text_tower`].
+    text: Option<(TextTower, Linear)>,
+    device: Device,
+}
+
+impl ClipModel {
+    /// Loads a `transformers` `CLIPModel` safetensors file (the layout of
+    /// `openai/clip-vit-base-patch32` and `openai/clip-vit-large-patch14`).
+    pub fn load(config: &ClipConfig, weights: &Path, device: &Device) -> Result<Self> {
+        Self::from_tensors(
+            config,
+            &NamedTensors::load_safetensors(weights, device)?,
+            device,
+        )
+    }
+
+    /// Builds the model from tensors named as in a `transformers` `CLIPModel` checkpoint.
+    pub fn from_tensors(config: &ClipConfig, w: &NamedTensors, device: &Device) -> Result<Self> {
+        config.validate()?;
+        let text = TextTower::load(w, &config.text)?;
+        let text_projection = load_linear(
+            w,
+            "text_projection",
+            config.projection_dim,
+            config.text.hidden_size,
+            false,
+        )?;
+        Ok(Self {
+            vision: VisionTower::load(w, &config.vision)?,
+            visual_projection: load_linear(
+                w,
+                "visual_projection",
+                config.projection_dim,
+                config.vision.hidden_size,
+                false,
+            )?,
+            text: Some((text, text_projection)),
+            config: config.clone(),
+            device: device.clone(),
+        })
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &ClipConfig {
+        &self.config
+    }
+
+    /// The device the weights live on.
+    pub fn device(&self) -> &Device {
+        &self.device
+    }
+
+    /// Side of the square vision input in pixels (224 for the OpenAI models).
+    pub fn image_size(&self) -> usize {
+        self.config.vision.image_size
+    }
+
+    /// Frees the text tower (once the style direction is computed, training needs no text).
+    pub fn drop_text_tower(&mut self) {
+        self.text = None;
+    }
+
+    /// Projected, unnormalized embeddings `[n, projection_dim]` of CLIP-normalized pixels
+    /// `[n, 3, image_size, image_size]`.
+    pub fn encode_pixels(&self, pixels: &Tensor) -> Result<Tensor> {
+        let pooled = self.vision.forward(pixels)?;
+        Ok(self.visual_projection.forward(&pooled)?)
+    }
+
+    /// L2-normalized embeddings `[n, projection_dim]` of images `[n, 3, h, w]` in [0, 1]
+    /// (any size; see [`clip_preprocess`]). Differentiable in `images`.
+    pub fn encode_images(&self, images: &Tensor) -> Result<Tensor> {
+        let pixels = clip_preprocess(images, self.image_size())?;
+        Ok(l2_normalize(&self.encode_pixels(&pixels)?)?)
+    }
+
+    /// Projected, unnormalized text embeddings `[rows, projection_dim]` of token id rows (as
+    /// the tokenizer gives them: start token, text, end token, padding).
+    pub fn encode_token_ids(&self, ids: &[Vec<u32>]) -> Result<Tensor> {
+        let (tower, projection) = self.text.as_ref().ok_or_else(|| StyleLossError::Input {
+            name: "text".into(),
+            reason: "the text tower was dropped".into(),
+        })?;
+        let pooled = tower.forward(ids, &self.device)?;
+        Ok(projection.forward(&pooled)?)
+    }
+}

@@ -1,0 +1,35 @@
+//! CLIPGaussian's style losses in candle: CLIP (vision and text towers), its tokenizer and
+//! prompt templates, VGG-19 features, differentiable resize / crop / perspective warp, and the
+//! four losses (directional, patch, content, background) with their gradient with respect to
+//! the rendered image.
+//!
+//! Conventions: images are f32, linear, in [0, 1], channels first (`[3, h, w]` or
+//! `[1, 3, h, w]`); gradients come back in the shape the image came in. Every operation that
+//! lies between the image and a loss has a backward pass that is tested against PyTorch.
+
+pub mod clip;
+mod custom_grad;
+pub mod error;
+pub mod image_layout;
+pub mod losses;
+pub mod nn;
+pub mod patches;
+pub mod perspective;
+pub mod resize;
+pub mod style_direction;
+pub mod templates;
+pub mod tensor_file;
+pub mod tokenizer;
+pub mod vgg;
+pub mod weight_resolution;
+
+pub use clip::{ClipConfig, ClipModel};
+pub use error::{Result, StyleLossError};
+pub use losses::{
+    background_mask_from_color, LossTerms, LossWeights, StyleLoss, StyleLossOutput, ViewCache,
+};
+pub use patches::{style_rng, PatchAugmentation, PatchSettings, StyleRng};
+pub use style_direction::{StyleDirection, DEFAULT_SOURCE_PROMPT};
+pub use tensor_file::NamedTensors;
+pub use tokenizer::ClipTokenizer;
+pub use vgg::{Vgg19Features, Vgg19Widths};

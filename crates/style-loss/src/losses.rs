@@ -1,0 +1,430 @@
+//! The four CLIPGaussian losses of one view and their gradient with respect to the rendered
+//! image: directional (CLIP), patch (CLIP on warped crops), content (VGG-19) and background
+//! (L1 on background pixels), weighted and summed.
+
+use candle_core::{DType, Tensor, Var};
+use rand::Rng;
+
+use crate::clip::ClipModel;
+use crate::error::{Result, StyleLossError};
+use crate::patches::{warped_patches, PatchAugmentation, PatchSettings};
+use crate::style_direction::StyleDirection;
+use crate::vgg::{Vgg19Features, VggFeatures};
+
+/// The weights `lambda` of the four terms. A zero weight skips all work for its term.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LossWeights {
+    /// `lambda_d` of the directional loss (paper: 5).
+    pub directional: f64,
+    /// `lambda_p` of the patch loss (paper: 90).
+    pub patch: f64,
+    /// `lambda_c` of the content loss (paper: 0.8; 0.5 for video).
+    pub content: f64,
+    /// `lambda_b` of the background loss (paper: 1000 for 3D objects, 0 for scenes).
+    pub background: f64,
+}
+
+impl Default for LossWeights {
+    /// The paper's 3D scene weights: 5, 90, 0.8, 0.
+    fn default() -> Self {
+        Self {
+            directional: 5.0,
+            patch: 90.0,
+            content: 0.8,
+            background: 0.0,
+        }
+    }
+}
+
+/// One value per term (unweighted); a skipped term is 0.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct LossTerms {
+    /// `L_d`.
+    pub directional: f64,
+    /// `L_p`.
+    pub patch: f64,
+    /// `L_c`.
+    pub content: f64,
+    /// `L_b`.
+    pub background: f64,
+}
+
+/// The result of [`StyleLoss::loss_and_grad`].
+#[derive(Clone, Debug)]
+pub struct StyleLossOutput {
+    /// The unweighted terms.
+    pub terms: LossTerms,
+    /// `sum lambda_i L_i`.
+    pub total: f64,
+    /// `d total / d image`, in the shape the image was given.
+    pub grad: Tensor,
+}
+
+/// The background target of a view: which pixels are background and their ground truth.
+#[derive(Clone, Debug)]
+struct BackgroundTarget {
+    gt: Tensor,
+    /// `[1, 1, h, w]`, 1 on background pixels.
+    mask: Tensor,
+    /// Number of background pixels.
+    count: f64,
+}
+
+/// What a view contributes to the losses, computed once from its ground-truth image.
+#[derive(Clone, Debug)]
+pub struct ViewCache {
+    height: usize,
+    width: usize,
+    /// Normalized CLIP embedding of the ground truth `[1, dim]` (directional or patch loss).
+    clip_embedding: Option<Tensor>,
+    /// VGG features of the ground truth (content loss).
+    vgg: Option<VggFeatures>,
+    /// Background pixels (background loss).
+    background: Option<BackgroundTarget>,
+}
+
+impl ViewCache {
+    /// The cached normalized CLIP embedding `[1, dim]` of the ground truth, if any.
+    pub fn clip_embedding(&self) -> Option<&Tensor> {
+        self.clip_embedding.as_ref()
+    }
+}
+
+/// The background mask the reference derives from a ground-truth image: 1 where every channel
+/// equals `color` exactly, else 0. `gt` is `[3, h, w]` or `[1, 3, h, w]`; result `[h, w]`.
+pub fn background_mask_from_color(gt: &Tensor, color: [f32; 3]) -> Result<Tensor> {
+    let gt = as_batch_of_one(gt, "gt")?;
+    let color = Tensor::new(&color, gt.device())?.reshape((1, 3, 1, 1))?;
+    let equal = gt.broadcast_eq(&color)?.to_dtype(DType::F32)?;
+    Ok(equal.min_keepdim(1)?.squeeze(1)?.squeeze(0)?)
+}
+
+/// `[3, h, w]` or `[1, 3, h, w]` -> `[1, 3, h, w]`.
+fn as_batch_of_one(image: &Tensor, name: &str) -> Result<Tensor> {
+    let image = match image.rank() {
+        3 => image.unsqueeze(0)?,
+        _ => image.clone(),
+    };
+    match image.dims() {
+        [1, 3, _, _] => Ok(image.to_dtype(DType::F32)?),
+        dims => Err(StyleLossError::Input {
+            name: name.into(),
+            reason: format!("shape {dims:?}, expected [3, h, w] or [1, 3, h, w]"),
+        }),
+    }
+}
+
+/// Mean of squared differences.
+fn mse(a: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
+    (a - b)?.sqr()?.mean_all()
+}
+
+fn scalar(t: &Tensor) -> Result<f64> {
+    Ok(t.to_dtype(DType::F64)?.to_scalar::<f64>()?)
+}
+
+/// The style loss of a stylization run: models, style direction, weights, patch settings.
+#[derive(Clone, Debug)]
+pub struct StyleLoss {
+    clip: ClipModel,
+    vgg: Option<Vgg19Features>,
+    direction: StyleDirection,
+    weights: LossWeights,
+    patches: PatchSettings,
+}
+
+impl StyleLoss {
+    /// Checks that every term with a positive weight has what it needs (VGG for the content
+    /// loss) and that the weights are finite and non-negative.
+    pub fn new(
+        clip: ClipModel,
+        vgg: Option<Vgg19Features>,
+        direction: StyleDirection,
+        weights: LossWeights,
+        patches: PatchSettings,
+    ) -> Result<Self> {
+        let all = [
+            ("directional", weights.directional),
+            ("patch", weights.patch),
+            ("content", weights.content),
+            ("background", weights.background),
+        ];
+        for (name, w) in all {
+            if !(w.is_finite() && w >= 0.0) {
+                return Err(StyleLossError::Config {
+                    field: format!("weights.{name}"),
+                    value: w.to_string(),
+                    reason: "must be finite and >= 0".into(),
+                });
+            }
+        }
+        if weights.content > 0.0 && vgg.is_none() {
+            return Err(StyleLossError::Config {
+                field: "weights.content".into(),
+                value: weights.content.to_string(),
+                reason: "a content loss needs VGG-19 weights".into(),
+            });
+        }
+        if weights.patch > 0.0 && patches.num_patches == 0 {
+            return Err(StyleLossError::Config {
+                field: "patches.num_patches".into(),
+                value: "0".into(),
+                reason: "a patch loss needs at least one patch".into(),
+            });
+        }
+        let expected_dim = clip.config().projection_dim;
+        if direction.as_tensor().dims() != [expected_dim] {
+            return Err(StyleLossError::Input {
+                name: "direction".into(),
+                reason: format!(
+                    "shape {:?}, the CLIP model embeds in {expected_dim} dimensions",
+                    direction.as_tensor().dims()
+                ),
+            });
+        }
+        Ok(Self {
+            clip,
+            vgg,
+            direction,
+            weights,
+            patches,
+        })
+    }
+
+    /// The weights.
+    pub fn weights(&self) -> LossWeights {
+        self.weights
+    }
+
+    /// The patch settings.
+    pub fn patch_settings(&self) -> &PatchSettings {
+        &self.patches
+    }
+
+    /// Computes what a view needs, once: the GT's CLIP embedding and VGG features, and its
+    /// background mask (`[h, w]`, 1 = background; see [`background_mask_from_color`]) when the
+    /// background loss is on. `gt` is `[3, h, w]` or `[1, 3, h, w]` in [0, 1].
+    pub fn cache_view(&self, gt: &Tensor, background_mask: Option<&Tensor>) -> Result<ViewCache> {
+        let gt = as_batch_of_one(gt, "gt")?.detach();
+        let (_, _, height, width) = gt.dims4()?;
+        let w = &self.weights;
+        let clip_embedding = if w.directional > 0.0 || w.patch > 0.0 {
+            Some(self.clip.encode_images(&gt)?.detach())
+        } else {
+            None
+        };
+        let vgg = match (&self.vgg, w.content > 0.0) {
+            (Some(vgg), true) => Some(vgg.forward(&gt)?.detach()),
+            _ => None,
+        };
+        let background = match (background_mask, w.background > 0.0) {
+            (Some(mask), true) => {
+                if mask.dims() != [height, width] {
+                    return Err(StyleLossError::Input {
+                        name: "background_mask".into(),
+                        reason: format!("shape {:?}, expected [{height}, {width}]", mask.dims()),
+                    });
+                }
+                let mask = mask.to_dtype(DType::F32)?.reshape((1, 1, height, width))?;
+                let count = scalar(&mask.sum_all()?)?;
+                Some(BackgroundTarget {
+                    gt: gt.clone(),
+                    mask,
+                    count,
+                })
+            }
+            (None, true) => {
+                return Err(StyleLossError::Input {
+                    name: "background_mask".into(),
+                    reason: "the background weight is positive but no mask was given".into(),
+                })
+            }
+            (_, false) => None,
+        };
+        Ok(ViewCache {
+            height,
+            width,
+            clip_embedding,
+            vgg,
+            background,
+        })
+    }
+
+    /// Draws the crops and warps of one step's patch loss from `rng` (empty when the patch
+    /// weight is 0).
+    pub fn sample_patches<R: Rng + ?Sized>(
+        &self,
+        rng: &mut R,
+        height: usize,
+        width: usize,
+    ) -> Result<Vec<PatchAugmentation>> {
+        if self.weights.patch > 0.0 {
+            self.patches.sample(rng, height, width)
+        } else {
+            Ok(Vec::new())
+        }
+    }
+
+    /// The differentiable terms for `image` `[1, 3, h, w]`, each a scalar tensor, `None` when
+    /// the weight is 0 (or, for the background, when the view has no background pixel).
+    pub fn term_tensors(
+        &self,
+        image: &Tensor,
+        cache: &ViewCache,
+        patches: &[PatchAugmentation],
+    ) -> Result<[Option<Tensor>; 4]> {
+        let (_, _, height, width) = image.dims4()?;
+        if (height, width) != (cache.height, cache.width) {
+            return Err(StyleLossError::Input {
+                name: "image".into(),
+                reason: format!(
+                    "{height}x{width}, but the view was cached at {}x{}",
+                    cache.height, cache.width
+                ),
+            });
+        }
+        let w = &self.weights;
+        let missing = |what: &str| StyleLossError::Input {
+            name: "cache".into(),
+            reason: format!("the view cache has no {what}; build it with this StyleLoss"),
+        };
+        let directional = if w.directional > 0.0 {
+            let gt = cache
+                .clip_embedding
+                .as_ref()
+                .ok_or_else(|| missing("CLIP embedding"))?;
+            let embedding = self.clip.encode_images(image)?;
+            Some(
+                self.direction
+                    .directional_loss(&embedding, gt)?
+                    .mean_all()?,
+            )
+        } else {
+            None
+        };
+        let patch = if w.patch > 0.0 {
+            let gt = cache
+                .clip_embedding
+                .as_ref()
+                .ok_or_else(|| missing("CLIP embedding"))?;
+            if patches.is_empty() {
+                return Err(StyleLossError::Input {
+                    name: "patches".into(),
+                    reason: "the patch weight is positive but no patch was given".into(),
+                });
+            }
+            let crops = warped_patches(
+                image,
+                patches,
+                self.patches.patch_size,
+                self.clip.image_size(),
+            )?;
+            let embeddings = self.clip.encode_images(&crops)?;
+            Some(
+                self.direction
+                    .directional_loss(&embeddings, gt)?
+                    .mean_all()?,
+            )
+        } else {
+            None
+        };
+        let content = match (w.content > 0.0, &self.vgg) {
+            (true, Some(vgg)) => {
+                let gt = cache.vgg.as_ref().ok_or_else(|| missing("VGG features"))?;
+                let f = vgg.forward(image)?;
+                Some((mse(&f.relu4_2, &gt.relu4_2)? + mse(&f.relu5_2, &gt.relu5_2)?)?)
+            }
+            _ => None,
+        };
+        let background = if w.background > 0.0 {
+            let target = cache
+                .background
+                .as_ref()
+                .ok_or_else(|| missing("background mask"))?;
+            if target.count > 0.0 {
+                let per_pixel = (image - &target.gt)?.abs()?.mean_keepdim(1)?;
+                let sum = (per_pixel * &target.mask)?.sum_all()?;
+                Some((sum / target.count)?)
+            } else {
+                None
+            }
+        } else {
+            None
+        };
+        Ok([directional, patch, content, background])
+    }
+
+    /// Total loss and `d total / d image` for one view with patches drawn from `rng`.
+    /// `image` is `[3, h, w]` or `[1, 3, h, w]`, f32 linear in [0, 1]; the gradient has its
+    /// shape.
+    pub fn loss_and_grad<R: Rng + ?Sized>(
+        &self,
+        image: &Tensor,
+        cache: &ViewCache,
+        rng: &mut R,
+    ) -> Result<StyleLossOutput> {
+        let patches = self.sample_patches(rng, cache.height, cache.width)?;
+        self.loss_and_grad_with_patches(image, cache, &patches)
+    }
+
+    /// As [`Self::loss_and_grad`] with given patch augmentations.
+    pub fn loss_and_grad_with_patches(
+        &self,
+        image: &Tensor,
+        cache: &ViewCache,
+        patches: &[PatchAugmentation],
+    ) -> Result<StyleLossOutput> {
+        let batched = as_batch_of_one(image, "image")?;
+        let var = Var::from_tensor(&batched.detach())?;
+        let terms = self.term_tensors(var.as_tensor(), cache, patches)?;
+        let w = &self.weights;
+        let weights = [w.directional, w.patch, w.content, w.background];
+        let mut values = [0f64; 4];
+        let mut total: Option<Tensor> = None;
+        for ((term, weight), value) in terms.iter().zip(weights).zip(values.iter_mut()) {
+            if let Some(term) = term {
+                *value = scalar(term)?;
+                let weighted = (term * weight)?;
+                total = Some(match total {
+                    Some(t) => (t + weighted)?,
+                    None => weighted,
+                });
+            }
+        }
+        let names = ["directional", "patch", "content", "background"];
+        for (name, value) in names.iter().zip(values) {
+            if !value.is_finite() {
+                return Err(StyleLossError::NonFinite {
+                    what: format!("the {name} loss ({value})"),
+                });
+            }
+        }
+        let (total, grad) = match total {
+            Some(total) => {
+                let grads = total.backward()?;
+                let grad = match grads.get(var.as_tensor()) {
+                    Some(g) => g.clone(),
+                    None => var.as_tensor().zeros_like()?,
+                };
+                (scalar(&total)?, grad)
+            }
+            None => (0.0, var.as_tensor().zeros_like()?),
+        };
+        let grad_norm = scalar(&grad.sqr()?.sum_all()?)?;
+        if !grad_norm.is_finite() {
+            return Err(StyleLossError::NonFinite {
+                what: "the image gradient".into(),
+            });
+        }
+        Ok(StyleLossOutput {
+            terms: LossTerms {
+                directional: values[0],
+                patch: values[1],
+                content: values[2],
+                background: values[3],
+            },
+            total,
+            grad: grad.reshape(image.dims())?,
+        })
+    }
+}

@@ -1,0 +1,182 @@
+//! VGG-19 features for the content loss: the outputs of the ReLUs after conv4_2 and conv5_2
+//! (torchvision `vgg19().features` indices 22 and 31), on ImageNet-normalized input of any size.
+//! Layers past conv5_2 are never run.
+
+use std::path::Path;
+
+use candle_core::{Device, Tensor};
+
+use crate::clip::normalize_channels;
+use crate::custom_grad::attach_input_gradient;
+use crate::error::{Result, StyleLossError};
+use crate::tensor_file::NamedTensors;
+
+/// ImageNet per-channel mean (RGB, for values in [0, 1]).
+pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
+/// ImageNet per-channel standard deviation (RGB, for values in [0, 1]).
+pub const IMAGENET_STD: [f32; 3] = [0.229, 0.224, 0.225];
+
+/// `(convolutions, output channels)` of VGG-19's five blocks, each followed by a 2x2 max pool;
+/// the last block is cut after its second convolution (conv5_2).
+const BLOCK_CONVS: [usize; 5] = [2, 2, 4, 4, 2];
+
+/// Channel widths of the five blocks: `[64, 128, 256, 512, 512]` for VGG-19; smaller for tests.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Vgg19Widths(pub [usize; 5]);
+
+impl Default for Vgg19Widths {
+    fn default() -> Self {
+        Self([64, 128, 256, 512, 512])
+    }
+}
+
+/// A 3x3 convolution, padding 1, then ReLU; differentiable in its input only.
+#[derive(Clone, Debug)]
+struct Conv3x3Relu {
+    weight: Tensor,
+    bias: Tensor,
+    /// The kernel of the input gradient: in/out channels swapped, spatially flipped.
+    adjoint: Tensor,
+}
+
+impl Conv3x3Relu {
+    fn new(weight: Tensor, bias: Tensor) -> candle_core::Result<Self> {
+        let device = weight.device().clone();
+        let flip = Tensor::new(&[2u32, 1, 0], &device)?;
+        let adjoint = weight
+            .transpose(0, 1)?
+            .contiguous()?
+            .index_select(&flip, 2)?
+            .index_select(&flip, 3)?
+            .contiguous()?;
+        let out = bias.dim(0)?;
+        Ok(Self {
+            weight,
+            bias: bias.reshape((1, out, 1, 1))?,
+            adjoint,
+        })
+    }
+
+    fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        let value = x
+            .detach()
+            .conv2d(&self.weight, 1, 1, 1, 1)?
+            .broadcast_add(&self.bias)?;
+        let adjoint = self.adjoint.clone();
+        attach_input_gradient(&value, x, move |g| g.conv2d(&adjoint, 1, 1, 1, 1))?.relu()
+    }
+}
+
+/// 2x2 max pool, stride 2, dropping a last odd row or column (PyTorch's floor mode).
+///
+/// Written as a reshape and two max reductions: candle's `max_pool2d` backward scales the
+/// gradient by 1/4 (candle 0.11).
+fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
+    let (n, c, h, w) = x.dims4()?;
+    let (h2, w2) = (h / 2, w / 2);
+    x.narrow(2, 0, 2 * h2)?
+        .narrow(3, 0, 2 * w2)?
+        .reshape(vec![n, c, h2, 2, w2, 2])?
+        .max(5)?
+        .max(3)
+}
+
+/// The two feature maps of the content loss.
+#[derive(Clone, Debug)]
+pub struct VggFeatures {
+    /// ReLU of conv4_2, `[n, widths[3], h / 8, w / 8]`.
+    pub relu4_2: Tensor,
+    /// ReLU of conv5_2, `[n, widths[4], h / 16, w / 16]`.
+    pub relu5_2: Tensor,
+}
+
+impl VggFeatures {
+    /// Detached copies (for caching ground-truth features).
+    pub fn detach(&self) -> Self {
+        Self {
+            relu4_2: self.relu4_2.detach(),
+            relu5_2: self.relu5_2.detach(),
+        }
+    }
+}
+
+/// VGG-19's convolutional layers up to conv5_2.
+#[derive(Clone, Debug)]
+pub struct Vgg19Features {
+    /// The convolutions, grouped by block.
+    blocks: Vec<Vec<Conv3x3Relu>>,
+}
+
+impl Vgg19Features {
+    /// Loads `features.N.weight` / `features.N.bias` (torchvision's layout, also that of
+    /// `timm/vgg19.tv_in1k`) from a safetensors file.
+    pub fn load(path: &Path, widths: Vgg19Widths, device: &Device) -> Result<Self> {
+        Self::from_tensors(&NamedTensors::load_safetensors(path, device)?, widths)
+    }
+
+    /// Builds the layers from tensors named as in torchvision's `vgg19().features`.
+    pub fn from_tensors(w: &NamedTensors, widths: Vgg19Widths) -> Result<Self> {
+        let mut index = 0;
+        let mut in_channels = 3;
+        let mut blocks = Vec::new();
+        for (&convs, &width) in BLOCK_CONVS.iter().zip(&widths.0) {
+            if width == 0 {
+                return Err(StyleLossError::Config {
+                    field: "vgg19 widths".into(),
+                    value: format!("{:?}", widths.0),
+                    reason: "widths must be positive".into(),
+                });
+            }
+            let mut block = Vec::new();
+            for _ in 0..convs {
+                let weight = w.get(
+                    &format!("features.{index}.weight"),
+                    &[width, in_channels, 3, 3],
+                )?;
+                let bias = w.get(&format!("features.{index}.bias"), &[width])?;
+                block.push(Conv3x3Relu::new(weight, bias)?);
+                in_channels = width;
+                index += 2; // conv, relu
+            }
+            index += 1; // max pool
+            blocks.push(block);
+        }
+        Ok(Self { blocks })
+    }
+
+    /// Features of images `[n, 3, h, w]` in [0, 1] (ImageNet normalization is applied here);
+    /// `h` and `w` must be at least 16. Differentiable in `images`.
+    pub fn forward(&self, images: &Tensor) -> Result<VggFeatures> {
+        let (_, channels, h, w) = images.dims4()?;
+        if channels != 3 || h < 16 || w < 16 {
+            return Err(StyleLossError::Input {
+                name: "images".into(),
+                reason: format!(
+                    "shape {:?}: VGG needs [n, 3, h, w] with h, w >= 16",
+                    images.dims()
+                ),
+            });
+        }
+        let mut x = normalize_channels(images, IMAGENET_MEAN, IMAGENET_STD)?;
+        let mut relu4_2 = None;
+        for (b, block) in self.blocks.iter().enumerate() {
+            if b > 0 {
+                x = max_pool_2x2(&x)?;
+            }
+            for (c, conv) in block.iter().enumerate() {
+                x = conv.forward(&x)?;
+                if b == 3 && c == 1 {
+                    relu4_2 = Some(x.clone());
+                }
+            }
+        }
+        let relu4_2 = relu4_2.ok_or_else(|| StyleLossError::Input {
+            name: "vgg".into(),
+            reason: "block 4 has no second convolution".into(),
+        })?;
+        Ok(VggFeatures {
+            relu4_2,
+            relu5_2: x,
+        })
+    }
+}

@@ -1,0 +1,259 @@
+//! The four losses and their image gradients against the authors' training step transcribed
+//! in PyTorch (tiny CLIP, tiny VGG-19, random weights, given patch augmentations).
+
+mod common;
+
+use candle_core::{DType, Device, Tensor};
+use common::{fixture, load, load_json, relative_error};
+use style_loss::clip::{ClipConfig, ClipModel};
+use style_loss::perspective::Corners;
+use style_loss::{
+    background_mask_from_color, style_rng, LossWeights, PatchAugmentation, PatchSettings,
+    StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
+};
+
+struct Setup {
+    clip: ClipModel,
+    vgg: Vgg19Features,
+    direction: StyleDirection,
+    settings: PatchSettings,
+    weights: LossWeights,
+    patches: Vec<PatchAugmentation>,
+    tensors: std::collections::HashMap<String, Tensor>,
+    json: serde_json::Value,
+}
+
+fn setup() -> Setup {
+    let config = ClipConfig::from_json_file(&fixture("tiny_clip/config.json")).unwrap();
+    let clip = ClipModel::load(
+        &config,
+        &fixture("tiny_clip/model.safetensors"),
+        &Device::Cpu,
+    )
+    .unwrap();
+    let vgg = Vgg19Features::load(
+        &fixture("tiny_vgg19.safetensors"),
+        Vgg19Widths([4, 8, 16, 32, 32]),
+        &Device::Cpu,
+    )
+    .unwrap();
+    let tensors = load("loss_reference.safetensors");
+    let json = load_json("loss_reference.json");
+    let s = &tensors["style_direction"];
+    let direction = StyleDirection::from_embeddings(s, &s.zeros_like().unwrap()).unwrap();
+    let w = &json["weights"];
+    let weights = LossWeights {
+        directional: w["directional"].as_f64().unwrap(),
+        patch: w["patch"].as_f64().unwrap(),
+        content: w["content"].as_f64().unwrap(),
+        background: w["background"].as_f64().unwrap(),
+    };
+    let settings = PatchSettings {
+        patch_size: json["patch_size"].as_u64().unwrap() as usize,
+        num_patches: json["num_patch"].as_u64().unwrap() as usize,
+        distortion_scale: 0.5,
+    };
+    let crops: Vec<[usize; 2]> = serde_json::from_value(json["crops"].clone()).unwrap();
+    let corners: Vec<Corners> = serde_json::from_value(json["corners"].clone()).unwrap();
+    let patches = crops
+        .iter()
+        .zip(corners)
+        .map(|(c, corners)| PatchAugmentation {
+            top: c[0],
+            left: c[1],
+            corners,
+        })
+        .collect();
+    Setup {
+        clip,
+        vgg,
+        direction,
+        settings,
+        weights,
+        patches,
+        tensors,
+        json,
+    }
+}
+
+fn style_loss(s: &Setup, weights: LossWeights) -> StyleLoss {
+    StyleLoss::new(
+        s.clip.clone(),
+        Some(s.vgg.clone()),
+        s.direction.clone(),
+        weights,
+        s.settings.clone(),
+    )
+    .unwrap()
+}
+
+fn white_mask(s: &Setup) -> Tensor {
+    background_mask_from_color(&s.tensors["gt"], [1.0, 1.0, 1.0]).unwrap()
+}
+
+#[test]
+fn total_loss_terms_and_gradient_match() {
+    let s = setup();
+    let loss = style_loss(&s, s.weights);
+    let cache = loss
+        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
+        .unwrap();
+    let out = loss
+        .loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
+        .unwrap();
+    let v = &s.json["values"];
+    let close = |ours: f64, key: &str| {
+        let reference = v[key].as_f64().unwrap();
+        assert!(
+            (ours - reference).abs() <= 1e-4 * reference.abs().max(1e-3),
+            "{key}: {ours} vs {reference}"
+        );
+    };
+    close(out.terms.directional, "directional");
+    close(out.terms.patch, "patch");
+    close(out.terms.content, "content");
+    close(out.terms.background, "background");
+    close(out.total, "total");
+    let err = relative_error(&out.grad, &s.tensors["grad.total"]);
+    assert!(err < 1e-3, "total gradient relative error {err}");
+}
+
+#[test]
+fn each_term_gradient_matches() {
+    let s = setup();
+    let only = |d, p, c, b| LossWeights {
+        directional: d,
+        patch: p,
+        content: c,
+        background: b,
+    };
+    let cases = [
+        ("directional", only(1.0, 0.0, 0.0, 0.0)),
+        ("patch", only(0.0, 1.0, 0.0, 0.0)),
+        ("content", only(0.0, 0.0, 1.0, 0.0)),
+        ("background", only(0.0, 0.0, 0.0, 1.0)),
+    ];
+    for (name, weights) in cases {
+        let loss = style_loss(&s, weights);
+        let cache = loss
+            .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
+            .unwrap();
+        let out = loss
+            .loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
+            .unwrap();
+        let err = relative_error(&out.grad, &s.tensors[&format!("grad.{name}")]);
+        assert!(err < 1e-3, "{name}: gradient relative error {err}");
+    }
+}
+
+#[test]
+fn zero_weights_compute_nothing() {
+    let s = setup();
+    let none = LossWeights {
+        directional: 0.0,
+        patch: 0.0,
+        content: 0.0,
+        background: 0.0,
+    };
+    let loss = style_loss(&s, none);
+    let cache = loss.cache_view(&s.tensors["gt"], None).unwrap();
+    assert!(cache.clip_embedding().is_none());
+    let mut rng = style_rng(0);
+    assert!(loss.sample_patches(&mut rng, 80, 72).unwrap().is_empty());
+    let out = loss
+        .loss_and_grad(&s.tensors["render"], &cache, &mut rng)
+        .unwrap();
+    assert_eq!(out.total, 0.0);
+    assert_eq!(out.grad.dims(), s.tensors["render"].dims());
+    assert_eq!(
+        out.grad
+            .abs()
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap(),
+        0.0
+    );
+}
+
+#[test]
+fn empty_background_mask_gives_zero_not_nan() {
+    let s = setup();
+    let only_background = LossWeights {
+        directional: 0.0,
+        patch: 0.0,
+        content: 0.0,
+        background: 1000.0,
+    };
+    let loss = style_loss(&s, only_background);
+    let empty = Tensor::zeros((80, 72), DType::F32, &Device::Cpu).unwrap();
+    let cache = loss.cache_view(&s.tensors["gt"], Some(&empty)).unwrap();
+    let out = loss
+        .loss_and_grad_with_patches(&s.tensors["render"], &cache, &[])
+        .unwrap();
+    assert_eq!(out.terms.background, 0.0);
+    assert_eq!(out.total, 0.0);
+    // A positive background weight without any mask is a caller error, not a silent zero.
+    assert!(loss.cache_view(&s.tensors["gt"], None).is_err());
+}
+
+#[test]
+fn seeded_runs_repeat_exactly_and_chw_input_is_accepted() {
+    let s = setup();
+    let loss = style_loss(&s, s.weights);
+    let cache = loss
+        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
+        .unwrap();
+    let chw = s.tensors["render"].squeeze(0).unwrap();
+    let a = loss.loss_and_grad(&chw, &cache, &mut style_rng(7)).unwrap();
+    let b = loss.loss_and_grad(&chw, &cache, &mut style_rng(7)).unwrap();
+    let c = loss.loss_and_grad(&chw, &cache, &mut style_rng(8)).unwrap();
+    assert_eq!(a.grad.dims(), chw.dims());
+    assert_eq!(a.total, b.total);
+    assert_eq!(common::values(&a.grad), common::values(&b.grad));
+    assert_ne!(a.terms.patch, c.terms.patch);
+}
+
+#[test]
+fn sampled_patches_follow_torchvision_ranges() {
+    let settings = PatchSettings::default();
+    let patches = settings.sample(&mut style_rng(3), 200, 300).unwrap();
+    assert_eq!(patches.len(), 64);
+    for p in &patches {
+        assert!(p.top <= 200 - 128 && p.left <= 300 - 128);
+        let [tl, tr, br, bl] = p.corners;
+        // distortion 0.5 of half size 64: each corner moves inward by 0..=32 pixels.
+        for v in [tl[0], tl[1], tr[1], bl[0]] {
+            assert!((0..=32).contains(&v), "{:?}", p.corners);
+        }
+        for v in [tr[0], br[0], br[1], bl[1]] {
+            assert!((95..=127).contains(&v), "{:?}", p.corners);
+        }
+    }
+    assert!(settings.sample(&mut style_rng(3), 100, 300).is_err());
+}
+
+#[test]
+fn render_equal_to_gt_stays_finite() {
+    // normalize(E(render) - E(gt)) of a zero difference: PyTorch gives NaN, here 0 (loss 1).
+    let s = setup();
+    let weights = LossWeights {
+        directional: 5.0,
+        patch: 0.0,
+        content: 0.8,
+        background: 0.0,
+    };
+    let loss = style_loss(&s, weights);
+    let cache = loss.cache_view(&s.tensors["gt"], None).unwrap();
+    let out = loss
+        .loss_and_grad_with_patches(&s.tensors["gt"], &cache, &[])
+        .unwrap();
+    assert!(
+        (out.terms.directional - 1.0).abs() < 1e-6,
+        "{:?}",
+        out.terms
+    );
+    assert_eq!(out.terms.content, 0.0);
+    assert!(common::values(&out.grad).iter().all(|v| v.is_finite()));
+}
