@@ -128,7 +128,7 @@ fn main() {
     .expect("valid camera");
     let bg = [1.0f64, 1.0, 1.0];
     println!("threads: {}", rayon::current_num_threads());
-    println!("| Gaussians | visible | tile pairs | forward ms | backward ms | total ms | max abs err image | rel err means | rel err scales | rel err quats | rel err opacity | rel err sh |");
+    println!("| Gaussians | visible | tile pairs | forward ms | backward ms | total ms | image error: max / mean / share > 1e-3 | rel err means | rel err scales | rel err quats | rel err opacity | rel err sh |");
     println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
     for n in counts {
         let g64 = scene(n, kind);
@@ -165,24 +165,30 @@ fn main() {
             depth: None,
         };
         let gr64 = backward(&g64, &cam, &r64, &out64, GradMask::ALL);
-        let img_err = r64
+        let diffs: Vec<f64> = r64
             .image
             .data
             .iter()
             .zip(&r32.image.data)
-            .fold(0.0f64, |m, (a, b)| m.max((a - *b as f64).abs()));
+            .map(|(a, b)| (a - *b as f64).abs())
+            .collect();
+        let img_err = diffs.iter().fold(0.0f64, |m, d| m.max(*d));
+        let img_mean = diffs.iter().sum::<f64>() / diffs.len() as f64;
+        let img_over = diffs.iter().filter(|d| **d > 1e-3).count() as f64 / diffs.len() as f64;
         let a64 = gr64.gaussians.arrays();
         let a32 = gr32.gaussians.arrays();
         let sh64: Vec<f64> = a64[4].iter().chain(a64[5]).copied().collect();
         let sh32: Vec<f32> = a32[4].iter().chain(a32[5]).copied().collect();
         println!(
-            "| {n} | {} | {} | {:.1} | {:.1} | {:.1} | {:.2e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} |",
+            "| {n} | {} | {} | {:.1} | {:.1} | {:.1} | {:.2e} / {:.2e} / {:.4}% | {:.2e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} |",
             r32.visible_count(),
             r32.intersection_count(),
             t_fwd * 1e3,
             t_bwd * 1e3,
             (t_fwd + t_bwd) * 1e3,
             img_err,
+            img_mean,
+            100.0 * img_over,
             rel_err(a64[0], a32[0]),
             rel_err(a64[1], a32[1]),
             rel_err(a64[2], a32[2]),

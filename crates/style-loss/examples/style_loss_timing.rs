@@ -1,0 +1,101 @@
+//! Times one full stylization loss and its image gradient at paper settings, split by term:
+//! ViT-B/32-sized CLIP and full VGG-19 with random weights, one 800x800 render, 64 patches of
+//! 128, VGG at 800x800.
+//!
+//! Run: `cargo run -p style-loss --example style_loss_timing [-- <repeats>]` (the dev profile
+//! builds candle at opt-level 3, where the time is spent; `--release` also works). Add
+//! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU.
+
+use std::time::Instant;
+
+use candle_core::{Device, Tensor};
+use style_loss::{
+    background_mask_from_color, style_rng, ClipConfig, ClipModel, LossWeights, NamedTensors,
+    PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
+};
+
+fn device() -> candle_core::Result<Device> {
+    match std::env::var("STYLE_LOSS_DEVICE").as_deref() {
+        Ok("cuda") => Device::new_cuda(0),
+        Ok("metal") => Device::new_metal(0),
+        _ => Ok(Device::Cpu),
+    }
+}
+
+fn seconds_since(start: Instant) -> f64 {
+    start.elapsed().as_secs_f64()
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let repeats: usize = std::env::args().nth(1).map_or(Ok(1), |s| s.parse())?;
+    let device = device()?;
+    let (height, width) = (800, 800);
+    let start = Instant::now();
+    let clip = ClipModel::from_tensors(
+        &ClipConfig::vit_b_32(),
+        &NamedTensors::random(&device),
+        &device,
+    )?;
+    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
+    println!("random weights: {:.2} s", seconds_since(start));
+
+    let dim = clip.config().projection_dim;
+    let style = Tensor::rand(-1f32, 1f32, dim, &device)?;
+    let direction = StyleDirection::from_embeddings(&style, &style.zeros_like()?)?;
+    let render = Tensor::rand(0f32, 1f32, (1, 3, height, width), &device)?;
+    let mut gt = Tensor::rand(0f32, 1f32, (1, 3, height, width), &device)?;
+    // A white band as background, for the background loss.
+    gt = gt.slice_assign(
+        &[0..1, 0..3, 0..100, 0..width],
+        &Tensor::ones((1, 3, 100, width), candle_core::DType::F32, &device)?,
+    )?;
+    let mask = background_mask_from_color(&gt, [1.0, 1.0, 1.0])?;
+    let paper = LossWeights {
+        background: 1000.0,
+        ..LossWeights::default()
+    };
+    let only = |d: f64, p: f64, c: f64, b: f64| LossWeights {
+        directional: d,
+        patch: p,
+        content: c,
+        background: b,
+    };
+    let configurations = [
+        (
+            "directional (1 CLIP pass)",
+            only(paper.directional, 0.0, 0.0, 0.0),
+        ),
+        ("patch (64 CLIP passes)", only(0.0, paper.patch, 0.0, 0.0)),
+        (
+            "content (VGG-19 800x800)",
+            only(0.0, 0.0, paper.content, 0.0),
+        ),
+        ("background", only(0.0, 0.0, 0.0, paper.background)),
+        ("all four terms", paper),
+    ];
+    println!("device: {device:?}, image {height}x{width}, 64 patches of 128, repeats {repeats}");
+    println!("| term | cache_view (s) | loss + gradient (s) |");
+    println!("|---|---|---|");
+    for (name, weights) in configurations {
+        let loss = StyleLoss::new(
+            clip.clone(),
+            Some(vgg.clone()),
+            direction.clone(),
+            weights,
+            PatchSettings::default(),
+        )?;
+        let start = Instant::now();
+        let cache = loss.cache_view(&gt, Some(&mask))?;
+        let cache_time = seconds_since(start);
+        let mut rng = style_rng(0);
+        let mut best = f64::INFINITY;
+        for _ in 0..repeats {
+            let start = Instant::now();
+            let out = loss.loss_and_grad(&render, &cache, &mut rng)?;
+            out.grad.sum_all()?.to_scalar::<f32>()?;
+            best = best.min(seconds_since(start));
+        }
+        println!("| {name} | {cache_time:.2} | {best:.2} |");
+    }
+    Ok(())
+}
