@@ -55,7 +55,8 @@ pub fn default_scene() -> GaussianSet {
         g.log_scales[3 * i..3 * i + 3].fill((0.06f32).ln());
         g.opacity_logits[i] = 3.0;
         set_colour(&mut g, i, [0.85, 0.85, 0.9]);
-        // A degree-1 term: bluish seen from +x, warm seen from -x.
+        // A degree-1 term on the x basis function (-C1 x): warm seen from +x (viewing direction
+        // -x there), bluish seen from -x.
         let rest = &mut g.sh_rest[9 * i..9 * i + 9];
         rest[6..9].copy_from_slice(&[0.5, 0.1, -0.4]);
     }

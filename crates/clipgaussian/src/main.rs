@@ -36,8 +36,9 @@ enum Command {
 
 #[derive(clap::Args)]
 struct FitDemoArgs {
-    /// Folder for the pictures (created if missing). Writes `views.png` (one row per view:
-    /// target | before | after) and `after.png` (the fitted set from view 0).
+    /// Folder for the pictures (created if missing). Writes `views.png` (one row per view for
+    /// the first four views: target | before | after) and `after.png` (the fitted set from
+    /// view 0).
     #[arg(long, default_value = "out/fit-demo")]
     out: PathBuf,
     /// Optimisation steps, one view per step.

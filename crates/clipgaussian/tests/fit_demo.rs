@@ -14,7 +14,7 @@ fn fit_demo_writes_before_after_pictures() {
         .args([
             "fit-demo",
             "--steps",
-            "40",
+            "150",
             "--gaussians",
             "300",
             "--views",
@@ -32,7 +32,18 @@ fn fit_demo_writes_before_after_pictures() {
         String::from_utf8_lossy(&status.stderr)
     );
     let stdout = String::from_utf8_lossy(&status.stdout);
-    assert!(stdout.contains("PSNR"), "{stdout}");
+    // "mean PSNR over 3 views A dB -> B dB": the fit must improve it.
+    let line = stdout
+        .lines()
+        .find(|l| l.contains("PSNR"))
+        .expect("a PSNR line");
+    let psnr: Vec<f64> = line
+        .split_whitespace()
+        .filter_map(|w| w.parse::<f64>().ok())
+        .collect();
+    assert!(psnr.len() >= 4, "{stdout}");
+    let (before, after) = (psnr[psnr.len() - 2], psnr[psnr.len() - 1]);
+    assert!(after > before + 2.0, "PSNR {before} -> {after}: {stdout}");
     // Three views: three rows of target | before | after, 32 pixels each.
     let views = image::open(out.join("views.png")).unwrap();
     assert_eq!((views.width(), views.height()), (96, 96));

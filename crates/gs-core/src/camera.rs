@@ -30,11 +30,6 @@ pub fn fov_to_focal(fov: f64, pixels: u32) -> f64 {
     0.5 * pixels as f64 / (0.5 * fov).tan()
 }
 
-/// Field of view (radians) that the focal length `focal` (pixels) gives over `pixels`.
-pub fn focal_to_fov(focal: f64, pixels: u32) -> f64 {
-    2.0 * (0.5 * pixels as f64 / focal).atan()
-}
-
 impl Camera {
     /// A camera from a world-to-camera transform (OpenCV axes) and intrinsics; checks that the
     /// size is non-zero, the focal lengths positive and everything finite.
@@ -59,7 +54,9 @@ impl Camera {
         Ok(cam)
     }
 
-    fn validate(&self) -> Result<(), GsError> {
+    /// Checks the size, intrinsics and pose (the constructors do; cameras built field by field
+    /// should be checked before use).
+    pub fn validate(&self) -> Result<(), GsError> {
         let bad =
             |what: &str, value: String| Err(GsError::InvalidCamera(format!("{what} is {value}")));
         if self.width == 0 || self.height == 0 {
@@ -211,6 +208,11 @@ impl Camera {
     /// The same camera for an image downscaled by `factor` (intrinsics and size divided, size
     /// rounded as 3DGS's `-r` option does).
     pub fn downscaled(&self, factor: f64) -> Result<Self, GsError> {
+        if !(factor.is_finite() && factor >= 1.0) {
+            return Err(GsError::InvalidCamera(format!(
+                "the downscale factor is {factor}; it must be a finite number of at least 1"
+            )));
+        }
         let width = (self.width as f64 / factor).round() as u32;
         let height = (self.height as f64 / factor).round() as u32;
         let sx = width as f64 / self.width as f64;
@@ -301,6 +303,22 @@ mod tests {
         let (uv, _) = cam.project([0.0, 0.0, 0.5]).unwrap();
         assert!(uv[1] < 32.0, "up must be towards smaller v, got {uv:?}");
         assert!(Camera::look_at([0.0; 3], [0.0; 3], [0.0, 0.0, 1.0], 1.0, 8, 8).is_err());
+    }
+
+    #[test]
+    fn downscaling_divides_size_and_intrinsics_and_rejects_bad_factors() {
+        let id = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+        let cam = Camera::new(id, [0.0; 3], [100.0, 90.0, 50.0, 40.0], 100, 80).unwrap();
+        let half = cam.downscaled(2.0).unwrap();
+        assert_eq!((half.width, half.height), (50, 40));
+        assert_eq!(
+            [half.fx, half.fy, half.cx, half.cy],
+            [50.0, 45.0, 25.0, 20.0]
+        );
+        for bad in [0.0, 0.5, f64::NAN, f64::INFINITY] {
+            let e = cam.downscaled(bad).unwrap_err().to_string();
+            assert!(e.contains("downscale"), "{e}");
+        }
     }
 
     #[test]

@@ -94,6 +94,7 @@ fn blur<T: Real>(plane: &[T], w: usize, h: usize, k: &[T; SSIM_WINDOW]) -> Vec<T
 }
 
 /// Mean SSIM of two `width` x `height` RGB images (HWC) and its gradient with respect to `a`.
+/// Images without pixels count as identical (SSIM 1).
 ///
 /// # Panics
 /// If either image does not hold `width * height * 3` values.
@@ -101,11 +102,17 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
     let n = width * height;
     assert_eq!(a.len(), 3 * n, "first image has the wrong size");
     assert_eq!(b.len(), 3 * n, "second image has the wrong size");
+    if n == 0 {
+        return LossGrad {
+            loss: T::ONE,
+            grad: Vec::new(),
+        };
+    }
     let k = window::<T>();
     let (c1, c2) = (T::from_f64(SSIM_C1), T::from_f64(SSIM_C2));
     let two = T::from_f64(2.0);
     let inv_count = T::ONE / T::from_f64((3 * n).max(1) as f64);
-    let mut total = T::ZERO;
+    let mut total = 0.0f64;
     let mut grad = vec![T::ZERO; 3 * n];
     for ch in 0..3 {
         let x: Vec<T> = (0..n).map(|i| a[3 * i + ch]).collect();
@@ -129,7 +136,7 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
             let b2 = (m_xx[i] - mx * mx) + (m_yy[i] - my * my) + c2;
             let den = b1 * b2;
             let s = a1 * a2 / den;
-            total += s;
+            total += s.to_f64();
             d_mu[i] = inv_count
                 * ((two * my * a2 - two * my * a1) / den
                     - s * (two * mx * b2 - two * mx * b1) / den);
@@ -144,7 +151,7 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
         }
     }
     LossGrad {
-        loss: total * inv_count,
+        loss: T::from_f64(total) * inv_count,
         grad,
     }
 }

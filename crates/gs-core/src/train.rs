@@ -36,6 +36,11 @@ impl ViewSampler {
         }
     }
 
+    /// Number of views it draws from.
+    pub fn count(&self) -> usize {
+        self.count
+    }
+
     /// The next view index; refills and reshuffles when the epoch is used up.
     pub fn next_view(&mut self) -> usize {
         if self.pending.is_empty() {
@@ -98,6 +103,9 @@ pub struct StepReport {
 /// Why a run stopped early.
 #[derive(Debug, thiserror::Error)]
 pub enum TrainError<E: std::error::Error + 'static> {
+    /// The pieces given to [`train`] do not fit together; nothing was trained.
+    #[error("cannot train: {0}")]
+    Mismatch(String),
     /// The objective failed.
     #[error("objective failed at step {step}: {source}")]
     Objective {
@@ -136,9 +144,24 @@ where
     O: Objective,
     F: FnMut(&StepReport) -> ControlFlow<()>,
 {
+    let lens = model.group_lens();
+    if adam.groups().len() != lens.len() {
+        return Err(TrainError::Mismatch(format!(
+            "the optimizer has {} parameter groups, the model {} ({})",
+            adam.groups().len(),
+            lens.len(),
+            model.group_names().join(", ")
+        )));
+    }
+    if sampler.count() != views.len() {
+        return Err(TrainError::Mismatch(format!(
+            "the view sampler draws from {} views but {} were given",
+            sampler.count(),
+            views.len()
+        )));
+    }
     let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
     let mask = model.grad_mask(&trained);
-    let lens = model.group_lens();
     while adam.step_count() < config.steps {
         let step = adam.step_count() + 1;
         let view_index = sampler.next_view();
@@ -287,6 +310,32 @@ mod tests {
         result.unwrap();
         assert_eq!(poisoned, clean);
         assert_ne!(clean, model, "two steps must have moved the parameters");
+
+        let mut adam = Adam::new(
+            groups[..5].to_vec(),
+            &model.group_lens()[..5],
+            AdamHyper::default(),
+        );
+        let config = TrainConfig {
+            steps: 1,
+            seed: 0,
+            background: [0.0; 3],
+        };
+        let e = train(
+            &mut model.clone(),
+            &views,
+            &mut PoisonAt(0, 0),
+            &mut adam,
+            &mut ViewSampler::new(1, 0),
+            &config,
+            |_| ControlFlow::Continue(()),
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("5 parameter groups") && e.contains("sh_rest"),
+            "{e}"
+        );
     }
 
     #[test]

@@ -122,6 +122,26 @@ fn random_scene_front_view_with_gradients_nonzero() {
     // The probe must actually exercise the Gaussians: most should get a gradient.
     let r = render(&g, &cam, [0.0; 3]);
     assert!(r.visible_count() >= 7, "only {} visible", r.visible_count());
+    let w = weights(7, 3 * cam.pixel_count());
+    let grads = backward(
+        &g,
+        &cam,
+        &r,
+        &OutputGrads {
+            rgb: &w,
+            alpha: None,
+            depth: None,
+        },
+        GradMask::ALL,
+    );
+    let moved = (0..g.len())
+        .filter(|i| {
+            grads.gaussians.means[3 * i..3 * i + 3]
+                .iter()
+                .any(|v| *v != 0.0)
+        })
+        .count();
+    assert!(moved >= 7, "only {moved} Gaussians got a mean gradient");
 }
 
 /// One Gaussian per degenerate case, each in a scene of its own with a normal Gaussian behind.
@@ -179,7 +199,9 @@ fn straddling_the_near_plane() {
 
 #[test]
 fn opacity_near_zero_and_near_one() {
-    for logit in [-9.0, 9.0] {
+    // -5.3: opacity 0.005, just above 1/255, so it is drawn near its centre only; 9: alpha
+    // clamps at 0.99 where the Gaussian is dense.
+    for logit in [-5.3, 9.0] {
         let g = degenerate_scene(|g| g.opacity_logits[0] = logit);
         check_gradients(&g, &front_camera(24, 24), 6, &no_skip);
     }
@@ -197,4 +219,35 @@ fn overlapping_at_equal_depth() {
     check_gradients(&g, &front_camera(24, 24), 8, &|kind, idx| {
         kind == 0 && idx % 3 == 2
     });
+}
+
+#[test]
+fn centre_outside_the_jacobian_clamp() {
+    // x/z = 0.7 is past the clamp 1.3 tan(fov_x / 2) = 0.55 of this camera: the centre is off
+    // screen, the large Gaussian still reaches in, and its Jacobian uses the clamped x/z.
+    let g = degenerate_scene(|g| {
+        g.means[0..3].copy_from_slice(&[2.8, 0.1, 0.0]);
+        g.log_scales[0..3].copy_from_slice(&[0.4, 0.3, 0.2]);
+    });
+    let cam = front_camera(24, 24);
+    let r = render(&g, &cam, [0.0; 3]);
+    assert_eq!(r.visible_count(), 2, "the clamped Gaussian must be drawn");
+    check_gradients(&g, &cam, 9, &no_skip);
+}
+
+#[test]
+fn pixels_that_stop_early() {
+    // Five stacked, nearly opaque Gaussians: transmittance falls below 1e-4 at the fourth or
+    // fifth near the centre, so those pixels stop and the rest is not composited.
+    let mut g = random_scene::<f64>(5, 5, 1);
+    for i in 0..5 {
+        g.means[3 * i..3 * i + 3].copy_from_slice(&[
+            0.02 * i as f64,
+            -0.01 * i as f64,
+            0.2 * i as f64,
+        ]);
+        g.log_scales[3 * i..3 * i + 3].copy_from_slice(&[-1.1, -1.2, -1.0]);
+        g.opacity_logits[i] = 3.0;
+    }
+    check_gradients(&g, &front_camera(24, 24), 10, &no_skip);
 }

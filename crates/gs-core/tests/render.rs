@@ -193,6 +193,8 @@ fn non_finite_and_extreme_parameters_are_culled_without_nan() {
     let cam = oblique_camera(48, 40);
     let r = render(&g, &cam, [0.5; 3]);
     assert!(all_finite(&r.image.data) && all_finite(&r.alpha) && all_finite(&r.depth));
+    // Gaussians 0-6 are culled; at most the other five are drawn.
+    assert!(r.visible_count() <= 5, "{} visible", r.visible_count());
     let w: Vec<f32> = weights(3, 3 * cam.pixel_count())
         .iter()
         .map(|v| *v as f32)

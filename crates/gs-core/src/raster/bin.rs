@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use super::project::Splat;
+use super::project::{mahalanobis, Splat};
 use super::TILE_SIZE;
 use crate::real::Real;
 
@@ -47,8 +47,9 @@ fn touches_tile<T: Real>(s: &Splat<T>, tx: usize, ty: usize) -> bool {
     if (x0..=x1).contains(&mx) && (y0..=y1).contains(&my) {
         return true;
     }
-    let [a, b, c] = s.conic.map(|v| v.to_f64());
-    let sigma = |dx: f64, dy: f64| 0.5 * (a * dx * dx + c * dy * dy) + b * dx * dy;
+    let conic = s.conic.map(|v| v.to_f64());
+    let [a, b, c] = conic;
+    let sigma = |dx: f64, dy: f64| mahalanobis(conic, dx, dy);
     // The minimum over the rectangle lies on an edge: minimise the 1D quadratic on each edge
     // (offsets are mean - pixel, so an edge at x = X has dx = mx - X and dy in [my-y1, my-y0]).
     let mut best = f64::INFINITY;
@@ -68,6 +69,10 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
     let tiles_x = (width as usize).div_ceil(TILE_SIZE);
     let tiles_y = (height as usize).div_ceil(TILE_SIZE);
     let n_tiles = tiles_x * tiles_y;
+    assert!(
+        splats.len() <= u32::MAX as usize && n_tiles <= u32::MAX as usize,
+        "tile lists index Gaussians and tiles with u32"
+    );
 
     let mut order: Vec<(T, u32)> = splats
         .par_iter()
@@ -158,8 +163,7 @@ mod tests {
                         for px in tx * TILE_SIZE..(tx + 1) * TILE_SIZE {
                             let dx = splat.mean2d[0] - (px as f64 + 0.5);
                             let dy = splat.mean2d[1] - (py as f64 + 0.5);
-                            let sig = 0.5 * (conic[0] * dx * dx + conic[2] * dy * dy)
-                                + conic[1] * dx * dy;
+                            let sig = mahalanobis(conic, dx, dy);
                             any |= sig <= splat.sigma_cut;
                         }
                     }

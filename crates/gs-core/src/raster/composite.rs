@@ -9,7 +9,7 @@
 use rayon::prelude::*;
 
 use super::bin::TileBins;
-use super::project::{Splat, SplatGrad};
+use super::project::{mahalanobis, Splat, SplatGrad};
 use super::{OutputGrads, Rendered, ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN};
 use crate::real::Real;
 
@@ -31,8 +31,7 @@ pub(crate) struct Composited<T: Real> {
 fn splat_alpha<T: Real>(s: &Splat<T>, px: T, py: T) -> Option<(T, T, T, T)> {
     let dx = s.mean2d[0] - px;
     let dy = s.mean2d[1] - py;
-    let half = T::from_f64(0.5);
-    let sigma = half * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) + s.conic[1] * dx * dy;
+    let sigma = mahalanobis(s.conic, dx, dy);
     if sigma < T::ZERO || sigma > s.sigma_cut {
         return None;
     }

@@ -27,6 +27,8 @@ pub const TILE_SIZE: usize = 16;
 pub const EPS2D: f64 = 0.3;
 /// Gaussians at camera depth `z <= NEAR_PLANE` are culled.
 pub const NEAR_PLANE: f64 = 0.01;
+/// Gaussians at camera depth `z >= FAR_PLANE` are culled (gsplat's default far plane).
+pub const FAR_PLANE: f64 = 1e10;
 /// Upper clamp of a splat's alpha.
 pub const ALPHA_MAX: f64 = 0.99;
 /// Splats with alpha below this at a pixel are skipped there.
@@ -66,7 +68,7 @@ impl<T: Real> Rendered<T> {
 ///
 /// # Panics
 /// If the arrays of `gaussians` do not match its count and degree
-/// ([`GaussianSet::check_shapes`]).
+/// ([`GaussianSet::check_shapes`]) or the camera is invalid ([`Camera::validate`]).
 pub fn render<T: Real>(
     gaussians: &GaussianSet<T>,
     camera: &Camera,
@@ -74,6 +76,9 @@ pub fn render<T: Real>(
 ) -> Rendered<T> {
     if let Err(e) = gaussians.check_shapes() {
         panic!("malformed Gaussian set: {e}");
+    }
+    if let Err(e) = camera.validate() {
+        panic!("{e}");
     }
     let cam = CameraT::<T>::new(camera);
     let splats: Vec<Option<Splat<T>>> = (0..gaussians.len())
@@ -164,7 +169,8 @@ pub struct Gradients<T: Real = f32> {
 /// rendered, through the same `camera`) and to the background.
 ///
 /// # Panics
-/// If the output gradients do not have the image's size.
+/// If `gaussians` or `camera` is not the one `rendered` came from (count or image size differ),
+/// or the output gradients do not have the image's size.
 pub fn backward<T: Real>(
     gaussians: &GaussianSet<T>,
     camera: &Camera,
@@ -172,6 +178,16 @@ pub fn backward<T: Real>(
     out_grads: &OutputGrads<'_, T>,
     mask: GradMask,
 ) -> Gradients<T> {
+    assert_eq!(
+        gaussians.len(),
+        rendered.splats.len(),
+        "backward needs the Gaussian set that was rendered"
+    );
+    assert_eq!(
+        (camera.width, camera.height),
+        (rendered.image.width, rendered.image.height),
+        "backward needs the camera that was rendered"
+    );
     let (w, h) = (camera.width as usize, camera.height as usize);
     assert_eq!(out_grads.rgb.len(), 3 * w * h, "dL/dRGB has the wrong size");
     for g in [out_grads.alpha, out_grads.depth].into_iter().flatten() {
@@ -278,8 +294,7 @@ mod tests {
             for py in (my - 60.0).floor() as i64..(my + 60.0).ceil() as i64 {
                 for px in (mx - 60.0).floor() as i64..(mx + 60.0).ceil() as i64 {
                     let (dx, dy) = (mx - (px as f64 + 0.5), my - (py as f64 + 0.5));
-                    let sigma =
-                        0.5 * (s.conic[0] * dx * dx + s.conic[2] * dy * dy) + s.conic[1] * dx * dy;
+                    let sigma = project::mahalanobis(s.conic, dx, dy);
                     let alpha = (s.opacity * (-sigma).exp()).min(ALPHA_MAX);
                     if alpha >= ALPHA_MIN {
                         checked += 1;

@@ -6,7 +6,7 @@ use crate::mat::{self, M3, V3};
 use crate::real::Real;
 use crate::sh;
 
-use super::{ALPHA_MIN, EPS2D, NEAR_PLANE};
+use super::{ALPHA_MIN, EPS2D, FAR_PLANE, NEAR_PLANE};
 
 /// The camera, cast once to the working precision.
 #[derive(Clone, Copy, Debug)]
@@ -74,6 +74,14 @@ pub(crate) struct Splat<T: Real> {
     pub extent: [T; 2],
 }
 
+/// The Mahalanobis term `sigma = 0.5 (a dx^2 + c dy^2) + b dx dy` of the conic `(a, b, c)` at the
+/// offset `(dx, dy) = mean2d - pixel centre`. Compositing, binning and tests all evaluate it
+/// here, in this order of operations.
+#[inline(always)]
+pub(crate) fn mahalanobis<T: Real>(conic: [T; 3], dx: T, dy: T) -> T {
+    T::from_f64(0.5) * (conic[0] * dx * dx + conic[2] * dy * dy) + conic[1] * dx * dy
+}
+
 /// Gradients of a loss with respect to one splat's compositing inputs.
 #[derive(Clone, Copy, Debug, Default)]
 pub(crate) struct SplatGrad<T: Real> {
@@ -105,6 +113,8 @@ struct Forward<T: Real> {
     q_norm: T,
     rot: M3<T>,
     scale: V3<T>,
+    /// `rot * diag(scale)`.
+    m: M3<T>,
     cov_cam: M3<T>,
     jac: [[T; 3]; 2],
     clamped: [bool; 2],
@@ -140,7 +150,7 @@ fn forward<T: Real>(
         pr[2] + cam.translation[2],
     ];
     let z = p_cam[2];
-    if !(z > c(NEAR_PLANE)) || !all_finite(&p_cam) {
+    if !(z > c(NEAR_PLANE)) || !(z < c(FAR_PLANE)) || !all_finite(&p_cam) {
         return None;
     }
 
@@ -218,10 +228,21 @@ fn forward<T: Real>(
     } else {
         -T::ONE
     };
-    // sigma = 0.5 d^T C^-1 d <= cut spans sqrt(2 cut C_xx) in x and sqrt(2 cut C_yy) in y,
-    // with C = cov2d (a, b, cc); one pixel of margin covers rounding.
-    let reach = (c(2.0) * sigma_cut.max(T::ZERO)).sqrt();
-    let extent = [reach * a.sqrt() + T::ONE, reach * cc.sqrt() + T::ONE];
+    // sigma = 0.5 d^T Q d <= cut spans sqrt(2 cut (Q^-1)_xx) in x and sqrt(2 cut (Q^-1)_yy) in y.
+    // Q is the stored (rounded) conic the loops evaluate, so Q^-1 is taken from it in f64; the
+    // 2D covariance's diagonal bounds it too where rounding leaves Q barely positive definite.
+    // A 1 % and one-pixel margin covers the rest of the rounding.
+    let extent = {
+        let [qa, qb, qc] = conic.map(|v| v.to_f64());
+        let det_q = qa * qc - qb * qb;
+        let (mut ex, mut ey) = (a.to_f64(), cc.to_f64());
+        if det_q > 0.0 {
+            ex = ex.max(qc / det_q);
+            ey = ey.max(qa / det_q);
+        }
+        let reach = (2.0 * sigma_cut.to_f64().max(0.0)).sqrt() * 1.01;
+        [c(reach * ex.sqrt() + 1.0), c(reach * ey.sqrt() + 1.0)]
+    };
     let (dir, dir_norm) = mat::normalize3([
         mean[0] - cam.centre[0],
         mean[1] - cam.centre[1],
@@ -248,6 +269,7 @@ fn forward<T: Real>(
         q_norm,
         rot,
         scale,
+        m,
         cov_cam,
         jac,
         clamped,
@@ -420,14 +442,7 @@ pub(crate) fn project_backward<T: Real>(
     // cov_cam = W cov W^T: dcov = W^T dSc W; cov = M M^T: dM = 2 dcov M; M = R diag(s).
     let w = &cam.rotation;
     let g_cov = mat::mul(&mat::mul(&mat::transpose(w), &g_cov_cam), w);
-    let m = f.rot.map(|row| {
-        [
-            row[0] * f.scale[0],
-            row[1] * f.scale[1],
-            row[2] * f.scale[2],
-        ]
-    });
-    let g_m = mat::mul(&mat::add(&g_cov, &mat::transpose(&g_cov)), &m);
+    let g_m = mat::mul(&mat::add(&g_cov, &mat::transpose(&g_cov)), &f.m);
     let mut g_rot = [[T::ZERO; 3]; 3];
     for r in 0..3 {
         for k in 0..3 {
