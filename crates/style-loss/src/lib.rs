@@ -3,6 +3,8 @@
 //! four losses (directional, patch, content, background) with their gradient with respect to
 //! the rendered image.
 //!
+//! [`StyleObjective`] plugs the losses into gs-core's training loop.
+//!
 //! Conventions: images are f32, linear, in [0, 1], channels first (`[3, h, w]` or
 //! `[1, 3, h, w]`); gradients come back in the shape the image came in. Every operation that
 //! lies between the image and a loss has a backward pass that is tested against PyTorch.
@@ -13,6 +15,7 @@ pub mod error;
 pub mod image_layout;
 pub mod losses;
 pub mod nn;
+pub mod objective;
 pub mod patches;
 pub mod perspective;
 pub mod resize;
@@ -28,6 +31,7 @@ pub use error::{Result, StyleLossError};
 pub use losses::{
     background_mask_from_color, LossTerms, LossWeights, StyleLoss, StyleLossOutput, ViewCache,
 };
+pub use objective::StyleObjective;
 pub use patches::{style_rng, PatchAugmentation, PatchSettings, StyleRng};
 pub use style_direction::{StyleDirection, DEFAULT_SOURCE_PROMPT};
 pub use tensor_file::NamedTensors;
