@@ -1,0 +1,226 @@
+//! Datasets of posed ground-truth images: NeRF-synthetic ([`nerf_synthetic`]) and COLMAP
+//! ([`colmap`]), loaded into gs-core views and images with the options 3DGS users know.
+
+pub mod colmap;
+mod images;
+pub mod nerf_synthetic;
+
+use std::path::PathBuf;
+
+use gs_core::model::View;
+use gs_core::{GsError, Image};
+
+pub use images::{BackgroundMask, ALPHA_BACKGROUND_BELOW};
+
+/// The colour that transparent pixels are composited over.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Background {
+    /// `(1, 1, 1)`, 3DGS's `--white_background`.
+    White,
+    /// `(0, 0, 0)`, 3DGS's default.
+    #[default]
+    Black,
+}
+
+impl Background {
+    /// The colour, linear RGB in `[0, 1]`.
+    pub fn rgb(self) -> [f32; 3] {
+        match self {
+            Self::White => [1.0; 3],
+            Self::Black => [0.0; 3],
+        }
+    }
+}
+
+/// How to load a dataset.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct LoadOptions {
+    /// Background that alpha is composited over.
+    pub background: Background,
+    /// Resolution divisor, 3DGS's `-r`: 1 keeps the images as they are; `f > 1` divides the
+    /// width and height by `f` (rounded) and the intrinsics with them (see
+    /// [`gs_core::Camera::downscaled`]). COLMAP scenes use `images_<f>/` when it exists.
+    pub downscale: u32,
+}
+
+impl Default for LoadOptions {
+    fn default() -> Self {
+        Self {
+            background: Background::Black,
+            downscale: 1,
+        }
+    }
+}
+
+/// The sparse points of a COLMAP reconstruction, the usual initial point cloud.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct PointCloud {
+    /// World positions.
+    pub positions: Vec<[f64; 3]>,
+    /// 8-bit sRGB colours as COLMAP stores them.
+    pub colors: Vec<[u8; 3]>,
+}
+
+/// A loaded dataset: one view, image, optional background mask and file per frame, in the
+/// dataset's order (NeRF-synthetic: the json's frame order; COLMAP: sorted by image name, as
+/// 3DGS does).
+#[derive(Clone, Debug)]
+pub struct Dataset {
+    /// Cameras (time 0).
+    pub views: Vec<View>,
+    /// Ground-truth images, each the size of its camera, alpha composited over `background`.
+    pub images: Vec<Image>,
+    /// Background masks, present for images with an alpha channel.
+    pub masks: Vec<Option<BackgroundMask>>,
+    /// The image files.
+    pub image_paths: Vec<PathBuf>,
+    /// The background colour used.
+    pub background: [f32; 3],
+    /// Scene extent of these views, see [`scene_extent`].
+    pub extent: f64,
+    /// COLMAP sparse points; `None` for NeRF-synthetic.
+    pub points: Option<PointCloud>,
+}
+
+/// One loaded frame: its view, ground-truth image, background mask and image file.
+pub(crate) type LoadedFrame = (View, Image, Option<BackgroundMask>, PathBuf);
+
+impl Dataset {
+    /// A dataset of `frames` in order, with the extent of their cameras.
+    pub(crate) fn from_frames(
+        frames: Vec<LoadedFrame>,
+        background: [f32; 3],
+        points: Option<PointCloud>,
+    ) -> Self {
+        let mut dataset = Dataset {
+            views: Vec::with_capacity(frames.len()),
+            images: Vec::with_capacity(frames.len()),
+            masks: Vec::with_capacity(frames.len()),
+            image_paths: Vec::with_capacity(frames.len()),
+            background,
+            extent: 0.0,
+            points,
+        };
+        for (view, image, mask, path) in frames {
+            dataset.views.push(view);
+            dataset.images.push(image);
+            dataset.masks.push(mask);
+            dataset.image_paths.push(path);
+        }
+        dataset.extent = scene_extent(&dataset.views);
+        dataset
+    }
+}
+
+/// The scene extent as 3DGS computes it (`getNerfppNorm`'s radius): the largest distance of a
+/// camera centre to the mean of the centres, times 1.1. World units; 0 for a single view and
+/// for no view.
+pub fn scene_extent(views: &[View]) -> f64 {
+    if views.is_empty() {
+        return 0.0;
+    }
+    let centres: Vec<[f64; 3]> = views.iter().map(|v| v.camera.centre()).collect();
+    let mut mean = [0.0; 3];
+    for c in &centres {
+        for k in 0..3 {
+            mean[k] += c[k] / centres.len() as f64;
+        }
+    }
+    let max_distance = centres
+        .iter()
+        .map(|c| (0..3).map(|k| (c[k] - mean[k]).powi(2)).sum::<f64>().sqrt())
+        .fold(0.0, f64::max);
+    1.1 * max_distance
+}
+
+/// Why a dataset could not be loaded. Each names the file and what in it was wrong.
+#[derive(Debug, thiserror::Error)]
+pub enum DatasetError {
+    /// A file or folder the dataset needs is absent.
+    #[error("{}: not found ({what})", path.display())]
+    Missing {
+        /// The path looked for.
+        path: PathBuf,
+        /// What it should hold.
+        what: String,
+    },
+    /// A file that could not be read.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A json file that does not parse or lacks a field.
+    #[error("{}: {source}", path.display())]
+    Json {
+        /// The file.
+        path: PathBuf,
+        /// The parser's error (names the field, line and column).
+        source: serde_json::Error,
+    },
+    /// A value or record that is not what the format allows.
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and where (line, record, field, value).
+        message: String,
+    },
+    /// A COLMAP camera with lens distortion.
+    #[error(
+        "{}: camera {camera_id} uses the {model} model; only PINHOLE and SIMPLE_PINHOLE are \
+         supported: undistort the images first (colmap image_undistorter)",
+        path.display()
+    )]
+    UnsupportedCameraModel {
+        /// The cameras file.
+        path: PathBuf,
+        /// The camera id.
+        camera_id: i64,
+        /// The COLMAP model name.
+        model: String,
+    },
+    /// An image whose size is not the one its camera has.
+    #[error(
+        "{}: the image is {}x{} but its camera says {}x{}",
+        path.display(), found.0, found.1, expected.0, expected.1
+    )]
+    ImageSize {
+        /// The image file.
+        path: PathBuf,
+        /// Width and height the camera expects, pixels.
+        expected: (u32, u32),
+        /// Width and height of the file, pixels.
+        found: (u32, u32),
+    },
+    /// An image file that could not be decoded.
+    #[error("{}: {message}", path.display())]
+    Image {
+        /// The file.
+        path: PathBuf,
+        /// The decoder's message.
+        message: String,
+    },
+    /// A camera that gs-core refuses (impossible intrinsics or pose).
+    #[error("{context}: {source}")]
+    Camera {
+        /// The file and frame or image it comes from.
+        context: String,
+        /// gs-core's error.
+        source: GsError,
+    },
+    /// Options that cannot be used.
+    #[error("invalid load options: {0}")]
+    Options(String),
+}
+
+fn check_options(options: &LoadOptions) -> Result<(), DatasetError> {
+    if options.downscale == 0 {
+        return Err(DatasetError::Options(
+            "downscale must be at least 1 (1 keeps the resolution)".into(),
+        ));
+    }
+    Ok(())
+}

@@ -1,0 +1,138 @@
+//! NeRF-synthetic (Blender) scenes: `transforms_{train,test,val}.json` with `camera_angle_x`
+//! (horizontal field of view, radians) and frames of `file_path` and `transform_matrix`
+//! (camera-to-world, OpenGL axes). Images are RGBA PNGs; alpha is composited over the chosen
+//! background and gives the background mask.
+
+use std::path::{Path, PathBuf};
+
+use gs_core::model::View;
+use gs_core::Camera;
+use rayon::prelude::*;
+use serde::Deserialize;
+
+use super::images::{self, ExpectedSize};
+use super::{check_options, Dataset, DatasetError, LoadOptions};
+
+/// Which transforms file to load.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Split {
+    /// `transforms_train.json`.
+    Train,
+    /// `transforms_test.json`.
+    Test,
+    /// `transforms_val.json`.
+    Val,
+}
+
+impl Split {
+    /// The transforms file name.
+    pub fn file_name(self) -> &'static str {
+        match self {
+            Self::Train => "transforms_train.json",
+            Self::Test => "transforms_test.json",
+            Self::Val => "transforms_val.json",
+        }
+    }
+}
+
+#[derive(Deserialize)]
+struct Transforms {
+    camera_angle_x: f64,
+    /// Image width some exporters add; when present every image must have it.
+    w: Option<u32>,
+    /// Image height some exporters add; when present every image must have it.
+    h: Option<u32>,
+    frames: Vec<Frame>,
+}
+
+#[derive(Deserialize)]
+struct Frame {
+    file_path: String,
+    transform_matrix: [[f64; 4]; 4],
+}
+
+/// The image file of a frame: `file_path` relative to the scene folder, with ".png" appended
+/// unless it already ends in .png, .jpg or .jpeg (INRIA appends ".png").
+fn image_path(root: &Path, file_path: &str) -> PathBuf {
+    let has_image_extension = Path::new(file_path)
+        .extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| ["png", "jpg", "jpeg"].contains(&e.to_ascii_lowercase().as_str()));
+    if has_image_extension {
+        root.join(file_path)
+    } else {
+        root.join(format!("{file_path}.png"))
+    }
+}
+
+/// Loads one split of the NeRF-synthetic scene in `root`. Every image must have the size given by
+/// the json's `w`/`h` when present, else the size of the first frame's image. Images load in
+/// parallel. The extent is that of this split's cameras (3DGS uses the training split's).
+pub fn load(root: &Path, split: Split, options: &LoadOptions) -> Result<Dataset, DatasetError> {
+    check_options(options)?;
+    let json_path = root.join(split.file_name());
+    let text = std::fs::read_to_string(&json_path).map_err(|source| {
+        if source.kind() == std::io::ErrorKind::NotFound {
+            DatasetError::Missing {
+                path: json_path.clone(),
+                what: format!("the NeRF-synthetic {split:?} split"),
+            }
+        } else {
+            DatasetError::Io {
+                path: json_path.clone(),
+                source,
+            }
+        }
+    })?;
+    let transforms: Transforms =
+        serde_json::from_str(&text).map_err(|source| DatasetError::Json {
+            path: json_path.clone(),
+            source,
+        })?;
+    let format_error = |message: String| DatasetError::Format {
+        path: json_path.clone(),
+        message,
+    };
+    let fov = transforms.camera_angle_x;
+    if !(fov > 0.0 && fov < std::f64::consts::PI) {
+        return Err(format_error(format!(
+            "camera_angle_x is {fov}; a field of view in radians in (0, pi) is expected"
+        )));
+    }
+    let Some(first) = transforms.frames.first() else {
+        return Err(format_error("no frames".into()));
+    };
+    let size = match (transforms.w, transforms.h) {
+        (Some(w), Some(h)) => (w, h),
+        _ => images::dimensions(&image_path(root, &first.file_path))?,
+    };
+    let background = options.background.rgb();
+    let loaded: Vec<_> = transforms
+        .frames
+        .par_iter()
+        .enumerate()
+        .map(|(i, frame)| {
+            let camera = Camera::from_nerf(frame.transform_matrix, fov, size.0, size.1)
+                .and_then(|c| match options.downscale {
+                    1 => Ok(c),
+                    f => c.downscaled(f as f64),
+                })
+                .map_err(|source| DatasetError::Camera {
+                    context: format!("{} frame {i}", json_path.display()),
+                    source,
+                })?;
+            let path = image_path(root, &frame.file_path);
+            let (image, mask) = images::load(
+                &path,
+                ExpectedSize::Exact(size.0, size.1),
+                Some((camera.width, camera.height)),
+                background,
+            )?;
+            Ok((View::still(camera), image, mask, path))
+        })
+        // Gathered in order first, so the error reported is that of the first failing frame.
+        .collect::<Vec<Result<_, DatasetError>>>()
+        .into_iter()
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Dataset::from_frames(loaded, background, None))
+}

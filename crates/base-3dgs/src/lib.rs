@@ -1,0 +1,10 @@
+//! base-3dgs: the 3D Gaussian splatting base model of CLIPGaussian.
+//!
+//! - [`ply`]: INRIA 3DGS PLY files (read and write, every SH degree, extra properties kept).
+//! - [`dataset`]: NeRF-synthetic and COLMAP scenes as views, ground-truth images, background
+//!   masks and the scene extent.
+
+pub mod dataset;
+pub mod ply;
+
+pub use ply::{read_ply, write_ply, PlyFormat, PlyGaussians};

@@ -1,0 +1,387 @@
+//! COLMAP loading: sparse models written by the test in the text and binary layouts of
+//! COLMAP's `read_write_model.py`, cameras, projection, downscaling, extent and errors.
+
+mod common;
+
+use std::path::Path;
+
+use base_3dgs::dataset::colmap::{self, read_sparse_model};
+use base_3dgs::dataset::{Background, DatasetError, LoadOptions};
+use common::TempDir;
+
+const W: u32 = 16;
+const H: u32 = 12;
+
+struct Cam {
+    id: i32,
+    model: &'static str,
+    model_id: i32,
+    params: Vec<f64>,
+}
+
+struct Img {
+    id: i32,
+    q: [f64; 4],
+    t: [f64; 3],
+    camera: i32,
+    name: &'static str,
+}
+
+/// Two cameras (PINHOLE, SIMPLE_PINHOLE) and three images listed out of name order, the
+/// first at the origin looking along +z, the others translated.
+fn model() -> (Vec<Cam>, Vec<Img>) {
+    let cams = vec![
+        Cam {
+            id: 1,
+            model: "PINHOLE",
+            model_id: 1,
+            params: vec![20.0, 18.0, 8.0, 6.0],
+        },
+        Cam {
+            id: 7,
+            model: "SIMPLE_PINHOLE",
+            model_id: 0,
+            params: vec![15.0, 7.5, 6.5],
+        },
+    ];
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let imgs = vec![
+        Img {
+            id: 3,
+            q: [1.0, 0.0, 0.0, 0.0],
+            t: [0.0, 0.0, 2.0],
+            camera: 1,
+            name: "b.png",
+        },
+        Img {
+            id: 1,
+            q: [1.0, 0.0, 0.0, 0.0],
+            t: [-1.0, 0.0, 2.0],
+            camera: 7,
+            name: "a.png",
+        },
+        Img {
+            id: 2,
+            q: [s, 0.0, s, 0.0],
+            t: [0.0, -3.0, 2.0],
+            camera: 1,
+            name: "c.png",
+        },
+    ];
+    (cams, imgs)
+}
+
+const POINTS: [([f64; 3], [u8; 3]); 2] = [
+    ([0.5, -0.25, 3.0], [255, 0, 10]),
+    ([1.0, 2.0, 3.0], [1, 2, 3]),
+];
+
+fn write_text(dir: &Path, cams: &[Cam], imgs: &[Img]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut s =
+        String::from("# Camera list with one line of data per camera:\n# Number of cameras: 2\n");
+    for c in cams {
+        let params: Vec<String> = c.params.iter().map(|p| p.to_string()).collect();
+        s += &format!("{} {} {W} {H} {}\n", c.id, c.model, params.join(" "));
+    }
+    std::fs::write(dir.join("cameras.txt"), s).unwrap();
+    let mut s = String::from("# Image list with two lines of data per image:\n\n");
+    for (k, i) in imgs.iter().enumerate() {
+        s += &format!(
+            "{} {} {} {} {} {} {} {} {} {}\n",
+            i.id, i.q[0], i.q[1], i.q[2], i.q[3], i.t[0], i.t[1], i.t[2], i.camera, i.name
+        );
+        // The 2D points line; empty for the second image, as COLMAP writes it.
+        s += if k == 1 {
+            "\n"
+        } else {
+            "1.5 2.5 -1 3.0 4.0 1\n"
+        };
+    }
+    std::fs::write(dir.join("images.txt"), s).unwrap();
+    let mut s = String::from("# 3D point list\n");
+    for (k, (p, c)) in POINTS.iter().enumerate() {
+        s += &format!(
+            "{} {} {} {} {} {} {} 0.5 1 0 3 0\n",
+            k + 1,
+            p[0],
+            p[1],
+            p[2],
+            c[0],
+            c[1],
+            c[2]
+        );
+    }
+    std::fs::write(dir.join("points3D.txt"), s).unwrap();
+}
+
+fn write_binary(dir: &Path, cams: &[Cam], imgs: &[Img]) {
+    std::fs::create_dir_all(dir).unwrap();
+    let mut b = Vec::new();
+    b.extend((cams.len() as u64).to_le_bytes());
+    for c in cams {
+        b.extend(c.id.to_le_bytes());
+        b.extend(c.model_id.to_le_bytes());
+        b.extend((W as u64).to_le_bytes());
+        b.extend((H as u64).to_le_bytes());
+        c.params.iter().for_each(|p| b.extend(p.to_le_bytes()));
+    }
+    std::fs::write(dir.join("cameras.bin"), b).unwrap();
+    let mut b = Vec::new();
+    b.extend((imgs.len() as u64).to_le_bytes());
+    for i in imgs {
+        b.extend(i.id.to_le_bytes());
+        i.q.iter()
+            .chain(&i.t)
+            .for_each(|v| b.extend(v.to_le_bytes()));
+        b.extend(i.camera.to_le_bytes());
+        b.extend(i.name.as_bytes());
+        b.push(0);
+        b.extend(2u64.to_le_bytes());
+        for (x, y, id) in [(1.5f64, 2.5f64, -1i64), (3.0, 4.0, 1)] {
+            b.extend(x.to_le_bytes());
+            b.extend(y.to_le_bytes());
+            b.extend(id.to_le_bytes());
+        }
+    }
+    std::fs::write(dir.join("images.bin"), b).unwrap();
+    let mut b = Vec::new();
+    b.extend((POINTS.len() as u64).to_le_bytes());
+    for (k, (p, c)) in POINTS.iter().enumerate() {
+        b.extend((k as u64 + 1).to_le_bytes());
+        p.iter().for_each(|v| b.extend(v.to_le_bytes()));
+        b.extend(c);
+        b.extend(0.5f64.to_le_bytes());
+        b.extend(1u64.to_le_bytes());
+        b.extend(3i32.to_le_bytes());
+        b.extend(0i32.to_le_bytes());
+    }
+    std::fs::write(dir.join("points3D.bin"), b).unwrap();
+}
+
+fn write_images(dir: &Path, width: u32, height: u32) {
+    std::fs::create_dir_all(dir).unwrap();
+    for name in ["a.png", "b.png", "c.png"] {
+        let img = image::RgbImage::from_fn(width, height, |x, y| {
+            image::Rgb([(10 * x) as u8, (10 * y) as u8, 77])
+        });
+        img.save(dir.join(name)).unwrap();
+    }
+}
+
+/// A scene with the text model (`binary` false) or the binary one, and its images.
+fn scene(name: &str, binary: bool) -> TempDir {
+    let dir = TempDir::new(name);
+    let (cams, imgs) = model();
+    let sparse = dir.path().join("sparse/0");
+    if binary {
+        write_binary(&sparse, &cams, &imgs);
+    } else {
+        write_text(&sparse, &cams, &imgs);
+    }
+    write_images(&dir.path().join("images"), W, H);
+    dir
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() < 1e-9
+}
+
+#[test]
+fn text_and_binary_models_load_to_the_same_scene() {
+    let txt = scene("colmap-txt", false);
+    let bin = scene("colmap-bin", true);
+    let a = read_sparse_model(&txt.path().join("sparse/0")).unwrap();
+    let b = read_sparse_model(&bin.path().join("sparse/0")).unwrap();
+    assert_eq!(a.cameras, b.cameras);
+    assert_eq!(a.images, b.images);
+    assert_eq!(a.points, b.points);
+    assert_eq!(a.cameras[1].params, [15.0, 7.5, 6.5]);
+    assert_eq!(a.images[1].name, "a.png");
+    assert_eq!(a.points.colors[0], [255, 0, 10]);
+
+    let options = LoadOptions::default();
+    let da = colmap::load(txt.path(), &options).unwrap();
+    let db = colmap::load(bin.path(), &options).unwrap();
+    assert_eq!(da.views, db.views);
+    assert_eq!(da.images, db.images);
+    assert_eq!(da.points, db.points);
+    // Sorted by image name, as 3DGS does.
+    let names: Vec<_> = da
+        .image_paths
+        .iter()
+        .map(|p| p.file_name().unwrap().to_owned())
+        .collect();
+    assert_eq!(names, ["a.png", "b.png", "c.png"]);
+    assert_eq!(
+        da.images[0].pixel(3, 2),
+        [30.0 / 255.0, 20.0 / 255.0, 77.0 / 255.0]
+    );
+    assert!(da.masks.iter().all(Option::is_none), "no alpha, no mask");
+}
+
+#[test]
+fn a_known_point_projects_to_the_expected_pixel() {
+    let dir = scene("colmap-project", true);
+    let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    // b.png: PINHOLE fx 20 fy 18 cx 8 cy 6, identity rotation, t = (0, 0, 2). The point
+    // (0.5, -0.25, 3) is (0.5, -0.25, 5) in the camera: u = 20 * 0.1 + 8, v = 18 * -0.05 + 6.
+    let ([u, v], depth) = data.views[1].camera.project([0.5, -0.25, 3.0]).unwrap();
+    assert!(
+        close(u, 10.0) && close(v, 5.1) && close(depth, 5.0),
+        "{u} {v} {depth}"
+    );
+    // a.png: SIMPLE_PINHOLE f 15, t = (-1, 0, 2): the point is at (-0.5, -0.25, 5).
+    let ([u, v], _) = data.views[0].camera.project([0.5, -0.25, 3.0]).unwrap();
+    assert!(close(u, 7.5 - 1.5) && close(v, 6.5 - 0.75), "{u} {v}");
+    // c.png: R = rotation of 90 degrees about y, which maps world (-1, 0, 0) to (0, 0, 1).
+    let ([u, v], depth) = data.views[2].camera.project([-1.0, 0.0, 0.0]).unwrap();
+    assert!(
+        close(u, 8.0) && close(v, 6.0 - 18.0 * 3.0 / 3.0) && close(depth, 3.0),
+        "{u} {v}"
+    );
+}
+
+#[test]
+fn extent_matches_a_hand_computation() {
+    let dir = scene("colmap-extent", false);
+    let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    // Centres -R^T t: a (1, 0, -2), b (0, 0, -2), c: R^T (0, -3, 2) = (-2, -3, 0), negated
+    // (2, 3, 0). Mean (1, 1, -4/3); squared distances 13/9, 22/9 and 61/9.
+    let want = 1.1 * 61f64.sqrt() / 3.0;
+    assert!(close(data.extent, want), "{} {want}", data.extent);
+}
+
+#[test]
+fn downscale_2_halves_intrinsics_and_image_sizes() {
+    let dir = scene("colmap-downscale", true);
+    let full = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    let options = LoadOptions {
+        background: Background::White,
+        downscale: 2,
+    };
+    let check = |data: &base_3dgs::dataset::Dataset| {
+        for (half, full) in data.views.iter().zip(&full.views) {
+            let (h, f) = (&half.camera, &full.camera);
+            assert_eq!((h.width, h.height), (W / 2, H / 2));
+            assert!(close(h.fx, f.fx / 2.0) && close(h.fy, f.fy / 2.0));
+            assert!(close(h.cx, f.cx / 2.0) && close(h.cy, f.cy / 2.0));
+            assert_eq!(h.rotation, f.rotation);
+        }
+        for img in &data.images {
+            assert_eq!((img.width, img.height), (W / 2, H / 2));
+        }
+    };
+    // No images_2/: the full images are resized.
+    let resized = colmap::load(dir.path(), &options).unwrap();
+    check(&resized);
+    assert!(resized.image_paths[0].parent().unwrap().ends_with("images"));
+    // Blue is 77 everywhere and stays so; red is a ramp that the resize averages.
+    let px = resized.images[0].pixel(1, 1);
+    assert!((px[2] - 77.0 / 255.0).abs() < 1e-3 && px[0] > 0.0, "{px:?}");
+
+    // With images_2/ present, its images are used as they are.
+    write_images(&dir.path().join("images_2"), W / 2, H / 2);
+    let prescaled = colmap::load(dir.path(), &options).unwrap();
+    check(&prescaled);
+    assert!(prescaled.image_paths[0]
+        .parent()
+        .unwrap()
+        .ends_with("images_2"));
+    assert_eq!(
+        prescaled.images[0].pixel(3, 2),
+        [30.0 / 255.0, 20.0 / 255.0, 77.0 / 255.0]
+    );
+
+    // A pre-downscaled image more than a pixel off is refused.
+    write_images(&dir.path().join("images_2"), W / 2 + 2, H / 2);
+    let e = colmap::load(dir.path(), &options).unwrap_err();
+    assert!(
+        e.to_string().contains("10x6") && e.to_string().contains("8x6"),
+        "{e}"
+    );
+}
+
+#[test]
+fn distorted_cameras_ask_for_undistortion() {
+    let dir = scene("colmap-radial", false);
+    let path = dir.path().join("sparse/0/cameras.txt");
+    std::fs::write(
+        &path,
+        format!("1 PINHOLE {W} {H} 20 18 8 6\n7 SIMPLE_RADIAL {W} {H} 15 7.5 6.5 0.01\n"),
+    )
+    .unwrap();
+    let e = colmap::load(dir.path(), &LoadOptions::default()).unwrap_err();
+    assert!(
+        matches!(
+            &e,
+            DatasetError::UnsupportedCameraModel { camera_id: 7, .. }
+        ),
+        "{e}"
+    );
+    let message = e.to_string();
+    assert!(
+        message.contains("SIMPLE_RADIAL") && message.contains("image_undistorter"),
+        "{message}"
+    );
+
+    let bin = scene("colmap-radial-bin", true);
+    let (mut cams, imgs) = model();
+    cams[0].model_id = 4;
+    cams[0].params = vec![20.0, 18.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0];
+    write_binary(&bin.path().join("sparse/0"), &cams, &imgs);
+    let e = colmap::load(bin.path(), &LoadOptions::default()).unwrap_err();
+    assert!(
+        e.to_string().contains("OPENCV") && e.to_string().contains("cameras.bin"),
+        "{e}"
+    );
+}
+
+#[test]
+fn malformed_models_and_mismatched_images_are_clear_errors() {
+    let dir = scene("colmap-errors", false);
+    let sparse = dir.path().join("sparse/0");
+    write_images(&dir.path().join("images"), W, H + 1);
+    let e = colmap::load(dir.path(), &LoadOptions::default()).unwrap_err();
+    let message = e.to_string();
+    assert!(
+        message.contains("a.png") && message.contains("16x13") && message.contains("16x12"),
+        "{message}"
+    );
+
+    std::fs::write(sparse.join("cameras.txt"), "1 PINHOLE 16 12 20 18 8\n").unwrap();
+    let e = read_sparse_model(&sparse).unwrap_err();
+    assert!(
+        e.to_string()
+            .contains("cameras.txt: line 1: PINHOLE has 4 parameters, the line has 3"),
+        "{e}"
+    );
+    std::fs::write(
+        sparse.join("cameras.txt"),
+        "1 PINHOLE 16 twelve 20 18 8 6\n",
+    )
+    .unwrap();
+    let e = read_sparse_model(&sparse).unwrap_err();
+    assert!(e.to_string().contains("HEIGHT is \"twelve\""), "{e}");
+
+    let bin = scene("colmap-truncated", true);
+    let images = bin.path().join("sparse/0/images.bin");
+    let bytes = std::fs::read(&images).unwrap();
+    std::fs::write(&images, &bytes[..bytes.len() - 5]).unwrap();
+    let e = read_sparse_model(&bin.path().join("sparse/0")).unwrap_err();
+    assert!(
+        e.to_string().contains("images.bin") && e.to_string().contains("truncated"),
+        "{e}"
+    );
+
+    std::fs::remove_file(&images).unwrap();
+    let e = colmap::load(bin.path(), &LoadOptions::default()).unwrap_err();
+    assert!(
+        matches!(e, DatasetError::Missing { .. }) && e.to_string().contains("images.txt"),
+        "{e}"
+    );
+
+    let empty = TempDir::new("colmap-empty");
+    let e = colmap::load(empty.path(), &LoadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("sparse"), "{e}");
+}

@@ -1,0 +1,204 @@
+//! NeRF-synthetic loading: cameras, alpha compositing, masks, downscaling, extent and errors,
+//! on a tiny scene written by the test.
+
+mod common;
+
+use std::path::Path;
+
+use base_3dgs::dataset::nerf_synthetic::{self, Split};
+use base_3dgs::dataset::{scene_extent, Background, DatasetError, LoadOptions};
+use common::TempDir;
+
+const W: u32 = 8;
+const H: u32 = 6;
+
+/// A W x H RGBA image: pixel (0,0) red but fully transparent, (1,0) opaque (51,102,153),
+/// (2,0) red at alpha 128, every other pixel opaque grey 200.
+fn write_rgba(path: &Path, width: u32, height: u32) {
+    let mut img = image::RgbaImage::from_pixel(width, height, image::Rgba([200, 200, 200, 255]));
+    img.put_pixel(0, 0, image::Rgba([255, 0, 0, 0]));
+    img.put_pixel(1, 0, image::Rgba([51, 102, 153, 255]));
+    img.put_pixel(2, 0, image::Rgba([255, 0, 0, 128]));
+    std::fs::create_dir_all(path.parent().unwrap()).unwrap();
+    img.save(path).unwrap();
+}
+
+/// camera_angle_x with a focal length equal to the width: 2 atan(1/2).
+fn fov_x() -> f64 {
+    2.0 * 0.5f64.atan()
+}
+
+/// Three frames: at z = 4 looking down -z (OpenGL identity rotation), the same moved to
+/// x = 2, and one at y = -4 looking along +y; `file_path` with and without ".png".
+fn write_scene(root: &Path, split: &str) {
+    for i in 0..3 {
+        write_rgba(&root.join(format!("{split}/r_{i}.png")), W, H);
+    }
+    let json = serde_json::json!({
+        "camera_angle_x": fov_x(),
+        "frames": [
+            {"file_path": format!("./{split}/r_0"), "rotation": 0.1,
+             "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]},
+            {"file_path": format!("./{split}/r_1.png"),
+             "transform_matrix": [[1, 0, 0, 2], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]},
+            {"file_path": format!("{split}/r_2"),
+             "transform_matrix": [[1, 0, 0, 0], [0, 0, -1, -4], [0, 1, 0, 0], [0, 0, 0, 1]]},
+        ]
+    });
+    std::fs::write(
+        root.join(format!("transforms_{split}.json")),
+        serde_json::to_string_pretty(&json).unwrap(),
+    )
+    .unwrap();
+}
+
+fn close(a: f64, b: f64) -> bool {
+    (a - b).abs() < 1e-9
+}
+
+#[test]
+fn a_tiny_scene_loads_with_cameras_that_project_known_points() {
+    let dir = TempDir::new("nerf-load");
+    write_scene(dir.path(), "train");
+    let data = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(data.views.len(), 3);
+    assert_eq!(data.images.len(), 3);
+    assert!(data.image_paths[0].ends_with("train/r_0.png"));
+    let cam = &data.views[0].camera;
+    assert_eq!((cam.width, cam.height), (W, H));
+    assert!(close(cam.fx, W as f64) && close(cam.fy, W as f64));
+    // World (1, 0.5, 0) is 4 in front of the camera: u = 4 + 8 * 1/4, v = 3 - 8 * 0.5/4.
+    let ([u, v], depth) = cam.project([1.0, 0.5, 0.0]).unwrap();
+    assert!(
+        close(u, 6.0) && close(v, 2.0) && close(depth, 4.0),
+        "{u} {v} {depth}"
+    );
+    // The camera moved to x = 2 sees the same point left of centre.
+    let ([u, v], _) = data.views[1].camera.project([1.0, 0.5, 0.0]).unwrap();
+    assert!(close(u, 2.0) && close(v, 2.0), "{u} {v}");
+    // The third camera at y = -4 looks along +y with world z up in the image.
+    let ([u, v], depth) = data.views[2].camera.project([1.0, 0.0, 0.5]).unwrap();
+    assert!(
+        close(u, 6.0) && close(v, 2.0) && close(depth, 4.0),
+        "{u} {v} {depth}"
+    );
+    assert_eq!(data.views[0].time, 0.0);
+    assert!(data.points.is_none());
+}
+
+#[test]
+fn alpha_is_composited_over_the_chosen_background_and_gives_the_mask() {
+    let dir = TempDir::new("nerf-alpha");
+    write_scene(dir.path(), "test");
+    let a = 128.0 / 255.0;
+    for (background, bg) in [(Background::White, 1.0f32), (Background::Black, 0.0)] {
+        let options = LoadOptions {
+            background,
+            downscale: 1,
+        };
+        let data = nerf_synthetic::load(dir.path(), Split::Test, &options).unwrap();
+        assert_eq!(data.background, [bg; 3]);
+        let img = &data.images[0];
+        assert_eq!(img.pixel(0, 0), [bg; 3], "transparent red is background");
+        let px = img.pixel(1, 0);
+        let want = [51.0 / 255.0, 102.0 / 255.0, 153.0 / 255.0];
+        assert!((0..3).all(|c| (px[c] - want[c]).abs() < 1e-6), "{px:?}");
+        let px = img.pixel(2, 0);
+        let want = [a + bg * (1.0 - a), bg * (1.0 - a), bg * (1.0 - a)];
+        assert!(
+            (0..3).all(|c| (px[c] - want[c]).abs() < 1e-6),
+            "{px:?} {want:?}"
+        );
+        let mask = data.masks[0].as_ref().unwrap();
+        assert_eq!((mask.width, mask.height), (W, H));
+        assert_eq!(mask.data[0], 1.0);
+        assert_eq!(
+            &mask.data[1..3],
+            &[0.0, 0.0],
+            "partly transparent is foreground"
+        );
+        assert_eq!(mask.background_count(), 1);
+    }
+}
+
+#[test]
+fn downscaling_halves_images_and_intrinsics() {
+    let dir = TempDir::new("nerf-downscale");
+    write_scene(dir.path(), "val");
+    let options = LoadOptions {
+        background: Background::White,
+        downscale: 2,
+    };
+    let data = nerf_synthetic::load(dir.path(), Split::Val, &options).unwrap();
+    let cam = &data.views[0].camera;
+    assert_eq!((cam.width, cam.height), (W / 2, H / 2));
+    assert!(close(cam.fx, W as f64 / 2.0) && close(cam.cx, W as f64 / 4.0));
+    let img = &data.images[0];
+    assert_eq!((img.width, img.height), (W / 2, H / 2));
+    assert_eq!(img.data.len(), (W * H / 4 * 3) as usize);
+    // The bottom-right quarter is uniform grey 200 and stays so.
+    let px = img.pixel(3, 2);
+    assert!((px[0] - 200.0 / 255.0).abs() < 1e-3, "{px:?}");
+    assert_eq!(
+        data.masks[0].as_ref().unwrap().data.len(),
+        (W * H / 4) as usize
+    );
+}
+
+#[test]
+fn extent_is_1_1_times_the_largest_distance_to_the_mean_centre() {
+    let dir = TempDir::new("nerf-extent");
+    write_scene(dir.path(), "train");
+    let data = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    // Centres (0,0,4), (2,0,4), (0,-4,0): mean (2/3, -4/3, 8/3); the farthest is the third,
+    // at sqrt(4/9 + 64/9 + 64/9) = sqrt(132)/3.
+    let want = 1.1 * 132f64.sqrt() / 3.0;
+    assert!(close(data.extent, want), "{} {want}", data.extent);
+    assert!(close(scene_extent(&data.views), want));
+    assert_eq!(scene_extent(&data.views[..1]), 0.0);
+}
+
+#[test]
+fn missing_files_bad_json_and_size_mismatches_are_clear_errors() {
+    let dir = TempDir::new("nerf-errors");
+    write_scene(dir.path(), "train");
+    let e = nerf_synthetic::load(dir.path(), Split::Test, &LoadOptions::default()).unwrap_err();
+    assert!(matches!(e, DatasetError::Missing { .. }), "{e}");
+    assert!(e.to_string().contains("transforms_test.json"), "{e}");
+
+    write_rgba(&dir.path().join("train/r_1.png"), W + 1, H);
+    let e = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap_err();
+    let message = e.to_string();
+    assert!(
+        message.contains("r_1.png") && message.contains("9x6") && message.contains("8x6"),
+        "{message}"
+    );
+
+    std::fs::remove_file(dir.path().join("train/r_1.png")).unwrap();
+    let e = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap_err();
+    assert!(
+        matches!(e, DatasetError::Missing { .. }) && e.to_string().contains("r_1.png"),
+        "{e}"
+    );
+
+    let json = dir.path().join("transforms_val.json");
+    std::fs::write(&json, r#"{"frames": []}"#).unwrap();
+    let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
+    assert!(
+        e.to_string().contains("camera_angle_x") && e.to_string().contains("transforms_val.json"),
+        "{e}"
+    );
+    std::fs::write(&json, r#"{"camera_angle_x": 0.7, "frames": []}"#).unwrap();
+    let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("no frames"), "{e}");
+    std::fs::write(&json, r#"{"camera_angle_x": -1, "frames": []}"#).unwrap();
+    let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
+    assert!(e.to_string().contains("camera_angle_x is -1"), "{e}");
+
+    let options = LoadOptions {
+        background: Background::Black,
+        downscale: 0,
+    };
+    let e = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap_err();
+    assert!(e.to_string().contains("downscale"), "{e}");
+}
