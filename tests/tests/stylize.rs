@@ -6,9 +6,8 @@ use std::ops::ControlFlow;
 use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
-use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_core::gaussians::PARAM_NAMES;
-use gs_core::model::{BaseModel, View};
+use gs_core::adam::{Adam, AdamHyper};
+use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
@@ -131,23 +130,7 @@ fn stylizing_a_scene_lowers_the_style_loss_and_keeps_the_count() {
     let mut objective = StyleObjective::new(loss.clone(), &targets, None, 7, &Device::Cpu).unwrap();
     let mut model = base.clone();
     // The paper's 3D learning rates (extent about 3.3 here), feature_lr 0.01.
-    let lrs = [
-        LrSchedule::Exponential {
-            start: 1e-4 * 3.3,
-            end: 1e-6 * 3.3,
-            steps: 30_000,
-        },
-        LrSchedule::Constant(0.005),
-        LrSchedule::Constant(0.001),
-        LrSchedule::Constant(0.05),
-        LrSchedule::Constant(0.01),
-        LrSchedule::Constant(0.01 / 20.0),
-    ];
-    let groups = PARAM_NAMES
-        .iter()
-        .zip(lrs)
-        .map(|(n, s)| GroupConfig::new(*n, s))
-        .collect();
+    let groups = GaussianLrs::stylization(3.3, 0.01).groups();
     let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: 60,

@@ -11,10 +11,9 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_core::gaussians::PARAM_NAMES;
+use gs_core::adam::{Adam, AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, View};
+use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_core::{GaussianSet, Image};
@@ -104,25 +103,20 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
         .collect();
     let psnr_before = mean_psnr(&model, &views, &targets, bg);
 
-    // 3DGS learning rates (extent ~1.3 here), means decaying over the run.
-    let lrs = [
-        LrSchedule::Exponential {
+    // 3DGS's fitting rates, the means' rate scaled up for this small scene and decaying over
+    // the run.
+    let lrs = GaussianLrs {
+        means: LrSchedule::Exponential {
             start: 1.6e-4 * 13.0,
             end: 1.6e-6 * 13.0,
             steps: args.steps,
         },
-        LrSchedule::Constant(0.005),
-        LrSchedule::Constant(0.001),
-        LrSchedule::Constant(0.05),
-        LrSchedule::Constant(0.0025),
-        LrSchedule::Constant(0.0025 / 20.0),
-    ];
-    let groups = PARAM_NAMES
-        .iter()
-        .zip(lrs)
-        .map(|(n, s)| GroupConfig::new(*n, s))
-        .collect();
-    let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
+        scales: 0.005,
+        rotations: 0.001,
+        opacities: 0.05,
+        feature: 0.0025,
+    };
+    let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: args.steps,
         seed: args.seed,

@@ -3,6 +3,7 @@
 
 use std::borrow::Cow;
 
+use crate::adam::{GroupConfig, LrSchedule};
 use crate::camera::Camera;
 use crate::gaussians::{GaussianGrads, GaussianSet, PARAM_NAMES};
 use crate::raster::GradMask;
@@ -95,5 +96,73 @@ impl BaseModel for GaussianSet {
             sh_dc: trained[4],
             sh_rest: trained[5],
         }
+    }
+}
+
+/// Learning rates of the six parameter groups of plain Gaussians ([`PARAM_NAMES`] order), with
+/// 3DGS's split of the colour rate: `sh_dc` at `feature`, `sh_rest` at `feature / 20`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct GaussianLrs {
+    /// Means (world units per step).
+    pub means: LrSchedule,
+    /// Log-scales.
+    pub scales: f64,
+    /// Quaternions.
+    pub rotations: f64,
+    /// Opacity logits.
+    pub opacities: f64,
+    /// `feature_lr`: degree-0 SH; higher degrees get a twentieth.
+    pub feature: f64,
+}
+
+impl GaussianLrs {
+    /// CLIPGaussian's 3D stylization rates (method.md): means `1e-4 extent -> 1e-6 extent` over
+    /// 30,000 steps, scales 0.005, rotations 0.001, opacities 0.05, and `feature_lr`.
+    pub fn stylization(extent: f64, feature_lr: f64) -> Self {
+        Self {
+            means: LrSchedule::Exponential {
+                start: 1e-4 * extent,
+                end: 1e-6 * extent,
+                steps: 30_000,
+            },
+            scales: 0.005,
+            rotations: 0.001,
+            opacities: 0.05,
+            feature: feature_lr,
+        }
+    }
+
+    /// The Adam groups, in [`PARAM_NAMES`] order.
+    pub fn groups(&self) -> Vec<GroupConfig> {
+        let schedules = [
+            self.means.clone(),
+            LrSchedule::Constant(self.scales),
+            LrSchedule::Constant(self.rotations),
+            LrSchedule::Constant(self.opacities),
+            LrSchedule::Constant(self.feature),
+            LrSchedule::Constant(self.feature / 20.0),
+        ];
+        PARAM_NAMES
+            .iter()
+            .zip(schedules)
+            .map(|(name, schedule)| GroupConfig::new(*name, schedule))
+            .collect()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn stylization_rates_follow_method_md() {
+        let groups = GaussianLrs::stylization(2.0, 0.01).groups();
+        let names: Vec<&str> = groups.iter().map(|g| g.name.as_str()).collect();
+        assert_eq!(names, PARAM_NAMES);
+        assert!((groups[0].schedule.at(0) - 2e-4).abs() < 1e-15);
+        assert!((groups[0].schedule.at(30_000) - 2e-6).abs() < 1e-15);
+        let constant: Vec<f64> = groups[1..].iter().map(|g| g.schedule.at(123)).collect();
+        assert_eq!(constant, vec![0.005, 0.001, 0.05, 0.01, 0.0005]);
+        assert!(groups.iter().all(|g| !g.frozen));
     }
 }

@@ -5,10 +5,9 @@ mod common;
 use std::ops::ControlFlow;
 
 use common::random_scene;
-use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_core::gaussians::PARAM_NAMES;
+use gs_core::adam::{Adam, AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, View};
+use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{train, Objective, TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet};
@@ -57,13 +56,14 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let mut model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(&model, &views, &mut objective, bg);
 
-    let lrs = [0.004, 0.01, 0.01, 0.05, 0.05, 0.0025];
-    let groups = PARAM_NAMES
-        .iter()
-        .zip(lrs)
-        .map(|(n, lr)| GroupConfig::new(*n, LrSchedule::Constant(lr)))
-        .collect();
-    let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
+    let lrs = GaussianLrs {
+        means: LrSchedule::Constant(0.004),
+        scales: 0.01,
+        rotations: 0.01,
+        opacities: 0.05,
+        feature: 0.05,
+    };
+    let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: 800,
         seed: 5,
