@@ -41,7 +41,7 @@ struct FitDemoArgs {
     #[arg(long, default_value = "out/fit-demo")]
     out: PathBuf,
     /// Optimisation steps, one view per step.
-    #[arg(long, default_value_t = 3000)]
+    #[arg(long, default_value_t = 1500)]
     steps: u64,
     /// Number of Gaussians fitted (fixed for the whole run).
     #[arg(long, default_value_t = 3000)]
