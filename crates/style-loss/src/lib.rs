@@ -14,6 +14,7 @@ mod custom_grad;
 pub mod error;
 pub mod image_layout;
 pub mod losses;
+pub mod metrics;
 pub mod nn;
 pub mod objective;
 pub mod patches;
