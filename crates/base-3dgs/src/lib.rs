@@ -5,6 +5,7 @@
 //!   masks and the scene extent.
 
 pub mod dataset;
+pub mod interpolate;
 pub mod ply;
 
 pub use ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
