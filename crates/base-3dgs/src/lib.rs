@@ -8,4 +8,4 @@ pub mod dataset;
 pub mod interpolate;
 pub mod ply;
 
-pub use ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
+pub use ply::{read_ply, read_ply_with_format, write_ply, PlyFormat, PlyGaussians};

@@ -196,6 +196,12 @@ pub struct PlyError {
 
 /// Reads an INRIA PLY file (see the module documentation).
 pub fn read_ply(path: &Path) -> Result<PlyGaussians, PlyError> {
+    read_ply_with_format(path).map(|(ply, _)| ply)
+}
+
+/// Reads an INRIA PLY file like [`read_ply`] and also returns the format of its body, so a
+/// modified copy can be written in the same format.
+pub fn read_ply_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat), PlyError> {
     let err = |kind| PlyError {
         path: path.to_path_buf(),
         kind,
@@ -204,7 +210,7 @@ pub fn read_ply(path: &Path) -> Result<PlyGaussians, PlyError> {
     parse(&bytes).map_err(err)
 }
 
-fn parse(bytes: &[u8]) -> Result<PlyGaussians, PlyErrorKind> {
+fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
     let header = header::parse(bytes)?;
     let (layout, extra_types) = Layout::from_properties(&header.properties)?;
     let body = &bytes[header.body_start..];
@@ -236,7 +242,7 @@ fn parse(bytes: &[u8]) -> Result<PlyGaussians, PlyErrorKind> {
         .zip(extras)
         .map(|((name, ty), values)| ExtraProperty { name, ty, values })
         .collect();
-    Ok(PlyGaussians { gaussians, extras })
+    Ok((PlyGaussians { gaussians, extras }, header.format))
 }
 
 /// Checks what [`Layout::for_writing`] relies on: array lengths, extra names and lengths.
