@@ -1,0 +1,643 @@
+//! The 3D stylization run end to end on a tiny scene the test writes to disk (a random Gaussian
+//! set as an ascii PLY with an extra property, and RGBA renders of it in the NeRF-synthetic
+//! layout), with the tiny CLIP / VGG-19 fixtures of style-loss: outputs, falling loss, exact
+//! resume, configuration files, and bad inputs that are named and leave nothing behind.
+
+mod common;
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use base_3dgs::dataset::nerf_synthetic::{self, Split};
+use base_3dgs::dataset::{Background, LoadOptions};
+use base_3dgs::ply::{ExtraProperty, ScalarType};
+use base_3dgs::stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
+use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
+use base_3dgs::{read_ply, write_ply, PlyFormat, PlyGaussians};
+use candle_core::{Device, Tensor};
+use common::TempDir;
+use gs_core::raster::render;
+use gs_core::{Camera, GaussianSet};
+use rand::{Rng, SeedableRng};
+use style_loss::image_layout::hwc_to_tensor;
+use style_loss::{
+    style_rng, ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection,
+    StyleLoss, Vgg19Features, Vgg19Widths, DEFAULT_SOURCE_PROMPT,
+};
+
+const SIZE: u32 = 48;
+const VIEWS: usize = 4;
+const FOV_X: f64 = 0.9;
+
+fn fixture(name: &str) -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../style-loss/tests/fixtures")
+        .join(name)
+}
+
+fn random_set() -> GaussianSet {
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(3);
+    let mut g = GaussianSet::zeros(80, 1);
+    for v in &mut g.means {
+        *v = rng.random_range(-0.7..0.7);
+    }
+    for v in &mut g.log_scales {
+        *v = rng.random_range(-2.2..-1.4);
+    }
+    for v in &mut g.quats {
+        *v = rng.random_range(-1.0..1.0);
+    }
+    for v in &mut g.opacity_logits {
+        *v = rng.random_range(0.0..3.0);
+    }
+    for v in &mut g.sh_dc {
+        *v = rng.random_range(-0.5..0.5);
+    }
+    g
+}
+
+/// Camera-to-world (Blender axes: z up, the camera looks along its -z) of a camera on a circle
+/// of radius 3 around the origin, looking at it.
+fn c2w(k: usize) -> [[f64; 4]; 4] {
+    let a = k as f64 * std::f64::consts::TAU / VIEWS as f64;
+    let eye = [3.0 * a.cos(), 3.0 * a.sin(), 0.5];
+    let norm = |v: [f64; 3]| {
+        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        [v[0] / n, v[1] / n, v[2] / n]
+    };
+    let cross = |a: [f64; 3], b: [f64; 3]| {
+        [
+            a[1] * b[2] - a[2] * b[1],
+            a[2] * b[0] - a[0] * b[2],
+            a[0] * b[1] - a[1] * b[0],
+        ]
+    };
+    let z = norm(eye);
+    let x = norm(cross([0.0, 0.0, 1.0], z));
+    let y = cross(z, x);
+    [
+        [x[0], y[0], z[0], eye[0]],
+        [x[1], y[1], z[1], eye[1]],
+        [x[2], y[2], z[2], eye[2]],
+        [0.0, 0.0, 0.0, 1.0],
+    ]
+}
+
+/// The scene folder: `scene.ply` (ascii, with a `confidence` extra) and `data/` with
+/// `transforms_train.json` and RGBA renders (alpha from the render's opacity).
+fn write_scene(root: &Path) -> (PathBuf, PathBuf) {
+    let set = random_set();
+    let data = root.join("data");
+    std::fs::create_dir_all(data.join("train")).unwrap();
+    let mut frames = Vec::new();
+    for k in 0..VIEWS {
+        let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
+        let r = render(&set, &camera, [0.0; 3]);
+        let mut img = image::RgbaImage::new(SIZE, SIZE);
+        for (i, p) in img.pixels_mut().enumerate() {
+            let a = r.alpha[i].clamp(0.0, 1.0);
+            let c = |ch: usize| {
+                let v = if a > 0.0 {
+                    r.image.data[3 * i + ch] / a
+                } else {
+                    0.0
+                };
+                (v.clamp(0.0, 1.0) * 255.0).round() as u8
+            };
+            *p = image::Rgba([c(0), c(1), c(2), (a * 255.0).round() as u8]);
+        }
+        img.save(data.join(format!("train/r_{k}.png"))).unwrap();
+        frames.push(serde_json::json!({
+            "file_path": format!("./train/r_{k}"),
+            "transform_matrix": c2w(k),
+        }));
+    }
+    let transforms = serde_json::json!({"camera_angle_x": FOV_X, "frames": frames});
+    std::fs::write(
+        data.join("transforms_train.json"),
+        serde_json::to_string(&transforms).unwrap(),
+    )
+    .unwrap();
+    let ply = root.join("scene.ply");
+    let n = set.len();
+    let mut file = PlyGaussians::new(set);
+    file.extras.push(ExtraProperty {
+        name: "confidence".into(),
+        ty: ScalarType::Float32,
+        values: (0..n).map(|i| i as f64 * 0.5).collect(),
+    });
+    write_ply(&ply, &file, PlyFormat::Ascii).unwrap();
+    (ply, data)
+}
+
+/// The tiny CLIP fixture with CLIP's real vocabulary size (a random token embedding), so the
+/// real tokenizer's ids fit: `(config.json, model.safetensors)` in `dir`.
+fn write_tiny_clip(dir: &Path) -> (PathBuf, PathBuf) {
+    let device = Device::Cpu;
+    let mut tensors: HashMap<String, Tensor> =
+        candle_core::safetensors::load(fixture("tiny_clip/model.safetensors"), &device).unwrap();
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+    let values: Vec<f32> = (0..49408 * 32)
+        .map(|_| rng.random_range(-0.05..0.05))
+        .collect();
+    tensors.insert(
+        "text_model.embeddings.token_embedding.weight".into(),
+        Tensor::from_vec(values, (49408, 32), &device).unwrap(),
+    );
+    let weights = dir.join("clip.safetensors");
+    candle_core::safetensors::save(&tensors, &weights).unwrap();
+    let text = std::fs::read_to_string(fixture("tiny_clip/config.json")).unwrap();
+    let mut config: serde_json::Value = serde_json::from_str(&text).unwrap();
+    config["text_config"]["vocab_size"] = 49408.into();
+    config["text_config"]["eos_token_id"] = 49407.into();
+    let config_path = dir.join("clip_config.json");
+    std::fs::write(&config_path, config.to_string()).unwrap();
+    (config_path, weights)
+}
+
+/// A scene, tiny models, and a configuration that runs on them.
+struct Setup {
+    dir: TempDir,
+    config: StylizeConfig,
+}
+
+impl Setup {
+    fn new(name: &str) -> Self {
+        let dir = TempDir::new(name);
+        let (ply, data) = write_scene(dir.path());
+        let (clip_config, clip_weights) = write_tiny_clip(dir.path());
+        let config = StylizeConfig {
+            ply: Some(ply),
+            data: Some(data),
+            out: Some(dir.path().join("out")),
+            style_prompt: Some("fire".into()),
+            steps: 20,
+            seed: 4,
+            patch_size: 32,
+            num_patches: 4,
+            feature_lr: 0.05,
+            preview_views: vec![0, 2],
+            checkpoint_every: 0,
+            clip_config: Some(clip_config),
+            clip_weights: Some(clip_weights),
+            tokenizer: Some(fixture("tokenizer/tokenizer.json")),
+            vgg_weights: Some(fixture("tiny_vgg19.safetensors")),
+            vgg_widths: [4, 8, 16, 32, 32],
+            ..StylizeConfig::default()
+        };
+        Self { dir, config }
+    }
+
+    fn with(&self, edit: impl FnOnce(&mut StylizeConfig)) -> StylizeConfig {
+        let mut c = self.config.clone();
+        edit(&mut c);
+        c
+    }
+
+    /// A red style picture in the temporary folder.
+    fn style_image(&self) -> PathBuf {
+        let path = self.dir.path().join("red.png");
+        image::RgbImage::from_pixel(40, 30, image::Rgb([230, 25, 25]))
+            .save(&path)
+            .unwrap();
+        path
+    }
+}
+
+fn quiet() -> RunOptions {
+    RunOptions::default()
+}
+
+/// The total and the (unweighted) directional loss of `config` summed over every view of its
+/// dataset with the same patches each time, so the losses before and after stylization compare.
+fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
+    let device = Device::Cpu;
+    let options = LoadOptions {
+        background: Background::White,
+        downscale: 1,
+    };
+    let data = nerf_synthetic::load(config.data.as_ref().unwrap(), Split::Train, &options).unwrap();
+    let clip_config = ClipConfig::from_json_file(config.clip_config.as_ref().unwrap()).unwrap();
+    let clip =
+        ClipModel::load(&clip_config, config.clip_weights.as_ref().unwrap(), &device).unwrap();
+    let tokenizer = ClipTokenizer::from_file(config.tokenizer.as_ref().unwrap()).unwrap();
+    let direction =
+        StyleDirection::from_text(&clip, &tokenizer, "fire", DEFAULT_SOURCE_PROMPT).unwrap();
+    let vgg = Vgg19Features::load(
+        config.vgg_weights.as_ref().unwrap(),
+        Vgg19Widths(config.vgg_widths),
+        &device,
+    )
+    .unwrap();
+    let weights = LossWeights {
+        directional: config.lambda_directional,
+        patch: config.lambda_patch,
+        content: config.lambda_content,
+        background: config.lambda_background,
+    };
+    let patches = PatchSettings {
+        patch_size: config.patch_size,
+        num_patches: config.num_patches,
+        distortion_scale: config.distortion_scale,
+    };
+    let loss = StyleLoss::new(clip, Some(vgg), direction, weights, patches).unwrap();
+    let mut rng = style_rng(99);
+    let s = SIZE as usize;
+    (0..VIEWS)
+        .map(|v| {
+            let gt = hwc_to_tensor(&data.images[v].data, s, s, &device).unwrap();
+            let mask = data.masks[v].as_ref().unwrap();
+            let mask = Tensor::from_slice(&mask.data, (s, s), &device).unwrap();
+            let cache = loss.cache_view(&gt, Some(&mask)).unwrap();
+            let img = render(gaussians, &data.views[v].camera, [1.0; 3]).image;
+            let x = hwc_to_tensor(&img.data, s, s, &device).unwrap();
+            let patches = loss.sample_patches(&mut rng, s, s).unwrap();
+            let o = loss
+                .loss_and_grad_with_patches(&x, &cache, &patches)
+                .unwrap();
+            (o.total, o.terms.directional)
+        })
+        .fold((0.0, 0.0), |a, b| (a.0 + b.0, a.1 + b.1))
+}
+
+#[test]
+fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
+    let setup = Setup::new("stylize-run");
+    let out = setup.config.out.clone().unwrap();
+    let summary = run(&setup.config, &quiet()).unwrap();
+
+    let input = read_ply(setup.config.ply.as_ref().unwrap()).unwrap();
+    let stylized = read_ply(&summary.stylized_ply).unwrap();
+    assert_eq!(stylized.gaussians.len(), input.gaussians.len());
+    assert_eq!(stylized.gaussians, summary.gaussians);
+    assert_eq!(stylized.extras, input.extras, "extras are carried over");
+    assert_ne!(stylized.gaussians, input.gaussians, "the parameters moved");
+    let header = std::fs::read(&summary.stylized_ply).unwrap();
+    assert!(
+        header.starts_with(b"ply\nformat ascii"),
+        "same format as the input"
+    );
+
+    let losses: Vec<StepLosses> =
+        serde_json::from_str(&std::fs::read_to_string(out.join(LOSSES_JSON)).unwrap()).unwrap();
+    assert_eq!(losses, summary.losses);
+    assert_eq!(losses.len(), 20);
+    for (i, l) in losses.iter().enumerate() {
+        assert_eq!(l.step, i as u64 + 1);
+        let names: Vec<&str> = l.terms.keys().map(String::as_str).collect();
+        assert_eq!(names, ["background", "content", "directional", "patch"]);
+        let sum: f32 = l.terms.values().sum();
+        assert!((sum - l.total).abs() <= 1e-4 * l.total.abs().max(1.0));
+    }
+    let before = fixed_loss(&setup.config, &input.gaussians);
+    let after = fixed_loss(&setup.config, &stylized.gaussians);
+    // The patch term (weight 90) dominates and moves slowly with a random tiny CLIP; the
+    // directional term shows the pull towards the style clearly.
+    assert!(
+        after.0 < 0.98 * before.0,
+        "total loss {before:?} -> {after:?}"
+    );
+    assert!(
+        after.1 < 0.8 * before.1,
+        "directional loss {before:?} -> {after:?}"
+    );
+
+    let plot = image::open(out.join(LOSSES_PNG)).unwrap();
+    assert!(plot.width() > 100 && plot.height() > 100);
+    for v in [0, 2] {
+        let preview = image::open(out.join(format!("preview_view{v:03}.png"))).unwrap();
+        assert_eq!((preview.width(), preview.height()), (2 * SIZE, SIZE));
+    }
+    let written: StylizeConfig =
+        serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
+    assert_eq!(written, setup.config);
+    let leftovers: Vec<_> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect();
+    assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+#[test]
+fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
+    let setup = Setup::new("stylize-resume");
+    let image = setup.style_image();
+    let styled = |out: &str, steps: u64, every: u64| {
+        setup.with(|c| {
+            c.style_prompt = None;
+            c.style_image = Some(image.clone());
+            c.out = Some(setup.dir.path().join(out));
+            c.steps = steps;
+            c.checkpoint_every = every;
+        })
+    };
+    let whole = run(&styled("whole", 20, 0), &quiet()).unwrap();
+    assert!(!setup.dir.path().join("whole/checkpoint").exists());
+
+    let first = run(&styled("parts", 10, 10), &quiet()).unwrap();
+    assert_eq!(first.losses[..], whole.losses[..10]);
+    assert!(first.gaussians != whole.gaussians);
+    let e = run(&styled("parts", 20, 10), &quiet())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("--resume"),
+        "a fresh run must not overwrite a checkpoint: {e}"
+    );
+    let other_seed = setup.with(|c| {
+        *c = styled("parts", 20, 10);
+        c.seed = 5;
+    });
+    let e = run(
+        &other_seed,
+        &RunOptions {
+            resume: true,
+            progress: false,
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("seed") && e.contains("checkpoint"), "{e}");
+
+    let e = run(
+        &styled("parts", 5, 10),
+        &RunOptions {
+            resume: true,
+            progress: false,
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("step 10") && e.contains("5 steps"), "{e}");
+
+    let resumed = run(
+        &styled("parts", 20, 10),
+        &RunOptions {
+            resume: true,
+            progress: false,
+        },
+    )
+    .unwrap();
+    assert!(
+        resumed.gaussians == whole.gaussians,
+        "the resumed run ends with other parameters"
+    );
+    assert_eq!(resumed.losses, whole.losses);
+    let on_disk = read_ply(&resumed.stylized_ply).unwrap();
+    assert!(on_disk.gaussians == whole.gaussians);
+
+    let e = run(
+        &styled("never-run", 20, 10),
+        &RunOptions {
+            resume: true,
+            progress: false,
+        },
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("no checkpoint"), "{e}");
+}
+
+#[test]
+fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
+    let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let required = [
+        Override::new("ply", "scene.ply"),
+        Override::new("data", "data"),
+        Override::new("out", "out"),
+        Override::parse("style_prompt=fire").unwrap(),
+    ];
+    let paper = StylizeConfig::resolve(Some(&root.join("configs/3d.json")), &required).unwrap();
+    let expected = StylizeConfig {
+        ply: Some("scene.ply".into()),
+        data: Some("data".into()),
+        out: Some("out".into()),
+        style_prompt: Some("fire".into()),
+        ..StylizeConfig::default()
+    };
+    assert_eq!(paper, expected);
+    assert_eq!(
+        (
+            paper.lambda_directional,
+            paper.lambda_patch,
+            paper.lambda_content
+        ),
+        (5.0, 90.0, 0.8)
+    );
+    assert_eq!(
+        (paper.steps, paper.patch_size, paper.num_patches),
+        (5000, 128, 64)
+    );
+    let light =
+        StylizeConfig::resolve(Some(&root.join("configs/3d-light.json")), &required).unwrap();
+    assert_eq!(
+        light,
+        StylizeConfig {
+            feature_lr: 0.002,
+            lambda_patch: 35.0,
+            ..expected.clone()
+        }
+    );
+
+    let mut edits = required.to_vec();
+    edits.push(Override::parse("preview_views=[1,3]").unwrap());
+    edits.push(Override::parse("steps=7").unwrap());
+    let edited = StylizeConfig::resolve(None, &edits).unwrap();
+    assert_eq!(
+        (edited.preview_views.clone(), edited.steps),
+        (vec![1, 3], 7)
+    );
+
+    edits.push(Override::parse("lamda_patch=3").unwrap());
+    let e = StylizeConfig::resolve(None, &edits)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("unknown field") && e.contains("lamda_patch"),
+        "{e}"
+    );
+    assert!(Override::parse("no-equals-sign").is_err());
+}
+
+/// Runs `config`, expects an error containing every one of `words`, and checks that the output
+/// folder was not created.
+fn fails_cleanly(config: &StylizeConfig, words: &[&str]) {
+    let e: StylizeError = run(config, &quiet()).unwrap_err();
+    let message = e.to_string();
+    for w in words {
+        assert!(message.contains(w), "{w:?} not in {message:?}");
+    }
+    assert!(
+        !config.out.as_ref().unwrap().exists(),
+        "{message}: the output folder was created"
+    );
+}
+
+#[test]
+fn bad_inputs_are_named_and_leave_no_output() {
+    let setup = Setup::new("stylize-bad");
+    let root = setup.dir.path();
+    let data = setup.config.data.clone().unwrap();
+
+    fails_cleanly(
+        &setup.with(|c| c.style_prompt = Some("  ".into())),
+        &["style_prompt", "empty"],
+    );
+    fails_cleanly(
+        &setup.with(|c| c.style_image = Some(root.join("red.png"))),
+        &["exactly one style"],
+    );
+    fails_cleanly(
+        &setup.with(|c| {
+            c.style_prompt = None;
+            c.style_image = Some(root.join("missing.png"));
+        }),
+        &["style image", "missing.png"],
+    );
+    fails_cleanly(
+        &setup.with(|c| c.patch_size = 64),
+        &["patch_size 64", "48x48", "r_0.png"],
+    );
+    fails_cleanly(
+        &setup.with(|c| c.preview_views = vec![9]),
+        &["preview_views", "9"],
+    );
+
+    let empty = root.join("empty-data");
+    std::fs::create_dir_all(&empty).unwrap();
+    fails_cleanly(
+        &setup.with(|c| c.data = Some(empty.clone())),
+        &["transforms_train.json", "empty-data"],
+    );
+
+    let colmap = root.join("colmap-data");
+    std::fs::create_dir_all(colmap.join("sparse")).unwrap();
+    fails_cleanly(
+        &setup.with(|c| c.data = Some(colmap.clone())),
+        &["colmap-data", "sparse"],
+    );
+
+    let bad_size = root.join("bad-size");
+    std::fs::create_dir_all(bad_size.join("train")).unwrap();
+    std::fs::copy(
+        data.join("transforms_train.json"),
+        bad_size.join("transforms_train.json"),
+    )
+    .unwrap();
+    for k in 0..VIEWS {
+        let name = format!("train/r_{k}.png");
+        std::fs::copy(data.join(&name), bad_size.join(&name)).unwrap();
+    }
+    image::RgbaImage::new(SIZE + 2, SIZE)
+        .save(bad_size.join("train/r_1.png"))
+        .unwrap();
+    fails_cleanly(
+        &setup.with(|c| c.data = Some(bad_size.clone())),
+        &["r_1.png", "50x48", "48x48"],
+    );
+
+    let partial = root.join("partial.ply");
+    std::fs::write(
+        &partial,
+        "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n\
+         property float z\nend_header\n0 0 0\n",
+    )
+    .unwrap();
+    fails_cleanly(
+        &setup.with(|c| c.ply = Some(partial.clone())),
+        &["partial.ply", "missing"],
+    );
+
+    let nan = root.join("nan.ply");
+    let mut bytes = Vec::new();
+    let tmp = root.join("binary.ply");
+    write_ply(
+        &tmp,
+        &PlyGaussians::new(random_set()),
+        PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    bytes.extend(std::fs::read(&tmp).unwrap());
+    let body = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    bytes[body..body + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&nan, bytes).unwrap();
+    fails_cleanly(
+        &setup.with(|c| c.ply = Some(nan.clone())),
+        &["nan.ply", "not finite"],
+    );
+
+    fails_cleanly(
+        &setup.with(|c| c.clip_weights = Some(root.join("no-clip.safetensors"))),
+        &["no-clip.safetensors"],
+    );
+}
+
+#[test]
+fn the_binary_takes_flags_and_set_overrides() {
+    let setup = Setup::new("stylize-cli");
+    let c = &setup.config;
+    let out = setup.dir.path().join("cli-out");
+    let path = |p: &Option<PathBuf>| p.as_ref().unwrap().display().to_string();
+    let args = |extra: &[&str]| {
+        let mut v: Vec<String> = vec![
+            "--ply".into(),
+            path(&c.ply),
+            "--data".into(),
+            path(&c.data),
+            "--out".into(),
+            out.display().to_string(),
+            "--style-prompt".into(),
+            "fire".into(),
+            "--steps".into(),
+            "2".into(),
+            "--clip-config".into(),
+            path(&c.clip_config),
+            "--clip-weights".into(),
+            path(&c.clip_weights),
+            "--tokenizer".into(),
+            path(&c.tokenizer),
+            "--vgg-weights".into(),
+            path(&c.vgg_weights),
+            "--set".into(),
+            "vgg_widths=[4,8,16,32,32]".into(),
+            "--set".into(),
+            "patch_size=32".into(),
+            "--set".into(),
+            "num_patches=2".into(),
+            "--quiet".into(),
+        ];
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let exe = env!("CARGO_BIN_EXE_stylize-3d");
+    let bad = std::process::Command::new(exe)
+        .args(args(&["--set", "bogus_field=1"]))
+        .output()
+        .unwrap();
+    assert!(!bad.status.success());
+    let stderr = String::from_utf8_lossy(&bad.stderr);
+    assert!(stderr.contains("bogus_field"), "{stderr}");
+    assert!(!out.exists());
+
+    let ok = std::process::Command::new(exe)
+        .args(args(&["-r", "1"]))
+        .output()
+        .unwrap();
+    assert!(
+        ok.status.success(),
+        "{}",
+        String::from_utf8_lossy(&ok.stderr)
+    );
+    let written: StylizeConfig =
+        serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
+    assert_eq!((written.steps, written.num_patches), (2, 2));
+    assert_eq!(
+        read_ply(&out.join("stylized.ply")).unwrap().gaussians.len(),
+        80
+    );
+}
