@@ -2,7 +2,7 @@
 //! and write the stylized PLY, before/after pictures, the loss log and its plot.
 //!
 //! - [`config`]: the run configuration, its defaults and `field=value` overrides.
-//! - [`run`]: loading the inputs, building the objective and the optimizer, training.
+//! - [`run`](mod@run): loading the inputs, building the objective and the optimizer, training.
 //! - [`checkpoint`]: saved parameters, optimizer and patch stream, to resume a run exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
 //! - [`loss_plot`]: the loss curve as a picture.
@@ -62,6 +62,18 @@ pub enum StylizeError {
         path: PathBuf,
         /// What is wrong.
         message: String,
+    },
+    /// The run was stopped (Ctrl-C) after `step`; a checkpoint of that step was written.
+    #[error(
+        "interrupted after step {step}; the checkpoint is in {}: run the same command again \
+         with --resume to continue",
+        checkpoint::checkpoint_dir(out).display()
+    )]
+    Interrupted {
+        /// The last step taken.
+        step: u64,
+        /// The output folder.
+        out: PathBuf,
     },
 }
 

@@ -3,6 +3,8 @@
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
 
 use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
@@ -33,13 +35,16 @@ use crate::ply::{read_ply_with_format, write_ply, PlyGaussians};
 const PATCH_SEED_OFFSET: u64 = 1;
 
 /// How to run, beyond the configuration.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, Default)]
 pub struct RunOptions {
     /// Continue from the checkpoint in `<out>/checkpoint/` (the configuration must be the
     /// saved one except for [`checkpoint::RESUMABLE_CHANGES`]).
     pub resume: bool,
     /// Draw a progress bar on the terminal.
     pub progress: bool,
+    /// Set (e.g. by a Ctrl-C handler) to stop after the current step: the run then writes a
+    /// checkpoint and returns [`StylizeError::Interrupted`].
+    pub stop: Arc<AtomicBool>,
 }
 
 /// What a finished run produced.
@@ -55,7 +60,8 @@ pub struct RunSummary {
 
 /// Runs the stylization `config` describes (see the module documentation). Bad inputs are
 /// reported before anything is written; a fresh run refuses an output folder that holds a
-/// checkpoint.
+/// checkpoint. When [`RunOptions::stop`] is set, the run ends after the current step with a
+/// checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
     config.validate()?;
     let (ply, format) = read_ply_with_format(config.ply_path())?;
@@ -153,14 +159,16 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
                 bar.set_position(report.step);
                 bar.set_message(describe(&step));
                 losses.push(step);
-                if report.step.checked_rem(every) == Some(0) {
+                if report.step.checked_rem(every) == Some(0) || options.stop.load(Ordering::SeqCst)
+                {
                     ControlFlow::Break(())
                 } else {
                     ControlFlow::Continue(())
                 }
             },
         )?;
-        if adam.step_count().checked_rem(every) == Some(0) {
+        let stopped = options.stop.load(Ordering::SeqCst) && adam.step_count() < config.steps;
+        if stopped || adam.step_count().checked_rem(every) == Some(0) {
             checkpoint::save(
                 out,
                 &Checkpoint {
@@ -172,6 +180,13 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
                     losses: losses.clone(),
                 },
             )?;
+        }
+        if stopped {
+            bar.abandon();
+            return Err(StylizeError::Interrupted {
+                step: adam.step_count(),
+                out: out.to_path_buf(),
+            });
         }
     }
     bar.finish();

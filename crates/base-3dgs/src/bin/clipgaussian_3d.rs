@@ -1,0 +1,403 @@
+//! `clipgaussian-3d`: CLIPGaussian on 3DGS scenes (INRIA PLY files).
+//!
+//! - `stylize`: stylizes a trained scene with its dataset; Ctrl-C stops after the current step
+//!   and writes a checkpoint to resume from.
+//! - `render`: renders a PLY from a dataset's cameras or from one camera file.
+//! - `interpolate`: blends two PLY files of the same Gaussians.
+//! - `eval`: the paper's CLIP metrics of a folder of renders against its ground truths.
+
+use std::error::Error;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
+use base_3dgs::dataset::nerf_synthetic::Split;
+use base_3dgs::dataset::{Background, LoadOptions};
+use base_3dgs::evaluation::{evaluate_folders, write_metrics, ClipFiles, Style};
+use base_3dgs::interpolate::interpolate_ply;
+use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
+use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
+use base_3dgs::{read_ply, read_ply_with_format, write_ply};
+use clap::{Args, Parser, Subcommand, ValueEnum};
+
+/// Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
+const INTERRUPTED_EXIT: u8 = 130;
+
+/// Command-line arguments.
+#[derive(Parser, Debug)]
+#[command(
+    name = "clipgaussian-3d",
+    version,
+    about = "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, evaluate"
+)]
+struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
+    ///
+    /// Writes the stylized PLY, before/after pictures, the losses and the resolved
+    /// configuration to `--out`. The configuration
+    /// comes from `--config` (the paper's defaults when absent), then the flags, then every
+    /// `--set field=value` in order. Ctrl-C stops after the current step and writes a
+    /// checkpoint (a second Ctrl-C quits at once); run the same command with `--resume` to
+    /// continue.
+    Stylize(StylizeArgs),
+    /// Render a PLY from the cameras of a dataset or from one camera file.
+    ///
+    /// Writes one PNG per dataset view, named after the dataset's image, or `render.png` for a
+    /// camera file. Inputs are checked before the output folder is created.
+    Render(RenderArgs),
+    /// Interpolate two PLY files of the same Gaussians parameter by parameter.
+    ///
+    /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
+    /// normalized). The output has A's extra properties and PLY format.
+    Interpolate(InterpolateArgs),
+    /// The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of renders.
+    ///
+    /// Scores (x100) a folder of renders against a folder of ground truths and writes them as
+    /// JSON. Pictures (.png, .jpg, .jpeg) are paired by file name and taken in
+    /// file-name order: CLIP-CONS and CLIP-F compare consecutive pictures in that order.
+    Eval(EvalArgs),
+}
+
+/// Arguments of `stylize`.
+#[derive(Args, Debug)]
+struct StylizeArgs {
+    /// JSON configuration (configs/3d.json, configs/3d-light.json).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The trained scene, INRIA PLY.
+    #[arg(long)]
+    ply: Option<PathBuf>,
+    /// The dataset folder (NeRF-synthetic or COLMAP).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// The output folder.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// The style as text.
+    #[arg(long)]
+    style_prompt: Option<String>,
+    /// The style as a picture.
+    #[arg(long)]
+    style_image: Option<PathBuf>,
+    /// The source prompt (default "a Photo").
+    #[arg(long)]
+    source_prompt: Option<String>,
+    /// Optimizer steps.
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Resolution divisor of the dataset images.
+    #[arg(short = 'r', long)]
+    resolution: Option<u32>,
+    /// CLIP config.json (default: ViT-B/32).
+    #[arg(long)]
+    clip_config: Option<PathBuf>,
+    /// CLIP weights (safetensors).
+    #[arg(long)]
+    clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json.
+    #[arg(long)]
+    tokenizer: Option<PathBuf>,
+    /// VGG-19 weights (safetensors, torchvision layout).
+    #[arg(long)]
+    vgg_weights: Option<PathBuf>,
+    /// Any configuration field, e.g. `--set feature_lr=0.002 --set preview_views=[0,3]`.
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    set: Vec<String>,
+    /// Continue the run from `<out>/checkpoint/`.
+    #[arg(long)]
+    resume: bool,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl StylizeArgs {
+    /// The flags as overrides, then the `--set` ones.
+    fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
+        let path = |p: &Option<PathBuf>| p.as_ref().map(|p| p.display().to_string());
+        let flags = [
+            ("ply", path(&self.ply).map(Into::into)),
+            ("data", path(&self.data).map(Into::into)),
+            ("out", path(&self.out).map(Into::into)),
+            ("style_prompt", self.style_prompt.clone().map(Into::into)),
+            ("style_image", path(&self.style_image).map(Into::into)),
+            ("source_prompt", self.source_prompt.clone().map(Into::into)),
+            ("steps", self.steps.map(Into::into)),
+            ("resolution", self.resolution.map(Into::into)),
+            ("clip_config", path(&self.clip_config).map(Into::into)),
+            ("clip_weights", path(&self.clip_weights).map(Into::into)),
+            ("tokenizer", path(&self.tokenizer).map(Into::into)),
+            ("vgg_weights", path(&self.vgg_weights).map(Into::into)),
+        ];
+        let mut overrides: Vec<Override> = flags
+            .into_iter()
+            .filter_map(|(field, value): (&str, Option<serde_json::Value>)| {
+                value.map(|v| Override::new(field, v))
+            })
+            .collect();
+        for s in &self.set {
+            overrides.push(Override::parse(s)?);
+        }
+        Ok(overrides)
+    }
+}
+
+/// Which NeRF-synthetic transforms file to render.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum SplitArg {
+    /// transforms_train.json.
+    Train,
+    /// transforms_test.json.
+    Test,
+    /// transforms_val.json.
+    Val,
+}
+
+/// The colour behind the Gaussians (and behind transparent pixels of input pictures).
+#[derive(Clone, Copy, Debug, ValueEnum)]
+enum BackgroundArg {
+    /// (1, 1, 1).
+    White,
+    /// (0, 0, 0), 3DGS's default.
+    Black,
+}
+
+impl BackgroundArg {
+    fn dataset(self) -> Background {
+        match self {
+            Self::White => Background::White,
+            Self::Black => Background::Black,
+        }
+    }
+
+    fn rgb(self) -> [f32; 3] {
+        match self {
+            Self::White => [1.0; 3],
+            Self::Black => [0.0; 3],
+        }
+    }
+}
+
+/// Arguments of `render`.
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// The scene, INRIA PLY.
+    #[arg(long)]
+    ply: PathBuf,
+    /// A dataset folder (NeRF-synthetic or COLMAP) whose cameras to render from; each picture
+    /// is named after its dataset image, with the extension .png.
+    #[arg(long, required_unless_present = "camera", conflicts_with = "camera")]
+    data: Option<PathBuf>,
+    /// The NeRF-synthetic split (default train); COLMAP scenes have none.
+    #[arg(long, value_enum, requires = "data")]
+    split: Option<SplitArg>,
+    /// Resolution divisor of the dataset's cameras (3DGS's -r).
+    #[arg(short = 'r', long, default_value_t = 1, requires = "data")]
+    resolution: u32,
+    /// One camera as JSON, written to render.png. OpenCV axes (x right, y down, z forward),
+    /// intrinsics in pixels, `world_to_camera` a rigid 4x4 transform, row-major:
+    /// `{"width": 800, "height": 800, "fx": 1111.1, "fy": 1111.1, "cx": 400, "cy": 400,
+    /// "world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}`
+    #[arg(long)]
+    camera: Option<PathBuf>,
+    /// The output folder (created when absent; pictures of the same names are replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// The background colour.
+    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
+    background: BackgroundArg,
+}
+
+/// Arguments of `interpolate`.
+#[derive(Args, Debug)]
+struct InterpolateArgs {
+    /// The first PLY (t = 0); its extra properties and format are kept.
+    #[arg(long)]
+    a: PathBuf,
+    /// The second PLY (t = 1), with as many Gaussians of the same SH degree as A.
+    #[arg(long)]
+    b: PathBuf,
+    /// The interpolation parameter; values outside [0, 1] extrapolate.
+    #[arg(long, allow_negative_numbers = true)]
+    t: f32,
+    /// The output PLY.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `eval`.
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// The folder of rendered pictures.
+    #[arg(long)]
+    renders: PathBuf,
+    /// The folder of ground-truth pictures, with the same file names as the renders.
+    #[arg(long)]
+    gt: PathBuf,
+    /// The style as text.
+    #[arg(
+        long,
+        required_unless_present = "style_image",
+        conflicts_with = "style_image"
+    )]
+    style_prompt: Option<String>,
+    /// The style as a picture.
+    #[arg(long)]
+    style_image: Option<PathBuf>,
+    /// The neutral prompt of CLIP-SIM (the training source prompt).
+    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
+    source_prompt: String,
+    /// CLIP config.json (default: ViT-L/14, the paper's evaluation model).
+    #[arg(long)]
+    clip_config: Option<PathBuf>,
+    /// CLIP weights, safetensors (default: ViT-L/14 from $CLIPGAUSSIAN_CLIP_L14_WEIGHTS, the
+    /// Hugging Face cache, or a download when built with it).
+    #[arg(long)]
+    clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the Hugging Face cache, or a
+    /// download when built with it).
+    #[arg(long)]
+    tokenizer: Option<PathBuf>,
+    /// The colour behind transparent pixels of the pictures.
+    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
+    background: BackgroundArg,
+    /// Where to write the scores as JSON.
+    #[arg(long, default_value = "metrics.json")]
+    out: PathBuf,
+}
+
+/// Runs `stylize`, stopping after the current step on the first Ctrl-C.
+fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let overrides = args.overrides()?;
+    let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
+    let stop = Arc::new(AtomicBool::new(false));
+    let flag = Arc::clone(&stop);
+    ctrlc::set_handler(move || {
+        if flag.swap(true, Ordering::SeqCst) {
+            std::process::exit(i32::from(INTERRUPTED_EXIT));
+        }
+        eprintln!("\nstopping after the current step (Ctrl-C again to quit at once)");
+    })?;
+    let options = RunOptions {
+        resume: args.resume,
+        progress: !args.quiet,
+        stop,
+    };
+    let summary = run(&config, &options)?;
+    let last = summary.losses.last().map_or(f32::NAN, |l| l.total);
+    println!(
+        "wrote {} ({} Gaussians, final loss {last:.4})",
+        summary.stylized_ply.display(),
+        summary.gaussians.len()
+    );
+    Ok(())
+}
+
+/// Runs `render`.
+fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    let ply = read_ply(&args.ply)?;
+    let cameras = match (&args.data, &args.camera) {
+        (Some(data), _) => {
+            let split = args.split.map(|s| match s {
+                SplitArg::Train => Split::Train,
+                SplitArg::Test => Split::Test,
+                SplitArg::Val => Split::Val,
+            });
+            let options = LoadOptions {
+                background: args.background.dataset(),
+                downscale: args.resolution,
+            };
+            dataset_cameras(data, split, &options)?
+        }
+        (None, Some(camera)) => vec![camera_from_file(camera)?],
+        (None, None) => return Err("one of --data and --camera is required".into()),
+    };
+    let written = render_to_folder(&ply.gaussians, &cameras, args.background.rgb(), &args.out)?;
+    println!(
+        "wrote {} picture(s) to {}",
+        written.len(),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Runs `interpolate`.
+fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    let (a, format) = read_ply_with_format(&args.a)?;
+    let b = read_ply(&args.b)?;
+    let blended = interpolate_ply(&a, &b, args.t)
+        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    write_ply(&args.out, &blended, format)?;
+    println!(
+        "wrote {} ({} Gaussians, t = {})",
+        args.out.display(),
+        blended.gaussians.len(),
+        args.t
+    );
+    Ok(())
+}
+
+/// Runs `eval`.
+fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+    let style = match (&args.style_prompt, &args.style_image) {
+        (_, Some(image)) => Style::Image(image.clone()),
+        (Some(prompt), None) => Style::Prompt(prompt.clone()),
+        (None, None) => return Err("one of --style-prompt and --style-image is required".into()),
+    };
+    let clip_files = ClipFiles {
+        config: args.clip_config.clone(),
+        weights: args.clip_weights.clone(),
+        tokenizer: args.tokenizer.clone(),
+    };
+    let metrics = evaluate_folders(
+        &args.renders,
+        &args.gt,
+        &style,
+        &args.source_prompt,
+        &clip_files,
+        args.background.rgb(),
+    )?;
+    let optional = |v: Option<f64>| v.map_or("n/a (one view)".into(), |v| format!("{v:.4}"));
+    println!("views:     {}", metrics.views);
+    println!("CLIP-S:    {:.4}", metrics.clip_s);
+    println!("CLIP-SIM:  {:.4}", metrics.clip_sim);
+    println!("CLIP-CONS: {}", optional(metrics.clip_cons));
+    println!("CLIP-F:    {}", optional(metrics.clip_f));
+    write_metrics(&args.out, &metrics)?;
+    println!("wrote {}", args.out.display());
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Stylize(args) => stylize(args),
+        Command::Render(args) => render(args),
+        Command::Interpolate(args) => interpolate(args),
+        Command::Eval(args) => eval(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            let interrupted = matches!(
+                e.downcast_ref::<StylizeError>(),
+                Some(StylizeError::Interrupted { .. })
+            );
+            if interrupted {
+                ExitCode::from(INTERRUPTED_EXIT)
+            } else {
+                ExitCode::FAILURE
+            }
+        }
+    }
+}

@@ -1,0 +1,237 @@
+//! Rendering a Gaussian set from the cameras of a dataset, or from one camera described in a
+//! small JSON file ([`CameraFile`]), to PNG files.
+//!
+//! Every input is read and checked (and the output names chosen) before the output folder is
+//! created; each PNG is written under a temporary name and renamed.
+
+use std::collections::BTreeSet;
+use std::path::{Path, PathBuf};
+
+use gs_core::raster::render;
+use gs_core::{Camera, GaussianSet};
+use serde::Deserialize;
+
+use crate::dataset::nerf_synthetic::{self, Split};
+use crate::dataset::{colmap, DatasetError, LoadOptions};
+
+/// The file name of the picture rendered from a [`CameraFile`].
+pub const CAMERA_RENDER_PNG: &str = "render.png";
+
+/// Largest deviation from orthonormality accepted in a [`CameraFile`]'s rotation.
+const ROTATION_TOLERANCE: f64 = 1e-4;
+
+/// Why views could not be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// The dataset.
+    #[error("dataset {}: {source}", path.display())]
+    Dataset {
+        /// The dataset folder.
+        path: PathBuf,
+        /// What was wrong in it.
+        source: Box<DatasetError>,
+    },
+    /// A dataset folder of neither known layout, or a split asked of a COLMAP scene.
+    #[error("dataset {}: {message}", path.display())]
+    Layout {
+        /// The dataset folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A camera file that cannot be read, does not parse, or describes an invalid camera.
+    #[error("camera {}: {message}", path.display())]
+    Camera {
+        /// The camera file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// Two views whose pictures would have the same file name.
+    #[error("two views would both be written to {0}")]
+    DuplicateName(String),
+    /// The output folder could not be created.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The folder.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A picture could not be written.
+    #[error("{0}")]
+    Image(#[from] gs_core::GsError),
+}
+
+/// A camera to render from, and the file name of its picture.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NamedCamera {
+    /// The picture's file name (no folder), e.g. `r_0.png`.
+    pub name: String,
+    /// The camera.
+    pub camera: Camera,
+}
+
+/// One camera as JSON, in OpenCV axes (x right, y down, z forward) with intrinsics in pixels:
+///
+/// ```json
+/// {"width": 800, "height": 800, "fx": 1111.1, "fy": 1111.1, "cx": 400, "cy": 400,
+///  "world_to_camera": [[1,0,0,0], [0,1,0,0], [0,0,1,4], [0,0,0,1]]}
+/// ```
+///
+/// `world_to_camera` is a rigid 4x4 transform, row-major: an orthonormal rotation with
+/// determinant 1 in the upper left, the translation in the last column, `[0, 0, 0, 1]` below.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct CameraFile {
+    /// Image width, pixels.
+    pub width: u32,
+    /// Image height, pixels.
+    pub height: u32,
+    /// Focal length along x, pixels.
+    pub fx: f64,
+    /// Focal length along y, pixels.
+    pub fy: f64,
+    /// Principal point x, pixels.
+    pub cx: f64,
+    /// Principal point y, pixels.
+    pub cy: f64,
+    /// World-to-camera transform, row-major.
+    pub world_to_camera: [[f64; 4]; 4],
+}
+
+impl CameraFile {
+    /// The camera this describes; an error when the transform is not rigid or the intrinsics
+    /// are invalid.
+    pub fn camera(&self) -> Result<Camera, String> {
+        let m = &self.world_to_camera;
+        if m[3] != [0.0, 0.0, 0.0, 1.0] {
+            return Err(format!(
+                "the last row of world_to_camera is {:?}, expected [0, 0, 0, 1]",
+                m[3]
+            ));
+        }
+        let r = [
+            [m[0][0], m[0][1], m[0][2]],
+            [m[1][0], m[1][1], m[1][2]],
+            [m[2][0], m[2][1], m[2][2]],
+        ];
+        let mut worst = 0.0f64;
+        for i in 0..3 {
+            for j in 0..3 {
+                let dot: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
+                let expected = if i == j { 1.0 } else { 0.0 };
+                worst = worst.max((dot - expected).abs());
+            }
+        }
+        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
+            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
+            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
+        if !(worst <= ROTATION_TOLERANCE && det > 0.0) {
+            return Err(
+                "the rotation of world_to_camera is not orthonormal with determinant 1".into(),
+            );
+        }
+        let t = [m[0][3], m[1][3], m[2][3]];
+        Camera::new(
+            r,
+            t,
+            [self.fx, self.fy, self.cx, self.cy],
+            self.width,
+            self.height,
+        )
+        .map_err(|e| e.to_string())
+    }
+}
+
+/// The camera of the JSON file `path` (see [`CameraFile`]), its picture named
+/// [`CAMERA_RENDER_PNG`].
+pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
+    let bad = |message: String| RenderError::Camera {
+        path: path.to_path_buf(),
+        message,
+    };
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
+    let file: CameraFile = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    Ok(NamedCamera {
+        name: CAMERA_RENDER_PNG.into(),
+        camera: file.camera().map_err(bad)?,
+    })
+}
+
+/// The cameras of the dataset in `data` (NeRF-synthetic when it has `transforms_*.json`, COLMAP
+/// when it has `sparse/`), each named after its image with the extension `.png`. `split`
+/// chooses the NeRF-synthetic transforms file (train when `None`); COLMAP scenes have no split
+/// and refuse one.
+pub fn dataset_cameras(
+    data: &Path,
+    split: Option<Split>,
+    options: &LoadOptions,
+) -> Result<Vec<NamedCamera>, RenderError> {
+    let wrap = |source| RenderError::Dataset {
+        path: data.to_path_buf(),
+        source: Box::new(source),
+    };
+    let layout = |message: String| RenderError::Layout {
+        path: data.to_path_buf(),
+        message,
+    };
+    let nerf = [Split::Train, Split::Test, Split::Val]
+        .iter()
+        .any(|s| data.join(s.file_name()).is_file());
+    let dataset = if nerf {
+        nerf_synthetic::load(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
+    } else if data.join("sparse").is_dir() {
+        if split.is_some() {
+            return Err(layout(
+                "a COLMAP scene has no splits: leave out --split to render every image".into(),
+            ));
+        }
+        colmap::load(data, options).map_err(wrap)?
+    } else {
+        return Err(layout(
+            "neither transforms_*.json (NeRF-synthetic) nor sparse/ (COLMAP) was found".into(),
+        ));
+    };
+    let mut names = BTreeSet::new();
+    dataset
+        .views
+        .into_iter()
+        .zip(&dataset.image_paths)
+        .map(|(view, path)| {
+            let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+            let name = format!("{stem}.png");
+            if !names.insert(name.clone()) {
+                return Err(RenderError::DuplicateName(name));
+            }
+            Ok(NamedCamera {
+                name,
+                camera: view.camera,
+            })
+        })
+        .collect()
+}
+
+/// Renders `gaussians` from every camera over `background` into `out` (created when absent),
+/// one PNG per camera named [`NamedCamera::name`]; returns the files in camera order.
+pub fn render_to_folder(
+    gaussians: &GaussianSet,
+    cameras: &[NamedCamera],
+    background: [f32; 3],
+    out: &Path,
+) -> Result<Vec<PathBuf>, RenderError> {
+    std::fs::create_dir_all(out).map_err(|source| RenderError::Io {
+        path: out.to_path_buf(),
+        source,
+    })?;
+    cameras
+        .iter()
+        .map(|c| {
+            let path = out.join(&c.name);
+            render(gaussians, &c.camera, background)
+                .image
+                .save_png(&path)?;
+            Ok(path)
+        })
+        .collect()
+}

@@ -1,0 +1,380 @@
+//! The `render`, `interpolate` and `eval` subcommands of `clipgaussian-3d` on the tiny scene:
+//! what they write, and errors that are named and leave no output behind.
+
+mod common;
+mod scene;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use base_3dgs::{read_ply, write_ply, PlyFormat, PlyGaussians};
+use common::TempDir;
+use gs_core::raster::render;
+use gs_core::Camera;
+use scene::{c2w, fixture, random_set, write_scene, write_tiny_clip, FOV_X, SIZE, VIEWS};
+
+/// Runs `clipgaussian-3d` with `args`.
+fn cli(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_clipgaussian-3d"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+/// Runs `clipgaussian-3d` with `args` and expects success.
+fn succeeds(args: &[&str]) -> String {
+    let out = cli(args);
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8_lossy(&out.stdout).into_owned()
+}
+
+/// Runs `clipgaussian-3d` with `args`, expects a failure whose message contains every one of
+/// `words`, and checks that `output` was not created.
+fn fails(args: &[&str], words: &[&str], output: &Path) {
+    let out = cli(args);
+    assert!(!out.status.success(), "{args:?} succeeded");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    for w in words {
+        assert!(stderr.contains(w), "{w:?} not in {stderr:?}");
+    }
+    assert!(
+        !output.exists(),
+        "{stderr}: {} was created",
+        output.display()
+    );
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn png(path: &Path) -> image::RgbImage {
+    image::open(path).unwrap().to_rgb8()
+}
+
+#[test]
+fn render_from_a_dataset_writes_one_picture_per_view_as_gs_core_renders_it() {
+    let dir = TempDir::new("cli-render-data");
+    let (ply, data) = write_scene(dir.path());
+    let out = dir.path().join("renders");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "--out",
+        s(&out),
+        "--background",
+        "white",
+    ]);
+    let set = read_ply(&ply).unwrap().gaussians;
+    let mut names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    let expected: Vec<String> = (0..VIEWS).map(|k| format!("r_{k}.png")).collect();
+    assert_eq!(names, expected);
+    for k in 0..VIEWS {
+        let written = png(&out.join(format!("r_{k}.png")));
+        assert_eq!(written.dimensions(), (SIZE, SIZE));
+        let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
+        assert!(written == render(&set, &camera, [1.0; 3]).image.to_rgb8());
+    }
+
+    let half = dir.path().join("half");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "-r",
+        "2",
+        "--out",
+        s(&half),
+    ]);
+    assert_eq!(
+        png(&half.join("r_0.png")).dimensions(),
+        (SIZE / 2, SIZE / 2)
+    );
+
+    let missing = dir.path().join("missing");
+    fails(
+        &[
+            "render",
+            "--ply",
+            s(&ply),
+            "--data",
+            s(&data),
+            "--split",
+            "test",
+            "--out",
+            s(&missing),
+        ],
+        &["transforms_test.json"],
+        &missing,
+    );
+    fails(
+        &[
+            "render",
+            "--ply",
+            s(&dir.path().join("none.ply")),
+            "--data",
+            s(&data),
+            "--out",
+            s(&missing),
+        ],
+        &["none.ply"],
+        &missing,
+    );
+    fails(
+        &[
+            "render",
+            "--ply",
+            s(&ply),
+            "--data",
+            s(dir.path()),
+            "--out",
+            s(&missing),
+        ],
+        &["neither", "sparse"],
+        &missing,
+    );
+}
+
+#[test]
+fn render_from_a_camera_file_writes_render_png() {
+    let dir = TempDir::new("cli-render-camera");
+    let (ply, _) = write_scene(dir.path());
+    let camera = Camera::from_nerf(c2w(1), FOV_X, SIZE, SIZE).unwrap();
+    let (r, t) = (camera.rotation, camera.translation);
+    let file = |last_row: [f64; 4]| {
+        serde_json::json!({
+            "width": SIZE, "height": SIZE,
+            "fx": camera.fx, "fy": camera.fy, "cx": camera.cx, "cy": camera.cy,
+            "world_to_camera": [
+                [r[0][0], r[0][1], r[0][2], t[0]],
+                [r[1][0], r[1][1], r[1][2], t[1]],
+                [r[2][0], r[2][1], r[2][2], t[2]],
+                last_row,
+            ],
+        })
+        .to_string()
+    };
+    let json = dir.path().join("camera.json");
+    std::fs::write(&json, file([0.0, 0.0, 0.0, 1.0])).unwrap();
+    let out = dir.path().join("one");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--camera",
+        s(&json),
+        "--out",
+        s(&out),
+    ]);
+    let set = read_ply(&ply).unwrap().gaussians;
+    assert!(png(&out.join("render.png")) == render(&set, &camera, [0.0; 3]).image.to_rgb8());
+
+    let bad = dir.path().join("bad.json");
+    std::fs::write(&bad, file([0.0, 0.0, 1.0, 1.0])).unwrap();
+    let missing = dir.path().join("missing");
+    fails(
+        &[
+            "render",
+            "--ply",
+            s(&ply),
+            "--camera",
+            s(&bad),
+            "--out",
+            s(&missing),
+        ],
+        &["bad.json", "last row"],
+        &missing,
+    );
+    let help = succeeds(&["render", "--help"]);
+    assert!(
+        help.contains("world_to_camera") && help.contains("OpenCV"),
+        "{help}"
+    );
+}
+
+#[test]
+fn interpolate_at_zero_is_a_and_mismatched_counts_are_named() {
+    let dir = TempDir::new("cli-interpolate");
+    let (a, _) = write_scene(dir.path());
+    let mut other = random_set();
+    other.means.iter_mut().for_each(|v| *v += 0.25);
+    other.sh_dc.iter_mut().for_each(|v| *v = -*v);
+    let b = dir.path().join("b.ply");
+    write_ply(&b, &PlyGaussians::new(other), PlyFormat::BinaryLittleEndian).unwrap();
+    let out = dir.path().join("mix.ply");
+    succeeds(&[
+        "interpolate",
+        "--a",
+        s(&a),
+        "--b",
+        s(&b),
+        "--t",
+        "0",
+        "--out",
+        s(&out),
+    ]);
+    let input = read_ply(&a).unwrap();
+    let mixed = read_ply(&out).unwrap();
+    assert!(std::fs::read(&out)
+        .unwrap()
+        .starts_with(b"ply\nformat ascii"));
+    assert_eq!(mixed.extras, input.extras);
+    let (x, y) = (&mixed.gaussians, &input.gaussians);
+    assert_eq!(
+        (
+            &x.means,
+            &x.log_scales,
+            &x.opacity_logits,
+            &x.sh_dc,
+            &x.sh_rest
+        ),
+        (
+            &y.means,
+            &y.log_scales,
+            &y.opacity_logits,
+            &y.sh_dc,
+            &y.sh_rest
+        )
+    );
+    for (q, p) in x.quats.chunks(4).zip(y.quats.chunks(4)) {
+        let n = p.iter().map(|v| v * v).sum::<f32>().sqrt();
+        for (u, v) in q.iter().zip(p) {
+            assert!((u - v / n).abs() < 1e-6, "{q:?} vs {p:?}");
+        }
+    }
+
+    let small = gs_core::GaussianSet::zeros(5, 1);
+    assert_eq!(small.len(), 5);
+    let c = dir.path().join("small.ply");
+    write_ply(&c, &PlyGaussians::new(small), PlyFormat::Ascii).unwrap();
+    let missing = dir.path().join("missing.ply");
+    fails(
+        &[
+            "interpolate",
+            "--a",
+            s(&a),
+            "--b",
+            s(&c),
+            "--t",
+            "0.5",
+            "--out",
+            s(&missing),
+        ],
+        &["80", "5", "small.ply"],
+        &missing,
+    );
+    fails(
+        &[
+            "interpolate",
+            "--a",
+            s(&a),
+            "--b",
+            s(&b),
+            "--t",
+            "NaN",
+            "--out",
+            s(&missing),
+        ],
+        &["NaN"],
+        &missing,
+    );
+}
+
+/// The `eval` arguments for `renders` against `gt` with the tiny CLIP in `dir`, writing `out`.
+fn eval_args(clip: &(PathBuf, PathBuf), renders: &Path, gt: &Path, out: &Path) -> Vec<String> {
+    let tokenizer = fixture("tokenizer/tokenizer.json");
+    [
+        "eval",
+        "--renders",
+        s(renders),
+        "--gt",
+        s(gt),
+        "--style-prompt",
+        "fire",
+        "--clip-config",
+        s(&clip.0),
+        "--clip-weights",
+        s(&clip.1),
+        "--tokenizer",
+        s(&tokenizer),
+        "--out",
+        s(out),
+    ]
+    .iter()
+    .map(|a| a.to_string())
+    .collect()
+}
+
+#[test]
+fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
+    let dir = TempDir::new("cli-eval");
+    let (ply, data) = write_scene(dir.path());
+    let clip = write_tiny_clip(dir.path());
+    let renders = dir.path().join("renders");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "--out",
+        s(&renders),
+    ]);
+    let gt = data.join("train");
+    std::fs::write(gt.join("notes.txt"), "not a picture").unwrap();
+
+    let metrics = dir.path().join("metrics.json");
+    let args = eval_args(&clip, &renders, &gt, &metrics);
+    let stdout = succeeds(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    assert!(
+        stdout.contains("CLIP-S") && stdout.contains("CLIP-F"),
+        "{stdout}"
+    );
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
+    assert_eq!(m["views"], VIEWS);
+    for key in ["clip_s", "clip_sim", "clip_cons", "clip_f"] {
+        assert!(m[key].as_f64().unwrap().is_finite(), "{key}: {m}");
+    }
+
+    let same = dir.path().join("same.json");
+    let args = eval_args(&clip, &renders, &renders, &same);
+    succeeds(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&same).unwrap()).unwrap();
+    assert!((m["clip_f"].as_f64().unwrap() - 100.0).abs() < 1e-9, "{m}");
+    assert_eq!(m["clip_sim"].as_f64().unwrap(), 0.0, "{m}");
+
+    std::fs::rename(renders.join("r_1.png"), renders.join("extra.png")).unwrap();
+    let missing = dir.path().join("missing.json");
+    let args = eval_args(&clip, &renders, &gt, &missing);
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &[
+            "only in the renders: [extra.png]",
+            "only in the ground truths: [r_1.png]",
+        ],
+        &missing,
+    );
+    let empty = dir.path().join("empty");
+    std::fs::create_dir_all(&empty).unwrap();
+    let args = eval_args(&clip, &empty, &empty, &missing);
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["no picture", "empty"],
+        &missing,
+    );
+}
