@@ -66,15 +66,7 @@ pub(crate) fn write_body(ply: &PlyGaussians, layout: &Layout) -> Result<String, 
     let mut out = String::new();
     for i in 0..ply.gaussians.len() {
         for (f, field) in layout.fields.iter().enumerate() {
-            let value = columns::get(ply, rest, i, field.slot);
-            field
-                .ty
-                .check(value)
-                .map_err(|reason| PlyErrorKind::BadValue {
-                    vertex: i,
-                    property: field.name.clone(),
-                    reason,
-                })?;
+            let value = field.value_to_write(ply, rest, i)?;
             if f > 0 {
                 out.push(' ');
             }

@@ -108,15 +108,7 @@ pub(crate) fn write_body(
                 let i = r * RUN + v;
                 let mut offset = 0;
                 for field in &layout.fields {
-                    let value = columns::get(ply, rest, i, field.slot);
-                    field
-                        .ty
-                        .check(value)
-                        .map_err(|reason| PlyErrorKind::BadValue {
-                            vertex: i,
-                            property: field.name.clone(),
-                            reason,
-                        })?;
+                    let value = field.value_to_write(ply, rest, i)?;
                     let size = field.ty.size();
                     field
                         .ty

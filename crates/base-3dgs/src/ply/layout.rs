@@ -58,6 +58,27 @@ pub(crate) struct Field {
     pub slot: Slot,
 }
 
+impl Field {
+    /// The value vertex `i` writes for this field (`rest` = SH rest values per vertex), checked
+    /// to be representable in the field's type; the error names the vertex and property.
+    pub fn value_to_write(
+        &self,
+        ply: &PlyGaussians,
+        rest: usize,
+        i: usize,
+    ) -> Result<f64, PlyErrorKind> {
+        let value = super::columns::get(ply, rest, i, self.slot);
+        self.ty
+            .check(value)
+            .map_err(|reason| PlyErrorKind::BadValue {
+                vertex: i,
+                property: self.name.clone(),
+                reason,
+            })?;
+        Ok(value)
+    }
+}
+
 /// The fields of a vertex record in file order, and the SH degree they imply.
 #[derive(Clone, Debug)]
 pub(crate) struct Layout {
