@@ -11,7 +11,9 @@ use base_3dgs::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use common::TempDir;
 use gs_core::raster::render;
 use gs_core::Camera;
-use scene::{c2w, fixture, random_set, write_scene, write_tiny_clip, FOV_X, SIZE, VIEWS};
+use scene::{
+    c2w, fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, FOV_X, SIZE, VIEWS,
+};
 
 /// Runs `clipgaussian-3d` with `args`.
 fn cli(args: &[&str]) -> Output {
@@ -146,6 +148,38 @@ fn render_from_a_dataset_writes_one_picture_per_view_as_gs_core_renders_it() {
         &["neither", "sparse"],
         &missing,
     );
+}
+
+#[test]
+fn render_from_a_colmap_dataset_names_pictures_after_its_images() {
+    let dir = TempDir::new("cli-render-colmap");
+    let (ply, _) = write_scene(dir.path());
+    let data = write_colmap_scene(dir.path());
+    let out = dir.path().join("renders");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "--out",
+        s(&out),
+    ]);
+    let set = read_ply(&ply).unwrap().gaussians;
+    for k in 0..VIEWS {
+        let written = png(&out.join(format!("r_{k}.png")));
+        let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
+        let want = render(&set, &camera, [0.0; 3]).image.to_rgb8();
+        // The COLMAP poses went through a quaternion: allow one 8-bit step of difference.
+        let worst = written
+            .as_raw()
+            .iter()
+            .zip(want.as_raw())
+            .map(|(a, b)| a.abs_diff(*b))
+            .max()
+            .unwrap();
+        assert!(worst <= 1, "view {k}: off by {worst}");
+    }
 }
 
 #[test]

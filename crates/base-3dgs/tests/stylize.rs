@@ -21,7 +21,7 @@ use candle_core::{Device, Tensor};
 use common::TempDir;
 use gs_core::raster::render;
 use gs_core::GaussianSet;
-use scene::{fixture, random_set, write_scene, write_tiny_clip, SIZE, VIEWS};
+use scene::{fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, SIZE, VIEWS};
 use style_loss::image_layout::hwc_to_tensor;
 use style_loss::{
     style_rng, ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection,
@@ -197,6 +197,41 @@ fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
         .filter(|n| n.ends_with(".tmp"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
+}
+
+#[test]
+fn a_run_from_a_colmap_layout_keeps_the_count_and_its_cameras_match_the_nerf_twin() {
+    let setup = Setup::new("stylize-colmap");
+    let data = write_colmap_scene(setup.dir.path());
+    // The COLMAP scene's cameras are the NeRF scene's: the loaded views project alike.
+    let colmap = base_3dgs::dataset::colmap::load(&data, &LoadOptions::default()).unwrap();
+    let nerf = nerf_synthetic::load(
+        setup.config.data.as_ref().unwrap(),
+        Split::Train,
+        &LoadOptions::default(),
+    )
+    .unwrap();
+    assert_eq!(colmap.views.len(), VIEWS);
+    for (c, n) in colmap.views.iter().zip(&nerf.views) {
+        let (a, _) = c.camera.project([0.2, -0.1, 0.3]).unwrap();
+        let (b, _) = n.camera.project([0.2, -0.1, 0.3]).unwrap();
+        assert!(
+            (a[0] - b[0]).abs() < 1e-3 && (a[1] - b[1]).abs() < 1e-3,
+            "{a:?} vs {b:?}"
+        );
+    }
+    let config = setup.with(|c| {
+        c.data = Some(data);
+        c.steps = 6;
+        c.preview_views = vec![1];
+    });
+    let summary = run(&config, &quiet()).unwrap();
+    let stylized = read_ply(&summary.stylized_ply).unwrap();
+    assert_eq!(stylized.gaussians.len(), random_set().len());
+    assert_eq!(summary.losses.len(), 6);
+    assert!(summary.losses.iter().all(|l| l.total.is_finite()));
+    // No masks in a COLMAP scene: no background term.
+    assert!(!summary.losses[0].terms.contains_key("background"));
 }
 
 #[test]

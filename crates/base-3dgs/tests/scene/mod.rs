@@ -146,3 +146,88 @@ pub fn write_tiny_clip(dir: &Path) -> (PathBuf, PathBuf) {
     std::fs::write(&config_path, config.to_string()).unwrap();
     (config_path, weights)
 }
+
+/// The same views as [`write_scene`]'s in the COLMAP layout: `colmap/sparse/0/{cameras,images,
+/// points3D}.txt` (one PINHOLE camera, poses converted from the NeRF cameras) and RGB pictures
+/// in `colmap/images/` composited on black. Returns the dataset folder.
+pub fn write_colmap_scene(root: &Path) -> PathBuf {
+    let set = random_set();
+    let data = root.join("colmap");
+    let sparse = data.join("sparse/0");
+    std::fs::create_dir_all(&sparse).unwrap();
+    std::fs::create_dir_all(data.join("images")).unwrap();
+    let mut images = String::new();
+    let mut intrinsics = [0.0; 4];
+    for k in 0..VIEWS {
+        let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
+        intrinsics = [camera.fx, camera.fy, camera.cx, camera.cy];
+        let q = rotation_to_quaternion(&camera.rotation);
+        let t = camera.translation;
+        images += &format!(
+            "{} {} {} {} {} {} {} {} 1 r_{k}.png\n\n",
+            k + 1,
+            q[0],
+            q[1],
+            q[2],
+            q[3],
+            t[0],
+            t[1],
+            t[2]
+        );
+        render(&set, &camera, [0.0; 3])
+            .image
+            .save_png(&data.join(format!("images/r_{k}.png")))
+            .unwrap();
+    }
+    let [fx, fy, cx, cy] = intrinsics;
+    std::fs::write(
+        sparse.join("cameras.txt"),
+        format!("1 PINHOLE {SIZE} {SIZE} {fx} {fy} {cx} {cy}\n"),
+    )
+    .unwrap();
+    std::fs::write(sparse.join("images.txt"), images).unwrap();
+    std::fs::write(
+        sparse.join("points3D.txt"),
+        "1 0.1 0.2 0.3 200 100 50 0.5\n",
+    )
+    .unwrap();
+    data
+}
+
+/// The unit quaternion `(w, x, y, z)` of a rotation matrix (Shepperd's method).
+fn rotation_to_quaternion(r: &[[f64; 3]; 3]) -> [f64; 4] {
+    let trace = r[0][0] + r[1][1] + r[2][2];
+    if trace > 0.0 {
+        let s = 2.0 * (trace + 1.0).sqrt();
+        [
+            0.25 * s,
+            (r[2][1] - r[1][2]) / s,
+            (r[0][2] - r[2][0]) / s,
+            (r[1][0] - r[0][1]) / s,
+        ]
+    } else if r[0][0] > r[1][1] && r[0][0] > r[2][2] {
+        let s = 2.0 * (1.0 + r[0][0] - r[1][1] - r[2][2]).sqrt();
+        [
+            (r[2][1] - r[1][2]) / s,
+            0.25 * s,
+            (r[0][1] + r[1][0]) / s,
+            (r[0][2] + r[2][0]) / s,
+        ]
+    } else if r[1][1] > r[2][2] {
+        let s = 2.0 * (1.0 + r[1][1] - r[0][0] - r[2][2]).sqrt();
+        [
+            (r[0][2] - r[2][0]) / s,
+            (r[0][1] + r[1][0]) / s,
+            0.25 * s,
+            (r[1][2] + r[2][1]) / s,
+        ]
+    } else {
+        let s = 2.0 * (1.0 + r[2][2] - r[0][0] - r[1][1]).sqrt();
+        [
+            (r[1][0] - r[0][1]) / s,
+            (r[0][2] + r[2][0]) / s,
+            (r[1][2] + r[2][1]) / s,
+            0.25 * s,
+        ]
+    }
+}
