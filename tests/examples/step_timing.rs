@@ -96,7 +96,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let config = TrainConfig {
         steps: 1,
-        seed: 0,
         background: [1.0; 3],
     };
     let mut report = None;

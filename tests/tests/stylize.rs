@@ -134,10 +134,9 @@ fn stylizing_a_scene_lowers_the_style_loss_and_keeps_the_count() {
     let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: 60,
-        seed: 1,
         background: [1.0; 3],
     };
-    let mut sampler = ViewSampler::new(views.len(), config.seed);
+    let mut sampler = ViewSampler::new(views.len(), 1);
     let mut term_names = Vec::new();
     train(
         &mut model,

@@ -119,7 +119,6 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
     let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: args.steps,
-        seed: args.seed,
         background: bg,
     };
     let mut sampler = ViewSampler::new(views.len(), args.seed);

@@ -75,8 +75,6 @@ pub trait Objective {
 pub struct TrainConfig {
     /// Total number of steps; the run stops when the optimizer has taken this many.
     pub steps: u64,
-    /// Seed of the view order.
-    pub seed: u64,
     /// Background colour renders are composited over.
     pub background: [f32; 3],
 }
@@ -278,7 +276,6 @@ mod tests {
             let mut adam = Adam::new(groups.clone(), &model.group_lens(), AdamHyper::default());
             let config = TrainConfig {
                 steps,
-                seed: 0,
                 background: [0.0; 3],
             };
             let result = train(
@@ -318,7 +315,6 @@ mod tests {
         );
         let config = TrainConfig {
             steps: 1,
-            seed: 0,
             background: [0.0; 3],
         };
         let e = train(

@@ -66,10 +66,9 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: 800,
-        seed: 5,
         background: bg,
     };
-    let mut sampler = ViewSampler::new(views.len(), config.seed);
+    let mut sampler = ViewSampler::new(views.len(), 5);
     let mut reports = 0;
     train(
         &mut model,

@@ -140,7 +140,6 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
     write_json(&out.join(CONFIG_JSON), config)?;
     let train_config = TrainConfig {
         steps: config.steps,
-        seed: config.seed,
         background: dataset.background,
     };
     let mut sampler = resumed_sampler(dataset.views.len(), config.seed, adam.step_count());
