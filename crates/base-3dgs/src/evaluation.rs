@@ -96,8 +96,29 @@ pub struct Metrics {
     pub clip_f: Option<f64>,
 }
 
-/// The picture names (files with an extension of [`IMAGE_EXTENSIONS`], any case) in `dir`,
-/// sorted.
+/// Orders names as people number views: runs of digits compare by value, so `r_2` comes before
+/// `r_10` (CLIP-CONS and CLIP-F pair each view with the next one in this order).
+fn natural_key(name: &str) -> Vec<(String, u128)> {
+    let mut key = Vec::new();
+    let mut text = String::new();
+    let mut chars = name.chars().peekable();
+    while let Some(c) = chars.next() {
+        if c.is_ascii_digit() {
+            let mut digits = c.to_string();
+            while let Some(d) = chars.next_if(|d| d.is_ascii_digit()) {
+                digits.push(d);
+            }
+            let value = digits.parse::<u128>().unwrap_or(u128::MAX);
+            key.push((std::mem::take(&mut text), value));
+        } else {
+            text.push(c);
+        }
+    }
+    key.push((text, 0));
+    key
+}
+
+/// The picture names (files with an extension of [`IMAGE_EXTENSIONS`], any case) in `dir`.
 fn picture_names(dir: &Path) -> Result<BTreeSet<String>, EvalError> {
     let io = |source| EvalError::Io {
         path: dir.to_path_buf(),
@@ -119,8 +140,8 @@ fn picture_names(dir: &Path) -> Result<BTreeSet<String>, EvalError> {
     Ok(names)
 }
 
-/// The names present in both folders, sorted; an error naming every picture that is in one
-/// folder only, or when there is none.
+/// The names present in both folders in natural order (`r_2` before `r_10`); an error naming
+/// every picture that is in one folder only, or when there is none.
 pub fn matching_names(renders: &Path, ground_truths: &Path) -> Result<Vec<String>, EvalError> {
     let r = picture_names(renders)?;
     let g = picture_names(ground_truths)?;
@@ -135,7 +156,9 @@ pub fn matching_names(renders: &Path, ground_truths: &Path) -> Result<Vec<String
             path: renders.to_path_buf(),
         });
     }
-    Ok(r.into_iter().collect())
+    let mut names: Vec<String> = r.into_iter().collect();
+    names.sort_by_cached_key(|n| (natural_key(n), n.clone()));
+    Ok(names)
 }
 
 /// A picture as a `[1, 3, h, w]` tensor in `[0, 1]`, transparent pixels over `background`.
@@ -217,4 +240,33 @@ pub fn write_metrics(path: &Path, metrics: &Metrics) -> Result<(), EvalError> {
         let _ = std::fs::remove_file(&tmp);
         io(e)
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn natural_order_puts_numbered_views_in_sequence() {
+        let mut names = vec![
+            "r_10.png",
+            "r_2.png",
+            "r_1.png",
+            "r_100.png",
+            "a.png",
+            "r_02.png",
+        ];
+        names.sort_by_cached_key(|n| (natural_key(n), n.to_string()));
+        assert_eq!(
+            names,
+            [
+                "a.png",
+                "r_1.png",
+                "r_02.png",
+                "r_2.png",
+                "r_10.png",
+                "r_100.png"
+            ]
+        );
+    }
 }

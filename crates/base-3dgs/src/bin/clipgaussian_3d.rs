@@ -212,8 +212,8 @@ struct RenderArgs {
     /// The output folder (created when absent; pictures of the same names are replaced).
     #[arg(long)]
     out: PathBuf,
-    /// The background colour.
-    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
+    /// The background colour (white by default, as `stylize` renders).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
 }
 
@@ -267,8 +267,9 @@ struct EvalArgs {
     /// download when built with it).
     #[arg(long)]
     tokenizer: Option<PathBuf>,
-    /// The colour behind transparent pixels of the pictures.
-    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
+    /// The colour behind transparent pixels of the pictures (white by default, the background
+    /// `stylize` renders over).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
     /// Where to write the scores as JSON.
     #[arg(long, default_value = "metrics.json")]
