@@ -272,6 +272,14 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
         .to_string();
     assert!(e.contains("step 10") && e.contains("5 steps"), "{e}");
 
+    // A save interrupted between its two renames leaves the checkpoint parked in
+    // `checkpoint.old`; resuming finds it there.
+    let parts_out = styled("parts", 20, 10).out.unwrap();
+    std::fs::rename(
+        checkpoint::checkpoint_dir(&parts_out),
+        parts_out.join("checkpoint.old"),
+    )
+    .unwrap();
     let resumed = run(&styled("parts", 20, 10), &resume()).unwrap();
     assert!(
         resumed.gaussians == whole.gaussians,

@@ -65,12 +65,28 @@ pub fn checkpoint_dir(out: &Path) -> PathBuf {
     out.join(CHECKPOINT_DIR)
 }
 
+/// Where [`save`] parks the previous checkpoint while it moves the new one in.
+fn parked_dir(out: &Path) -> PathBuf {
+    out.join(format!("{CHECKPOINT_DIR}.old"))
+}
+
+/// Puts back a checkpoint that a save interrupted between its two renames (a crash or a second
+/// Ctrl-C) left only in the parked folder, so it is found again. Call before looking for one.
+pub fn recover_interrupted_save(out: &Path) -> Result<(), StylizeError> {
+    let (dir, old) = (checkpoint_dir(out), parked_dir(out));
+    if !dir.exists() && old.exists() {
+        std::fs::rename(&old, &dir).map_err(|source| StylizeError::Io { path: old, source })?;
+    }
+    Ok(())
+}
+
 /// Saves `checkpoint` into `<out>/checkpoint/`, replacing the previous one only once the new
 /// one is complete.
 pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
+    recover_interrupted_save(out)?;
     let dir = checkpoint_dir(out);
     let tmp = out.join(format!("{CHECKPOINT_DIR}.tmp"));
-    let old = out.join(format!("{CHECKPOINT_DIR}.old"));
+    let old = parked_dir(out);
     let io = |path: &Path| {
         let path = path.to_path_buf();
         move |source| StylizeError::Io { path, source }
@@ -110,8 +126,9 @@ pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
     Ok(())
 }
 
-/// Loads the checkpoint in `<out>/checkpoint/`.
+/// Loads the checkpoint in `<out>/checkpoint/` (after [`recover_interrupted_save`]).
 pub fn load(out: &Path) -> Result<Checkpoint, StylizeError> {
+    recover_interrupted_save(out)?;
     let dir = checkpoint_dir(out);
     let bad = |message: String| StylizeError::Checkpoint {
         path: dir.clone(),

@@ -125,12 +125,15 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         model = saved.gaussians;
         objective.set_rng(saved.rng);
         losses = saved.losses;
-    } else if checkpoint::checkpoint_dir(out).exists() {
-        return Err(StylizeError::Input(format!(
-            "{} holds a checkpoint of an earlier run: pass --resume to continue it, or choose \
-             another output folder",
-            out.display()
-        )));
+    } else {
+        checkpoint::recover_interrupted_save(out)?;
+        if checkpoint::checkpoint_dir(out).exists() {
+            return Err(StylizeError::Input(format!(
+                "{} holds a checkpoint of an earlier run: pass --resume to continue it, or choose \
+                 another output folder",
+                out.display()
+            )));
+        }
     }
 
     std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
@@ -283,7 +286,8 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
 fn check_inputs(config: &StylizeConfig, dataset: &Dataset) -> Result<(), StylizeError> {
     if config.lambda_patch > 0.0 {
         for (i, img) in dataset.images.iter().enumerate() {
-            if img.width < config.patch_size as u32 || img.height < config.patch_size as u32 {
+            if (img.width as usize) < config.patch_size || (img.height as usize) < config.patch_size
+            {
                 return Err(StylizeError::Input(format!(
                     "patch_size {} is larger than view {i} ({}, {}x{}); lower patch_size or \
                      the resolution divisor",
