@@ -12,7 +12,7 @@ use gs_core::{Camera, GaussianSet};
 use serde::Deserialize;
 
 use crate::dataset::nerf_synthetic::{self, Split};
-use crate::dataset::{colmap, DatasetError, LoadOptions};
+use crate::dataset::{colmap, DatasetError, Layout, LoadOptions};
 
 /// The file name of the picture rendered from a [`CameraFile`].
 pub const CAMERA_RENDER_PNG: &str = "render.png";
@@ -176,22 +176,23 @@ pub fn dataset_cameras(
         path: data.to_path_buf(),
         message,
     };
-    let nerf = [Split::Train, Split::Test, Split::Val]
-        .iter()
-        .any(|s| data.join(s.file_name()).is_file());
-    let dataset = if nerf {
-        nerf_synthetic::load(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
-    } else if data.join("sparse").is_dir() {
-        if split.is_some() {
-            return Err(layout(
-                "a COLMAP scene has no splits: leave out --split to render every image".into(),
-            ));
+    let dataset = match Layout::detect(data) {
+        Some(Layout::NerfSynthetic) => {
+            nerf_synthetic::load(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
         }
-        colmap::load(data, options).map_err(wrap)?
-    } else {
-        return Err(layout(
-            "neither transforms_*.json (NeRF-synthetic) nor sparse/ (COLMAP) was found".into(),
-        ));
+        Some(Layout::Colmap) => {
+            if split.is_some() {
+                return Err(layout(
+                    "a COLMAP scene has no splits: leave out --split to render every image".into(),
+                ));
+            }
+            colmap::load(data, options).map_err(wrap)?
+        }
+        None => {
+            return Err(layout(
+                "neither transforms_*.json (NeRF-synthetic) nor sparse/ (COLMAP) was found".into(),
+            ))
+        }
     };
     let mut names = BTreeSet::new();
     dataset

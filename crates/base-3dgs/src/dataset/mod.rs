@@ -5,12 +5,39 @@ pub mod colmap;
 mod images;
 pub mod nerf_synthetic;
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use gs_core::model::View;
 use gs_core::{GsError, Image};
 
 pub use images::{BackgroundMask, ALPHA_BACKGROUND_BELOW};
+
+/// The two dataset layouts a folder can have.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Layout {
+    /// `transforms_{train,test,val}.json` and RGBA pictures.
+    NerfSynthetic,
+    /// A COLMAP sparse model in `sparse/` and pictures in `images/`.
+    Colmap,
+}
+
+impl Layout {
+    /// NeRF-synthetic when `data` holds any `transforms_*.json` of the three splits, else COLMAP
+    /// when it holds `sparse/`, else `None`.
+    pub fn detect(data: &Path) -> Option<Self> {
+        use nerf_synthetic::Split;
+        if [Split::Train, Split::Test, Split::Val]
+            .iter()
+            .any(|s| data.join(s.file_name()).is_file())
+        {
+            Some(Self::NerfSynthetic)
+        } else if data.join("sparse").is_dir() {
+            Some(Self::Colmap)
+        } else {
+            None
+        }
+    }
+}
 
 /// The colour that transparent pixels are composited over.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -27,7 +27,7 @@ use super::outputs::{
 };
 use super::{StylizeConfig, StylizeError};
 use crate::dataset::nerf_synthetic::{self, Split};
-use crate::dataset::{colmap, Background, Dataset, LoadOptions};
+use crate::dataset::{colmap, Background, Dataset, Layout, LoadOptions};
 use crate::ply::{read_ply_with_format, write_ply, PlyGaussians};
 
 /// The patch stream is seeded with `seed + PATCH_SEED_OFFSET`, so that it is not the same
@@ -269,16 +269,16 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
         path: data.to_path_buf(),
         source: Box::new(source),
     };
-    if data.join(Split::Train.file_name()).is_file() {
-        nerf_synthetic::load(data, Split::Train, &options).map_err(wrap)
-    } else if data.join("sparse").is_dir() {
-        colmap::load(data, &options).map_err(wrap)
-    } else {
-        Err(StylizeError::Input(format!(
+    match Layout::detect(data) {
+        Some(Layout::NerfSynthetic) => {
+            nerf_synthetic::load(data, Split::Train, &options).map_err(wrap)
+        }
+        Some(Layout::Colmap) => colmap::load(data, &options).map_err(wrap),
+        None => Err(StylizeError::Input(format!(
             "dataset {}: neither {} (NeRF-synthetic) nor sparse/ (COLMAP) was found",
             data.display(),
             Split::Train.file_name()
-        )))
+        ))),
     }
 }
 
