@@ -7,8 +7,8 @@ mod scene;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use base_3dgs::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use common::TempDir;
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
 use gs_core::Camera;
 use scene::{

@@ -5,6 +5,9 @@
 //! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
 //! - [`adam`]: Adam with parameter groups, learning-rate schedules and saved state.
 //! - [`image_loss`]: L1 and SSIM with their gradients.
+//! - [`ply`]: INRIA 3DGS PLY files (read and write, every SH degree, extra properties kept),
+//!   the format of 3DGS and MiraGe models alike.
+//! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
 //! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
 //!
 //! Conventions follow gsplat; see `docs/conventions.md` in the repository.
@@ -14,8 +17,10 @@ pub mod camera;
 pub mod gaussians;
 pub mod image;
 pub mod image_loss;
+pub mod interpolate;
 pub mod mat;
 pub mod model;
+pub mod ply;
 pub mod raster;
 pub mod real;
 pub mod sh;

@@ -15,11 +15,11 @@ use std::sync::Arc;
 use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics, ClipFiles, Style};
-use base_3dgs::interpolate::interpolate_ply;
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
-use base_3dgs::{read_ply, read_ply_with_format, write_ply};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use gs_core::interpolate::interpolate_ply;
+use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 /// Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
 const INTERRUPTED_EXIT: u8 = 130;

@@ -13,7 +13,7 @@ use style_loss::StyleRng;
 
 use super::outputs::{read_json, write_atomic, write_json, StepLosses};
 use super::StylizeError;
-use crate::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 
 /// The checkpoint folder inside the output folder.
 pub const CHECKPOINT_DIR: &str = "checkpoint";

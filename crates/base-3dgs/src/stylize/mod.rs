@@ -26,7 +26,7 @@ pub enum StylizeError {
     Config(String),
     /// The input PLY.
     #[error("PLY: {0}")]
-    Ply(#[from] crate::ply::PlyError),
+    Ply(#[from] gs_core::ply::PlyError),
     /// The dataset.
     #[error("dataset {}: {source}", path.display())]
     Dataset {

@@ -28,7 +28,7 @@ use super::outputs::{
 use super::{StylizeConfig, StylizeError};
 use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Dataset, Layout, LoadOptions};
-use crate::ply::{read_ply_with_format, write_ply, PlyGaussians};
+use gs_core::ply::{read_ply_with_format, write_ply, PlyGaussians};
 
 /// The patch stream is seeded with `seed + PATCH_SEED_OFFSET`, so that it is not the same
 /// ChaCha8 stream as the view order (seeded with `seed`).

@@ -5,9 +5,9 @@
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use base_3dgs::ply::{ExtraProperty, ScalarType};
-use base_3dgs::{write_ply, PlyFormat, PlyGaussians};
 use candle_core::{Device, Tensor};
+use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
+use gs_core::ply::{ExtraProperty, ScalarType};
 use gs_core::raster::render;
 use gs_core::{Camera, GaussianSet};
 use rand::{Rng, SeedableRng};

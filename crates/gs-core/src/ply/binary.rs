@@ -57,7 +57,7 @@ pub(crate) fn read_body(
     body: &[u8],
     layout: &Layout,
     big_endian: bool,
-    set: &mut gs_core::GaussianSet,
+    set: &mut crate::GaussianSet,
     extras: &mut [Vec<f64>],
 ) -> Result<(), PlyErrorKind> {
     let stride = layout.stride();

@@ -1,11 +1,11 @@
 //! Writes and reads back a 1M-Gaussian SH degree 3 binary PLY in a temporary folder and prints
 //! both times (best of three) and the file size.
 //!
-//! `cargo run --release -p base-3dgs --example ply_timing [count]`
+//! `cargo run --release -p gs-core --example ply_timing [count]`
 
 use std::time::Instant;
 
-use base_3dgs::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
 

@@ -1,7 +1,7 @@
 //! Access to the parameter arrays by [`Slot`]: runs of vertices filled in parallel when reading,
 //! values looked up when writing.
 
-use gs_core::GaussianSet;
+use crate::GaussianSet;
 
 use super::layout::Slot;
 use super::PlyGaussians;

@@ -23,7 +23,7 @@ mod scalar;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 
-use gs_core::GaussianSet;
+use crate::GaussianSet;
 
 use layout::Layout;
 pub use layout::NORMAL_NAMES;

@@ -1,16 +1,22 @@
 //! INRIA PLY reading and writing: round trips of every SH degree and encoding, extra
 //! properties, the on-disk f_rest order, hand-written files and every error.
 
-mod common;
-
 use std::path::Path;
 
-use base_3dgs::ply::{
+use gs_core::ply::{
     read_ply, write_ply, ExtraProperty, PlyErrorKind, PlyFormat, PlyGaussians, ScalarType,
 };
-use common::TempDir;
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
+use tempfile::TempDir;
+
+/// A fresh temporary folder whose name starts with `name`, removed when dropped.
+fn temp_dir(name: &str) -> TempDir {
+    tempfile::Builder::new()
+        .prefix(name)
+        .tempdir()
+        .expect("create a temporary folder")
+}
 
 /// `n` Gaussians of SH degree `degree` with every parameter drawn from a seeded generator.
 fn random_set(n: usize, degree: usize, seed: u64) -> GaussianSet {
@@ -43,7 +49,7 @@ fn zero_normals(n: usize) -> Vec<ExtraProperty> {
 
 #[test]
 fn every_degree_and_format_round_trips_exactly() {
-    let dir = TempDir::new("ply-round-trip");
+    let dir = temp_dir("ply-round-trip");
     for degree in 0..=3 {
         let set = random_set(37, degree, degree as u64);
         for format in FORMATS {
@@ -61,7 +67,7 @@ fn every_degree_and_format_round_trips_exactly() {
 
 #[test]
 fn extra_properties_are_preserved_and_reported() {
-    let dir = TempDir::new("ply-extras");
+    let dir = temp_dir("ply-extras");
     let n = 11;
     let mut rng = rand::rngs::StdRng::seed_from_u64(7);
     let mut extra =
@@ -124,7 +130,7 @@ fn inria_header(n: usize, degree: usize, format: &str) -> String {
 
 #[test]
 fn a_hand_written_inria_file_reads_with_channel_major_f_rest_and_writes_back_byte_exact() {
-    let dir = TempDir::new("ply-inria");
+    let dir = temp_dir("ply-inria");
     let path = dir.path().join("point_cloud.ply");
     // Two vertices of degree 1: 3 + 3 + 3 + 9 + 1 + 3 + 4 = 26 floats each; vertex v holds
     // 100 v + property index.
@@ -160,7 +166,7 @@ fn a_hand_written_inria_file_reads_with_channel_major_f_rest_and_writes_back_byt
 
 #[test]
 fn f_rest_is_written_channel_major() {
-    let dir = TempDir::new("ply-f-rest-order");
+    let dir = temp_dir("ply-f-rest-order");
     let mut set = GaussianSet::zeros(1, 1);
     // In memory [coeff][channel]: value 10 coeff + channel.
     for coeff in 0..3 {
@@ -187,7 +193,7 @@ fn f_rest_is_written_channel_major() {
 
 #[test]
 fn property_order_and_double_types_may_vary() {
-    let dir = TempDir::new("ply-order");
+    let dir = temp_dir("ply-order");
     let path = dir.path().join("shuffled.ply");
     let names = [
         "rot_3",
@@ -247,7 +253,7 @@ fn replace_in_header(header: &str, from: &str, to: &str) -> String {
 
 #[test]
 fn header_errors_name_the_line_or_property() {
-    let dir = TempDir::new("ply-header-errors");
+    let dir = temp_dir("ply-header-errors");
     let good = inria_header(1, 0, "ascii");
     let body = "0 0 0 0 0 0 0 0 0 0 0 0 0 1 0 0 0\n";
     let cases = [
@@ -280,7 +286,7 @@ fn header_errors_name_the_line_or_property() {
 
 #[test]
 fn a_degree_with_a_missing_f_rest_name_is_named() {
-    let dir = TempDir::new("ply-rest-name");
+    let dir = temp_dir("ply-rest-name");
     let header = inria_header(1, 1, "binary_little_endian").replace("f_rest_4\n", "f_rest_40\n");
     let mut bytes = header.into_bytes();
     bytes.extend(std::iter::repeat_n(0u8, 26 * 4));
@@ -293,7 +299,7 @@ fn a_degree_with_a_missing_f_rest_name_is_named() {
 
 #[test]
 fn non_finite_values_name_the_vertex_and_property() {
-    let dir = TempDir::new("ply-nan");
+    let dir = temp_dir("ply-nan");
     let mut bytes = inria_header(3, 0, "binary_little_endian").into_bytes();
     for v in 0..3 {
         for p in 0..17 {
@@ -330,7 +336,7 @@ fn non_finite_values_name_the_vertex_and_property() {
 
 #[test]
 fn truncated_and_overlong_bodies_are_errors() {
-    let dir = TempDir::new("ply-truncated");
+    let dir = temp_dir("ply-truncated");
     let mut bytes = inria_header(4, 0, "binary_little_endian").into_bytes();
     bytes.extend(std::iter::repeat_n(0u8, 3 * 17 * 4 + 5));
     let (kind, message) = read_error(&dir, "short.ply", &bytes);
@@ -371,7 +377,7 @@ fn truncated_and_overlong_bodies_are_errors() {
 
 #[test]
 fn writing_refuses_bad_data_and_leaves_nothing_partial() {
-    let dir = TempDir::new("ply-write-errors");
+    let dir = temp_dir("ply-write-errors");
     let path = dir.path().join("scene.ply");
     let good = PlyGaussians::new(random_set(5, 1, 1));
     write_ply(&path, &good, PlyFormat::BinaryLittleEndian).unwrap();

@@ -10,7 +10,7 @@ pub(crate) fn read_body(
     body: &[u8],
     first_line: usize,
     layout: &Layout,
-    set: &mut gs_core::GaussianSet,
+    set: &mut crate::GaussianSet,
     extras: &mut [Vec<f64>],
 ) -> Result<(), PlyErrorKind> {
     let n = set.len();

@@ -1,8 +1,8 @@
 //! Parameter-by-parameter interpolation of Gaussian sets: end points, midpoints, quaternion
 //! hemispheres, extrapolation, PLY extras and every error.
 
-use base_3dgs::interpolate::{interpolate, interpolate_ply, InterpolateError};
-use base_3dgs::ply::{ExtraProperty, PlyGaussians, ScalarType};
+use gs_core::interpolate::{interpolate, interpolate_ply, InterpolateError};
+use gs_core::ply::{ExtraProperty, PlyGaussians, ScalarType};
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
 

@@ -12,9 +12,8 @@
 //! - Any finite `t` is allowed: `t` outside `[0, 1]` extrapolates (exaggerates or reverses the
 //!   difference between the sets), which is sometimes wanted. NaN or infinite `t` is an error.
 
-use gs_core::GaussianSet;
-
 use crate::ply::PlyGaussians;
+use crate::GaussianSet;
 
 /// Why two sets cannot be interpolated.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]

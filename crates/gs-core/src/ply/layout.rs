@@ -1,7 +1,7 @@
 //! The INRIA vertex layout: which property feeds which Gaussian parameter, and the conversion of
 //! `f_rest_*` between the channel-major file order and gs-core's coefficient-major order.
 
-use gs_core::gaussians::sh_coeff_count;
+use crate::gaussians::sh_coeff_count;
 
 use super::scalar::{show, ScalarType};
 use super::{ExtraProperty, PlyErrorKind, PlyGaussians};
