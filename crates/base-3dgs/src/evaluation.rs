@@ -6,9 +6,8 @@ use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
-use gs_core::Image;
+use gs_stylize::picture::load_picture;
 use serde::Serialize;
-use style_loss::image_layout::hwc_to_tensor;
 use style_loss::metrics::{evaluate, StyleReference};
 use style_loss::weight_resolution::{CLIP_TOKENIZER, CLIP_VIT_L_14_WEIGHTS};
 use style_loss::{ClipConfig, ClipModel, ClipTokenizer, StyleLossError};
@@ -161,17 +160,6 @@ pub fn matching_names(renders: &Path, ground_truths: &Path) -> Result<Vec<String
     Ok(names)
 }
 
-/// A picture as a `[1, 3, h, w]` tensor in `[0, 1]`, transparent pixels over `background`.
-fn load_picture(path: &Path, background: [f32; 3]) -> Result<Tensor, EvalError> {
-    let image = Image::load(path, background)?;
-    Ok(hwc_to_tensor(
-        &image.data,
-        image.height as usize,
-        image.width as usize,
-        &Device::Cpu,
-    )?)
-}
-
 /// Scores the renders in `renders` against the pictures of the same names in `ground_truths`
 /// (see the module documentation), transparent pixels over `background`, with the neutral
 /// prompt `source_prompt`.
@@ -187,7 +175,7 @@ pub fn evaluate_folders(
     let load_all = |dir: &Path| -> Result<Vec<Tensor>, EvalError> {
         names
             .iter()
-            .map(|n| load_picture(&dir.join(n), background))
+            .map(|n| load_picture(&dir.join(n), background, &Device::Cpu).map_err(EvalError::from))
             .collect()
     };
     let rendered = load_all(renders)?;
@@ -196,7 +184,7 @@ pub fn evaluate_folders(
     let reference = match style {
         Style::Prompt(prompt) => StyleReference::Prompt(prompt),
         Style::Image(path) => {
-            style_image = load_picture(path, background)?;
+            style_image = load_picture(path, background, &Device::Cpu)?;
             StyleReference::Image(&style_image)
         }
     };
@@ -225,20 +213,12 @@ pub fn evaluate_folders(
     })
 }
 
-/// Writes `metrics` as pretty JSON to `path` through `<path>.tmp` and a rename.
+/// Writes `metrics` as pretty JSON to `path` ([`gs_core::fs::write_atomic`]).
 pub fn write_metrics(path: &Path, metrics: &Metrics) -> Result<(), EvalError> {
-    let io = |source| EvalError::Io {
+    let text = serde_json::to_string_pretty(metrics).expect("metrics serialize") + "\n";
+    gs_core::fs::write_atomic(path, text.as_bytes()).map_err(|source| EvalError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    let tmp = PathBuf::from(tmp);
-    let text = serde_json::to_string_pretty(metrics).expect("metrics serialize");
-    std::fs::write(&tmp, text + "\n").map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        io(e)
     })
 }
 

@@ -13,14 +13,14 @@ use std::sync::Arc;
 
 use base_3dgs::dataset::nerf_synthetic::{self, Split};
 use base_3dgs::dataset::{Background, LoadOptions};
-use base_3dgs::stylize::checkpoint;
-use base_3dgs::stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
-use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
+use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
 use candle_core::{Device, Tensor};
 use common::TempDir;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
 use gs_core::GaussianSet;
+use gs_stylize::checkpoint;
+use gs_stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use scene::{fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, SIZE, VIEWS};
 use style_loss::image_layout::hwc_to_tensor;
 use style_loss::{
@@ -43,19 +43,22 @@ impl Setup {
             ply: Some(ply),
             data: Some(data),
             out: Some(dir.path().join("out")),
-            style_prompt: Some("fire".into()),
-            steps: 20,
-            seed: 4,
-            patch_size: 32,
-            num_patches: 4,
-            feature_lr: 0.05,
             preview_views: vec![0, 2],
-            checkpoint_every: 0,
-            clip_config: Some(clip_config),
-            clip_weights: Some(clip_weights),
-            tokenizer: Some(fixture("tokenizer/tokenizer.json")),
-            vgg_weights: Some(fixture("tiny_vgg19.safetensors")),
-            vgg_widths: [4, 8, 16, 32, 32],
+            style: StyleSettings {
+                style_prompt: Some("fire".into()),
+                steps: 20,
+                seed: 4,
+                patch_size: 32,
+                num_patches: 4,
+                feature_lr: 0.05,
+                checkpoint_every: 0,
+                clip_config: Some(clip_config),
+                clip_weights: Some(clip_weights),
+                tokenizer: Some(fixture("tokenizer/tokenizer.json")),
+                vgg_weights: Some(fixture("tiny_vgg19.safetensors")),
+                vgg_widths: [4, 8, 16, 32, 32],
+                ..StyleSettings::paper_3d()
+            },
             ..StylizeConfig::default()
         };
         Self { dir, config }
@@ -97,28 +100,33 @@ fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
         downscale: 1,
     };
     let data = nerf_synthetic::load(config.data.as_ref().unwrap(), Split::Train, &options).unwrap();
-    let clip_config = ClipConfig::from_json_file(config.clip_config.as_ref().unwrap()).unwrap();
-    let clip =
-        ClipModel::load(&clip_config, config.clip_weights.as_ref().unwrap(), &device).unwrap();
-    let tokenizer = ClipTokenizer::from_file(config.tokenizer.as_ref().unwrap()).unwrap();
+    let clip_config =
+        ClipConfig::from_json_file(config.style.clip_config.as_ref().unwrap()).unwrap();
+    let clip = ClipModel::load(
+        &clip_config,
+        config.style.clip_weights.as_ref().unwrap(),
+        &device,
+    )
+    .unwrap();
+    let tokenizer = ClipTokenizer::from_file(config.style.tokenizer.as_ref().unwrap()).unwrap();
     let direction =
         StyleDirection::from_text(&clip, &tokenizer, "fire", DEFAULT_SOURCE_PROMPT).unwrap();
     let vgg = Vgg19Features::load(
-        config.vgg_weights.as_ref().unwrap(),
-        Vgg19Widths(config.vgg_widths),
+        config.style.vgg_weights.as_ref().unwrap(),
+        Vgg19Widths(config.style.vgg_widths),
         &device,
     )
     .unwrap();
     let weights = LossWeights {
-        directional: config.lambda_directional,
-        patch: config.lambda_patch,
-        content: config.lambda_content,
-        background: config.lambda_background,
+        directional: config.style.lambda_directional,
+        patch: config.style.lambda_patch,
+        content: config.style.lambda_content,
+        background: config.style.lambda_background,
     };
     let patches = PatchSettings {
-        patch_size: config.patch_size,
-        num_patches: config.num_patches,
-        distortion_scale: config.distortion_scale,
+        patch_size: config.style.patch_size,
+        num_patches: config.style.num_patches,
+        distortion_scale: config.style.distortion_scale,
     };
     let loss = StyleLoss::new(clip, Some(vgg), direction, weights, patches).unwrap();
     let mut rng = style_rng(99);
@@ -222,7 +230,7 @@ fn a_run_from_a_colmap_layout_keeps_the_count_and_its_cameras_match_the_nerf_twi
     }
     let config = setup.with(|c| {
         c.data = Some(data);
-        c.steps = 6;
+        c.style.steps = 6;
         c.preview_views = vec![1];
     });
     let summary = run(&config, &quiet()).unwrap();
@@ -240,11 +248,11 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     let image = setup.style_image();
     let styled = |out: &str, steps: u64, every: u64| {
         setup.with(|c| {
-            c.style_prompt = None;
-            c.style_image = Some(image.clone());
+            c.style.style_prompt = None;
+            c.style.style_image = Some(image.clone());
             c.out = Some(setup.dir.path().join(out));
-            c.steps = steps;
-            c.checkpoint_every = every;
+            c.style.steps = steps;
+            c.style.checkpoint_every = every;
         })
     };
     let whole = run(&styled("whole", 20, 0), &quiet()).unwrap();
@@ -262,7 +270,7 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     );
     let other_seed = setup.with(|c| {
         *c = styled("parts", 20, 10);
-        c.seed = 5;
+        c.style.seed = 5;
     });
     let e = run(&other_seed, &resume()).unwrap_err().to_string();
     assert!(e.contains("seed") && e.contains("checkpoint"), "{e}");
@@ -329,20 +337,27 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
         ply: Some("scene.ply".into()),
         data: Some("data".into()),
         out: Some("out".into()),
-        style_prompt: Some("fire".into()),
+        style: StyleSettings {
+            style_prompt: Some("fire".into()),
+            ..StyleSettings::paper_3d()
+        },
         ..StylizeConfig::default()
     };
     assert_eq!(paper, expected);
     assert_eq!(
         (
-            paper.lambda_directional,
-            paper.lambda_patch,
-            paper.lambda_content
+            paper.style.lambda_directional,
+            paper.style.lambda_patch,
+            paper.style.lambda_content
         ),
         (5.0, 90.0, 0.8)
     );
     assert_eq!(
-        (paper.steps, paper.patch_size, paper.num_patches),
+        (
+            paper.style.steps,
+            paper.style.patch_size,
+            paper.style.num_patches
+        ),
         (5000, 128, 64)
     );
     let light =
@@ -350,8 +365,11 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
     assert_eq!(
         light,
         StylizeConfig {
-            feature_lr: 0.002,
-            lambda_patch: 35.0,
+            style: StyleSettings {
+                feature_lr: 0.002,
+                lambda_patch: 35.0,
+                ..expected.style.clone()
+            },
             ..expected.clone()
         }
     );
@@ -361,7 +379,7 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
     edits.push(Override::parse("steps=7").unwrap());
     let edited = StylizeConfig::resolve(None, &edits).unwrap();
     assert_eq!(
-        (edited.preview_views.clone(), edited.steps),
+        (edited.preview_views.clone(), edited.style.steps),
         (vec![1, 3], 7)
     );
 
@@ -397,22 +415,22 @@ fn bad_inputs_are_named_and_leave_no_output() {
     let data = setup.config.data.clone().unwrap();
 
     fails_cleanly(
-        &setup.with(|c| c.style_prompt = Some("  ".into())),
+        &setup.with(|c| c.style.style_prompt = Some("  ".into())),
         &["style_prompt", "empty"],
     );
     fails_cleanly(
-        &setup.with(|c| c.style_image = Some(root.join("red.png"))),
+        &setup.with(|c| c.style.style_image = Some(root.join("red.png"))),
         &["exactly one style"],
     );
     fails_cleanly(
         &setup.with(|c| {
-            c.style_prompt = None;
-            c.style_image = Some(root.join("missing.png"));
+            c.style.style_prompt = None;
+            c.style.style_image = Some(root.join("missing.png"));
         }),
         &["style image", "missing.png"],
     );
     fails_cleanly(
-        &setup.with(|c| c.patch_size = 64),
+        &setup.with(|c| c.style.patch_size = 64),
         &["patch_size 64", "48x48", "r_0.png"],
     );
     fails_cleanly(
@@ -488,7 +506,7 @@ fn bad_inputs_are_named_and_leave_no_output() {
     );
 
     fails_cleanly(
-        &setup.with(|c| c.clip_weights = Some(root.join("no-clip.safetensors"))),
+        &setup.with(|c| c.style.clip_weights = Some(root.join("no-clip.safetensors"))),
         &["no-clip.safetensors"],
     );
 }
@@ -512,13 +530,13 @@ fn the_binary_takes_flags_and_set_overrides() {
             "--steps".into(),
             "2".into(),
             "--clip-config".into(),
-            path(&c.clip_config),
+            path(&c.style.clip_config),
             "--clip-weights".into(),
-            path(&c.clip_weights),
+            path(&c.style.clip_weights),
             "--tokenizer".into(),
-            path(&c.tokenizer),
+            path(&c.style.tokenizer),
             "--vgg-weights".into(),
-            path(&c.vgg_weights),
+            path(&c.style.vgg_weights),
             "--set".into(),
             "vgg_widths=[4,8,16,32,32]".into(),
             "--set".into(),
@@ -553,7 +571,7 @@ fn the_binary_takes_flags_and_set_overrides() {
     );
     let written: StylizeConfig =
         serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
-    assert_eq!((written.steps, written.num_patches), (2, 2));
+    assert_eq!((written.style.steps, written.style.num_patches), (2, 2));
     assert_eq!(
         read_ply(&out.join("stylized.ply")).unwrap().gaussians.len(),
         80

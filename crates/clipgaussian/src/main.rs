@@ -12,7 +12,7 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use gs_core::adam::{Adam, AdamHyper, LrSchedule};
-use gs_core::image_loss::PhotometricObjective;
+use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
@@ -61,17 +61,6 @@ fn main() -> Result<()> {
     match Cli::parse().command {
         Command::FitDemo(args) => fit_demo(&args),
     }
-}
-
-fn psnr(a: &Image, b: &Image) -> f64 {
-    let mse = a
-        .data
-        .iter()
-        .zip(&b.data)
-        .map(|(x, y)| ((x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)) as f64).powi(2))
-        .sum::<f64>()
-        / a.data.len() as f64;
-    10.0 * (1.0 / mse.max(1e-12)).log10()
 }
 
 fn mean_psnr(model: &GaussianSet, views: &[View], targets: &[Image], bg: [f32; 3]) -> f64 {

@@ -103,17 +103,15 @@ impl Image<f32> {
     }
 }
 
-/// Writes an 8-bit RGB PNG through a temporary file and a rename.
+/// Writes an 8-bit RGB PNG through a temporary file, an fsync and a rename
+/// ([`crate::fs::write_atomic_with`]).
 pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> {
-    let err = |message: String| GsError::Image {
+    crate::fs::write_atomic_with(path, |w| {
+        img.write_to(w, image::ImageFormat::Png)
+            .map_err(std::io::Error::other)
+    })
+    .map_err(|e| GsError::Image {
         path: path.to_path_buf(),
-        message,
-    };
-    let tmp = path.with_extension("png.tmp");
-    img.save_with_format(&tmp, image::ImageFormat::Png)
-        .map_err(|e| err(e.to_string()))?;
-    std::fs::rename(&tmp, path).map_err(|e| {
-        let _ = std::fs::remove_file(&tmp);
-        err(e.to_string())
+        message: e.to_string(),
     })
 }

@@ -156,6 +156,28 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
     }
 }
 
+/// Peak signal-to-noise ratio of `a` against `b` in dB, both clamped to `[0, 1]` first (as
+/// 8-bit pictures are); the mean squared error is floored at 1e-12, so equal images give 120 dB
+/// rather than infinity.
+///
+/// # Panics
+/// If the images differ in size.
+pub fn psnr(a: &Image, b: &Image) -> f64 {
+    assert_eq!(
+        (a.width, a.height),
+        (b.width, b.height),
+        "PSNR of images of different sizes"
+    );
+    let mse = a
+        .data
+        .iter()
+        .zip(&b.data)
+        .map(|(x, y)| ((x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)) as f64).powi(2))
+        .sum::<f64>()
+        / a.data.len().max(1) as f64;
+    10.0 * (1.0 / mse.max(1e-12)).log10()
+}
+
 /// The fitting objective of 3DGS and MiraGe: `(1 - lambda) L1 + lambda (1 - SSIM)` against a
 /// target image per view.
 #[derive(Clone, Debug)]
@@ -209,6 +231,16 @@ mod tests {
     fn noise(seed: u64, n: usize) -> Vec<f64> {
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
         (0..n).map(|_| rng.random_range(0.0..1.0)).collect()
+    }
+
+    #[test]
+    fn psnr_of_a_known_error() {
+        let a = Image::filled(4, 2, [0.5, 0.5, 0.5]);
+        let b = Image::filled(4, 2, [0.6, 0.5, 0.5]);
+        // MSE = 0.01 / 3.
+        let expected = 10.0 * (3.0f64 / 0.01).log10();
+        assert!((psnr(&a, &b) - expected).abs() < 1e-4, "{}", psnr(&a, &b));
+        assert_eq!(psnr(&a, &a), 120.0);
     }
 
     #[test]

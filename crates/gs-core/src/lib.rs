@@ -4,6 +4,7 @@
 //! - [`Camera`]: pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
 //! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
 //! - [`adam`]: Adam with parameter groups, learning-rate schedules and saved state.
+//! - [`fs`]: files written through a temporary name, fsynced and renamed, never half written.
 //! - [`image_loss`]: L1 and SSIM with their gradients.
 //! - [`ply`]: INRIA 3DGS PLY files (read and write, every SH degree, extra properties kept),
 //!   the format of 3DGS and MiraGe models alike.
@@ -14,6 +15,7 @@
 
 pub mod adam;
 pub mod camera;
+pub mod fs;
 pub mod gaussians;
 pub mod image;
 pub mod image_loss;

@@ -23,6 +23,8 @@ pub mod resize;
 pub mod style_direction;
 pub mod templates;
 pub mod tensor_file;
+#[cfg(feature = "test-models")]
+pub mod test_models;
 pub mod tokenizer;
 pub mod vgg;
 pub mod weight_resolution;

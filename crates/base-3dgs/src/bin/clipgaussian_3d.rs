@@ -9,8 +9,6 @@
 use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{Background, LoadOptions};
@@ -20,9 +18,7 @@ use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError}
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
-
-/// Exit status of a run stopped by Ctrl-C (128 + SIGINT, as shells report it).
-const INTERRUPTED_EXIT: u8 = 130;
+use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -280,18 +276,10 @@ struct EvalArgs {
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     let overrides = args.overrides()?;
     let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
-    let stop = Arc::new(AtomicBool::new(false));
-    let flag = Arc::clone(&stop);
-    ctrlc::set_handler(move || {
-        if flag.swap(true, Ordering::SeqCst) {
-            std::process::exit(i32::from(INTERRUPTED_EXIT));
-        }
-        eprintln!("\nstopping after the current step (Ctrl-C again to quit at once)");
-    })?;
     let options = RunOptions {
         resume: args.resume,
         progress: !args.quiet,
-        stop,
+        stop: stop_on_ctrl_c()?,
     };
     let summary = run(&config, &options)?;
     let last = summary.losses.last().map_or(f32::NAN, |l| l.total);

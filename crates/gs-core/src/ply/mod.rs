@@ -276,7 +276,8 @@ fn validate(ply: &PlyGaussians) -> Result<(), PlyErrorKind> {
 
 /// Writes `ply` in `format`, properties in INRIA order (see [`PlyGaussians::new`] for normals,
 /// extras after the Gaussian properties). The file is written under a temporary name beside
-/// `path` (`<name>.tmp`) and renamed, so a failure leaves nothing partial at `path`.
+/// `path` (`<name>.tmp`), fsynced and renamed ([`crate::fs::write_atomic_with`]), so a failure
+/// leaves nothing partial at `path`.
 pub fn write_ply(path: &Path, ply: &PlyGaussians, format: PlyFormat) -> Result<(), PlyError> {
     let err = |kind| PlyError {
         path: path.to_path_buf(),
@@ -291,18 +292,9 @@ pub fn write_ply(path: &Path, ply: &PlyGaussians, format: PlyFormat) -> Result<(
     }
     .map_err(err)?;
     let head = header::render(format, ply.gaussians.len(), &layout.properties());
-    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
-    tmp_name.push(".tmp");
-    let tmp = path.with_file_name(tmp_name);
-    let written = std::fs::File::create(&tmp).and_then(|mut f| {
-        f.write_all(head.as_bytes())?;
-        f.write_all(&body)?;
-        f.sync_all()
-    });
-    written
-        .and_then(|()| std::fs::rename(&tmp, path))
-        .map_err(|e| {
-            let _ = std::fs::remove_file(&tmp);
-            err(PlyErrorKind::Io(e))
-        })
+    crate::fs::write_atomic_with(path, |w| {
+        w.write_all(head.as_bytes())?;
+        w.write_all(&body)
+    })
+    .map_err(|e| err(PlyErrorKind::Io(e)))
 }

@@ -5,7 +5,7 @@ use std::path::Path;
 
 use image::{Rgb, RgbImage};
 
-use super::StylizeError;
+use crate::StylizeError;
 
 /// Width of the plot, pixels.
 pub const PLOT_WIDTH: u32 = 640;
@@ -48,7 +48,7 @@ pub fn plot(values: &[f32]) -> RgbImage {
     img
 }
 
-/// Writes the plot of `values` to `path` (PNG, through a temporary name and a rename).
+/// Writes the plot of `values` to `path` (PNG, through [`gs_core::fs`]).
 pub fn write_plot(path: &Path, values: &[f32]) -> Result<(), StylizeError> {
     Ok(gs_core::image::save_rgb8_png(&plot(values), path)?)
 }

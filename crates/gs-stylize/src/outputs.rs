@@ -1,17 +1,19 @@
 //! The files of a run: the loss log, the resolved configuration, before/after pictures. Every
-//! file is written under a temporary name beside its final one and renamed, so a reader never
-//! sees half a file.
+//! file is written through [`gs_core::fs`] (a temporary name, an fsync and a rename), so a
+//! reader never sees half a file.
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use gs_core::model::{BaseModel, View};
+use gs_core::raster::render;
+use gs_core::train::StepReport;
 use gs_core::Image;
+use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
-use super::StylizeError;
+use crate::StylizeError;
 
-/// The stylized PLY in the output folder.
-pub const STYLIZED_PLY: &str = "stylized.ply";
 /// The per-step losses in the output folder.
 pub const LOSSES_JSON: &str = "losses.json";
 /// The plot of the total loss in the output folder.
@@ -32,25 +34,29 @@ pub struct StepLosses {
     pub terms: BTreeMap<String, f32>,
 }
 
+impl StepLosses {
+    /// The losses of a training step's report.
+    pub fn from_report(report: &StepReport) -> Self {
+        Self {
+            step: report.step,
+            view: report.view,
+            total: report.value.loss,
+            terms: report.value.terms.iter().cloned().collect(),
+        }
+    }
+}
+
 /// The name of the before/after picture of view `view`.
 pub fn preview_name(view: usize) -> String {
     format!("preview_view{view:03}.png")
 }
 
-/// Writes `bytes` to `path` through `<path>.tmp` and a rename.
+/// Writes `bytes` to `path` through [`gs_core::fs::write_atomic`].
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), StylizeError> {
-    let mut tmp_name = path.file_name().unwrap_or_default().to_os_string();
-    tmp_name.push(".tmp");
-    let tmp = path.with_file_name(tmp_name);
-    std::fs::write(&tmp, bytes)
-        .and_then(|()| std::fs::rename(&tmp, path))
-        .map_err(|source| {
-            let _ = std::fs::remove_file(&tmp);
-            StylizeError::Io {
-                path: path.to_path_buf(),
-                source,
-            }
-        })
+    gs_core::fs::write_atomic(path, bytes).map_err(|source| StylizeError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
 }
 
 /// Writes `value` as pretty JSON to `path` (atomically).
@@ -60,7 +66,7 @@ pub fn write_json<T: Serialize>(path: &Path, value: &T) -> Result<(), StylizeErr
 }
 
 /// Reads JSON written by [`write_json`].
-pub fn read_json<T: for<'de> Deserialize<'de>>(path: &Path) -> Result<T, StylizeError> {
+pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, StylizeError> {
     let text = std::fs::read_to_string(path).map_err(|source| StylizeError::Io {
         path: path.to_path_buf(),
         source,
@@ -82,4 +88,29 @@ pub fn write_preview(
     let path = dir.join(preview_name(view));
     Image::side_by_side(&[before, after]).save_png(&path)?;
     Ok(path)
+}
+
+/// Renders `before` and `after` from each of the views `which` over `background` and writes
+/// their previews in `dir` ([`write_preview`]); returns the files.
+pub fn write_previews<M: BaseModel>(
+    dir: &Path,
+    before: &M,
+    after: &M,
+    views: &[View],
+    which: &[usize],
+    background: [f32; 3],
+) -> Result<Vec<PathBuf>, StylizeError> {
+    which
+        .iter()
+        .map(|&v| {
+            let view = views.get(v).ok_or_else(|| {
+                StylizeError::Input(format!(
+                    "preview view {v} does not exist (there are {})",
+                    views.len()
+                ))
+            })?;
+            let shot = |model: &M| render(&model.gaussians(view), &view.camera, background).image;
+            write_preview(dir, v, &shot(before), &shot(after))
+        })
+        .collect()
 }

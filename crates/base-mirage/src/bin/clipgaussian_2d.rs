@@ -1,0 +1,388 @@
+//! `clipgaussian-2d`: CLIPGaussian on pictures, held as MiraGe flat Gaussians.
+//!
+//! - `stylize`: fits a picture (or takes a fitted model) and stylizes it with a text or
+//!   picture style; with no picture, the embedded default one. Ctrl-C stops after the current
+//!   step and writes a checkpoint to resume from.
+//! - `fit`: fits a picture and writes its model.
+//! - `render`: renders a model at a chosen size, from the front or the mirror camera.
+//! - `interpolate`: blends two models of the same Gaussians.
+
+use std::error::Error;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use base_mirage::fit::{render_picture, FitSettings};
+use base_mirage::mirror::DEFAULT_DISTANCE;
+use base_mirage::picture::load_picture;
+use base_mirage::stylize::{
+    fit_with_progress, load_model, run, write_model, MirageError, MirageStylizeConfig,
+    SIDE_BY_SIDE_PNG, STYLIZED_PNG,
+};
+use clap::{Args, Parser, Subcommand};
+use gs_core::image_loss::psnr;
+use gs_core::interpolate::interpolate_ply;
+use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
+use gs_core::Image;
+use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use gs_stylize::{resolve_config, Override, RunOptions, StylizeError};
+
+/// Command-line arguments.
+#[derive(Parser, Debug)]
+#[command(
+    name = "clipgaussian-2d",
+    version,
+    about = "CLIPGaussian on pictures (MiraGe flat Gaussians): stylize, fit, render, interpolate"
+)]
+struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Stylize a picture with a text or picture style ("Starry Night by Vincent van Gogh" and
+    /// the embedded default picture when none is given).
+    ///
+    /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
+    /// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
+    /// picture), side_by_side.png, model.ply (the stylized model), base.ply (the fit),
+    /// losses.json, losses.png and config.json. The configuration comes from --config (the
+    /// paper's defaults when absent), then the flags, then every --set field=value in order.
+    /// Every input is checked before the fit starts. Ctrl-C stops after the current step and
+    /// writes a checkpoint (a second Ctrl-C quits at once); run the same command with --resume
+    /// to continue.
+    Stylize(Box<StylizeArgs>),
+    /// Fit a picture with flat Gaussians (no stylization).
+    ///
+    /// Writes to --out: model.ply (MiraGe PLY), fitted.png (the front camera's render, the size
+    /// of the picture) and side_by_side.png (picture | fit), and prints the PSNR.
+    Fit(FitArgs),
+    /// Render a model from the front camera (or the mirror camera) to a PNG.
+    Render(RenderArgs),
+    /// Interpolate two models of the same Gaussians parameter by parameter.
+    ///
+    /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
+    /// normalized), e.g. between two stylizations of one fit.
+    Interpolate(InterpolateArgs),
+}
+
+/// A background colour: `white`, `black` or `R,G,B` with channels in [0, 1].
+fn parse_background(text: &str) -> Result<[f32; 3], String> {
+    match text {
+        "white" => return Ok([1.0; 3]),
+        "black" => return Ok([0.0; 3]),
+        _ => {}
+    }
+    let parts: Vec<&str> = text.split(',').collect();
+    let bad = || format!("{text:?} is not white, black or R,G,B with channels in [0, 1]");
+    if parts.len() != 3 {
+        return Err(bad());
+    }
+    let mut rgb = [0.0f32; 3];
+    for (c, p) in rgb.iter_mut().zip(parts) {
+        *c = p.trim().parse().map_err(|_| bad())?;
+        if !(0.0..=1.0).contains(c) {
+            return Err(bad());
+        }
+    }
+    Ok(rgb)
+}
+
+/// Arguments of `stylize`.
+#[derive(Args, Debug)]
+struct StylizeArgs {
+    /// JSON configuration (configs/2d.json is the paper's; configs/2d-preview.json is quick).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The picture, PNG or JPEG of any size (default: the embedded picture).
+    #[arg(long)]
+    picture: Option<PathBuf>,
+    /// A model of the picture fitted earlier (MiraGe PLY from `fit`); default: fit first.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The output folder.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// The style as text (default "Starry Night by Vincent van Gogh").
+    #[arg(long, conflicts_with = "style_image")]
+    style_prompt: Option<String>,
+    /// The style as a picture (replaces the default prompt).
+    #[arg(long)]
+    style_image: Option<PathBuf>,
+    /// The source prompt (default "a Photo").
+    #[arg(long)]
+    source_prompt: Option<String>,
+    /// Stylization steps.
+    #[arg(long)]
+    steps: Option<u64>,
+    /// Gaussians of the fit.
+    #[arg(long)]
+    gaussians: Option<usize>,
+    /// Steps of the fit.
+    #[arg(long)]
+    fit_steps: Option<u64>,
+    /// Colour behind transparent pixels and behind the Gaussians: white, black or R,G,B
+    /// (default black, as MiraGe).
+    #[arg(long, value_parser = parse_background)]
+    background: Option<[f32; 3]>,
+    /// CLIP config.json (default: ViT-B/32).
+    #[arg(long)]
+    clip_config: Option<PathBuf>,
+    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, the Hugging Face
+    /// cache, or a download).
+    #[arg(long)]
+    clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the cache, or a download).
+    #[arg(long)]
+    tokenizer: Option<PathBuf>,
+    /// VGG-19 weights, safetensors in torchvision's layout (default: $CLIPGAUSSIAN_VGG19_WEIGHTS,
+    /// the cache, or a download).
+    #[arg(long)]
+    vgg_weights: Option<PathBuf>,
+    /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    set: Vec<String>,
+    /// Continue the run from `<out>/checkpoint/` (and reuse `<out>/base.ply`).
+    #[arg(long)]
+    resume: bool,
+    /// No progress bars.
+    #[arg(long)]
+    quiet: bool,
+}
+
+impl StylizeArgs {
+    /// The flags as overrides, then the `--set` ones.
+    fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
+        use serde_json::Value;
+        let path = |p: &Option<PathBuf>| p.as_ref().map(|p| Value::from(p.display().to_string()));
+        let mut flags: Vec<(&str, Option<Value>)> = vec![
+            ("picture", path(&self.picture)),
+            ("model", path(&self.model)),
+            ("out", path(&self.out)),
+            ("style_prompt", self.style_prompt.clone().map(Value::from)),
+            ("style_image", path(&self.style_image)),
+            ("source_prompt", self.source_prompt.clone().map(Value::from)),
+            ("steps", self.steps.map(Value::from)),
+            ("fit_gaussians", self.gaussians.map(Value::from)),
+            ("fit_steps", self.fit_steps.map(Value::from)),
+            (
+                "background",
+                self.background.map(|b| Value::from(b.to_vec())),
+            ),
+            ("clip_config", path(&self.clip_config)),
+            ("clip_weights", path(&self.clip_weights)),
+            ("tokenizer", path(&self.tokenizer)),
+            ("vgg_weights", path(&self.vgg_weights)),
+        ];
+        if self.style_image.is_some() {
+            flags.push(("style_prompt", Some(Value::Null)));
+        }
+        let mut overrides: Vec<Override> = flags
+            .into_iter()
+            .filter_map(|(field, value)| value.map(|v| Override::new(field, v)))
+            .collect();
+        for s in &self.set {
+            overrides.push(Override::parse(s)?);
+        }
+        Ok(overrides)
+    }
+}
+
+/// Arguments of `fit`.
+#[derive(Args, Debug)]
+struct FitArgs {
+    /// The picture, PNG or JPEG of any size.
+    #[arg(long)]
+    picture: PathBuf,
+    /// The output folder (created after the fit; files of the same names are replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of Gaussians.
+    #[arg(long, default_value_t = FitSettings::default().gaussians)]
+    gaussians: usize,
+    /// Optimizer steps.
+    #[arg(long, default_value_t = FitSettings::default().steps)]
+    steps: u64,
+    /// SH degree of the colours (0 to 3).
+    #[arg(long, default_value_t = FitSettings::default().sh_degree)]
+    sh_degree: usize,
+    /// Seed of the initial Gaussians and the camera order.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Colour behind transparent pixels and behind the Gaussians: white, black or R,G,B.
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
+    /// Distance of the cameras from the picture plane, world units.
+    #[arg(long, default_value_t = DEFAULT_DISTANCE)]
+    distance: f64,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// Arguments of `render`.
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// The model, MiraGe PLY.
+    #[arg(long)]
+    model: PathBuf,
+    /// Width of the picture, pixels (the fitted picture's, for the picture itself).
+    #[arg(long)]
+    width: u32,
+    /// Height of the picture, pixels.
+    #[arg(long)]
+    height: u32,
+    /// Render from the mirror camera (the picture flipped left to right).
+    #[arg(long)]
+    mirror: bool,
+    /// The background colour: white, black or R,G,B.
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
+    /// Distance of the camera from the picture plane (the fit's).
+    #[arg(long, default_value_t = DEFAULT_DISTANCE)]
+    distance: f64,
+    /// The output PNG.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `interpolate`.
+#[derive(Args, Debug)]
+struct InterpolateArgs {
+    /// The first model (t = 0).
+    #[arg(long)]
+    a: PathBuf,
+    /// The second model (t = 1), with as many Gaussians of the same SH degree as A.
+    #[arg(long)]
+    b: PathBuf,
+    /// The interpolation parameter; values outside [0, 1] extrapolate.
+    #[arg(long, allow_negative_numbers = true)]
+    t: f32,
+    /// The output PLY.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Runs `stylize`.
+fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let config: MirageStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
+    let options = RunOptions {
+        resume: args.resume,
+        progress: !args.quiet,
+        stop: stop_on_ctrl_c()?,
+    };
+    let summary = run(&config, &options)?;
+    let out = config.out.as_deref().expect("run checked out");
+    println!(
+        "wrote {} and {} ({}x{}, {} Gaussians, final loss {:.4})",
+        out.join(STYLIZED_PNG).display(),
+        out.join(SIDE_BY_SIDE_PNG).display(),
+        summary.stylized.width,
+        summary.stylized.height,
+        summary.model.params().len(),
+        summary.losses.last().copied().unwrap_or(f32::NAN)
+    );
+    Ok(())
+}
+
+/// Runs `fit`.
+fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
+    let picture = load_picture(&args.picture, args.background)?;
+    let settings = FitSettings {
+        gaussians: args.gaussians,
+        steps: args.steps,
+        sh_degree: args.sh_degree,
+        seed: args.seed,
+        background: args.background,
+        distance: args.distance,
+        ..FitSettings::default()
+    };
+    let options = RunOptions {
+        resume: false,
+        progress: !args.quiet,
+        stop: stop_on_ctrl_c()?,
+    };
+    let start = Instant::now();
+    let model = fit_with_progress(&picture, &settings, &options)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let (w, h) = (picture.width, picture.height);
+    let fitted = render_picture(&model, w, h, settings.distance, false, settings.background)?;
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    write_model(&args.out.join("model.ply"), &model)?;
+    fitted.save_png(&args.out.join("fitted.png"))?;
+    Image::side_by_side(&[&picture, &fitted]).save_png(&args.out.join(SIDE_BY_SIDE_PNG))?;
+    println!(
+        "fitted {} ({w}x{h}) with {} Gaussians in {seconds:.1} s: PSNR {:.2} dB; wrote {}",
+        args.picture.display(),
+        settings.gaussians,
+        psnr(&fitted, &picture),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Runs `render`.
+fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    let model = load_model(&args.model)?;
+    let image = render_picture(
+        &model,
+        args.width,
+        args.height,
+        args.distance,
+        args.mirror,
+        args.background,
+    )?;
+    image.save_png(&args.out)?;
+    println!(
+        "wrote {} ({}x{})",
+        args.out.display(),
+        args.width,
+        args.height
+    );
+    Ok(())
+}
+
+/// Runs `interpolate`.
+fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    let (a, format) = read_ply_with_format(&args.a)?;
+    let b = read_ply(&args.b)?;
+    let blended = interpolate_ply(&a, &b, args.t)
+        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    write_ply(&args.out, &blended, format)?;
+    println!(
+        "wrote {} ({} Gaussians, t = {})",
+        args.out.display(),
+        blended.gaussians.len(),
+        args.t
+    );
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Stylize(args) => stylize(args),
+        Command::Fit(args) => fit(args),
+        Command::Render(args) => render(args),
+        Command::Interpolate(args) => interpolate(args),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            let interrupted = matches!(
+                e.downcast_ref::<MirageError>(),
+                Some(MirageError::Stylize(StylizeError::Interrupted { .. }))
+                    | Some(MirageError::InterruptedFit)
+            );
+            if interrupted {
+                ExitCode::from(INTERRUPTED_EXIT)
+            } else {
+                ExitCode::FAILURE
+            }
+        }
+    }
+}

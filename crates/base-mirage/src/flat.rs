@@ -1,0 +1,149 @@
+//! MiraGe's flat Gaussians ("amorphous" setting): free 3D means and rotations, and scales
+//! `clamp([1e-8, e^s1, e^s2], 1e-8, 1)`: the first local axis is held at 1e-8, so every Gaussian
+//! is a flat disc, and the two in-plane scales are clamped to `[1e-8, 1]` world units.
+//!
+//! The parameters are a [`GaussianSet`] in the INRIA PLY layout (as MiraGe saves them:
+//! `scale_0 = ln 1e-8`). The Gaussians rendered are the same set with the log-scales clamped;
+//! the gradient of a clamped log-scale is zero, as torch's `clamp` gives, and the held axis
+//! never receives one, so Adam leaves it exactly where it is.
+
+use std::borrow::Cow;
+
+use gs_core::gaussians::{GaussianGrads, PARAM_NAMES};
+use gs_core::model::{BaseModel, View};
+use gs_core::raster::GradMask;
+use gs_core::{GaussianSet, Real};
+
+/// Index of the log-scales in [`PARAM_NAMES`].
+const SCALES_GROUP: usize = 1;
+
+/// The scale of the flat axis and the lower clamp of the others, world units.
+pub const FLAT_SCALE: f64 = 1e-8;
+
+/// The upper clamp of the in-plane scales, world units.
+pub const MAX_SCALE: f64 = 1.0;
+
+/// `log_scale` clamped to `[ln FLAT_SCALE, ln MAX_SCALE]`; NaN stays NaN, so the rasterizer
+/// culls it and training reports it rather than hiding it behind a bound.
+fn clamp_log_scale<T: Real>(log_scale: T) -> T {
+    let (lo, hi) = (T::from_f64(FLAT_SCALE.ln()), T::from_f64(MAX_SCALE.ln()));
+    if log_scale < lo {
+        lo
+    } else if log_scale > hi {
+        hi
+    } else {
+        log_scale
+    }
+}
+
+/// Whether a gradient flows through the clamp of `log_scale` (inside the bounds, inclusive).
+fn passes_clamp<T: Real>(log_scale: T) -> bool {
+    let (lo, hi) = (T::from_f64(FLAT_SCALE.ln()), T::from_f64(MAX_SCALE.ln()));
+    log_scale >= lo && log_scale <= hi
+}
+
+/// The Gaussians MiraGe renders for the parameters `params`: the flat axis at
+/// [`FLAT_SCALE`], the in-plane log-scales clamped, everything else as stored.
+pub fn renderable<T: Real>(params: &GaussianSet<T>) -> GaussianSet<T> {
+    let mut set = params.clone();
+    for s in set.log_scales.chunks_exact_mut(3) {
+        s[0] = T::from_f64(FLAT_SCALE.ln());
+        s[1] = clamp_log_scale(s[1]);
+        s[2] = clamp_log_scale(s[2]);
+    }
+    set
+}
+
+/// Adds to `out` the gradient with respect to the stored log-scales `log_scales` (`[N, 3]`),
+/// given `grads`, the gradient with respect to the rendered ones: nothing on the flat axis and
+/// where the clamp is active, `grads` elsewhere.
+pub fn add_scale_grads<T: Real>(log_scales: &[T], grads: &[T], out: &mut [T]) {
+    for ((s, g), o) in log_scales
+        .chunks_exact(3)
+        .zip(grads.chunks_exact(3))
+        .zip(out.chunks_exact_mut(3))
+    {
+        for k in 1..3 {
+            if passes_clamp(s[k]) {
+                o[k] += g[k];
+            }
+        }
+    }
+}
+
+/// A picture's MiraGe model: flat Gaussians whose parameters are stored as a [`GaussianSet`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct FlatGaussians {
+    params: GaussianSet,
+}
+
+impl FlatGaussians {
+    /// The model of the parameters `params` (e.g. read from a MiraGe or 3DGS PLY); the flat
+    /// axis is set to `ln FLAT_SCALE`, as MiraGe ignores whatever is stored there.
+    pub fn new(mut params: GaussianSet) -> Self {
+        for s in params.log_scales.chunks_exact_mut(3) {
+            s[0] = FLAT_SCALE.ln() as f32;
+        }
+        Self { params }
+    }
+
+    /// The stored parameters (INRIA PLY layout).
+    pub fn params(&self) -> &GaussianSet {
+        &self.params
+    }
+
+    /// The stored parameters, consuming the model.
+    pub fn into_params(self) -> GaussianSet {
+        self.params
+    }
+
+    /// The Gaussians rendered (the same for every view).
+    pub fn renderable(&self) -> GaussianSet {
+        renderable(&self.params)
+    }
+}
+
+impl BaseModel for FlatGaussians {
+    fn group_names(&self) -> Vec<String> {
+        PARAM_NAMES.iter().map(|s| s.to_string()).collect()
+    }
+
+    fn groups_mut(&mut self) -> Vec<&mut [f32]> {
+        self.params.groups_mut()
+    }
+
+    fn group_lens(&self) -> Vec<usize> {
+        self.params.group_lens()
+    }
+
+    fn gaussians(&self, _view: &View) -> Cow<'_, GaussianSet> {
+        Cow::Owned(self.renderable())
+    }
+
+    fn backward(
+        &self,
+        _view: &View,
+        grads: &GaussianGrads,
+        trained: &[bool],
+        out: &mut [Vec<f32>],
+    ) {
+        let arrays = grads.arrays();
+        for (group, ((src, dst), &t)) in arrays.iter().zip(out.iter_mut()).zip(trained).enumerate()
+        {
+            if !t {
+                continue;
+            }
+            if group == SCALES_GROUP {
+                add_scale_grads(&self.params.log_scales, src, dst);
+            } else {
+                for (d, s) in dst.iter_mut().zip(src.iter()) {
+                    *d += *s;
+                }
+            }
+        }
+    }
+
+    fn grad_mask(&self, trained: &[bool]) -> GradMask {
+        self.params.grad_mask(trained)
+    }
+}

@@ -1,0 +1,317 @@
+//! 2D stylization (CLIPGaussian on MiraGe): a picture, fitted first unless a fitted model is
+//! given, is stylized on both mirror cameras with the paper's 2D settings, and the result is
+//! rendered at exactly the picture's resolution.
+//!
+//! Every input (configuration, picture, model file, patch size against the picture, an
+//! earlier run in the output folder) is checked before the fit, so a bad input costs no time
+//! and leaves nothing behind. Outputs in `out`:
+//! - `stylized.png`: the stylized picture, the size of the original;
+//! - `side_by_side.png`: the original and the stylized picture, left and right;
+//! - `model.ply`: the stylized model (MiraGe PLY), to stylize again or interpolate;
+//! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
+//! - `original.png`: the picture when it is the embedded default;
+//! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
+use gs_core::Image;
+use gs_stylize::checkpoint::{checkpoint_dir, recover_interrupted_save};
+use gs_stylize::run::progress_bar;
+use gs_stylize::{stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use serde::{Deserialize, Serialize};
+
+use crate::fit::{fit, render_picture, FitError, FitSettings};
+use crate::flat::FlatGaussians;
+use crate::mirror::{extent, mirror_views, mirrored, DEFAULT_DISTANCE};
+use crate::picture::{default_picture, load_picture, PictureError};
+
+/// The style of the README's main job and of a run that names none.
+pub const DEFAULT_STYLE_PROMPT: &str = "Starry Night by Vincent van Gogh";
+
+/// The stylized picture.
+pub const STYLIZED_PNG: &str = "stylized.png";
+/// Original and stylized picture side by side.
+pub const SIDE_BY_SIDE_PNG: &str = "side_by_side.png";
+/// The stylized model.
+pub const MODEL_PLY: &str = "model.ply";
+/// The model fitted by this run.
+pub const BASE_PLY: &str = "base.ply";
+/// The embedded default picture, written when it is the one stylized.
+pub const ORIGINAL_PNG: &str = "original.png";
+
+/// Everything a 2D stylization run needs (a flat JSON object: `configs/2d.json`). The
+/// defaults are the paper's 2D settings (method.md): lambdas 5 / 90 / 0.8 / 0, feature_lr
+/// 0.0025, 5000 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct MirageStylizeConfig {
+    /// The picture (PNG or JPEG, any size); none: the embedded default picture.
+    pub picture: Option<PathBuf>,
+    /// A model of the picture fitted earlier (MiraGe PLY); none: fit one first.
+    pub model: Option<PathBuf>,
+    /// The output folder.
+    pub out: Option<PathBuf>,
+    /// Colour behind transparent picture pixels and behind the Gaussians, RGB in `[0, 1]`.
+    pub background: [f32; 3],
+    /// Distance of the cameras from the picture plane, world units (MiraGe: 1).
+    pub distance: f64,
+    /// Gaussians of the fit (when no model is given).
+    pub fit_gaussians: usize,
+    /// Steps of the fit (when no model is given).
+    pub fit_steps: u64,
+    /// SH degree of the fit (when no model is given).
+    pub fit_sh_degree: usize,
+    /// The style, the losses, the learning rates and the model files.
+    #[serde(flatten)]
+    pub style: StyleSettings,
+}
+
+impl Default for MirageStylizeConfig {
+    fn default() -> Self {
+        let fit = FitSettings::default();
+        let mut style = StyleSettings::paper_2d();
+        style.style_prompt = Some(DEFAULT_STYLE_PROMPT.to_string());
+        Self {
+            picture: None,
+            model: None,
+            out: None,
+            background: fit.background,
+            distance: DEFAULT_DISTANCE,
+            fit_gaussians: fit.gaussians,
+            fit_steps: fit.steps,
+            fit_sh_degree: fit.sh_degree,
+            style,
+        }
+    }
+}
+
+impl MirageStylizeConfig {
+    /// The fit this configuration asks for.
+    pub fn fit_settings(&self) -> FitSettings {
+        FitSettings {
+            gaussians: self.fit_gaussians,
+            steps: self.fit_steps,
+            sh_degree: self.fit_sh_degree,
+            seed: self.style.seed,
+            distance: self.distance,
+            background: self.background,
+            ..FitSettings::default()
+        }
+    }
+
+    /// The required output folder.
+    fn out_path(&self) -> Result<&Path, MirageError> {
+        self.out
+            .as_deref()
+            .ok_or_else(|| MirageError::Config("out: is required".into()))
+    }
+}
+
+/// Why a 2D run could not run; each names the file or field at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum MirageError {
+    /// A configuration value out of its range.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// The picture.
+    #[error("{0}")]
+    Picture(#[from] PictureError),
+    /// The model file.
+    #[error("model {}: {source}", path.display())]
+    Model {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: gs_core::ply::PlyError,
+    },
+    /// The fit.
+    #[error("{0}")]
+    Fit(#[from] FitError),
+    /// The stylization.
+    #[error("{0}")]
+    Stylize(#[from] StylizeError),
+    /// Ctrl-C during the fit: nothing was written.
+    #[error("interrupted while fitting the picture; nothing was written")]
+    InterruptedFit,
+}
+
+/// What a finished run produced.
+#[derive(Clone, Debug)]
+pub struct MirageSummary {
+    /// The stylized model.
+    pub model: FlatGaussians,
+    /// The stylized picture, the size of the original.
+    pub stylized: Image,
+    /// Total loss of every step.
+    pub losses: Vec<f32>,
+}
+
+/// Loads the picture the configuration names, or the embedded default.
+fn picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
+    match &config.picture {
+        Some(path) => Ok(load_picture(path, config.background)?),
+        None => Ok(default_picture()),
+    }
+}
+
+/// Checks the picture against the patches, the fit settings and the model count.
+fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageError> {
+    if config.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
+        return Err(MirageError::Config(format!(
+            "background: {:?} must have channels in [0, 1]",
+            config.background
+        )));
+    }
+    let style = &config.style;
+    style.validate()?;
+    let side = picture.width.min(picture.height) as usize;
+    if style.lambda_patch > 0.0 && side < style.patch_size {
+        return Err(MirageError::Config(format!(
+            "patch_size: {} is larger than the picture ({}x{}); lower patch_size (the picture is \
+             never resized)",
+            style.patch_size, picture.width, picture.height
+        )));
+    }
+    Ok(())
+}
+
+/// Runs the 2D stylization `config` describes (see the module documentation).
+pub fn run(
+    config: &MirageStylizeConfig,
+    options: &RunOptions,
+) -> Result<MirageSummary, MirageError> {
+    let out = config.out_path()?;
+    let picture = picture(config)?;
+    check(config, &picture)?;
+    gs_stylize::run::resolve_weights(&config.style)?;
+    let given = match &config.model {
+        Some(path) => Some(load_model(path)?),
+        None => None,
+    };
+    let base_ply = out.join(BASE_PLY);
+    let model = match given {
+        Some(model) => model,
+        None if options.resume && base_ply.exists() => load_model(&base_ply)?,
+        None => {
+            recover_interrupted_save(out)?;
+            if !options.resume && checkpoint_dir(out).exists() {
+                return Err(StylizeError::Input(format!(
+                    "{} holds a checkpoint of an earlier run: pass --resume to continue it, or \
+                     choose another output folder",
+                    out.display()
+                ))
+                .into());
+            }
+            let fitted = fit_with_progress(&picture, &config.fit_settings(), options)?;
+            create_out(out)?;
+            write_model(&base_ply, &fitted)?;
+            fitted
+        }
+    };
+    let (w, h) = (picture.width, picture.height);
+    let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
+    let label = config
+        .picture
+        .as_ref()
+        .map_or("the default picture".to_string(), |p| {
+            p.display().to_string()
+        });
+    let job = StylizeJob {
+        groups: config.style.optimizer_groups(extent(config.distance)),
+        model,
+        views: views.to_vec(),
+        images: vec![picture.clone(), mirrored(&picture)],
+        labels: vec![label.clone(), format!("{label}, mirrored")],
+        masks: None,
+        background: config.background,
+    };
+    let outcome = stylize(&config.style, config, job, out, options)?;
+    let stylized = render_picture(
+        &outcome.model,
+        w,
+        h,
+        config.distance,
+        false,
+        config.background,
+    )
+    .map_err(StylizeError::from)?;
+    write_model(&out.join(MODEL_PLY), &outcome.model)?;
+    let save = |image: &Image, name: &str| {
+        image
+            .save_png(&out.join(name))
+            .map_err(|e| MirageError::from(StylizeError::from(e)))
+    };
+    save(&stylized, STYLIZED_PNG)?;
+    save(
+        &Image::side_by_side(&[&picture, &stylized]),
+        SIDE_BY_SIDE_PNG,
+    )?;
+    if config.picture.is_none() {
+        save(&picture, ORIGINAL_PNG)?;
+    }
+    Ok(MirageSummary {
+        model: outcome.model,
+        stylized,
+        losses: outcome.losses.iter().map(|l| l.total).collect(),
+    })
+}
+
+/// Reads a MiraGe (or any INRIA) PLY as flat Gaussians.
+pub fn load_model(path: &Path) -> Result<FlatGaussians, MirageError> {
+    let ply = read_ply(path).map_err(|source| MirageError::Model {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(FlatGaussians::new(ply.gaussians))
+}
+
+/// Writes flat Gaussians as a MiraGe PLY (binary little-endian, `scale_0 = ln 1e-8`).
+pub fn write_model(path: &Path, model: &FlatGaussians) -> Result<(), MirageError> {
+    write_ply(
+        path,
+        &PlyGaussians::new(model.params().clone()),
+        PlyFormat::BinaryLittleEndian,
+    )
+    .map_err(|source| MirageError::Model {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+fn create_out(out: &Path) -> Result<(), MirageError> {
+    std::fs::create_dir_all(out).map_err(|source| {
+        StylizeError::Io {
+            path: out.to_path_buf(),
+            source,
+        }
+        .into()
+    })
+}
+
+/// Fits `picture`, with a progress bar when `options.progress`; the stop flag ends the fit
+/// with [`MirageError::InterruptedFit`].
+pub fn fit_with_progress(
+    picture: &Image,
+    settings: &FitSettings,
+    options: &RunOptions,
+) -> Result<FlatGaussians, MirageError> {
+    let bar = progress_bar(options.progress, "fit", settings.steps, 0);
+    let model = fit(picture, settings, |report| {
+        bar.set_position(report.step);
+        bar.set_message(format!("loss {:.4}", report.value.loss));
+        if options.stop.load(Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    })?;
+    if options.stop.load(Ordering::SeqCst) {
+        bar.abandon();
+        return Err(MirageError::InterruptedFit);
+    }
+    bar.finish();
+    Ok(model)
+}

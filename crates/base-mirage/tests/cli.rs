@@ -1,0 +1,251 @@
+//! `clipgaussian-2d` from file to file with the tiny random-weight CLIP and VGG: fit, then
+//! stylize (with a fitted model and with the fit inside the run), resume bit-identically, and
+//! refuse bad inputs with a clear error and nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use gs_core::ply::read_ply;
+use style_loss::test_models::{write_tiny_models, TinyModelFiles};
+use tempfile::TempDir;
+
+const W: u32 = 40;
+const H: u32 = 32;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_clipgaussian-2d"))
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("run clipgaussian-2d");
+    assert!(
+        out.status.success(),
+        "{:?} failed:\n{}",
+        cmd,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn fails(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run clipgaussian-2d");
+    assert!(!out.status.success(), "{cmd:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// A `W x H` RGBA picture with a transparent corner, written as PNG.
+fn write_picture(dir: &Path) -> PathBuf {
+    let img = image::RgbaImage::from_fn(W, H, |x, y| {
+        let a = if x < 6 && y < 6 { 0 } else { 255 };
+        image::Rgba([(x * 6) as u8, (y * 7) as u8, 200 - (x * 3) as u8, a])
+    });
+    let path = dir.join("picture.png");
+    img.save(&path).unwrap();
+    path
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// `stylize` arguments with the tiny models and small patches, `steps` steps.
+fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
+    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
+        .args(["--clip-config", s(&models.clip_config)])
+        .args(["--clip-weights", s(&models.clip_weights)])
+        .args(["--tokenizer", s(&models.tokenizer)])
+        .args(["--vgg-weights", s(&models.vgg_weights)])
+        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
+        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
+        .args(["--set", "checkpoint_every=3", "--set", "feature_lr=0.05"])
+        .args(["--style-prompt", "a red fire"]);
+}
+
+fn png_size(path: &Path) -> (u32, u32) {
+    image::image_dimensions(path).unwrap()
+}
+
+#[test]
+fn fit_then_stylize_from_file_to_file() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let fit_dir = dir.path().join("fit");
+    let out = run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--picture",
+            s(&picture),
+            "--out",
+            s(&fit_dir),
+        ])
+        .args(["--gaussians", "400", "--steps", "60", "--sh-degree", "1"])
+        .args(["--background", "white"]));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("PSNR"), "{text}");
+    let base = read_ply(&fit_dir.join("model.ply")).unwrap();
+    assert_eq!((base.gaussians.len(), base.gaussians.sh_degree()), (400, 1));
+    assert_eq!(png_size(&fit_dir.join("fitted.png")), (W, H));
+
+    let sty = dir.path().join("stylized");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 6);
+    run(cmd
+        .args([
+            "--picture",
+            s(&picture),
+            "--model",
+            s(&fit_dir.join("model.ply")),
+        ])
+        .args(["--out", s(&sty), "--background", "white"]));
+    assert_eq!(
+        png_size(&sty.join("stylized.png")),
+        (W, H),
+        "the original size"
+    );
+    assert_eq!(png_size(&sty.join("side_by_side.png")), (2 * W, H));
+    assert_eq!(png_size(&sty.join("losses.png")).0, 640);
+    let stylized = read_ply(&sty.join("model.ply")).unwrap();
+    assert_eq!(stylized.gaussians.len(), 400, "the count never changes");
+    assert_ne!(
+        stylized.gaussians.sh_dc, base.gaussians.sh_dc,
+        "colours changed"
+    );
+    let losses: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sty.join("losses.json")).unwrap()).unwrap();
+    assert_eq!(losses.as_array().unwrap().len(), 6);
+    assert!(
+        !sty.join("base.ply").exists(),
+        "no fit when a model is given"
+    );
+    let config: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(sty.join("config.json")).unwrap()).unwrap();
+    assert_eq!(config["lambda_background"], 0.0);
+    assert_eq!(config["feature_lr"], 0.05);
+    assert_eq!(config["background"], serde_json::json!([1.0, 1.0, 1.0]));
+}
+
+#[test]
+fn stylize_fits_first_and_resumes_bit_identically() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let stylize_to = |out: &Path, steps: u64, resume: bool| {
+        let mut cmd = bin();
+        stylize_args(&mut cmd, &models, steps);
+        cmd.args(["--picture", s(&picture), "--out", s(out)]).args([
+            "--gaussians",
+            "300",
+            "--fit-steps",
+            "40",
+        ]);
+        if resume {
+            cmd.arg("--resume");
+        }
+        run(&mut cmd);
+    };
+    let whole = dir.path().join("whole");
+    stylize_to(&whole, 6, false);
+    let fitted = read_ply(&whole.join("base.ply")).unwrap();
+    assert_eq!(fitted.gaussians.len(), 300);
+
+    let parts = dir.path().join("parts");
+    stylize_to(&parts, 3, false);
+    stylize_to(&parts, 6, true);
+    assert_eq!(
+        std::fs::read(whole.join("model.ply")).unwrap(),
+        std::fs::read(parts.join("model.ply")).unwrap(),
+        "a run resumed at step 3 ends where an uninterrupted one does"
+    );
+    let mut again = bin();
+    stylize_args(&mut again, &models, 6);
+    let err = fails(again.args(["--picture", s(&picture), "--out", s(&parts)]));
+    assert!(
+        err.contains("--resume"),
+        "a fresh run refuses a folder with a checkpoint: {err}"
+    );
+}
+
+/// Runs `stylize` into `out` with `extra` arguments, expects a failure whose message contains
+/// every one of `expected`, and checks that `out` was not created.
+fn refused(dir: &TempDir, extra: &[&str], expected: &[&str]) {
+    let models = write_tiny_models(dir.path());
+    let out = dir.path().join("out");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let err = fails(cmd.args(["--out", s(&out)]).args(extra));
+    for e in expected {
+        assert!(err.contains(e), "expected {e:?} in: {err}");
+    }
+    assert!(!out.exists(), "nothing written for {extra:?}");
+}
+
+#[test]
+fn bad_inputs_are_named_and_leave_nothing() {
+    let dir = TempDir::new().unwrap();
+    let garbage = dir.path().join("garbage.png");
+    std::fs::write(&garbage, b"not a picture").unwrap();
+    refused(&dir, &["--picture", s(&garbage)], &["garbage.png"]);
+
+    let missing = dir.path().join("missing.jpg");
+    refused(&dir, &["--picture", s(&missing)], &["missing.jpg"]);
+
+    let tiny = dir.path().join("one.png");
+    image::RgbImage::new(1, 1).save(&tiny).unwrap();
+    refused(&dir, &["--picture", s(&tiny)], &["one.png", "1x1"]);
+
+    let picture = write_picture(dir.path());
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--set", "patch_size=64"],
+        &["patch_size", "64", "40x32"],
+    );
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--set", "bogus_field=1"],
+        &["bogus_field"],
+    );
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--set", "steps=abc"],
+        &["steps"],
+    );
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--frobnicate"],
+        &["--frobnicate"],
+    );
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--model", s(&garbage)],
+        &["garbage.png"],
+    );
+    refused(
+        &dir,
+        &[
+            "--picture",
+            s(&picture),
+            "--set",
+            &format!("clip_weights={}", s(&missing)),
+        ],
+        &["missing.jpg"],
+    );
+}
+
+#[test]
+fn the_configuration_file_holds_the_paper_defaults() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/2d.json");
+    let from_file: base_mirage::stylize::MirageStylizeConfig =
+        gs_stylize::resolve_config(Some(&path), &[]).unwrap();
+    assert_eq!(
+        from_file,
+        base_mirage::stylize::MirageStylizeConfig::default()
+    );
+    assert_eq!(from_file.style.lambda_background, 0.0);
+    assert_eq!(from_file.style.feature_lr, 0.0025);
+    assert_eq!(
+        from_file.style.style_prompt.as_deref(),
+        Some("Starry Night by Vincent van Gogh")
+    );
+}

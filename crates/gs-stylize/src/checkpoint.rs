@@ -1,0 +1,397 @@
+//! Checkpoints of a stylization run in `<out>/checkpoint/`: the model's parameter groups
+//! (`params.bin`), the optimizer state (`adam.bin`), and in `state.json` the step, the exact
+//! position of the patch stream, the resolved configuration and the losses so far. A checkpoint
+//! is written into a fresh folder that then replaces the previous one, so a crash leaves the old
+//! one whole.
+//!
+//! `params.bin`, little-endian: the magic `GSPARAMS`, a `u32` version (1), a `u32` group count,
+//! then per group a `u32` name length, the UTF-8 name, a `u64` value count and the `f32` values.
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use gs_core::model::BaseModel;
+use rand_chacha::rand_core::SeedableRng;
+use serde::{Deserialize, Serialize};
+use serde_json::Value;
+use style_loss::StyleRng;
+
+use crate::outputs::{read_json, write_atomic, write_json, StepLosses};
+use crate::StylizeError;
+
+/// The checkpoint folder inside the output folder.
+pub const CHECKPOINT_DIR: &str = "checkpoint";
+const PARAMS: &str = "params.bin";
+const ADAM: &str = "adam.bin";
+const STATE: &str = "state.json";
+const PARAMS_MAGIC: &[u8; 8] = b"GSPARAMS";
+const PARAMS_VERSION: u32 = 1;
+
+/// Configuration fields that may change when a run is resumed: they do not change the
+/// trajectory of the parameters. `out` (the output folder, which holds the checkpoint, may be
+/// spelled differently) and `preview_views` are the modalities' names of those fields.
+pub const RESUMABLE_CHANGES: [&str; 4] = ["steps", "checkpoint_every", "preview_views", "out"];
+
+/// One parameter group of a model ([`BaseModel::group_names`] and its values).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ParamGroup {
+    /// The group name.
+    pub name: String,
+    /// Its values.
+    pub values: Vec<f32>,
+}
+
+/// Everything needed to continue a run exactly where it stopped.
+#[derive(Clone, Debug)]
+pub struct Checkpoint {
+    /// Steps taken.
+    pub step: u64,
+    /// The model's parameter groups after `step` steps, in [`BaseModel::group_names`] order.
+    pub params: Vec<ParamGroup>,
+    /// [`gs_core::adam::Adam::save_state`] bytes.
+    pub adam_state: Vec<u8>,
+    /// The patch stream, positioned after `step` steps.
+    pub rng: StyleRng,
+    /// The resolved configuration of the run, as JSON.
+    pub config: Value,
+    /// The losses of steps `1..=step`.
+    pub losses: Vec<StepLosses>,
+}
+
+/// The position of a ChaCha8 stream: seed, stream and word position.
+#[derive(Serialize, Deserialize)]
+struct RngState {
+    /// The 32-byte seed, hexadecimal.
+    seed: String,
+    stream: u64,
+    /// The word position (a u128), decimal.
+    word_pos: String,
+}
+
+#[derive(Serialize, Deserialize)]
+struct State {
+    step: u64,
+    rng: RngState,
+    config: Value,
+    losses: Vec<StepLosses>,
+}
+
+/// The parameter groups of `model`, copied (mutable access is how [`BaseModel`] lends them).
+pub fn model_params<M: BaseModel>(model: &mut M) -> Vec<ParamGroup> {
+    model
+        .group_names()
+        .into_iter()
+        .zip(model.groups_mut())
+        .map(|(name, values)| ParamGroup {
+            name,
+            values: values.to_vec(),
+        })
+        .collect()
+}
+
+/// Copies `params` into `model` when it has the same groups (names and lengths, in order);
+/// otherwise changes nothing and returns every difference, named.
+pub fn restore_params<M: BaseModel>(model: &mut M, params: &[ParamGroup]) -> Result<(), String> {
+    let names = model.group_names();
+    let saved: Vec<&str> = params.iter().map(|p| p.name.as_str()).collect();
+    if saved != names {
+        return Err(format!(
+            "parameter groups [{}], the model has [{}]",
+            saved.join(", "),
+            names.join(", ")
+        ));
+    }
+    let differ: Vec<String> = params
+        .iter()
+        .zip(model.group_lens())
+        .filter(|(p, len)| p.values.len() != *len)
+        .map(|(p, len)| format!("{} has {} values, the model {len}", p.name, p.values.len()))
+        .collect();
+    if !differ.is_empty() {
+        return Err(differ.join("; "));
+    }
+    for (dst, p) in model.groups_mut().into_iter().zip(params) {
+        dst.copy_from_slice(&p.values);
+    }
+    Ok(())
+}
+
+/// The checkpoint folder of the output folder `out`.
+pub fn checkpoint_dir(out: &Path) -> PathBuf {
+    out.join(CHECKPOINT_DIR)
+}
+
+/// Where [`save`] parks the previous checkpoint while it moves the new one in.
+fn parked_dir(out: &Path) -> PathBuf {
+    out.join(format!("{CHECKPOINT_DIR}.old"))
+}
+
+/// Puts back a checkpoint that a save interrupted between its two renames (a crash or a second
+/// Ctrl-C) left only in the parked folder, so it is found again. Call before looking for one.
+pub fn recover_interrupted_save(out: &Path) -> Result<(), StylizeError> {
+    let (dir, old) = (checkpoint_dir(out), parked_dir(out));
+    if !dir.exists() && old.exists() {
+        std::fs::rename(&old, &dir).map_err(|source| StylizeError::Io { path: old, source })?;
+    }
+    Ok(())
+}
+
+/// Saves `checkpoint` into `<out>/checkpoint/`, replacing the previous one only once the new
+/// one is complete.
+pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
+    recover_interrupted_save(out)?;
+    let dir = checkpoint_dir(out);
+    let tmp = out.join(format!("{CHECKPOINT_DIR}.tmp"));
+    let old = parked_dir(out);
+    let io = |path: &Path| {
+        let path = path.to_path_buf();
+        move |source| StylizeError::Io { path, source }
+    };
+    if tmp.exists() {
+        std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
+    }
+    std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
+    let params = tmp.join(PARAMS);
+    gs_core::fs::write_atomic_with(&params, |w| write_params(w, &checkpoint.params))
+        .map_err(io(&params))?;
+    write_atomic(&tmp.join(ADAM), &checkpoint.adam_state)?;
+    let rng = &checkpoint.rng;
+    let state = State {
+        step: checkpoint.step,
+        rng: RngState {
+            seed: rng.get_seed().iter().map(|b| format!("{b:02x}")).collect(),
+            stream: rng.get_stream(),
+            word_pos: rng.get_word_pos().to_string(),
+        },
+        config: checkpoint.config.clone(),
+        losses: checkpoint.losses.clone(),
+    };
+    write_json(&tmp.join(STATE), &state)?;
+    if dir.exists() {
+        if old.exists() {
+            std::fs::remove_dir_all(&old).map_err(io(&old))?;
+        }
+        std::fs::rename(&dir, &old).map_err(io(&dir))?;
+    }
+    std::fs::rename(&tmp, &dir).map_err(io(&dir))?;
+    if old.exists() {
+        std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    }
+    Ok(())
+}
+
+/// Loads the checkpoint in `<out>/checkpoint/` (after [`recover_interrupted_save`]); whether
+/// its parameters fit a model is [`restore_params`]'s check.
+pub fn load(out: &Path) -> Result<Checkpoint, StylizeError> {
+    recover_interrupted_save(out)?;
+    let dir = checkpoint_dir(out);
+    let bad = |message: String| StylizeError::Checkpoint {
+        path: dir.clone(),
+        message,
+    };
+    if !dir.join(STATE).is_file() {
+        return Err(bad(format!(
+            "no {STATE}: there is no checkpoint to resume from (run without --resume)"
+        )));
+    }
+    let state: State = read_json(&dir.join(STATE))?;
+    let read = |name: &str| {
+        std::fs::read(dir.join(name)).map_err(|source| StylizeError::Io {
+            path: dir.join(name),
+            source,
+        })
+    };
+    let adam_state = read(ADAM)?;
+    let params = read_params(&read(PARAMS)?).map_err(|e| bad(format!("{PARAMS}: {e}")))?;
+    let seed = decode_seed(&state.rng.seed).ok_or_else(|| bad("bad rng seed".into()))?;
+    let word_pos: u128 = state
+        .rng
+        .word_pos
+        .parse()
+        .map_err(|e| bad(format!("bad rng word position: {e}")))?;
+    let mut rng = StyleRng::from_seed(seed);
+    rng.set_stream(state.rng.stream);
+    rng.set_word_pos(word_pos);
+    if state.losses.len() as u64 != state.step {
+        return Err(bad(format!(
+            "{} logged losses for {} steps",
+            state.losses.len(),
+            state.step
+        )));
+    }
+    Ok(Checkpoint {
+        step: state.step,
+        params,
+        adam_state,
+        rng,
+        config: state.config,
+        losses: state.losses,
+    })
+}
+
+/// Writes `params` in the `params.bin` layout (see the module documentation).
+fn write_params(w: &mut impl Write, params: &[ParamGroup]) -> std::io::Result<()> {
+    w.write_all(PARAMS_MAGIC)?;
+    w.write_all(&PARAMS_VERSION.to_le_bytes())?;
+    w.write_all(&(params.len() as u32).to_le_bytes())?;
+    for p in params {
+        w.write_all(&(p.name.len() as u32).to_le_bytes())?;
+        w.write_all(p.name.as_bytes())?;
+        w.write_all(&(p.values.len() as u64).to_le_bytes())?;
+        for v in &p.values {
+            w.write_all(&v.to_le_bytes())?;
+        }
+    }
+    Ok(())
+}
+
+/// The next `n` bytes of `rest`, or an error saying they were cut off in `what`.
+fn take<'a>(rest: &mut &'a [u8], n: usize, what: &str) -> Result<&'a [u8], String> {
+    if rest.len() < n {
+        return Err(format!("truncated in {what}"));
+    }
+    let (head, tail) = rest.split_at(n);
+    *rest = tail;
+    Ok(head)
+}
+
+/// Reads the `params.bin` layout; an error says what is wrong where.
+fn read_params(bytes: &[u8]) -> Result<Vec<ParamGroup>, String> {
+    let mut rest = bytes;
+    let r = &mut rest;
+    if take(r, PARAMS_MAGIC.len(), "the magic")? != PARAMS_MAGIC {
+        return Err("not a parameter file (no GSPARAMS magic)".into());
+    }
+    let u32_at = |b: &[u8]| u32::from_le_bytes(b.try_into().expect("4 bytes"));
+    let version = u32_at(take(r, 4, "the version")?);
+    if version != PARAMS_VERSION {
+        return Err(format!(
+            "version {version}, this build reads {PARAMS_VERSION}"
+        ));
+    }
+    let count = u32_at(take(r, 4, "the group count")?);
+    let mut params = Vec::new();
+    for g in 0..count {
+        let name_len = u32_at(take(r, 4, &format!("group {g}"))?) as usize;
+        let name = String::from_utf8(take(r, name_len, &format!("group {g}'s name"))?.to_vec())
+            .map_err(|_| format!("group {g}'s name is not UTF-8"))?;
+        let len = u64::from_le_bytes(take(r, 8, &name)?.try_into().expect("8 bytes"));
+        let size = usize::try_from(len)
+            .ok()
+            .and_then(|n| n.checked_mul(4))
+            .ok_or_else(|| format!("{name}: {len} values is too many"))?;
+        let values = take(r, size, &name)?
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes(c.try_into().expect("4 bytes")))
+            .collect();
+        params.push(ParamGroup { name, values });
+    }
+    if !rest.is_empty() {
+        return Err(format!("{} bytes after the last group", rest.len()));
+    }
+    Ok(params)
+}
+
+fn decode_seed(hex: &str) -> Option<[u8; 32]> {
+    if hex.len() != 64 {
+        return None;
+    }
+    let mut seed = [0u8; 32];
+    for (i, byte) in seed.iter_mut().enumerate() {
+        *byte = u8::from_str_radix(hex.get(2 * i..2 * i + 2)?, 16).ok()?;
+    }
+    Some(seed)
+}
+
+/// The fields, other than [`RESUMABLE_CHANGES`], whose values differ between the saved and the
+/// current configuration (both JSON objects), sorted.
+pub fn changed_fields(saved: &Value, current: &Value) -> Vec<String> {
+    let empty = serde_json::Map::new();
+    let saved = saved.as_object().unwrap_or(&empty);
+    let current = current.as_object().unwrap_or(&empty);
+    let mut keys: Vec<&String> = saved.keys().chain(current.keys()).collect();
+    keys.sort();
+    keys.dedup();
+    keys.into_iter()
+        .filter(|k| !RESUMABLE_CHANGES.contains(&k.as_str()))
+        .filter(|k| saved.get(*k) != current.get(*k))
+        .cloned()
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gs_core::GaussianSet;
+    use rand_chacha::rand_core::RngCore;
+
+    #[test]
+    fn parameters_and_the_patch_stream_position_round_trip_exactly() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut rng = style_loss::style_rng(5);
+        for _ in 0..37 {
+            rng.next_u32();
+        }
+        let mut model = GaussianSet::zeros(3, 1);
+        model.means[4] = -1.5e-7;
+        model.sh_rest[2] = f32::MAX;
+        let checkpoint = Checkpoint {
+            step: 1,
+            params: model_params(&mut model),
+            adam_state: vec![1, 2, 3],
+            rng: rng.clone(),
+            config: serde_json::json!({"steps": 4}),
+            losses: vec![StepLosses {
+                step: 1,
+                view: 0,
+                total: 0.5,
+                terms: [("patch".to_string(), 0.5)].into(),
+            }],
+        };
+        save(dir.path(), &checkpoint).unwrap();
+        save(dir.path(), &checkpoint).unwrap();
+        let mut back = load(dir.path()).unwrap();
+        assert_eq!(back.step, 1);
+        assert_eq!(back.params, checkpoint.params);
+        let mut restored = GaussianSet::zeros(3, 1);
+        restore_params(&mut restored, &back.params).unwrap();
+        assert_eq!(restored, model);
+        assert_eq!(back.adam_state, vec![1, 2, 3]);
+        assert_eq!(back.losses, checkpoint.losses);
+        let expected: Vec<u32> = (0..10).map(|_| rng.next_u32()).collect();
+        let got: Vec<u32> = (0..10).map(|_| back.rng.next_u32()).collect();
+        assert_eq!(got, expected);
+
+        let params = checkpoint_dir(dir.path()).join(PARAMS);
+        let mut bytes = std::fs::read(&params).unwrap();
+        bytes.pop();
+        std::fs::write(&params, bytes).unwrap();
+        let e = load(dir.path()).unwrap_err().to_string();
+        assert!(e.contains("params.bin") && e.contains("truncated"), "{e}");
+    }
+
+    #[test]
+    fn parameters_of_another_model_are_refused_with_the_differences_named() {
+        let params = model_params(&mut GaussianSet::zeros(3, 1));
+        let mut other = GaussianSet::zeros(4, 1);
+        let before = other.clone();
+        let e = restore_params(&mut other, &params).unwrap_err();
+        assert!(
+            e.contains("means has 9 values, the model 12") && e.contains("sh_rest"),
+            "{e}"
+        );
+        assert_eq!(other, before);
+        let e = restore_params(&mut other, &params[1..]).unwrap_err();
+        assert!(
+            e.contains("[scales,") && e.contains("[means, scales"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn changed_fields_ignore_the_step_count_and_name_the_rest() {
+        let saved = serde_json::json!({"steps": 10, "seed": 1, "feature_lr": 0.01});
+        let current = serde_json::json!({"steps": 20, "seed": 2, "feature_lr": 0.01});
+        assert_eq!(changed_fields(&saved, &current), ["seed"]);
+    }
+}

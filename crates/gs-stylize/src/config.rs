@@ -1,0 +1,444 @@
+//! The settings every stylization shares ([`StyleSettings`]) and how a modality's configuration
+//! is read: a flat JSON object (`configs/3d.json`) over the modality's defaults, edited by
+//! `field=value` overrides ([`Override`]), unknown fields refused and type errors named
+//! ([`resolve_config`]).
+//!
+//! A modality's configuration is a struct of its own fields plus
+//! `#[serde(flatten)] pub style: StyleSettings`, so its files stay flat.
+
+use std::path::{Path, PathBuf};
+
+use gs_core::adam::{GroupConfig, LrSchedule};
+use gs_core::model::GaussianLrs;
+use serde::de::DeserializeOwned;
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use crate::StylizeError;
+
+/// The modality-independent settings of a stylization: the style, the loss weights, the learning
+/// rates, the patches, the checkpoints and the model files. There is no `Default`: each modality
+/// starts from its paper's values ([`StyleSettings::paper_3d`] for 3D scenes).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StyleSettings {
+    /// The style as text (exactly one of `style_prompt` and `style_image`).
+    pub style_prompt: Option<String>,
+    /// The style as a picture (exactly one of `style_prompt` and `style_image`).
+    pub style_image: Option<PathBuf>,
+    /// The source prompt the style direction starts from.
+    pub source_prompt: String,
+    /// Optimizer steps.
+    pub steps: u64,
+    /// Seed of the view order and of the patch sampling.
+    pub seed: u64,
+    /// Weight of the directional CLIP loss.
+    pub lambda_directional: f64,
+    /// Weight of the patch CLIP loss.
+    pub lambda_patch: f64,
+    /// Weight of the VGG content loss (0 skips VGG).
+    pub lambda_content: f64,
+    /// Weight of the background loss, used only when every view has a mask.
+    pub lambda_background: f64,
+    /// Learning rate of the SH DC coefficients; the rest use `feature_lr / 20`.
+    pub feature_lr: f64,
+    /// Means learning rate at step 0, times the scene extent.
+    pub means_lr_start: f64,
+    /// Means learning rate at the end of its decay, times the scene extent.
+    pub means_lr_end: f64,
+    /// Length of the means learning-rate decay, steps.
+    pub means_lr_steps: u64,
+    /// Learning rate of the opacity logits.
+    pub opacity_lr: f64,
+    /// Learning rate of the log-scales.
+    pub scales_lr: f64,
+    /// Learning rate of the quaternions.
+    pub rotations_lr: f64,
+    /// Side of the square patches of the patch loss, pixels.
+    pub patch_size: usize,
+    /// Patches per step.
+    pub num_patches: usize,
+    /// Perspective distortion of the patches (torchvision's `distortion_scale`).
+    pub distortion_scale: f64,
+    /// Save a checkpoint every this many steps (0: never).
+    pub checkpoint_every: u64,
+    /// CLIP's `config.json` (`transformers` layout); none: ViT-B/32.
+    pub clip_config: Option<PathBuf>,
+    /// CLIP weights; none: `$CLIPGAUSSIAN_CLIP_B32_WEIGHTS`, then the Hugging Face cache.
+    pub clip_weights: Option<PathBuf>,
+    /// CLIP's `tokenizer.json`; none: `$CLIPGAUSSIAN_CLIP_TOKENIZER`, then the cache.
+    pub tokenizer: Option<PathBuf>,
+    /// VGG-19 weights; none: `$CLIPGAUSSIAN_VGG19_WEIGHTS`, then the cache.
+    pub vgg_weights: Option<PathBuf>,
+    /// Channel widths of the VGG-19 blocks (smaller only for test models).
+    pub vgg_widths: [usize; 5],
+}
+
+impl StyleSettings {
+    /// The paper's 3D settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 1000 (the
+    /// background term only applies to datasets with masks), feature_lr 0.01, the 3DGS rates of
+    /// the other groups, 5000 steps, 64 patches of 128 x 128, a checkpoint every 500 steps.
+    pub fn paper_3d() -> Self {
+        Self {
+            style_prompt: None,
+            style_image: None,
+            source_prompt: style_loss::DEFAULT_SOURCE_PROMPT.to_string(),
+            steps: 5000,
+            seed: 0,
+            lambda_directional: 5.0,
+            lambda_patch: 90.0,
+            lambda_content: 0.8,
+            lambda_background: 1000.0,
+            feature_lr: 0.01,
+            means_lr_start: 1e-4,
+            means_lr_end: 1e-6,
+            means_lr_steps: 30_000,
+            opacity_lr: 0.05,
+            scales_lr: 0.005,
+            rotations_lr: 0.001,
+            patch_size: 128,
+            num_patches: 64,
+            distortion_scale: 0.5,
+            checkpoint_every: 500,
+            clip_config: None,
+            clip_weights: None,
+            tokenizer: None,
+            vgg_weights: None,
+            vgg_widths: [64, 128, 256, 512, 512],
+        }
+    }
+
+    /// The paper's 2D (MiraGe) settings (method.md), no style yet: those of
+    /// [`StyleSettings::paper_3d`] with lambda_background 0 and feature_lr 0.0025.
+    pub fn paper_2d() -> Self {
+        Self {
+            lambda_background: 0.0,
+            feature_lr: 0.0025,
+            ..Self::paper_3d()
+        }
+    }
+
+    /// Checks what deserializing cannot: exactly one style, non-empty prompts, at least one
+    /// step, finite non-negative weights, finite positive rates, patches when the patch loss is
+    /// on, a distortion in `[0, 1]`. Errors name the field.
+    pub fn validate(&self) -> Result<(), StylizeError> {
+        let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
+        match (&self.style_prompt, &self.style_image) {
+            (Some(_), Some(_)) => {
+                return bad(
+                    "style_prompt, style_image",
+                    "give exactly one style (a prompt or an image), not both",
+                )
+            }
+            (None, None) => {
+                return bad(
+                    "style_prompt, style_image",
+                    "a style is required: a prompt or an image",
+                )
+            }
+            (Some(p), None) if p.trim().is_empty() => {
+                return bad("style_prompt", "the style prompt is empty")
+            }
+            _ => {}
+        }
+        if self.source_prompt.trim().is_empty() {
+            return bad("source_prompt", "the source prompt is empty");
+        }
+        if self.steps == 0 {
+            return bad("steps", "must be at least 1");
+        }
+        let weights = [
+            ("lambda_directional", self.lambda_directional),
+            ("lambda_patch", self.lambda_patch),
+            ("lambda_content", self.lambda_content),
+            ("lambda_background", self.lambda_background),
+        ];
+        for (field, w) in weights {
+            if !(w.is_finite() && w >= 0.0) {
+                return bad(field, &format!("{w} must be finite and >= 0"));
+            }
+        }
+        let rates = [
+            ("feature_lr", self.feature_lr),
+            ("means_lr_start", self.means_lr_start),
+            ("means_lr_end", self.means_lr_end),
+            ("opacity_lr", self.opacity_lr),
+            ("scales_lr", self.scales_lr),
+            ("rotations_lr", self.rotations_lr),
+        ];
+        for (field, lr) in rates {
+            if !(lr.is_finite() && lr > 0.0) {
+                return bad(field, &format!("{lr} must be finite and > 0"));
+            }
+        }
+        if self.lambda_patch > 0.0 && (self.patch_size == 0 || self.num_patches == 0) {
+            return bad(
+                "patch_size, num_patches",
+                "a patch loss needs a patch size and a number of patches above 0",
+            );
+        }
+        if !(0.0..=1.0).contains(&self.distortion_scale) {
+            return bad("distortion_scale", "must be in [0, 1]");
+        }
+        Ok(())
+    }
+
+    /// The Adam groups of plain Gaussians ([`gs_core::gaussians::PARAM_NAMES`] order) for a
+    /// scene of size `extent`: means `means_lr_start * extent -> means_lr_end * extent` over
+    /// `means_lr_steps`, then scales, rotations, opacities, SH DC (`feature_lr`) and SH rest
+    /// (`feature_lr / 20`).
+    pub fn optimizer_groups(&self, extent: f64) -> Vec<GroupConfig> {
+        GaussianLrs {
+            means: LrSchedule::Exponential {
+                start: self.means_lr_start * extent,
+                end: self.means_lr_end * extent,
+                steps: self.means_lr_steps,
+            },
+            scales: self.scales_lr,
+            rotations: self.rotations_lr,
+            opacities: self.opacity_lr,
+            feature: self.feature_lr,
+        }
+        .groups()
+    }
+}
+
+/// One edit of the configuration: `field` set to `value`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Override {
+    /// The field name.
+    pub field: String,
+    /// Its new value.
+    pub value: Value,
+}
+
+impl Override {
+    /// A field set to a value.
+    pub fn new(field: impl Into<String>, value: impl Into<Value>) -> Self {
+        Self {
+            field: field.into(),
+            value: value.into(),
+        }
+    }
+
+    /// Parses `field=value`: the value is JSON when it parses as JSON (`5`, `null`, `[0, 2]`,
+    /// `true`), else a string.
+    pub fn parse(text: &str) -> Result<Self, StylizeError> {
+        let Some((field, value)) = text.split_once('=') else {
+            return Err(StylizeError::Config(format!(
+                "override {text:?} is not of the form field=value"
+            )));
+        };
+        let field = field.trim();
+        if field.is_empty() {
+            return Err(StylizeError::Config(format!(
+                "override {text:?} has no field name"
+            )));
+        }
+        let value = serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.into()));
+        Ok(Self::new(field, value))
+    }
+}
+
+/// The configuration `C` of `file` (`C::default()` alone when `None`) with `overrides` applied
+/// in order. Fields the file leaves out keep their default. A field that `C::default()` does
+/// not serialize is an error naming every such field; a value of the wrong type is an error
+/// naming its field. Checking the values is the caller's (e.g. [`StyleSettings::validate`]).
+///
+/// Only top-level fields are checked against the defaults; a nested struct refuses unknown
+/// fields with its own `#[serde(deny_unknown_fields)]`.
+pub fn resolve_config<C>(file: Option<&Path>, overrides: &[Override]) -> Result<C, StylizeError>
+where
+    C: Serialize + DeserializeOwned + Default,
+{
+    let source = file.map_or("the configuration".into(), |p| p.display().to_string());
+    let config_error = |message: String| StylizeError::Config(format!("{source}: {message}"));
+    let Value::Object(defaults) = serde_json::to_value(C::default()).expect("configs serialize")
+    else {
+        panic!("a configuration must serialize to a JSON object");
+    };
+    let mut given = match file {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).map_err(|source| StylizeError::Io {
+                path: path.to_path_buf(),
+                source,
+            })?;
+            match serde_json::from_str(&text).map_err(|e| config_error(e.to_string()))? {
+                Value::Object(fields) => fields,
+                _ => return Err(config_error("must be a JSON object".into())),
+            }
+        }
+        None => Map::new(),
+    };
+    for o in overrides {
+        given.insert(o.field.clone(), o.value.clone());
+    }
+    let unknown: Vec<&str> = given
+        .keys()
+        .filter(|k| !defaults.contains_key(*k))
+        .map(String::as_str)
+        .collect();
+    if !unknown.is_empty() {
+        let known: Vec<&str> = defaults.keys().map(String::as_str).collect();
+        return Err(config_error(format!(
+            "unknown field{} `{}`; the fields are {}",
+            if unknown.len() > 1 { "s" } else { "" },
+            unknown.join("`, `"),
+            known.join(", ")
+        )));
+    }
+    let mut merged = defaults.clone();
+    merged.extend(given.clone());
+    serde_json::from_value(Value::Object(merged)).map_err(|whole| {
+        config_error(name_bad_fields::<C>(&defaults, &given).unwrap_or(whole.to_string()))
+    })
+}
+
+/// `field: why` for every field of `given` that does not deserialize on its own over
+/// `defaults` (serde's messages inside a `#[serde(flatten)]` field do not name the field);
+/// `None` when each does.
+fn name_bad_fields<C: DeserializeOwned>(
+    defaults: &Map<String, Value>,
+    given: &Map<String, Value>,
+) -> Option<String> {
+    let bad: Vec<String> = given
+        .iter()
+        .filter_map(|(field, value)| {
+            let mut alone = defaults.clone();
+            alone.insert(field.clone(), value.clone());
+            serde_json::from_value::<C>(Value::Object(alone))
+                .err()
+                .map(|e| format!("{field}: {e}"))
+        })
+        .collect();
+    (!bad.is_empty()).then(|| bad.join("; "))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A modality configuration with the 3D fields, so `configs/3d.json` reads into it.
+    #[derive(Debug, PartialEq, Serialize, Deserialize)]
+    struct Modality {
+        ply: Option<PathBuf>,
+        data: Option<PathBuf>,
+        out: Option<PathBuf>,
+        resolution: u32,
+        white_background: bool,
+        preview_views: Vec<usize>,
+        #[serde(flatten)]
+        style: StyleSettings,
+    }
+
+    impl Default for Modality {
+        fn default() -> Self {
+            Self {
+                ply: None,
+                data: None,
+                out: None,
+                resolution: 1,
+                white_background: true,
+                preview_views: vec![0],
+                style: StyleSettings::paper_3d(),
+            }
+        }
+    }
+
+    fn error(overrides: &[Override]) -> String {
+        resolve_config::<Modality>(None, overrides)
+            .unwrap_err()
+            .to_string()
+    }
+
+    #[test]
+    fn unknown_keys_are_named_each() {
+        let e = error(&[
+            Override::new("lamda_patch", 3),
+            Override::new("steps", 4),
+            Override::new("stpes", 4),
+        ]);
+        assert!(e.contains("unknown fields `lamda_patch`, `stpes`"), "{e}");
+        assert!(
+            e.contains("lambda_patch") && e.contains("resolution"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn a_bad_type_names_its_field_inside_and_outside_the_flattened_settings() {
+        let e = error(&[Override::parse("steps=abc").unwrap()]);
+        assert!(
+            e.starts_with("configuration: the configuration: steps: "),
+            "{e}"
+        );
+        assert!(e.contains("invalid type") && e.contains("abc"), "{e}");
+        let e = error(&[
+            Override::parse("resolution=-1").unwrap(),
+            Override::parse("vgg_widths=[1,2]").unwrap(),
+        ]);
+        assert!(
+            e.contains("resolution: ") && e.contains("vgg_widths: "),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn overrides_apply_in_order_over_the_defaults() {
+        let c: Modality = resolve_config(
+            None,
+            &[
+                Override::parse("steps=7").unwrap(),
+                Override::parse("preview_views=[1,3]").unwrap(),
+                Override::parse("style_prompt=fire").unwrap(),
+                Override::parse("steps=9").unwrap(),
+            ],
+        )
+        .unwrap();
+        assert_eq!((c.style.steps, c.preview_views), (9, vec![1, 3]));
+        assert_eq!(c.style.style_prompt.as_deref(), Some("fire"));
+        assert_eq!(c.style.feature_lr, StyleSettings::paper_3d().feature_lr);
+        assert!(Override::parse("no-equals-sign").is_err());
+        assert!(Override::parse("=3").is_err());
+    }
+
+    #[test]
+    fn the_flat_3d_file_round_trips_and_missing_keys_keep_their_defaults() {
+        let file = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../configs/3d.json");
+        let paper: Modality = resolve_config(Some(&file), &[]).unwrap();
+        assert_eq!(paper, Modality::default());
+        let on_disk: Value =
+            serde_json::from_str(&std::fs::read_to_string(&file).unwrap()).unwrap();
+        assert_eq!(serde_json::to_value(&paper).unwrap(), on_disk);
+
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("config.json");
+        std::fs::write(&path, r#"{"steps": 12, "resolution": 2}"#).unwrap();
+        let partial: Modality = resolve_config(Some(&path), &[]).unwrap();
+        assert_eq!((partial.style.steps, partial.resolution), (12, 2));
+        assert_eq!(partial.preview_views, vec![0]);
+        std::fs::write(&path, "[1]").unwrap();
+        let e = resolve_config::<Modality>(Some(&path), &[])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("config.json") && e.contains("JSON object"),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn validation_names_the_field() {
+        let mut s = StyleSettings::paper_3d();
+        assert!(s
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("a style is required"));
+        s.style_prompt = Some("fire".into());
+        s.validate().unwrap();
+        s.feature_lr = 0.0;
+        assert!(s.validate().unwrap_err().to_string().contains("feature_lr"));
+        let groups = StyleSettings::paper_3d().optimizer_groups(2.0);
+        assert_eq!(groups, GaussianLrs::stylization(2.0, 0.01).groups());
+    }
+}

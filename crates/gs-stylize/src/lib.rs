@@ -1,0 +1,85 @@
+//! gs-stylize: the CLIPGaussian stylization run (stage 2) that every modality shares. A base
+//! crate loads its model ([`gs_core::model::BaseModel`]) and views, hands them to [`stylize`],
+//! and writes its own results (a stylized PLY, previews) from the trained model.
+//!
+//! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
+//! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
+//! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
+//! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
+//! - [`interrupt`]: Ctrl-C as a request to stop after the current step.
+//! - [`loss_plot`]: the loss curve as a picture.
+//! - [`picture`]: pictures as CLIP inputs (the style image).
+
+pub mod checkpoint;
+pub mod config;
+pub mod interrupt;
+pub mod loss_plot;
+pub mod outputs;
+pub mod picture;
+pub mod run;
+
+use std::path::PathBuf;
+
+pub use config::{resolve_config, Override, StyleSettings};
+pub use run::{stylize, RunOptions, StylizeJob, StylizeOutcome};
+
+/// Why a stylization could not run; each names the file or field at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum StylizeError {
+    /// A configuration that does not parse or has an invalid value.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// An input that does not fit the others or cannot be loaded (the model file, the views,
+    /// the patch size, the style image).
+    #[error("{0}")]
+    Input(String),
+    /// Loading CLIP, VGG or the tokenizer, or computing the style direction.
+    #[error("style loss: {0}")]
+    Style(Box<style_loss::StyleLossError>),
+    /// The optimizer or an image operation of gs-core.
+    #[error("{0}")]
+    Core(#[from] gs_core::GsError),
+    /// Training stopped with an error.
+    #[error("training: {0}")]
+    Train(Box<gs_core::train::TrainError<style_loss::StyleLossError>>),
+    /// A file that could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A checkpoint that is missing, damaged, or from a different run.
+    #[error("checkpoint {}: {message}", path.display())]
+    Checkpoint {
+        /// The checkpoint folder.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// The run was stopped (Ctrl-C) after `step`; a checkpoint of that step was written.
+    #[error(
+        "interrupted after step {step}; the checkpoint is in {}: run the same command again \
+         with --resume to continue",
+        checkpoint::checkpoint_dir(out).display()
+    )]
+    Interrupted {
+        /// The last step taken.
+        step: u64,
+        /// The output folder.
+        out: PathBuf,
+    },
+}
+
+impl From<style_loss::StyleLossError> for StylizeError {
+    fn from(e: style_loss::StyleLossError) -> Self {
+        Self::Style(Box::new(e))
+    }
+}
+
+impl From<gs_core::train::TrainError<style_loss::StyleLossError>> for StylizeError {
+    fn from(e: gs_core::train::TrainError<style_loss::StyleLossError>) -> Self {
+        Self::Train(Box::new(e))
+    }
+}
