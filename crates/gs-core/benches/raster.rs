@@ -1,13 +1,16 @@
 //! Rasterizer forward and backward time against Gaussian count at 800x800, and the error of the
 //! f32 render and gradients against the f64 reference.
 //!
-//! `cargo bench -p gs-core --bench raster [-- [--volume] [--no-reference] COUNT...]` (default
-//! counts 10000 100000 1000000); `--volume` times the worst-case volume scene instead of the
-//! surface scene, `--no-reference` skips the f64 reference and the error columns.
+//! `cargo bench -p gs-core --bench raster [--features wgpu] [-- [--volume] [--no-reference]
+//! [--backend cpu|wgpu] COUNT...]` (default counts 10000 100000 1000000); `--volume` times the
+//! worst-case volume scene instead of the surface scene, `--no-reference` skips the f64
+//! reference and the error columns, `--backend wgpu` times the wgpu backend (a real GPU when
+//! there is one, else lavapipe) instead of the cpu backend: forward includes reading the image
+//! back, backward includes uploading dL/dimage and waiting for the gradients.
 
 use std::time::Instant;
 
-use gs_core::raster::{backward, render, GradMask, OutputGrads};
+use gs_core::raster::{backward, render, GradMask, Gradients, OutputGrads};
 use gs_core::{Camera, GaussianSet, Real};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -91,6 +94,75 @@ fn time<R>(f: impl FnMut() -> R, reps: usize) -> (f64, R) {
     (best, out.expect("reps >= 1"))
 }
 
+/// One backend's timings and outputs on one scene.
+struct Measured {
+    visible: String,
+    pairs: usize,
+    t_fwd: f64,
+    t_bwd: f64,
+    image: Vec<f32>,
+    grads: Gradients<f32>,
+}
+
+fn measure_cpu(g: &GaussianSet, cam: &Camera, bg: [f32; 3], w: &[f32]) -> Measured {
+    let (t_fwd, r) = time(|| render(g, cam, bg), 3);
+    let out = OutputGrads {
+        rgb: w,
+        alpha: None,
+        depth: None,
+    };
+    let (t_bwd, grads) = time(|| backward(g, cam, &r, &out, GradMask::ALL), 3);
+    Measured {
+        visible: r.visible_count().to_string(),
+        pairs: r.intersection_count(),
+        t_fwd,
+        t_bwd,
+        image: r.image.data,
+        grads,
+    }
+}
+
+#[cfg(feature = "wgpu")]
+fn measure_wgpu(
+    ctx: &gs_core::wgpu::GpuContext,
+    g: &GaussianSet,
+    cam: &Camera,
+    bg: [f32; 3],
+    w: &[f32],
+) -> Measured {
+    use gs_core::wgpu;
+    let gg = wgpu::GpuGaussians::upload(ctx, g).expect("scene fits on the GPU");
+    let (t_fwd, (r, image)) = time(
+        || {
+            let r = wgpu::render(ctx, &gg, cam, bg).expect("render");
+            let image = r.image(ctx);
+            (r, image)
+        },
+        3,
+    );
+    let out = OutputGrads {
+        rgb: w,
+        alpha: None,
+        depth: None,
+    };
+    let (t_bwd, grads) = time(
+        || {
+            let grads = wgpu::backward(ctx, &gg, &r, &out, GradMask::ALL).expect("backward");
+            ctx.wait();
+            grads
+        },
+        3,
+    );
+    Measured {
+        visible: "-".into(),
+        pairs: r.intersection_count(),
+        t_fwd,
+        t_bwd,
+        image: image.data,
+        grads: grads.download(ctx),
+    }
+}
+
 fn rel_err<T: Real>(reference: &[f64], got: &[T]) -> f64 {
     let num: f64 = reference
         .iter()
@@ -112,6 +184,23 @@ fn main() {
     } else {
         Kind::Surface
     };
+    let backend = std::env::args()
+        .skip_while(|a| a != "--backend")
+        .nth(1)
+        .unwrap_or_else(|| "cpu".into());
+    #[cfg(feature = "wgpu")]
+    let ctx = (backend == "wgpu").then(|| {
+        let ctx = gs_core::wgpu::GpuContext::new(gs_core::wgpu::AdapterChoice::AllowSoftware)
+            .expect("a GPU adapter");
+        println!("device: {}", ctx.describe());
+        ctx
+    });
+    match backend.as_str() {
+        "cpu" => {}
+        "wgpu" if cfg!(feature = "wgpu") => {}
+        "wgpu" => panic!("--backend wgpu needs `--features wgpu`"),
+        other => panic!("unknown backend {other}: cpu or wgpu"),
+    }
     let counts = if counts.is_empty() {
         vec![10_000, 100_000, 1_000_000]
     } else {
@@ -139,18 +228,24 @@ fn main() {
             .collect();
         let w32: Vec<f32> = w64.iter().map(|v| *v as f32).collect();
         let bg32 = bg.map(|v| v as f32);
-        let (t_fwd, r32) = time(|| render(&g32, &cam, bg32), 3);
-        let out32 = OutputGrads {
-            rgb: &w32,
-            alpha: None,
-            depth: None,
+        #[cfg(feature = "wgpu")]
+        let m = match &ctx {
+            Some(ctx) => measure_wgpu(ctx, &g32, &cam, bg32, &w32),
+            None => measure_cpu(&g32, &cam, bg32, &w32),
         };
-        let (t_bwd, gr32) = time(|| backward(&g32, &cam, &r32, &out32, GradMask::ALL), 3);
+        #[cfg(not(feature = "wgpu"))]
+        let m = measure_cpu(&g32, &cam, bg32, &w32);
+        let Measured {
+            visible,
+            pairs,
+            t_fwd,
+            t_bwd,
+            image,
+            grads: gr32,
+        } = m;
         if !with_reference {
             println!(
-                "| {n} | {} | {} | {:.1} | {:.1} | {:.1} | - | - | - | - | - | - |",
-                r32.visible_count(),
-                r32.intersection_count(),
+                "| {n} | {visible} | {pairs} | {:.1} | {:.1} | {:.1} | - | - | - | - | - | - |",
                 t_fwd * 1e3,
                 t_bwd * 1e3,
                 (t_fwd + t_bwd) * 1e3
@@ -169,7 +264,7 @@ fn main() {
             .image
             .data
             .iter()
-            .zip(&r32.image.data)
+            .zip(&image)
             .map(|(a, b)| (a - *b as f64).abs())
             .collect();
         let img_err = diffs.iter().fold(0.0f64, |m, d| m.max(*d));
@@ -180,9 +275,7 @@ fn main() {
         let sh64: Vec<f64> = a64[4].iter().chain(a64[5]).copied().collect();
         let sh32: Vec<f32> = a32[4].iter().chain(a32[5]).copied().collect();
         println!(
-            "| {n} | {} | {} | {:.1} | {:.1} | {:.1} | {:.2e} / {:.2e} / {:.4}% | {:.2e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} |",
-            r32.visible_count(),
-            r32.intersection_count(),
+            "| {n} | {visible} | {pairs} | {:.1} | {:.1} | {:.1} | {:.2e} / {:.2e} / {:.4}% | {:.2e} | {:.2e} | {:.2e} | {:.2e} | {:.2e} |",
             t_fwd * 1e3,
             t_bwd * 1e3,
             (t_fwd + t_bwd) * 1e3,

@@ -27,6 +27,8 @@ pub mod raster;
 pub mod real;
 pub mod sh;
 pub mod train;
+#[cfg(feature = "wgpu")]
+pub mod wgpu;
 
 pub use camera::Camera;
 pub use gaussians::{GaussianGrads, GaussianSet};

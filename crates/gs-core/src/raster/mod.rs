@@ -9,7 +9,7 @@
 
 mod bin;
 mod composite;
-mod project;
+pub(crate) mod project;
 
 use rayon::prelude::*;
 

@@ -67,3 +67,17 @@ pub fn weights(seed: u64, n: usize) -> Vec<f64> {
 pub fn all_finite<T: Real>(v: &[T]) -> bool {
     v.iter().all(|x| x.is_finite())
 }
+
+/// The GPU context shared by a test binary: real GPU first, else a software device. Fails with
+/// a message naming what to install when there is none: these tests never pass silently.
+#[cfg(feature = "wgpu")]
+pub fn gpu() -> &'static gs_core::wgpu::GpuContext {
+    use gs_core::wgpu::{AdapterChoice, GpuContext};
+    static CTX: std::sync::OnceLock<GpuContext> = std::sync::OnceLock::new();
+    CTX.get_or_init(|| {
+        let ctx = GpuContext::new(AdapterChoice::AllowSoftware)
+            .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter and found none: {e}"));
+        eprintln!("wgpu tests on {}", ctx.describe());
+        ctx
+    })
+}

@@ -1,0 +1,143 @@
+//! Adam on the GPU: the update of [`crate::adam::Adam`], step for step, with the moments kept
+//! on the GPU next to the parameters.
+
+use super::buffers::{read, storage, uniform};
+use super::device::{GpuContext, GpuError};
+use super::forward::WORKGROUP;
+use super::shaders::KernelId;
+use crate::adam::{AdamHyper, GroupConfig};
+
+/// The uniform of adam_step.wgsl.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct AdamUniform {
+    n: u32,
+    step_size: f32,
+    inv_bc2_sqrt: f32,
+    beta1: f32,
+    beta2: f32,
+    eps: f32,
+    unused: [u32; 2],
+}
+
+/// First and second moments of one trained group.
+struct Moments {
+    len: usize,
+    m: wgpu::Buffer,
+    v: wgpu::Buffer,
+}
+
+/// Adam over a fixed list of parameter groups living on the GPU (PyTorch's update rule with
+/// bias correction, as [`crate::adam::Adam`]); frozen groups get no moments and no work.
+pub struct GpuAdam {
+    hyper: AdamHyper,
+    groups: Vec<GroupConfig>,
+    moments: Vec<Option<Moments>>,
+    step: u64,
+}
+
+impl GpuAdam {
+    /// An optimizer for `groups` whose sizes are `lens`.
+    ///
+    /// # Panics
+    /// If `groups` and `lens` differ in length.
+    pub fn new(
+        ctx: &GpuContext,
+        groups: Vec<GroupConfig>,
+        lens: &[usize],
+        hyper: AdamHyper,
+    ) -> Result<Self, GpuError> {
+        assert_eq!(groups.len(), lens.len(), "one length per group");
+        let mut moments = Vec::with_capacity(groups.len());
+        for (g, &len) in groups.iter().zip(lens) {
+            moments.push(if g.frozen {
+                None
+            } else {
+                let bytes = 4 * len as u64;
+                Some(Moments {
+                    len,
+                    m: storage(ctx, &format!("Adam m of {}", g.name), bytes)?,
+                    v: storage(ctx, &format!("Adam v of {}", g.name), bytes)?,
+                })
+            });
+        }
+        Ok(Self {
+            hyper,
+            groups,
+            moments,
+            step: 0,
+        })
+    }
+
+    /// Steps taken so far.
+    pub fn step_count(&self) -> u64 {
+        self.step
+    }
+
+    /// One Adam step: `params[i]` is group `i`'s buffer, `grads[i]` its gradient (`None` is
+    /// allowed for frozen groups only).
+    ///
+    /// # Panics
+    /// If the number of groups differs from construction or a trained group has no gradient.
+    pub fn step(
+        &mut self,
+        ctx: &GpuContext,
+        params: &[&wgpu::Buffer],
+        grads: &[Option<&wgpu::Buffer>],
+    ) {
+        assert_eq!(
+            params.len(),
+            self.groups.len(),
+            "one parameter buffer per group"
+        );
+        assert_eq!(
+            grads.len(),
+            self.groups.len(),
+            "one gradient slot per group"
+        );
+        let t = self.step + 1;
+        let AdamHyper { beta1, beta2, eps } = self.hyper;
+        let bc1 = 1.0 - beta1.powf(t as f64);
+        let bc2 = 1.0 - beta2.powf(t as f64);
+        let mut encoder = ctx.encoder();
+        for (i, mom) in self.moments.iter().enumerate() {
+            let Some(mom) = mom else {
+                continue;
+            };
+            let group = &self.groups[i];
+            let grad =
+                grads[i].unwrap_or_else(|| panic!("trained group {} has no gradient", group.name));
+            if mom.len == 0 {
+                continue;
+            }
+            let lr = group.schedule.at(self.step);
+            let params_uniform = uniform(
+                ctx,
+                &AdamUniform {
+                    n: mom.len as u32,
+                    step_size: (lr / bc1) as f32,
+                    inv_bc2_sqrt: (1.0 / bc2.sqrt()) as f32,
+                    beta1: beta1 as f32,
+                    beta2: beta2 as f32,
+                    eps: eps as f32,
+                    unused: [0; 2],
+                },
+            );
+            ctx.dispatch(
+                &mut encoder,
+                KernelId::AdamStep,
+                &[&params_uniform, params[i], grad, &mom.m, &mom.v],
+                (mom.len as u32).div_ceil(WORKGROUP),
+            );
+        }
+        ctx.submit(encoder);
+        self.step = t;
+    }
+
+    /// Reads group `i`'s first and second moments back (`None` for a frozen group).
+    pub fn moments(&self, ctx: &GpuContext, i: usize) -> Option<(Vec<f32>, Vec<f32>)> {
+        self.moments[i]
+            .as_ref()
+            .map(|m| (read(ctx, &m.m, m.len), read(ctx, &m.v, m.len)))
+    }
+}

@@ -1,0 +1,191 @@
+//! The backward pass on the GPU: compositing backward per tile, then projection and SH
+//! backward per Gaussian. Same gradients as [`crate::raster::backward`]; frozen parameter
+//! groups cost no work and no memory.
+
+use super::buffers::{read, storage, storage_from, uniform, GpuGaussians};
+use super::device::{GpuContext, GpuError};
+use super::forward::{GpuRendered, WORKGROUP};
+use super::shaders::KernelId;
+use crate::gaussians::{sh_coeff_count, GaussianGrads};
+use crate::raster::{GradMask, Gradients, OutputGrads};
+
+/// Gradient slots per Gaussian in the accumulation buffer (`SPLAT_GRADS` of helpers.wgsl).
+const SPLAT_GRADS: u64 = 10;
+
+/// Flag bits of `View.scene.w` (shaders/helpers.wgsl).
+mod flags {
+    pub const MEANS: u32 = 1;
+    pub const SCALES: u32 = 2;
+    pub const QUATS: u32 = 4;
+    pub const OPACITY: u32 = 8;
+    pub const SH_DC: u32 = 16;
+    pub const SH_REST: u32 = 32;
+    pub const GRAD_ALPHA: u32 = 64;
+    pub const GRAD_DEPTH: u32 = 128;
+}
+
+/// Gradients on the GPU, one buffer per trained parameter array (in the layout of the
+/// Gaussian set; `None` for frozen arrays), and the background's.
+pub struct GpuGradients {
+    len: usize,
+    sh_degree: usize,
+    arrays: [Option<wgpu::Buffer>; 6],
+    accum: wgpu::Buffer,
+}
+
+impl GpuGradients {
+    /// The gradient buffers in the order of [`crate::gaussians::PARAM_NAMES`] (for
+    /// [`super::GpuAdam`]); `None` for frozen arrays.
+    pub fn buffers(&self) -> [Option<&wgpu::Buffer>; 6] {
+        self.arrays.each_ref().map(Option::as_ref)
+    }
+
+    /// Reads every gradient back (zeros for frozen arrays).
+    pub fn download(&self, ctx: &GpuContext) -> Gradients {
+        let mut g = GaussianGrads::zero_grads(self.len, self.sh_degree);
+        for (dst, buffer) in g.arrays_mut().into_iter().zip(&self.arrays) {
+            if let Some(b) = buffer {
+                let n = dst.len();
+                *dst = read(ctx, b, n);
+            }
+        }
+        Gradients {
+            gaussians: g,
+            background: self.background(ctx),
+        }
+    }
+
+    /// Reads dL/d(background RGB) back.
+    pub fn background(&self, ctx: &GpuContext) -> [f32; 3] {
+        let all: Vec<f32> = read(ctx, &self.accum, SPLAT_GRADS as usize * self.len + 3);
+        let bg = &all[all.len() - 3..];
+        [bg[0], bg[1], bg[2]]
+    }
+}
+
+/// The backward pass of [`super::render`], as [`crate::raster::backward`]: given the
+/// gradients of a loss with respect to the outputs, the gradients of the parameters `mask`
+/// asks for and of the background. `gaussians` must be the set that was rendered.
+///
+/// # Panics
+/// If the output gradients do not have the image's size or `gaussians` is not the rendered
+/// set (count differs).
+pub fn backward(
+    ctx: &GpuContext,
+    gaussians: &GpuGaussians,
+    rendered: &GpuRendered,
+    out_grads: &OutputGrads<'_, f32>,
+    mask: GradMask,
+) -> Result<GpuGradients, GpuError> {
+    let n = gaussians.len();
+    assert_eq!(
+        n as u32, rendered.view.scene[0],
+        "backward needs the Gaussian set that was rendered"
+    );
+    let pixels = rendered.width as usize * rendered.height as usize;
+    assert_eq!(
+        out_grads.rgb.len(),
+        3 * pixels,
+        "dL/dRGB has the wrong size"
+    );
+    for g in [out_grads.alpha, out_grads.depth].into_iter().flatten() {
+        assert_eq!(g.len(), pixels, "dL/dalpha or dL/ddepth has the wrong size");
+    }
+    let degree = gaussians.sh_degree();
+    let wanted = [
+        (mask.means, flags::MEANS),
+        (mask.scales, flags::SCALES),
+        (mask.rotations, flags::QUATS),
+        (mask.opacities, flags::OPACITY),
+        (mask.sh_dc, flags::SH_DC),
+        (mask.sh_rest && degree > 0, flags::SH_REST),
+    ];
+    let mut bits = wanted
+        .iter()
+        .filter(|(on, _)| *on)
+        .fold(0, |acc, (_, bit)| acc | bit);
+    let params_needed = bits;
+    if out_grads.alpha.is_some() {
+        bits |= flags::GRAD_ALPHA;
+    }
+    if out_grads.depth.is_some() {
+        bits |= flags::GRAD_DEPTH;
+    }
+    let mut view = rendered.view;
+    view.scene[3] = bits;
+    let view_buf = uniform(ctx, &view);
+
+    let grad_rgb = storage_from(ctx, "dL/dRGB", out_grads.rgb)?;
+    let placeholder = storage(ctx, "unused", 0)?;
+    let optional = |g: Option<&[f32]>, what: &str| match g {
+        Some(g) => storage_from(ctx, what, g).map(Some),
+        None => Ok(None),
+    };
+    let grad_alpha = optional(out_grads.alpha, "dL/dalpha")?;
+    let grad_depth = optional(out_grads.depth, "dL/ddepth")?;
+    let accum = storage(ctx, "splat gradients", 4 * (SPLAT_GRADS * n as u64 + 3))?;
+
+    let per_gaussian = [3, 3, 4, 1, 3, 3 * (sh_coeff_count(degree) - 1)];
+    let mut arrays: [Option<wgpu::Buffer>; 6] = Default::default();
+    for (k, ((on, _), width)) in wanted.iter().zip(per_gaussian).enumerate() {
+        if *on {
+            let name = crate::gaussians::PARAM_NAMES[k];
+            arrays[k] = Some(storage(
+                ctx,
+                &format!("gradient of {name}"),
+                4 * (width * n) as u64,
+            )?);
+        }
+    }
+
+    let mut encoder = ctx.encoder();
+    ctx.dispatch_2d(
+        &mut encoder,
+        KernelId::CompositeBackward,
+        &[
+            &view_buf,
+            &rendered.splats,
+            &rendered.tile_ids,
+            &rendered.ranges,
+            &rendered.final_t,
+            &rendered.n_contrib,
+            &grad_rgb,
+            grad_alpha.as_ref().unwrap_or(&placeholder),
+            grad_depth.as_ref().unwrap_or(&placeholder),
+            &accum,
+        ],
+        [view.size[2], view.size[3]],
+    );
+    if params_needed != 0 && n > 0 {
+        let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
+        let out = |k: usize| arrays[k].as_ref().unwrap_or(&placeholder);
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::ProjectBackward,
+            &[
+                &view_buf,
+                means,
+                scales,
+                quats,
+                opacities,
+                sh_dc,
+                sh_rest,
+                &accum,
+                out(0),
+                out(1),
+                out(2),
+                out(3),
+                out(4),
+                out(5),
+            ],
+            (n as u32).div_ceil(WORKGROUP),
+        );
+    }
+    ctx.submit(encoder);
+    Ok(GpuGradients {
+        len: n,
+        sh_degree: degree,
+        arrays,
+        accum,
+    })
+}

@@ -1,0 +1,301 @@
+//! The GPU device: adapter choice, the adapter's limits and features, compiled kernels, and
+//! dispatch grids that respect the per-dimension workgroup limit.
+
+use super::shaders::{Kernel, KernelId, Kernels};
+
+/// Which adapters may be used.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum AdapterChoice {
+    /// Real GPUs only (discrete, integrated or virtualised); software rasterizers are refused.
+    Hardware,
+    /// A real GPU when there is one, else a software device (Mesa's lavapipe): for tests and CI.
+    AllowSoftware,
+}
+
+/// Errors of the wgpu backend.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    /// No adapter of the kind asked for.
+    #[error(
+        "no {wanted} GPU adapter found (adapters seen: {seen}); on Linux install a Vulkan \
+         driver (Debian: mesa-vulkan-drivers, which includes the lavapipe software device)"
+    )]
+    NoAdapter {
+        /// What was asked for.
+        wanted: &'static str,
+        /// Every adapter found, by name and type.
+        seen: String,
+    },
+    /// The adapter refused to create a device.
+    #[error("GPU adapter {adapter}: {message}")]
+    Device {
+        /// The adapter.
+        adapter: String,
+        /// The error it gave.
+        message: String,
+    },
+    /// A scene or image too large for the device.
+    #[error(
+        "{what} needs {needed} bytes of GPU memory, more than {adapter} allows ({limit} bytes)"
+    )]
+    TooLarge {
+        /// What was being allocated.
+        what: String,
+        /// Bytes needed.
+        needed: u64,
+        /// The device's limit.
+        limit: u64,
+        /// The adapter.
+        adapter: String,
+    },
+    /// The device ran out of memory.
+    #[error("{what} needs {needed} bytes of GPU memory and {adapter} has no more")]
+    OutOfMemory {
+        /// What was being allocated.
+        what: String,
+        /// Bytes needed.
+        needed: u64,
+        /// The adapter.
+        adapter: String,
+    },
+}
+
+/// Options of a [`GpuContext`]; the defaults suit every use but tests of the fallbacks.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct GpuOptions {
+    /// Accumulate gradients with f32 atomic add where the adapter has it; false forces the
+    /// compare-exchange loop.
+    pub float_atomics: bool,
+    /// A lower limit on workgroups per dispatch dimension than the adapter's, to exercise
+    /// split dispatches on small scenes.
+    pub max_workgroups_per_dimension: Option<u32>,
+}
+
+impl Default for GpuOptions {
+    fn default() -> Self {
+        Self {
+            float_atomics: true,
+            max_workgroups_per_dimension: None,
+        }
+    }
+}
+
+/// Storage buffers the widest kernel binds (project_backward).
+const STORAGE_BUFFERS_NEEDED: u32 = 13;
+
+/// A wgpu device with the rasterizer's kernels compiled for it.
+pub struct GpuContext {
+    pub(crate) device: wgpu::Device,
+    pub(crate) queue: wgpu::Queue,
+    info: wgpu::AdapterInfo,
+    float_atomics: bool,
+    max_workgroups: u32,
+    max_binding: u64,
+    kernels: Kernels,
+}
+
+/// Preference of an adapter type: lower is better; `None` when the choice excludes it.
+fn rank(kind: wgpu::DeviceType, choice: AdapterChoice) -> Option<u8> {
+    match kind {
+        wgpu::DeviceType::DiscreteGpu => Some(0),
+        wgpu::DeviceType::IntegratedGpu => Some(1),
+        wgpu::DeviceType::VirtualGpu => Some(2),
+        wgpu::DeviceType::Other => Some(3),
+        wgpu::DeviceType::Cpu => (choice == AdapterChoice::AllowSoftware).then_some(4),
+    }
+}
+
+impl GpuContext {
+    /// Opens the best adapter `choice` allows, with f32 atomics where the adapter has them.
+    pub fn new(choice: AdapterChoice) -> Result<Self, GpuError> {
+        Self::with_options(choice, GpuOptions::default())
+    }
+
+    /// As [`GpuContext::new`] with explicit options.
+    pub fn with_options(choice: AdapterChoice, options: GpuOptions) -> Result<Self, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
+            backends: wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12,
+            ..wgpu::InstanceDescriptor::new_without_display_handle()
+        });
+        let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+        let seen = adapters
+            .iter()
+            .map(|a| {
+                let i = a.get_info();
+                format!("{} ({:?}, {:?})", i.name, i.device_type, i.backend)
+            })
+            .collect::<Vec<_>>()
+            .join(", ");
+        let adapter = adapters
+            .into_iter()
+            .filter_map(|a| rank(a.get_info().device_type, choice).map(|r| (r, a)))
+            .min_by_key(|(r, _)| *r)
+            .map(|(_, a)| a)
+            .ok_or_else(|| GpuError::NoAdapter {
+                wanted: match choice {
+                    AdapterChoice::Hardware => "hardware",
+                    AdapterChoice::AllowSoftware => "hardware or software",
+                },
+                seen: if seen.is_empty() { "none".into() } else { seen },
+            })?;
+        let info = adapter.get_info();
+        let limits = adapter.limits();
+        let device_err = |message: String| GpuError::Device {
+            adapter: info.name.clone(),
+            message,
+        };
+        if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS_NEEDED {
+            return Err(device_err(format!(
+                "binds at most {} storage buffers per shader stage, the rasterizer needs {}",
+                limits.max_storage_buffers_per_shader_stage, STORAGE_BUFFERS_NEEDED
+            )));
+        }
+        let float_atomics = options.float_atomics
+            && adapter
+                .features()
+                .contains(wgpu::Features::SHADER_FLOAT32_ATOMIC);
+        let features = if float_atomics {
+            wgpu::Features::SHADER_FLOAT32_ATOMIC
+        } else {
+            wgpu::Features::empty()
+        };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("gs-core"),
+            required_features: features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| device_err(e.to_string()))?;
+        let kernels = Kernels::new(&device, float_atomics);
+        Ok(Self {
+            device,
+            queue,
+            max_workgroups: options
+                .max_workgroups_per_dimension
+                .map_or(limits.max_compute_workgroups_per_dimension, |m| {
+                    m.clamp(1, limits.max_compute_workgroups_per_dimension)
+                }),
+            max_binding: limits
+                .max_storage_buffer_binding_size
+                .min(limits.max_buffer_size),
+            info,
+            float_atomics,
+            kernels,
+        })
+    }
+
+    /// The adapter's name, type and backend, e.g. for the `--device` report.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} ({:?}, {:?}{})",
+            self.info.name,
+            self.info.device_type,
+            self.info.backend,
+            if self.float_atomics {
+                ", f32 atomics"
+            } else {
+                ", compare-exchange accumulation"
+            }
+        )
+    }
+
+    /// True when the adapter is a software rasterizer (e.g. lavapipe).
+    pub fn is_software(&self) -> bool {
+        self.info.device_type == wgpu::DeviceType::Cpu
+    }
+
+    /// True when the backward pass accumulates with native f32 atomic add.
+    pub fn float_atomics(&self) -> bool {
+        self.float_atomics
+    }
+
+    pub(crate) fn kernel(&self, id: KernelId) -> &Kernel {
+        self.kernels.get(id)
+    }
+
+    /// The largest buffer one binding may hold, bytes.
+    pub(crate) fn max_binding(&self) -> u64 {
+        self.max_binding
+    }
+
+    pub(crate) fn adapter_name(&self) -> &str {
+        &self.info.name
+    }
+
+    /// A grid of `workgroups` workgroups, split over y past the per-dimension limit (kernels
+    /// skip the padding past their item count).
+    pub(crate) fn grid(&self, workgroups: u32) -> (u32, u32) {
+        if workgroups <= self.max_workgroups {
+            (workgroups.max(1), 1)
+        } else {
+            (
+                self.max_workgroups,
+                workgroups.div_ceil(self.max_workgroups),
+            )
+        }
+    }
+
+    /// Records `kernel` over `workgroups` workgroups (a 1D count, split as [`Self::grid`]).
+    pub(crate) fn dispatch(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        id: KernelId,
+        buffers: &[&wgpu::Buffer],
+        workgroups: u32,
+    ) {
+        let (x, y) = self.grid(workgroups);
+        self.dispatch_2d(encoder, id, buffers, [x, y]);
+    }
+
+    /// Records `kernel` over an explicit `[x, y]` grid of workgroups.
+    pub(crate) fn dispatch_2d(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        id: KernelId,
+        buffers: &[&wgpu::Buffer],
+        grid: [u32; 2],
+    ) {
+        let kernel = self.kernel(id);
+        let bind = kernel.bind(&self.device, buffers);
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(kernel.name()),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(kernel.pipeline());
+        pass.set_bind_group(0, &bind, &[]);
+        pass.dispatch_workgroups(grid[0], grid[1], 1);
+    }
+
+    /// Blocks until the GPU has finished all submitted work (for timings).
+    pub fn wait(&self) {
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .expect("waiting for the GPU");
+    }
+
+    /// A new command encoder.
+    pub(crate) fn encoder(&self) -> wgpu::CommandEncoder {
+        self.device
+            .create_command_encoder(&wgpu::CommandEncoderDescriptor { label: None })
+    }
+
+    /// Submits `encoder`'s commands.
+    pub(crate) fn submit(&self, encoder: wgpu::CommandEncoder) {
+        self.queue.submit([encoder.finish()]);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn software_adapters_only_when_allowed() {
+        assert_eq!(rank(wgpu::DeviceType::Cpu, AdapterChoice::Hardware), None);
+        assert!(rank(wgpu::DeviceType::Cpu, AdapterChoice::AllowSoftware).is_some());
+        assert!(
+            rank(wgpu::DeviceType::DiscreteGpu, AdapterChoice::AllowSoftware)
+                < rank(wgpu::DeviceType::Cpu, AdapterChoice::AllowSoftware)
+        );
+    }
+}

@@ -1,0 +1,224 @@
+//! The forward pass on the GPU: projection and SH colour, depth sort, tile binning, sort by
+//! tile, compositing. Same outputs as [`crate::raster::render`].
+
+use super::buffers::{read, storage, uniform, GpuGaussians};
+use super::device::{GpuContext, GpuError};
+use super::scan::{prefix_sum, PassUniform};
+use super::shaders::KernelId;
+use super::sort::radix_sort;
+use crate::camera::Camera;
+use crate::image::Image;
+use crate::raster::project::CameraT;
+use crate::raster::TILE_SIZE;
+
+/// Threads of the per-Gaussian and per-item kernels.
+pub(crate) const WORKGROUP: u32 = 256;
+
+/// The uniform every rasterizer kernel reads (`View` of shaders/helpers.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+pub(crate) struct ViewUniform {
+    rot: [[f32; 4]; 3],
+    centre: [f32; 4],
+    intrinsics: [f32; 4],
+    lim: [f32; 4],
+    background: [f32; 4],
+    /// Width, height, tiles per row, tile rows.
+    pub size: [u32; 4],
+    /// Gaussian count, SH degree, SH coefficients per channel minus one, gradient flags.
+    pub scene: [u32; 4],
+}
+
+impl ViewUniform {
+    fn new(camera: &Camera, background: [f32; 3], gaussians: &GpuGaussians) -> Self {
+        let cam = CameraT::<f32>::new(camera);
+        let (tiles_x, tiles_y) = tiles(camera);
+        let rot = std::array::from_fn(|r| {
+            [
+                cam.rotation[r][0],
+                cam.rotation[r][1],
+                cam.rotation[r][2],
+                cam.translation[r],
+            ]
+        });
+        let degree = gaussians.sh_degree() as u32;
+        Self {
+            rot,
+            centre: [cam.centre[0], cam.centre[1], cam.centre[2], 0.0],
+            intrinsics: [cam.fx, cam.fy, cam.cx, cam.cy],
+            lim: cam.lim,
+            background: [background[0], background[1], background[2], 0.0],
+            size: [camera.width, camera.height, tiles_x, tiles_y],
+            scene: [
+                gaussians.len() as u32,
+                degree,
+                (degree + 1) * (degree + 1) - 1,
+                0,
+            ],
+        }
+    }
+}
+
+/// Tiles per row and tile rows of the camera's image.
+fn tiles(camera: &Camera) -> (u32, u32) {
+    let t = TILE_SIZE as u32;
+    (camera.width.div_ceil(t), camera.height.div_ceil(t))
+}
+
+/// A render on the GPU: its outputs and what [`super::backward`] needs stay there until read.
+pub struct GpuRendered {
+    pub(crate) width: u32,
+    pub(crate) height: u32,
+    pub(crate) view: ViewUniform,
+    pairs: u32,
+    pub(crate) splats: wgpu::Buffer,
+    pub(crate) tile_ids: wgpu::Buffer,
+    pub(crate) ranges: wgpu::Buffer,
+    rgb: wgpu::Buffer,
+    alpha: wgpu::Buffer,
+    depth: wgpu::Buffer,
+    pub(crate) final_t: wgpu::Buffer,
+    pub(crate) n_contrib: wgpu::Buffer,
+}
+
+impl GpuRendered {
+    /// Reads the RGB image back (composited over the background, HWC).
+    pub fn image(&self, ctx: &GpuContext) -> Image {
+        Image {
+            width: self.width,
+            height: self.height,
+            data: read(ctx, &self.rgb, 3 * self.pixels()),
+        }
+    }
+
+    /// Reads the accumulated opacity `1 - T_final` back, `[H, W]`.
+    pub fn alpha(&self, ctx: &GpuContext) -> Vec<f32> {
+        read(ctx, &self.alpha, self.pixels())
+    }
+
+    /// Reads the accumulated depth back, `[H, W]`.
+    pub fn depth(&self, ctx: &GpuContext) -> Vec<f32> {
+        read(ctx, &self.depth, self.pixels())
+    }
+
+    /// Number of (tile, Gaussian) pairs composited.
+    pub fn intersection_count(&self) -> usize {
+        self.pairs as usize
+    }
+
+    fn pixels(&self) -> usize {
+        self.width as usize * self.height as usize
+    }
+}
+
+/// Renders `gaussians` through `camera` over `background`, as [`crate::raster::render`] does.
+/// Waits for the GPU once, to size the tile lists; the outputs stay on the GPU.
+///
+/// # Panics
+/// If the camera is invalid ([`Camera::validate`]) or the scene has more than `u32::MAX`
+/// Gaussians.
+pub fn render(
+    ctx: &GpuContext,
+    gaussians: &GpuGaussians,
+    camera: &Camera,
+    background: [f32; 3],
+) -> Result<GpuRendered, GpuError> {
+    if let Err(e) = camera.validate() {
+        panic!("{e}");
+    }
+    let n = u32::try_from(gaussians.len()).expect("at most u32::MAX Gaussians");
+    let view = ViewUniform::new(camera, background, gaussians);
+    let view_buf = uniform(ctx, &view);
+    let (tiles_x, tiles_y) = tiles(camera);
+    let n_tiles = tiles_x * tiles_y;
+    let bytes = |count: u32, size: u64| size * u64::from(count);
+
+    let splats = storage(ctx, "splats", bytes(n, 64))?;
+    let counts = storage(ctx, "tile counts", bytes(n, 4))?;
+    let mut pairs = 0;
+    let mut order = storage(ctx, "depth order", bytes(n, 4))?;
+    if n > 0 {
+        let depth_keys = storage(ctx, "depth keys", bytes(n, 4))?;
+        let mut encoder = ctx.encoder();
+        let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::ProjectForward,
+            &[
+                &view_buf,
+                means,
+                scales,
+                quats,
+                opacities,
+                sh_dc,
+                sh_rest,
+                &splats,
+                &depth_keys,
+                &order,
+            ],
+            n.div_ceil(WORKGROUP),
+        );
+        (_, order) = radix_sort(ctx, &mut encoder, depth_keys, order, n, 32)?;
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::BinCounts,
+            &[&view_buf, &splats, &order, &counts],
+            n.div_ceil(WORKGROUP),
+        );
+        let total = prefix_sum(ctx, &mut encoder, &counts, n)?;
+        ctx.submit(encoder);
+        pairs = read::<u32>(ctx, &total, 1)[0];
+    }
+
+    let mut encoder = ctx.encoder();
+    let mut tile_keys = storage(ctx, "tile keys", bytes(pairs, 4))?;
+    let mut tile_ids = storage(ctx, "tile lists", bytes(pairs, 4))?;
+    let ranges = storage(ctx, "tile ranges", bytes(n_tiles, 8))?;
+    if pairs > 0 {
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::BinTiles,
+            &[&view_buf, &splats, &order, &counts, &tile_keys, &tile_ids],
+            n.div_ceil(WORKGROUP),
+        );
+        let tile_bits = u32::BITS - (n_tiles - 1).leading_zeros();
+        (tile_keys, tile_ids) =
+            radix_sort(ctx, &mut encoder, tile_keys, tile_ids, pairs, tile_bits)?;
+        let params = uniform(ctx, &PassUniform::new(pairs, 0));
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::TileRanges,
+            &[&params, &tile_keys, &ranges],
+            pairs.div_ceil(WORKGROUP),
+        );
+    }
+    let pixels = camera.width * camera.height;
+    let rgb = storage(ctx, "image", bytes(pixels, 12))?;
+    let alpha = storage(ctx, "alpha", bytes(pixels, 4))?;
+    let depth = storage(ctx, "depth", bytes(pixels, 4))?;
+    let final_t = storage(ctx, "final transmittance", bytes(pixels, 4))?;
+    let n_contrib = storage(ctx, "contributor counts", bytes(pixels, 4))?;
+    ctx.dispatch_2d(
+        &mut encoder,
+        KernelId::CompositeForward,
+        &[
+            &view_buf, &splats, &tile_ids, &ranges, &rgb, &alpha, &depth, &final_t, &n_contrib,
+        ],
+        [tiles_x, tiles_y],
+    );
+    ctx.submit(encoder);
+    Ok(GpuRendered {
+        width: camera.width,
+        height: camera.height,
+        view,
+        pairs,
+        splats,
+        tile_ids,
+        ranges,
+        rgb,
+        alpha,
+        depth,
+        final_t,
+        n_contrib,
+    })
+}

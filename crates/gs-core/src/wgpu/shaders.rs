@@ -1,0 +1,315 @@
+//! The WGSL kernels, compiled into the crate from the repository's `shaders/`, and the tiny
+//! import mechanism they share helpers with.
+//!
+//! Every kernel file has one compute entry point, `main`. A line `//#import NAME.wgsl` is
+//! replaced by the text of `shaders/NAME.wgsl` (imports nest; a file imported twice is
+//! included once). One name is virtual: `accumulate.wgsl` stands for
+//! `accumulate_float_atomic.wgsl` on devices with f32 atomic add and for
+//! `accumulate_cas.wgsl` (a compare-exchange loop) on the others.
+
+/// Every WGSL file, by name.
+const FILES: &[(&str, &str)] = &[
+    (
+        "helpers.wgsl",
+        include_str!("../../../../shaders/helpers.wgsl"),
+    ),
+    ("sh.wgsl", include_str!("../../../../shaders/sh.wgsl")),
+    (
+        "project.wgsl",
+        include_str!("../../../../shaders/project.wgsl"),
+    ),
+    (
+        "accumulate_float_atomic.wgsl",
+        include_str!("../../../../shaders/accumulate_float_atomic.wgsl"),
+    ),
+    (
+        "accumulate_cas.wgsl",
+        include_str!("../../../../shaders/accumulate_cas.wgsl"),
+    ),
+    (
+        "project_forward.wgsl",
+        include_str!("../../../../shaders/project_forward.wgsl"),
+    ),
+    (
+        "bin_counts.wgsl",
+        include_str!("../../../../shaders/bin_counts.wgsl"),
+    ),
+    (
+        "bin_tiles.wgsl",
+        include_str!("../../../../shaders/bin_tiles.wgsl"),
+    ),
+    (
+        "prefix_sum_blocks.wgsl",
+        include_str!("../../../../shaders/prefix_sum_blocks.wgsl"),
+    ),
+    (
+        "prefix_sum_add.wgsl",
+        include_str!("../../../../shaders/prefix_sum_add.wgsl"),
+    ),
+    (
+        "radix_sort_count.wgsl",
+        include_str!("../../../../shaders/radix_sort_count.wgsl"),
+    ),
+    (
+        "radix_sort_scatter.wgsl",
+        include_str!("../../../../shaders/radix_sort_scatter.wgsl"),
+    ),
+    (
+        "tile_ranges.wgsl",
+        include_str!("../../../../shaders/tile_ranges.wgsl"),
+    ),
+    (
+        "composite_forward.wgsl",
+        include_str!("../../../../shaders/composite_forward.wgsl"),
+    ),
+    (
+        "composite_backward.wgsl",
+        include_str!("../../../../shaders/composite_backward.wgsl"),
+    ),
+    (
+        "project_backward.wgsl",
+        include_str!("../../../../shaders/project_backward.wgsl"),
+    ),
+    (
+        "adam_step.wgsl",
+        include_str!("../../../../shaders/adam_step.wgsl"),
+    ),
+];
+
+const IMPORT: &str = "//#import ";
+
+fn file(name: &str) -> &'static str {
+    FILES
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, text)| *text)
+        .unwrap_or_else(|| panic!("no shader file {name}"))
+}
+
+/// The text of kernel file `name` with its imports resolved.
+pub(crate) fn source(name: &str, float_atomics: bool) -> String {
+    fn expand(name: &str, float_atomics: bool, done: &mut Vec<String>, out: &mut String) {
+        let real = match name {
+            "accumulate.wgsl" if float_atomics => "accumulate_float_atomic.wgsl",
+            "accumulate.wgsl" => "accumulate_cas.wgsl",
+            other => other,
+        };
+        if done.iter().any(|d| d == real) {
+            return;
+        }
+        done.push(real.to_string());
+        for line in file(real).lines() {
+            match line.trim().strip_prefix(IMPORT) {
+                Some(import) => expand(import.trim(), float_atomics, done, out),
+                None => {
+                    out.push_str(line);
+                    out.push('\n');
+                }
+            }
+        }
+    }
+    let mut out = String::new();
+    expand(name, float_atomics, &mut Vec::new(), &mut out);
+    out
+}
+
+/// How a kernel sees one binding.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Access {
+    /// A uniform buffer.
+    Uniform,
+    /// A read-only storage buffer.
+    Read,
+    /// A read-write storage buffer.
+    Write,
+}
+
+use Access::{Read as R, Uniform as U, Write as W};
+
+/// The kernels, each named after its cpu twin (see the file's header).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum KernelId {
+    ProjectForward,
+    BinCounts,
+    BinTiles,
+    PrefixSumBlocks,
+    PrefixSumAdd,
+    RadixSortCount,
+    RadixSortScatter,
+    TileRanges,
+    CompositeForward,
+    CompositeBackward,
+    ProjectBackward,
+    AdamStep,
+}
+
+impl KernelId {
+    const ALL: [KernelId; 12] = [
+        KernelId::ProjectForward,
+        KernelId::BinCounts,
+        KernelId::BinTiles,
+        KernelId::PrefixSumBlocks,
+        KernelId::PrefixSumAdd,
+        KernelId::RadixSortCount,
+        KernelId::RadixSortScatter,
+        KernelId::TileRanges,
+        KernelId::CompositeForward,
+        KernelId::CompositeBackward,
+        KernelId::ProjectBackward,
+        KernelId::AdamStep,
+    ];
+
+    /// The kernel's file and its bindings `0..` in order.
+    fn spec(self) -> (&'static str, &'static [Access]) {
+        match self {
+            KernelId::ProjectForward => ("project_forward.wgsl", &[U, R, R, R, R, R, R, W, W, W]),
+            KernelId::BinCounts => ("bin_counts.wgsl", &[U, R, R, W]),
+            KernelId::BinTiles => ("bin_tiles.wgsl", &[U, R, R, R, W, W]),
+            KernelId::PrefixSumBlocks => ("prefix_sum_blocks.wgsl", &[U, W, W]),
+            KernelId::PrefixSumAdd => ("prefix_sum_add.wgsl", &[U, W, R]),
+            KernelId::RadixSortCount => ("radix_sort_count.wgsl", &[U, R, W]),
+            KernelId::RadixSortScatter => ("radix_sort_scatter.wgsl", &[U, R, R, R, W, W]),
+            KernelId::TileRanges => ("tile_ranges.wgsl", &[U, R, W]),
+            KernelId::CompositeForward => ("composite_forward.wgsl", &[U, R, R, R, W, W, W, W, W]),
+            KernelId::CompositeBackward => {
+                ("composite_backward.wgsl", &[U, R, R, R, R, R, R, R, R, W])
+            }
+            KernelId::ProjectBackward => (
+                "project_backward.wgsl",
+                &[U, R, R, R, R, R, R, R, W, W, W, W, W, W],
+            ),
+            KernelId::AdamStep => ("adam_step.wgsl", &[U, W, R, W, W]),
+        }
+    }
+}
+
+/// A compiled kernel and the layout of its bindings.
+pub(crate) struct Kernel {
+    name: &'static str,
+    layout: wgpu::BindGroupLayout,
+    pipeline: wgpu::ComputePipeline,
+}
+
+impl Kernel {
+    fn new(device: &wgpu::Device, id: KernelId, float_atomics: bool) -> Self {
+        let (name, access) = id.spec();
+        let entries: Vec<wgpu::BindGroupLayoutEntry> = access
+            .iter()
+            .enumerate()
+            .map(|(i, a)| wgpu::BindGroupLayoutEntry {
+                binding: i as u32,
+                visibility: wgpu::ShaderStages::COMPUTE,
+                ty: wgpu::BindingType::Buffer {
+                    ty: match a {
+                        Access::Uniform => wgpu::BufferBindingType::Uniform,
+                        Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                        Access::Write => wgpu::BufferBindingType::Storage { read_only: false },
+                    },
+                    has_dynamic_offset: false,
+                    min_binding_size: None,
+                },
+                count: None,
+            })
+            .collect();
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some(name),
+            entries: &entries,
+        });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some(name),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
+        let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some(name),
+            source: wgpu::ShaderSource::Wgsl(source(name, float_atomics).into()),
+        });
+        let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(name),
+            layout: Some(&pipeline_layout),
+            module: &module,
+            entry_point: Some("main"),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        Self {
+            name,
+            layout,
+            pipeline,
+        }
+    }
+
+    pub(crate) fn name(&self) -> &'static str {
+        self.name
+    }
+
+    pub(crate) fn pipeline(&self) -> &wgpu::ComputePipeline {
+        &self.pipeline
+    }
+
+    /// A bind group of `buffers`, one per binding in order.
+    ///
+    /// # Panics
+    /// If the number of buffers is not the kernel's number of bindings.
+    pub(crate) fn bind(&self, device: &wgpu::Device, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = buffers
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry {
+                binding: i as u32,
+                resource: b.as_entire_binding(),
+            })
+            .collect();
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.name),
+            layout: &self.layout,
+            entries: &entries,
+        })
+    }
+}
+
+/// Every kernel, compiled for one device.
+pub(crate) struct Kernels(Vec<Kernel>);
+
+impl Kernels {
+    pub(crate) fn new(device: &wgpu::Device, float_atomics: bool) -> Self {
+        Self(
+            KernelId::ALL
+                .iter()
+                .map(|&id| Kernel::new(device, id, float_atomics))
+                .collect(),
+        )
+    }
+
+    pub(crate) fn get(&self, id: KernelId) -> &Kernel {
+        &self.0[KernelId::ALL
+            .iter()
+            .position(|&k| k == id)
+            .expect("every kernel is compiled")]
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn imports_resolve_once_and_pick_the_accumulation_variant() {
+        for id in KernelId::ALL {
+            let (name, _) = id.spec();
+            for atomics in [false, true] {
+                let text = source(name, atomics);
+                assert!(!text.contains(IMPORT), "{name}: unresolved import");
+                assert!(text.contains("fn main("), "{name}: no entry point");
+                assert!(
+                    text.matches("const TILE_SIZE").count() <= 1,
+                    "{name}: helpers imported twice"
+                );
+            }
+        }
+        let cas = source("composite_backward.wgsl", false);
+        let native = source("composite_backward.wgsl", true);
+        assert!(cas.contains("atomicCompareExchangeWeak") && !cas.contains("atomic<f32>"));
+        assert!(native.contains("atomic<f32>") && !native.contains("atomicCompareExchangeWeak"));
+    }
+}

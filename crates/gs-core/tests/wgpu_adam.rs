@@ -1,0 +1,86 @@
+//! The wgpu backend's Adam against gs-core's cpu Adam, step for step, with a frozen group and
+//! both schedules. Needs a GPU adapter (lavapipe in CI).
+#![cfg(feature = "wgpu")]
+
+mod common;
+
+use common::{gpu, weights};
+use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
+use gs_core::wgpu::GpuAdam;
+
+fn f32s(v: Vec<f64>) -> Vec<f32> {
+    v.into_iter().map(|x| x as f32).collect()
+}
+
+#[test]
+fn matches_the_cpu_adam_step_for_step() {
+    let ctx = gpu();
+    let groups = vec![
+        GroupConfig::new(
+            "means",
+            LrSchedule::Exponential {
+                start: 1.6e-4,
+                end: 1.6e-6,
+                steps: 7,
+            },
+        ),
+        GroupConfig::frozen("scales"),
+        GroupConfig::new("colours", LrSchedule::Constant(0.0025)),
+    ];
+    // More than one workgroup of 256 in the first group.
+    let lens = [1000usize, 30, 77];
+    let hyper = AdamHyper::default();
+    let mut cpu = Adam::new(groups.clone(), &lens, hyper);
+    let mut gpu_adam = GpuAdam::new(ctx, groups, &lens, hyper).expect("moments");
+    let mut params: Vec<Vec<f32>> = lens
+        .iter()
+        .enumerate()
+        .map(|(i, &n)| f32s(weights(100 + i as u64, n)))
+        .collect();
+    let buffers: Vec<wgpu::Buffer> = params
+        .iter()
+        .map(|p| gs_core::wgpu::upload_f32(ctx, p).expect("upload"))
+        .collect();
+    for step in 0..10u64 {
+        let grads: Vec<Vec<f32>> = lens
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| {
+                // Zero gradients at some steps and entries, as frozen pixels give.
+                let scale = if step == 3 { 0.0 } else { 1.0 + step as f64 };
+                f32s(
+                    weights(1000 * step + i as u64, n)
+                        .iter()
+                        .map(|v| v * scale)
+                        .collect(),
+                )
+            })
+            .collect();
+        let grad_buffers: Vec<wgpu::Buffer> = grads
+            .iter()
+            .map(|g| gs_core::wgpu::upload_f32(ctx, g).expect("upload"))
+            .collect();
+        {
+            let mut slices: Vec<&mut [f32]> = params.iter_mut().map(|p| &mut p[..]).collect();
+            let grad_slices: Vec<&[f32]> = grads.iter().map(|g| &g[..]).collect();
+            cpu.step(&mut slices, &grad_slices);
+        }
+        let param_refs: Vec<&wgpu::Buffer> = buffers.iter().collect();
+        let grad_refs = [Some(&grad_buffers[0]), None, Some(&grad_buffers[2])];
+        gpu_adam.step(ctx, &param_refs, &grad_refs);
+        for (i, (want, buffer)) in params.iter().zip(&buffers).enumerate() {
+            let got = gs_core::wgpu::read_f32(ctx, buffer, want.len());
+            for (k, (a, b)) in want.iter().zip(&got).enumerate() {
+                assert!(
+                    (a - b).abs() <= 1e-7 * a.abs().max(1e-3),
+                    "step {step}, group {i}, entry {k}: cpu {a} gpu {b}"
+                );
+            }
+        }
+    }
+    assert_eq!(gpu_adam.step_count(), cpu.step_count());
+    assert!(
+        gpu_adam.moments(ctx, 1).is_none(),
+        "a frozen group has no moments"
+    );
+}

@@ -1,0 +1,268 @@
+//! The wgpu backend's backward pass against the cpu backend's, for every parameter kind, on
+//! random scenes of every SH degree and on each degenerate case of docs/conventions.md, with
+//! native f32 atomics and with the compare-exchange fallback, and with frozen groups. Needs a
+//! GPU adapter (lavapipe in CI): without one these tests fail, naming what to install.
+#![cfg(feature = "wgpu")]
+
+mod common;
+
+use common::{front_camera, gpu, oblique_camera, random_scene, weights};
+use gs_core::gaussians::PARAM_NAMES;
+use gs_core::raster::{backward, render, GradMask, OutputGrads};
+use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
+use gs_core::{Camera, GaussianSet};
+
+fn f32s(v: Vec<f64>) -> Vec<f32> {
+    v.into_iter().map(|x| x as f32).collect()
+}
+
+/// Entries of `got` within 1e-4 of the largest magnitude of `want`, and the whole array within
+/// 1e-4 relative (f32 sums in another order, nothing more).
+fn assert_close(what: &str, want: &[f32], got: &[f32]) {
+    assert_eq!(want.len(), got.len(), "{what}: sizes");
+    let max = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let norm = want.iter().map(|v| v * v).sum::<f32>().sqrt();
+    let diff: Vec<f32> = want.iter().zip(got).map(|(a, b)| a - b).collect();
+    let worst = diff.iter().fold(0.0f32, |m, d| m.max(d.abs()));
+    let rel = diff.iter().map(|d| d * d).sum::<f32>().sqrt() / norm.max(1e-30);
+    assert!(
+        worst <= 1e-4 * max.max(1e-30) && rel <= 1e-4,
+        "{what}: worst entry {worst:e} (largest {max:e}), relative {rel:e}\ncpu {want:?}\ngpu {got:?}"
+    );
+}
+
+/// Renders and differentiates `case` on both backends with random output gradients (RGB, and
+/// alpha and depth when `all_outputs`), and checks every gradient `mask` asks for.
+fn check(
+    case: &str,
+    ctx: &GpuContext,
+    g: &GaussianSet,
+    cam: &Camera,
+    mask: GradMask,
+    all_outputs: bool,
+) {
+    let bg = [0.2, 0.5, 0.9];
+    let n = cam.pixel_count();
+    let rgb = f32s(weights(11, 3 * n));
+    let alpha = f32s(weights(12, n));
+    let depth: Vec<f32> = f32s(weights(13, n)).iter().map(|v| 0.1 * v).collect();
+    let out = OutputGrads {
+        rgb: &rgb,
+        alpha: all_outputs.then_some(&alpha[..]),
+        depth: all_outputs.then_some(&depth[..]),
+    };
+    let cpu_r = render(g, cam, bg);
+    let cpu = backward(g, cam, &cpu_r, &out, mask);
+    let gg = GpuGaussians::upload(ctx, g).expect("upload");
+    let r = gpu_backend::render(ctx, &gg, cam, bg).expect("render");
+    let gpu = gpu_backend::backward(ctx, &gg, &r, &out, mask)
+        .expect("backward")
+        .download(ctx);
+    for (name, (want, got)) in PARAM_NAMES.iter().zip(
+        cpu.gaussians
+            .arrays()
+            .into_iter()
+            .zip(gpu.gaussians.arrays()),
+    ) {
+        assert_close(&format!("{case}: {name}"), want, got);
+    }
+    assert_close(
+        &format!("{case}: background"),
+        &cpu.background,
+        &gpu.background,
+    );
+}
+
+#[test]
+fn random_scenes_every_degree() {
+    let ctx = gpu();
+    for degree in 0..=3 {
+        let g = random_scene::<f32>(30 + degree as u64, 40, degree);
+        let case = format!("degree {degree}");
+        check(&case, ctx, &g, &oblique_camera(48, 40), GradMask::ALL, true);
+        check(&case, ctx, &g, &front_camera(37, 29), GradMask::ALL, false);
+    }
+}
+
+#[test]
+fn compare_exchange_accumulation_gives_the_same_gradients() {
+    let ctx = GpuContext::with_options(
+        AdapterChoice::AllowSoftware,
+        GpuOptions {
+            float_atomics: false,
+            ..GpuOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("this test needs a GPU adapter: {e}"));
+    assert!(!ctx.float_atomics());
+    for degree in [0, 3] {
+        let g = random_scene::<f32>(50 + degree as u64, 40, degree);
+        check(
+            "cas",
+            &ctx,
+            &g,
+            &oblique_camera(48, 40),
+            GradMask::ALL,
+            true,
+        );
+    }
+}
+
+#[test]
+fn frozen_groups_get_zero_and_the_rest_is_unchanged() {
+    let ctx = gpu();
+    let g = random_scene::<f32>(8, 30, 2);
+    let cam = oblique_camera(40, 30);
+    check("colours", ctx, &g, &cam, GradMask::COLORS, true);
+    let scales_only = GradMask {
+        means: false,
+        rotations: false,
+        opacities: false,
+        sh_dc: false,
+        sh_rest: false,
+        ..GradMask::ALL
+    };
+    check("scales only", ctx, &g, &cam, scales_only, true);
+    let opacity_and_rest = GradMask {
+        opacities: true,
+        sh_rest: true,
+        ..GradMask::COLORS
+    };
+    check(
+        "opacity and sh_rest",
+        ctx,
+        &g,
+        &cam,
+        opacity_and_rest,
+        false,
+    );
+}
+
+#[test]
+fn many_gaussians() {
+    let ctx = gpu();
+    let mut g = random_scene::<f32>(5, 3000, 1);
+    for v in &mut g.log_scales {
+        *v -= 1.0;
+    }
+    check(
+        "3000 Gaussians",
+        ctx,
+        &g,
+        &oblique_camera(120, 90),
+        GradMask::ALL,
+        true,
+    );
+}
+
+/// The scenes of tests/gradients.rs: one degenerate Gaussian and a normal one behind it.
+fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet {
+    let mut g = random_scene::<f64>(42, 2, 2);
+    g.means[3..6].copy_from_slice(&[0.1, -0.1, 0.6]);
+    g.log_scales[3..6].copy_from_slice(&[-1.0, -1.2, -1.1]);
+    g.opacity_logits[1] = 0.5;
+    g.means[0..3].copy_from_slice(&[-0.05, 0.05, 0.0]);
+    edit(&mut g);
+    g.cast()
+}
+
+#[test]
+fn degenerate_cases() {
+    let ctx = gpu();
+    let cam = front_camera(24, 24);
+    let cases: Vec<(&str, GaussianSet)> = vec![
+        (
+            "near-zero scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[-18.0, -19.0, -20.0])),
+        ),
+        (
+            "huge scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[2.5, 2.0, 3.0])),
+        ),
+        (
+            "behind the camera",
+            degenerate_scene(|g| g.means[0..3].copy_from_slice(&[0.0, 0.0, -6.0])),
+        ),
+        (
+            "straddling the near plane",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
+                g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
+            }),
+        ),
+        (
+            "opacity near zero",
+            degenerate_scene(|g| g.opacity_logits[0] = -5.3),
+        ),
+        (
+            "opacity near one",
+            degenerate_scene(|g| g.opacity_logits[0] = 9.0),
+        ),
+        (
+            "overlapping at equal depth",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.05, 0.0, 0.3]);
+                g.means[3..6].copy_from_slice(&[-0.05, 0.02, 0.3]);
+            }),
+        ),
+        (
+            "centre outside the Jacobian clamp",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[2.8, 0.1, 0.0]);
+                g.log_scales[0..3].copy_from_slice(&[0.4, 0.3, 0.2]);
+            }),
+        ),
+    ];
+    for (name, g) in cases {
+        check(name, ctx, &g, &cam, GradMask::ALL, true);
+    }
+    let flat = degenerate_scene(|g| {
+        g.log_scales[0..3].copy_from_slice(&[-1.0, -1.0, -17.0]);
+        g.quats[0..4].copy_from_slice(&[1.0, 0.0, 1.0, 0.0]);
+    });
+    let side = Camera::look_at([-4.0, 0.0, 0.3], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 24, 24).unwrap();
+    check("flat, seen edge-on", ctx, &flat, &side, GradMask::ALL, true);
+
+    let mut stacked = random_scene::<f32>(5, 5, 1);
+    for i in 0..5 {
+        stacked.means[3 * i..3 * i + 3].copy_from_slice(&[
+            0.02 * i as f32,
+            -0.01 * i as f32,
+            0.2 * i as f32,
+        ]);
+        stacked.log_scales[3 * i..3 * i + 3].copy_from_slice(&[-1.1, -1.2, -1.0]);
+        stacked.opacity_logits[i] = 3.0;
+    }
+    check(
+        "pixels that stop early",
+        ctx,
+        &stacked,
+        &cam,
+        GradMask::ALL,
+        true,
+    );
+}
+
+#[test]
+fn non_finite_and_extreme_parameters_get_zero_gradient() {
+    let ctx = gpu();
+    let mut g = random_scene::<f32>(21, 12, 3);
+    g.means[0] = f32::NAN;
+    g.log_scales[3] = f32::INFINITY;
+    g.quats[8..12].fill(0.0);
+    g.opacity_logits[3] = f32::NEG_INFINITY;
+    g.sh_rest[4 * 45] = f32::NAN;
+    g.means[15..18].copy_from_slice(&[1e30, -1e30, 1e30]);
+    g.log_scales[18..21].fill(100.0);
+    g.log_scales[21..24].fill(-100.0);
+    g.opacity_logits[8] = 1e30;
+    g.opacity_logits[9] = -1e30;
+    check(
+        "non-finite",
+        ctx,
+        &g,
+        &oblique_camera(48, 40),
+        GradMask::ALL,
+        true,
+    );
+}

@@ -1,0 +1,206 @@
+//! The wgpu backend's forward pass against the cpu backend, on random scenes of every SH degree
+//! and on each degenerate case of docs/conventions.md. Needs a GPU adapter (lavapipe in CI):
+//! without one these tests fail, naming what to install.
+#![cfg(feature = "wgpu")]
+
+mod common;
+
+use common::{front_camera, gpu, oblique_camera, random_scene};
+use gs_core::raster::render;
+use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
+use gs_core::{Camera, GaussianSet};
+
+/// Renders `case` on both backends and checks that the image, alpha and depth agree.
+fn check(case: &str, g: &GaussianSet, cam: &Camera, background: [f32; 3], ctx: &GpuContext) {
+    let cpu = render(g, cam, background);
+    let gg = GpuGaussians::upload(ctx, g).expect("upload");
+    let r = gpu_backend::render(ctx, &gg, cam, background).expect("render");
+    assert!(
+        r.intersection_count() >= cpu.intersection_count(),
+        "the GPU lists {} tile pairs, fewer than the cpu backend's {}",
+        r.intersection_count(),
+        cpu.intersection_count()
+    );
+    let pairs = [
+        ("image", cpu.image.data.clone(), r.image(ctx).data),
+        ("alpha", cpu.alpha.clone(), r.alpha(ctx)),
+        ("depth", cpu.depth.clone(), r.depth(ctx)),
+    ];
+    for (name, want, got) in pairs {
+        assert_eq!(want.len(), got.len(), "{name} size");
+        let (mut worst, mut at) = (0.0f32, 0);
+        for (i, (a, b)) in want.iter().zip(&got).enumerate() {
+            let scale = if name == "depth" { 1.0 + a.abs() } else { 1.0 };
+            let d = (a - b).abs() / scale;
+            if !(d <= worst) {
+                worst = d;
+                at = i;
+            }
+        }
+        assert!(
+            worst < 1e-5,
+            "{case}, {name}: worst difference {worst:e} at {at}: cpu {} gpu {}",
+            want[at],
+            got[at]
+        );
+    }
+}
+
+#[test]
+fn random_scenes_every_degree() {
+    let ctx = gpu();
+    for degree in 0..=3 {
+        let g = random_scene::<f32>(70 + degree as u64, 60, degree);
+        let case = format!("degree {degree}");
+        check(&case, &g, &oblique_camera(64, 48), [0.3, 0.6, 0.9], ctx);
+        check(&case, &g, &front_camera(50, 37), [0.0; 3], ctx);
+    }
+}
+
+#[test]
+fn many_gaussians_span_several_sort_and_prefix_sum_blocks() {
+    // 3000 Gaussians and their tile pairs exceed one 1024-item block of every GPU pass.
+    let ctx = gpu();
+    let mut g = random_scene::<f32>(5, 3000, 1);
+    for v in &mut g.log_scales {
+        *v -= 1.0;
+    }
+    check(
+        "3000 Gaussians",
+        &g,
+        &oblique_camera(160, 120),
+        [1.0; 3],
+        ctx,
+    );
+}
+
+#[test]
+fn dispatches_split_past_the_workgroup_limit() {
+    // With at most 3 workgroups per dimension, every per-item dispatch is split over y.
+    let ctx = GpuContext::with_options(
+        AdapterChoice::AllowSoftware,
+        GpuOptions {
+            max_workgroups_per_dimension: Some(3),
+            ..GpuOptions::default()
+        },
+    )
+    .unwrap_or_else(|e| panic!("this test needs a GPU adapter: {e}"));
+    let g = random_scene::<f32>(6, 2500, 2);
+    check(
+        "split dispatches",
+        &g,
+        &oblique_camera(40, 40),
+        [0.2; 3],
+        &ctx,
+    );
+}
+
+#[test]
+fn empty_scene_renders_the_exact_background() {
+    let ctx = gpu();
+    let g = GaussianSet::zeros(0, 3);
+    check("empty", &g, &oblique_camera(33, 20), [0.1, 0.2, 0.3], ctx);
+}
+
+/// The scenes of tests/gradients.rs: one degenerate Gaussian and a normal one behind it.
+fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet {
+    let mut g = random_scene::<f64>(42, 2, 2);
+    g.means[3..6].copy_from_slice(&[0.1, -0.1, 0.6]);
+    g.log_scales[3..6].copy_from_slice(&[-1.0, -1.2, -1.1]);
+    g.opacity_logits[1] = 0.5;
+    g.means[0..3].copy_from_slice(&[-0.05, 0.05, 0.0]);
+    edit(&mut g);
+    g.cast()
+}
+
+#[test]
+fn degenerate_cases() {
+    let ctx = gpu();
+    let cam = front_camera(24, 24);
+    let cases: Vec<(&str, GaussianSet)> = vec![
+        (
+            "near-zero scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[-18.0, -19.0, -20.0])),
+        ),
+        (
+            "huge scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[2.5, 2.0, 3.0])),
+        ),
+        (
+            "behind the camera",
+            degenerate_scene(|g| g.means[0..3].copy_from_slice(&[0.0, 0.0, -6.0])),
+        ),
+        (
+            "straddling the near plane",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
+                g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
+            }),
+        ),
+        (
+            "opacity near zero",
+            degenerate_scene(|g| g.opacity_logits[0] = -5.3),
+        ),
+        (
+            "opacity near one",
+            degenerate_scene(|g| g.opacity_logits[0] = 9.0),
+        ),
+        (
+            "overlapping at equal depth",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.05, 0.0, 0.3]);
+                g.means[3..6].copy_from_slice(&[-0.05, 0.02, 0.3]);
+            }),
+        ),
+        (
+            "centre outside the Jacobian clamp",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[2.8, 0.1, 0.0]);
+                g.log_scales[0..3].copy_from_slice(&[0.4, 0.3, 0.2]);
+            }),
+        ),
+    ];
+    for (name, g) in cases {
+        check(name, &g, &cam, [0.2, 0.5, 0.9], ctx);
+    }
+    // Flat along world x and seen along x: only eps2d keeps its 2D covariance invertible.
+    let flat = degenerate_scene(|g| {
+        g.log_scales[0..3].copy_from_slice(&[-1.0, -1.0, -17.0]);
+        g.quats[0..4].copy_from_slice(&[1.0, 0.0, 1.0, 0.0]);
+    });
+    let side = Camera::look_at([-4.0, 0.0, 0.3], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 24, 24).unwrap();
+    check("flat, seen edge-on", &flat, &side, [0.2, 0.5, 0.9], ctx);
+}
+
+#[test]
+fn pixels_that_stop_early() {
+    let ctx = gpu();
+    let mut g = random_scene::<f32>(5, 5, 1);
+    for i in 0..5 {
+        g.means[3 * i..3 * i + 3].copy_from_slice(&[
+            0.02 * i as f32,
+            -0.01 * i as f32,
+            0.2 * i as f32,
+        ]);
+        g.log_scales[3 * i..3 * i + 3].copy_from_slice(&[-1.1, -1.2, -1.0]);
+        g.opacity_logits[i] = 3.0;
+    }
+    check("stacked", &g, &front_camera(24, 24), [0.0; 3], ctx);
+}
+
+#[test]
+fn non_finite_and_extreme_parameters_are_culled() {
+    let ctx = gpu();
+    let mut g = random_scene::<f32>(21, 12, 3);
+    g.means[0] = f32::NAN;
+    g.log_scales[3] = f32::INFINITY;
+    g.quats[8..12].fill(0.0);
+    g.opacity_logits[3] = f32::NEG_INFINITY;
+    g.sh_rest[4 * 45] = f32::NAN;
+    g.means[15..18].copy_from_slice(&[1e30, -1e30, 1e30]);
+    g.log_scales[18..21].fill(100.0);
+    g.log_scales[21..24].fill(-100.0);
+    g.opacity_logits[8] = 1e30;
+    g.opacity_logits[9] = -1e30;
+    check("non-finite", &g, &oblique_camera(48, 40), [0.5; 3], ctx);
+}
