@@ -248,4 +248,10 @@ fn the_configuration_file_holds_the_paper_defaults() {
         from_file.style.style_prompt.as_deref(),
         Some("Starry Night by Vincent van Gogh")
     );
+    let preview = path.with_file_name("2d-preview.json");
+    let quick: base_mirage::stylize::MirageStylizeConfig =
+        gs_stylize::resolve_config(Some(&preview), &[]).unwrap();
+    quick.style.validate().unwrap();
+    assert!(quick.style.steps < from_file.style.steps);
+    assert_eq!(quick.style.style_prompt, from_file.style.style_prompt);
 }

@@ -314,16 +314,34 @@ pub struct WeightFiles {
 /// the explicit path, then the environment variable, then the Hugging Face cache, then a
 /// download when the `download` feature of style-loss is on. A modality calls it before any
 /// long preparation (a fit), so a missing file is reported at once, naming where to put it.
+///
+/// Every file is looked for before an error is returned, so the error lists all the missing
+/// ones at once.
 pub fn resolve_weights(settings: &StyleSettings) -> Result<WeightFiles, StylizeError> {
-    Ok(WeightFiles {
-        clip: CLIP_VIT_B_32_WEIGHTS.resolve(settings.clip_weights.as_deref())?,
-        tokenizer: CLIP_TOKENIZER.resolve(settings.tokenizer.as_deref())?,
-        vgg: if settings.lambda_content > 0.0 {
-            Some(VGG19_WEIGHTS.resolve(settings.vgg_weights.as_deref())?)
-        } else {
-            None
-        },
-    })
+    let clip = CLIP_VIT_B_32_WEIGHTS.resolve(settings.clip_weights.as_deref());
+    let tokenizer = CLIP_TOKENIZER.resolve(settings.tokenizer.as_deref());
+    let vgg = (settings.lambda_content > 0.0)
+        .then(|| VGG19_WEIGHTS.resolve(settings.vgg_weights.as_deref()))
+        .transpose();
+    match (clip, tokenizer, vgg) {
+        (Ok(clip), Ok(tokenizer), Ok(vgg)) => Ok(WeightFiles {
+            clip,
+            tokenizer,
+            vgg,
+        }),
+        (clip, tokenizer, vgg) => {
+            let missing: Vec<String> = [clip.err(), tokenizer.err(), vgg.err()]
+                .into_iter()
+                .flatten()
+                .map(|e| e.to_string())
+                .collect();
+            Err(StylizeError::Input(format!(
+                "{} model file(s) missing:\n- {}",
+                missing.len(),
+                missing.join("\n- ")
+            )))
+        }
+    }
 }
 
 /// The style loss of `settings` (the style image over `background`) and the masks it uses:

@@ -1,0 +1,167 @@
+//! The 2D figures of docs/benchmarks.md on the embedded 512x512 picture:
+//!
+//! - `fit [counts...]`: fit PSNR (front camera) and elapsed time at 100, 250, 500 and 1000
+//!   steps for each Gaussian count (default 10k, 50k, 100k);
+//! - `step [count] [patches]`: one stylization step of a fitted-size model (default 100k
+//!   Gaussians) with ViT-B/32-sized CLIP and VGG-19 of random weights and patches of 128
+//!   (default the paper's 64), split into render, style loss with its image gradient, and
+//!   backward + Adam.
+//!
+//! Run: `cargo run --release -p base-mirage --example benchmark_2d -- fit` (or `-- step`).
+
+use std::ops::ControlFlow;
+use std::time::Instant;
+
+use base_mirage::fit::{fit_groups, FitSettings};
+use base_mirage::init::initial_gaussians;
+use base_mirage::mirror::{extent, mirror_views, mirrored, plane_half_size};
+use base_mirage::picture::default_picture;
+use candle_core::{Device, Tensor};
+use gs_core::adam::{Adam, AdamHyper};
+use gs_core::image_loss::{psnr, PhotometricObjective};
+use gs_core::model::BaseModel;
+use gs_core::raster::render;
+use gs_core::train::{train, TrainConfig, ViewSampler};
+use gs_stylize::StyleSettings;
+use style_loss::{
+    ClipConfig, ClipModel, LossWeights, NamedTensors, PatchSettings, StyleDirection, StyleLoss,
+    StyleObjective, Vgg19Features, Vgg19Widths,
+};
+
+/// Steps at which the fit's PSNR is measured.
+const MILESTONES: [u64; 4] = [100, 250, 500, 1000];
+
+fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
+    let picture = default_picture();
+    let (w, h) = (picture.width, picture.height);
+    let settings = FitSettings::default();
+    let views = mirror_views(w, h, settings.distance)?;
+    let (hw, hh) = plane_half_size(w, h, settings.distance);
+    println!("| Gaussians | steps | PSNR (dB) | fit time (s) |");
+    println!("|---|---|---|---|");
+    for &count in counts {
+        let mut model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
+        let mut objective = PhotometricObjective {
+            targets: vec![picture.clone(), mirrored(&picture)],
+            lambda: settings.lambda_dssim,
+        };
+        let mut adam = Adam::new(
+            fit_groups(extent(settings.distance)),
+            &model.group_lens(),
+            AdamHyper::default(),
+        );
+        let mut sampler = ViewSampler::new(2, settings.seed);
+        let start = Instant::now();
+        for &milestone in &MILESTONES {
+            let config = TrainConfig {
+                steps: milestone,
+                background: settings.background,
+            };
+            train(
+                &mut model,
+                &views,
+                &mut objective,
+                &mut adam,
+                &mut sampler,
+                &config,
+                |_| ControlFlow::Continue(()),
+            )?;
+            let seconds = start.elapsed().as_secs_f64();
+            let shown = render(&model.renderable(), &views[0].camera, settings.background).image;
+            println!(
+                "| {count} | {milestone} | {:.2} | {seconds:.1} |",
+                psnr(&shown, &picture)
+            );
+        }
+    }
+    Ok(())
+}
+
+fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Error>> {
+    let device = Device::Cpu;
+    let picture = default_picture();
+    let (w, h) = (picture.width, picture.height);
+    let settings = FitSettings::default();
+    let views = mirror_views(w, h, settings.distance)?;
+    let (hw, hh) = plane_half_size(w, h, settings.distance);
+    let mut model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
+    let clip = ClipModel::from_tensors(
+        &ClipConfig::vit_b_32(),
+        &NamedTensors::random(&device),
+        &device,
+    )?;
+    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
+    let style = Tensor::rand(-1f32, 1f32, clip.config().projection_dim, &device)?;
+    let direction = StyleDirection::from_embeddings(&style, &style.zeros_like()?)?;
+    let loss = StyleLoss::new(
+        clip,
+        Some(vgg),
+        direction,
+        LossWeights::default(),
+        PatchSettings {
+            num_patches: patches,
+            ..PatchSettings::default()
+        },
+    )?;
+    let start = Instant::now();
+    let mut objective = StyleObjective::new(loss, &[picture.clone()], None, 0, &device)?;
+    let cache = start.elapsed().as_secs_f64();
+    let paper = StyleSettings::paper_2d();
+    let mut adam = Adam::new(
+        paper.optimizer_groups(extent(settings.distance)),
+        &model.group_lens(),
+        AdamHyper::default(),
+    );
+    let mut report = None;
+    train(
+        &mut model,
+        &views[..1],
+        &mut objective,
+        &mut adam,
+        &mut ViewSampler::new(1, 0),
+        &TrainConfig {
+            steps: 1,
+            background: settings.background,
+        },
+        |r| {
+            report = Some(r.clone());
+            ControlFlow::Continue(())
+        },
+    )?;
+    let r = report.expect("one step ran");
+    println!("| phase ({count} Gaussians, {w}x{h}) | seconds |");
+    println!("|---|---|");
+    println!("| per-view cache (once per view) | {cache:.1} |");
+    println!("| render | {:.3} |", r.render_time.as_secs_f64());
+    println!(
+        "| style loss + dL/dimage (1 CLIP pass, {patches} patch passes, VGG-19) | {:.1} |",
+        r.objective_time.as_secs_f64()
+    );
+    println!(
+        "| rasterizer backward + Adam | {:.3} |",
+        r.backward_time.as_secs_f64()
+    );
+    Ok(())
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    match args.first().map(String::as_str) {
+        Some("fit") => {
+            let counts: Vec<usize> = if args.len() > 1 {
+                args[1..]
+                    .iter()
+                    .map(|a| a.parse())
+                    .collect::<Result<_, _>>()?
+            } else {
+                vec![10_000, 50_000, 100_000]
+            };
+            fit_table(&counts)
+        }
+        Some("step") => step_table(
+            args.get(1).map_or(Ok(100_000), |a| a.parse())?,
+            args.get(2).map_or(Ok(64), |a| a.parse())?,
+        ),
+        _ => Err("usage: benchmark_2d fit [counts...] | step [count] [patches]".into()),
+    }
+}
