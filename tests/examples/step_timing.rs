@@ -8,17 +8,15 @@
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use candle_core::{Device, Tensor};
+use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
 use rand::{Rng, SeedableRng};
-use style_loss::{
-    ClipConfig, ClipModel, LossWeights, NamedTensors, PatchSettings, StyleDirection, StyleLoss,
-    StyleObjective, Vgg19Features, Vgg19Widths,
-};
+use style_loss::test_models::random_full_size_loss;
+use style_loss::{PatchSettings, StyleObjective};
 
 /// `n` Gaussians on a unit sphere's surface, sized to their spacing and mostly opaque.
 fn scene(n: usize) -> GaussianSet {
@@ -66,21 +64,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
 
     let start = Instant::now();
-    let clip = ClipModel::from_tensors(
-        &ClipConfig::vit_b_32(),
-        &NamedTensors::random(&device),
-        &device,
-    )?;
-    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
-    let style = Tensor::rand(-1f32, 1f32, clip.config().projection_dim, &device)?;
-    let direction = StyleDirection::from_embeddings(&style, &style.zeros_like()?)?;
-    let loss = StyleLoss::new(
-        clip,
-        Some(vgg),
-        direction,
-        LossWeights::default(),
-        PatchSettings::default(),
-    )?;
+    let loss = random_full_size_loss(PatchSettings::default(), &device)?;
     println!("random weights: {:.1} s", start.elapsed().as_secs_f64());
     let start = Instant::now();
     let mut objective = StyleObjective::new(loss, &targets[..1], None, 0, &device)?;

@@ -16,17 +16,15 @@ use base_mirage::fit::{fit_groups, FitSettings};
 use base_mirage::init::initial_gaussians;
 use base_mirage::mirror::{extent, mirror_views, mirrored, plane_half_size};
 use base_mirage::picture::default_picture;
-use candle_core::{Device, Tensor};
+use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::BaseModel;
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_stylize::StyleSettings;
-use style_loss::{
-    ClipConfig, ClipModel, LossWeights, NamedTensors, PatchSettings, StyleDirection, StyleLoss,
-    StyleObjective, Vgg19Features, Vgg19Widths,
-};
+use style_loss::test_models::random_full_size_loss;
+use style_loss::{PatchSettings, StyleObjective};
 
 /// Steps at which the fit's PSNR is measured.
 const MILESTONES: [u64; 4] = [100, 250, 500, 1000];
@@ -85,23 +83,12 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
     let views = mirror_views(w, h, settings.distance)?;
     let (hw, hh) = plane_half_size(w, h, settings.distance);
     let mut model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
-    let clip = ClipModel::from_tensors(
-        &ClipConfig::vit_b_32(),
-        &NamedTensors::random(&device),
-        &device,
-    )?;
-    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
-    let style = Tensor::rand(-1f32, 1f32, clip.config().projection_dim, &device)?;
-    let direction = StyleDirection::from_embeddings(&style, &style.zeros_like()?)?;
-    let loss = StyleLoss::new(
-        clip,
-        Some(vgg),
-        direction,
-        LossWeights::default(),
+    let loss = random_full_size_loss(
         PatchSettings {
             num_patches: patches,
             ..PatchSettings::default()
         },
+        &device,
     )?;
     let start = Instant::now();
     let mut objective = StyleObjective::new(loss, &[picture.clone()], None, 0, &device)?;

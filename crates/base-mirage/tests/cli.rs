@@ -88,6 +88,24 @@ fn fit_then_stylize_from_file_to_file() {
     assert_eq!((base.gaussians.len(), base.gaussians.sh_degree()), (400, 1));
     assert_eq!(png_size(&fit_dir.join("fitted.png")), (W, H));
 
+    let jpeg = dir.path().join("picture.jpg");
+    image::DynamicImage::ImageRgba8(image::open(&picture).unwrap().to_rgba8())
+        .to_rgb8()
+        .save(&jpeg)
+        .unwrap();
+    let jpeg_fit = dir.path().join("jpeg-fit");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--picture",
+            s(&jpeg),
+            "--out",
+            s(&jpeg_fit),
+        ])
+        .args(["--gaussians", "100", "--steps", "5"]));
+    assert_eq!(png_size(&jpeg_fit.join("fitted.png")), (W, H), "JPEG in");
+
     let sty = dir.path().join("stylized");
     let mut cmd = bin();
     stylize_args(&mut cmd, &models, 6);

@@ -1,8 +1,13 @@
-//! Tiny CLIP and VGG-19 model files for the tests of crates that stylize (feature
-//! `test-models`): the committed random-weight fixtures of this crate, with CLIP's token
-//! embedding widened to the real 49,408-token vocabulary so the committed tokenizer can drive
-//! it. Nothing here is downloaded; the weights are random, so only the mechanics of a run can
-//! be tested with them, not the look of a style.
+//! Random-weight models for the tests and benchmarks of crates that stylize (feature
+//! `test-models`):
+//! - [`write_tiny_models`]: the committed tiny CLIP and VGG-19 fixtures of this crate, with
+//!   CLIP's token embedding widened to the real 49,408-token vocabulary so the committed
+//!   tokenizer can drive it;
+//! - [`random_full_size_loss`]: a style loss with ViT-B/32- and VGG-19-sized random weights,
+//!   which costs what the real one costs.
+//!
+//! Nothing here is downloaded; the weights are random, so only the mechanics and the cost of
+//! a run can be measured with them, not the look of a style.
 
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
@@ -10,6 +15,10 @@ use std::path::{Path, PathBuf};
 use candle_core::{Device, Tensor};
 
 use crate::vgg::Vgg19Widths;
+use crate::{
+    ClipConfig, ClipModel, LossWeights, NamedTensors, PatchSettings, StyleDirection, StyleLoss,
+    Vgg19Features,
+};
 
 /// Token count of CLIP's real vocabulary (and of the committed tokenizer).
 const VOCAB: usize = 49408;
@@ -73,4 +82,18 @@ pub fn write_tiny_models(dir: &Path) -> TinyModelFiles {
         vgg_weights: fixture("tiny_vgg19.safetensors"),
         vgg_widths: Vgg19Widths([4, 8, 16, 32, 32]),
     }
+}
+
+/// A style loss with the paper's weights, `patches`, and ViT-B/32- and VGG-19-sized random
+/// weights (a random style direction), for timing a stylization step without real weights.
+pub fn random_full_size_loss(patches: PatchSettings, device: &Device) -> crate::Result<StyleLoss> {
+    let clip = ClipModel::from_tensors(
+        &ClipConfig::vit_b_32(),
+        &NamedTensors::random(device),
+        device,
+    )?;
+    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(device), Vgg19Widths::default())?;
+    let style = Tensor::rand(-1f32, 1f32, clip.config().projection_dim, device)?;
+    let direction = StyleDirection::from_embeddings(&style, &style.zeros_like()?)?;
+    StyleLoss::new(clip, Some(vgg), direction, LossWeights::default(), patches)
 }
