@@ -1,4 +1,4 @@
-//! The 2D figures of docs/benchmarks.md on the embedded 512x512 picture:
+//! The 2D figures of docs/benchmarks.md on the default picture's landscape drawn at 512x512:
 //!
 //! - `fit [counts...]`: fit PSNR (front camera) and elapsed time at 100, 250, 500 and 1000
 //!   steps for each Gaussian count (default 10k, 50k, 100k);
@@ -15,7 +15,7 @@ use std::time::Instant;
 use base_mirage::fit::{fit_groups, FitSettings};
 use base_mirage::init::initial_gaussians;
 use base_mirage::mirror::{extent, mirror_views, mirrored, plane_half_size};
-use base_mirage::picture::default_picture;
+use base_mirage::picture::landscape;
 use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::{psnr, PhotometricObjective};
@@ -26,11 +26,14 @@ use gs_stylize::StyleSettings;
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{PatchSettings, StyleObjective};
 
+/// Side of the benchmark picture, pixels.
+const BENCHMARK_SIDE: u32 = 512;
+
 /// Steps at which the fit's PSNR is measured.
 const MILESTONES: [u64; 4] = [100, 250, 500, 1000];
 
 fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
-    let picture = default_picture();
+    let picture = landscape(BENCHMARK_SIDE);
     let (w, h) = (picture.width, picture.height);
     let settings = FitSettings::default();
     let views = mirror_views(w, h, settings.distance)?;
@@ -77,7 +80,7 @@ fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
 
 fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Error>> {
     let device = Device::Cpu;
-    let picture = default_picture();
+    let picture = landscape(BENCHMARK_SIDE);
     let (w, h) = (picture.width, picture.height);
     let settings = FitSettings::default();
     let views = mirror_views(w, h, settings.distance)?;

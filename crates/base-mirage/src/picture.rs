@@ -9,8 +9,9 @@ use gs_core::{GsError, Image};
 /// The smallest side, in pixels, of a picture that can be fitted: one 16x16 rasterizer tile.
 pub const MIN_SIDE: u32 = 16;
 
-/// Side of the embedded default picture, pixels.
-pub const DEFAULT_SIDE: u32 = 512;
+/// Side of the embedded default picture, pixels: big enough for the paper's 128-pixel
+/// patches to be details, small enough for a CPU preview run.
+pub const DEFAULT_SIDE: u32 = 384;
 
 /// Why a picture cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -44,18 +45,22 @@ pub fn load_picture(path: &Path, background: [f32; 3]) -> Result<Image, PictureE
     Ok(image)
 }
 
-/// The embedded default picture, [`DEFAULT_SIDE`] pixels square, drawn procedurally: a
-/// landscape with an evening sky, a sun, two mountain ridges, a lake that mirrors the sky and
-/// a red house with a dark roof. It has smooth gradients, hard edges and small detail, so it
-/// shows both how well a fit holds a picture and how a style changes it.
+/// The embedded default picture: [`landscape`] at [`DEFAULT_SIDE`] pixels.
 pub fn default_picture() -> Image {
-    let side = DEFAULT_SIDE;
+    landscape(DEFAULT_SIDE)
+}
+
+/// The default picture's drawing at `side x side` pixels: a landscape with an evening sky, a
+/// sun, two mountain ridges, a lake that mirrors the sky and a red house with a dark roof. It
+/// has smooth gradients, hard edges and small detail, so it shows both how well a fit holds a
+/// picture and how a style changes it.
+pub fn landscape(side: u32) -> Image {
     let mut data = Vec::with_capacity((side * side * 3) as usize);
     for y in 0..side {
         for x in 0..side {
             let u = (x as f32 + 0.5) / side as f32;
             let v = (y as f32 + 0.5) / side as f32;
-            data.extend_from_slice(&landscape(u, v));
+            data.extend_from_slice(&landscape_colour(u, v));
         }
     }
     Image {
@@ -84,7 +89,7 @@ fn sky(u: f32, v: f32) -> [f32; 3] {
 }
 
 /// Colour at `(u, v)` in `[0, 1]^2`, `v` down.
-fn landscape(u: f32, v: f32) -> [f32; 3] {
+fn landscape_colour(u: f32, v: f32) -> [f32; 3] {
     let horizon = 0.62;
     let far = 0.45 + 0.07 * (u * 2.0 * PI * 1.3).sin() + 0.03 * (u * 2.0 * PI * 4.1).sin();
     let near = 0.55 + 0.05 * (u * 2.0 * PI * 0.8 + 1.0).sin() + 0.015 * (u * 2.0 * PI * 9.0).sin();
