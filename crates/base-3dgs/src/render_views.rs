@@ -7,7 +7,7 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use gs_core::raster::render;
+use gs_core::backend::{Backend, DeviceError};
 use gs_core::{Camera, GaussianSet};
 use serde::Deserialize;
 
@@ -61,6 +61,9 @@ pub enum RenderError {
     /// A picture could not be written.
     #[error("{0}")]
     Image(#[from] gs_core::GsError),
+    /// The device failed.
+    #[error("{0}")]
+    Device(#[from] DeviceError),
 }
 
 /// A camera to render from, and the file name of its picture.
@@ -213,14 +216,17 @@ pub fn dataset_cameras(
         .collect()
 }
 
-/// Renders `gaussians` from every camera over `background` into `out` (created when absent),
-/// one PNG per camera named [`NamedCamera::name`]; returns the files in camera order.
+/// Renders `gaussians` on `backend` from every camera over `background` into `out` (created
+/// when absent), one PNG per camera named [`NamedCamera::name`]; returns the files in camera
+/// order.
 pub fn render_to_folder(
     gaussians: &GaussianSet,
     cameras: &[NamedCamera],
     background: [f32; 3],
     out: &Path,
+    backend: &Backend,
 ) -> Result<Vec<PathBuf>, RenderError> {
+    let renderer = backend.renderer(gaussians)?;
     std::fs::create_dir_all(out).map_err(|source| RenderError::Io {
         path: out.to_path_buf(),
         source,
@@ -229,9 +235,7 @@ pub fn render_to_folder(
         .iter()
         .map(|c| {
             let path = out.join(&c.name);
-            render(gaussians, &c.camera, background)
-                .image
-                .save_png(&path)?;
+            renderer.render(&c.camera, background)?.save_png(&path)?;
             Ok(path)
         })
         .collect()

@@ -16,6 +16,7 @@ use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
 use candle_core::{Device, Tensor};
 use common::TempDir;
+use gs_core::backend::DeviceChoice;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
 use gs_core::GaussianSet;
@@ -48,6 +49,8 @@ impl Setup {
                 style_prompt: Some("fire".into()),
                 steps: 20,
                 seed: 4,
+                // Exact resume is a cpu property: GPU atomics sum in any order.
+                device: DeviceChoice::Cpu,
                 patch_size: 32,
                 num_patches: 4,
                 feature_lr: 0.05,

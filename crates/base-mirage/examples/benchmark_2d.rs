@@ -94,7 +94,8 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
         &device,
     )?;
     let start = Instant::now();
-    let mut objective = StyleObjective::new(loss, &[picture.clone()], None, 0, &device)?;
+    let mut objective =
+        StyleObjective::new(loss, std::slice::from_ref(&picture), None, 0, &device)?;
     let cache = start.elapsed().as_secs_f64();
     let paper = StyleSettings::paper_2d();
     let mut adam = Adam::new(

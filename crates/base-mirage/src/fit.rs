@@ -7,11 +7,12 @@
 
 use std::ops::ControlFlow;
 
-use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
+use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
+use gs_core::backend::{Backend, DeviceError, Trainer};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, GaussianLrs};
+use gs_core::model::GaussianLrs;
 use gs_core::raster::render;
-use gs_core::train::{train, StepReport, TrainConfig, TrainError, ViewSampler};
+use gs_core::train::{StepReport, TrainConfig, TrainError, ViewSampler};
 use gs_core::{GsError, Image};
 
 use crate::flat::FlatGaussians;
@@ -63,6 +64,9 @@ pub enum FitError {
     /// Training stopped with an error.
     #[error("fitting: {0}")]
     Train(#[from] TrainError<GsError>),
+    /// The device could not hold the model.
+    #[error("fitting: {0}")]
+    Device(#[from] DeviceError),
 }
 
 /// MiraGe's Adam groups for a scene of extent `extent`: means `1.6e-4 extent -> 1.6e-6 extent`
@@ -117,11 +121,12 @@ fn check(settings: &FitSettings) -> Result<(), FitError> {
     Ok(())
 }
 
-/// Fits `picture` with `settings`, calling `on_step` after every step (return
+/// Fits `picture` with `settings` on `backend`, calling `on_step` after every step (return
 /// `ControlFlow::Break` to stop early). The picture is fitted at its own resolution.
 pub fn fit<F>(
     picture: &Image,
     settings: &FitSettings,
+    backend: &Backend,
     on_step: F,
 ) -> Result<FlatGaussians, FitError>
 where
@@ -130,7 +135,7 @@ where
     check(settings)?;
     let views = mirror_views(picture.width, picture.height, settings.distance)?;
     let (half_w, half_h) = plane_half_size(picture.width, picture.height, settings.distance);
-    let mut model = initial_gaussians(
+    let model = initial_gaussians(
         settings.gaussians,
         settings.sh_degree,
         half_w,
@@ -141,26 +146,19 @@ where
         targets: vec![picture.clone(), mirrored(picture)],
         lambda: settings.lambda_dssim,
     };
-    let mut adam = Adam::new(
+    let mut trainer = Trainer::new(
+        backend,
+        model,
         fit_groups(extent(settings.distance)),
-        &model.group_lens(),
         AdamHyper::default(),
-    );
+    )?;
     let mut sampler = ViewSampler::new(views.len(), settings.seed);
     let config = TrainConfig {
         steps: settings.steps,
         background: settings.background,
     };
-    train(
-        &mut model,
-        &views,
-        &mut objective,
-        &mut adam,
-        &mut sampler,
-        &config,
-        on_step,
-    )?;
-    Ok(model)
+    trainer.train(&views, &mut objective, &mut sampler, &config, on_step)?;
+    Ok(trainer.into_model())
 }
 
 /// The picture the model holds, seen by the front camera (`mirrored == false`) or the mirror

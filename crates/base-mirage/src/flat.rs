@@ -6,12 +6,20 @@
 //! `scale_0 = ln 1e-8`). The Gaussians rendered are the same set with the log-scales clamped;
 //! the gradient of a clamped log-scale is zero, as torch's `clamp` gives, and the held axis
 //! never receives one, so Adam leaves it exactly where it is.
+//!
+//! On the GPU ([`GpuBaseModel`]) the same transform runs as two small kernels,
+//! `shaders/flat_gaussians_forward.wgsl` and `..._backward.wgsl`; every other array is rendered
+//! from the parameter buffers themselves.
 
 use std::borrow::Cow;
 
 use gs_core::gaussians::{GaussianGrads, PARAM_NAMES};
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::GradMask;
+use gs_core::wgpu::{
+    zeroed_f32, Access, Buffer, GpuBaseModel, GpuContext, GpuError, GpuGaussians, GpuGradients,
+    GpuParams, KernelSource,
+};
 use gs_core::{GaussianSet, Real};
 
 /// Index of the log-scales in [`PARAM_NAMES`].
@@ -22,6 +30,23 @@ pub const FLAT_SCALE: f64 = 1e-8;
 
 /// The upper clamp of the in-plane scales, world units.
 pub const MAX_SCALE: f64 = 1.0;
+
+/// The GPU twin of [`renderable`] for the log-scales.
+const FORWARD_KERNEL: KernelSource = KernelSource {
+    name: "flat_gaussians_forward.wgsl",
+    wgsl: include_str!("../../../shaders/flat_gaussians_forward.wgsl"),
+    bindings: &[Access::Uniform, Access::Read, Access::Write],
+};
+
+/// The GPU twin of [`add_scale_grads`].
+const BACKWARD_KERNEL: KernelSource = KernelSource {
+    name: "flat_gaussians_backward.wgsl",
+    wgsl: include_str!("../../../shaders/flat_gaussians_backward.wgsl"),
+    bindings: &[Access::Uniform, Access::Read, Access::Read, Access::Write],
+};
+
+/// Threads of a workgroup of the flat-Gaussian kernels.
+const WORKGROUP: u32 = 256;
 
 /// `log_scale` clamped to `[ln FLAT_SCALE, ln MAX_SCALE]`; NaN stays NaN, so the rasterizer
 /// culls it and training reports it rather than hiding it behind a bound.
@@ -145,5 +170,76 @@ impl BaseModel for FlatGaussians {
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {
         self.params.grad_mask(trained)
+    }
+}
+
+impl FlatGaussians {
+    /// The uniform of the flat-Gaussian kernels (`Clamp`): the count and the clamp bounds.
+    fn clamp_uniform(&self, ctx: &GpuContext) -> (Buffer, u32) {
+        let n = u32::try_from(self.params.len()).expect("at most u32::MAX Gaussians");
+        let lo = FLAT_SCALE.ln() as f32;
+        let hi = MAX_SCALE.ln() as f32;
+        (ctx.uniform_words([n, lo.to_bits(), hi.to_bits(), 0]), n)
+    }
+}
+
+impl GpuBaseModel for FlatGaussians {
+    fn gpu_gaussians(
+        &self,
+        ctx: &GpuContext,
+        params: &GpuParams,
+        _view: &View,
+    ) -> Result<GpuGaussians, GpuError> {
+        let (uniform, n) = self.clamp_uniform(ctx);
+        let scales = zeroed_f32(ctx, "flat rendered log-scales", 3 * n as usize)?;
+        let stored = &params.buffers()[SCALES_GROUP];
+        ctx.run_kernel(
+            &FORWARD_KERNEL,
+            &[&uniform, stored, &scales],
+            n.div_ceil(WORKGROUP),
+        );
+        let mut arrays: [Buffer; 6] = params
+            .buffers()
+            .to_vec()
+            .try_into()
+            .expect("six parameter groups");
+        arrays[SCALES_GROUP] = scales;
+        Ok(GpuGaussians::from_buffers(
+            self.params.len(),
+            self.params.sh_degree(),
+            arrays,
+        ))
+    }
+
+    fn gpu_backward(
+        &self,
+        ctx: &GpuContext,
+        params: &GpuParams,
+        _view: &View,
+        grads: GpuGradients,
+        trained: &[bool],
+    ) -> Result<Vec<Option<Buffer>>, GpuError> {
+        let mut out: Vec<Option<Buffer>> = grads
+            .into_buffers()
+            .into_iter()
+            .zip(trained)
+            .map(|(g, &t)| g.filter(|_| t))
+            .collect();
+        if let Some(rendered) = out[SCALES_GROUP].take() {
+            let (uniform, n) = self.clamp_uniform(ctx);
+            let stored_grads = zeroed_f32(ctx, "flat log-scale gradients", 3 * n as usize)?;
+            ctx.run_kernel(
+                &BACKWARD_KERNEL,
+                &[
+                    &uniform,
+                    &params.buffers()[SCALES_GROUP],
+                    &rendered,
+                    &stored_grads,
+                ],
+                n.div_ceil(WORKGROUP),
+            );
+            out[SCALES_GROUP] = Some(stored_grads);
+        }
+        Ok(out)
     }
 }

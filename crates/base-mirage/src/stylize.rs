@@ -16,11 +16,12 @@ use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 
+use gs_core::backend::Backend;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::Image;
 use gs_stylize::checkpoint::{checkpoint_dir, recover_interrupted_save};
 use gs_stylize::run::progress_bar;
-use gs_stylize::{stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use gs_stylize::{open_device, stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{fit, render_picture, FitError, FitSettings};
@@ -187,6 +188,7 @@ pub fn run(
     let picture = picture(config)?;
     check(config, &picture)?;
     gs_stylize::run::resolve_weights(&config.style)?;
+    let backend = open_device(config.style.device)?;
     let given = match &config.model {
         Some(path) => Some(load_model(path)?),
         None => None,
@@ -205,7 +207,7 @@ pub fn run(
                 ))
                 .into());
             }
-            let fitted = fit_with_progress(&picture, &config.fit_settings(), options)?;
+            let fitted = fit_with_progress(&picture, &config.fit_settings(), options, &backend)?;
             create_out(out)?;
             write_model(&base_ply, &fitted)?;
             fitted
@@ -228,7 +230,7 @@ pub fn run(
         masks: None,
         background: config.background,
     };
-    let outcome = stylize(&config.style, config, job, out, options)?;
+    let outcome = stylize(&config.style, config, job, out, options, &backend)?;
     let stylized = render_picture(
         &outcome.model,
         w,
@@ -291,15 +293,16 @@ fn create_out(out: &Path) -> Result<(), MirageError> {
     })
 }
 
-/// Fits `picture`, with a progress bar when `options.progress`; the stop flag ends the fit
-/// with [`MirageError::InterruptedFit`].
+/// Fits `picture` on `backend`, with a progress bar when `options.progress`; the stop flag
+/// ends the fit with [`MirageError::InterruptedFit`].
 pub fn fit_with_progress(
     picture: &Image,
     settings: &FitSettings,
     options: &RunOptions,
+    backend: &Backend,
 ) -> Result<FlatGaussians, MirageError> {
     let bar = progress_bar(options.progress, "fit", settings.steps, 0);
-    let model = fit(picture, settings, |report| {
+    let model = fit(picture, settings, backend, |report| {
         bar.set_position(report.step);
         bar.set_message(format!("loss {:.4}", report.value.loss));
         if options.stop.load(Ordering::SeqCst) {

@@ -1,11 +1,15 @@
 //! `clipgaussian-2d` from file to file with the tiny random-weight CLIP and VGG: fit, then
 //! stylize (with a fitted model and with the fit inside the run), resume bit-identically, and
-//! refuse bad inputs with a clear error and nothing written.
+//! refuse bad inputs with a clear error and nothing written; stylize on the GPU (lavapipe in
+//! CI) close to the cpu, resume a GPU run on the cpu, and refuse a device that is not there.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use gs_core::backend::ALLOW_SOFTWARE_GPU;
 use gs_core::ply::read_ply;
+use gs_core::wgpu::{AdapterChoice, GpuContext};
+use gs_core::GaussianSet;
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 use tempfile::TempDir;
 
@@ -152,6 +156,7 @@ fn stylize_fits_first_and_resumes_bit_identically() {
     let stylize_to = |out: &Path, steps: u64, resume: bool| {
         let mut cmd = bin();
         stylize_args(&mut cmd, &models, steps);
+        cmd.args(["--device", "cpu"]);
         cmd.args(["--picture", s(&picture), "--out", s(out)]).args([
             "--gaussians",
             "300",
@@ -272,4 +277,119 @@ fn the_configuration_file_holds_the_paper_defaults() {
     quick.style.validate().unwrap();
     assert!(quick.style.steps < from_file.style.steps);
     assert_eq!(quick.style.style_prompt, from_file.style.style_prompt);
+}
+
+/// The L2 distance between two parameter sets, over every array.
+fn distance(a: &GaussianSet, b: &GaussianSet) -> f64 {
+    a.arrays()
+        .iter()
+        .zip(b.arrays())
+        .flat_map(|(x, y)| x.iter().zip(y.iter()))
+        .map(|(x, y)| (f64::from(*x) - f64::from(*y)).powi(2))
+        .sum::<f64>()
+        .sqrt()
+}
+
+#[test]
+fn stylize_on_the_gpu_ends_close_to_the_cpu_and_resumes_on_the_cpu() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let fit_dir = dir.path().join("fit");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--picture",
+            s(&picture),
+        ])
+        .args(["--out", s(&fit_dir), "--gaussians", "300", "--steps", "40"])
+        .args(["--sh-degree", "1"]));
+    let base_ply = fit_dir.join("model.ply");
+    let stylize_to = |out: &Path, device: &str, steps: u64, resume: bool| {
+        let mut cmd = bin();
+        stylize_args(&mut cmd, &models, steps);
+        cmd.args(["--device", device, "--picture", s(&picture)])
+            .args(["--model", s(&base_ply), "--out", s(out)])
+            .env(ALLOW_SOFTWARE_GPU, "1");
+        if resume {
+            cmd.arg("--resume");
+        }
+        String::from_utf8_lossy(&run(&mut cmd).stdout).into_owned()
+    };
+    let model = |out: &Path| read_ply(&out.join("model.ply")).unwrap().gaussians;
+    let on_cpu = dir.path().join("cpu");
+    let printed = stylize_to(&on_cpu, "cpu", 6, false);
+    assert!(printed.contains("device: cpu (rayon, "), "{printed}");
+    let on_gpu = dir.path().join("gpu");
+    let printed = stylize_to(&on_gpu, "gpu", 6, false);
+    assert!(printed.contains("device: gpu: "), "{printed}");
+
+    let base = read_ply(&base_ply).unwrap().gaussians;
+    let moved = distance(&model(&on_cpu), &base);
+    let apart = distance(&model(&on_gpu), &model(&on_cpu));
+    eprintln!("stylization moved the parameters by {moved:e}; gpu and cpu ended {apart:e} apart");
+    assert!(moved > 0.1, "the stylization changed the model: {moved}");
+    assert!(
+        apart < 0.02 * moved,
+        "gpu {apart:e} from cpu, moved {moved:e}"
+    );
+
+    let mixed = dir.path().join("mixed");
+    stylize_to(&mixed, "gpu", 3, false);
+    stylize_to(&mixed, "cpu", 6, true);
+    let apart = distance(&model(&mixed), &model(&on_cpu));
+    assert!(
+        apart < 0.02 * moved,
+        "resumed on the cpu: {apart:e} from cpu, moved {moved:e}"
+    );
+}
+
+#[test]
+fn devices_that_are_not_there_are_refused_clearly() {
+    let dir = TempDir::new().unwrap();
+    let model_ply = dir.path().join("model.ply");
+    base_mirage::stylize::write_model(
+        &model_ply,
+        &base_mirage::flat::FlatGaussians::new(GaussianSet::zeros(4, 0)),
+    )
+    .unwrap();
+    let render = |device: &str| {
+        let mut cmd = bin();
+        cmd.args([
+            "render",
+            "--model",
+            s(&model_ply),
+            "--width",
+            "8",
+            "--height",
+            "8",
+        ])
+        .args(["--out", s(&dir.path().join("r.png")), "--device", device])
+        .env_remove(ALLOW_SOFTWARE_GPU);
+        cmd
+    };
+    let err = fails(&mut render("cuda"));
+    assert!(
+        err.contains("cuda") && err.contains("cpu, gpu, auto"),
+        "{err}"
+    );
+
+    let hardware = GpuContext::new(AdapterChoice::Hardware).is_ok();
+    let auto = String::from_utf8_lossy(&run(&mut render("auto")).stdout).into_owned();
+    if hardware {
+        assert!(auto.contains("device: gpu: "), "{auto}");
+    } else {
+        assert!(
+            auto.contains("device: cpu (rayon, "),
+            "auto never takes a software GPU: {auto}"
+        );
+        let err = fails(&mut render("gpu"));
+        assert!(
+            err.contains("--device gpu") && err.contains(ALLOW_SOFTWARE_GPU),
+            "{err}"
+        );
+    }
 }

@@ -11,11 +11,12 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
-use gs_core::adam::{Adam, AdamHyper, LrSchedule};
+use gs_core::adam::{AdamHyper, LrSchedule};
+use gs_core::backend::{DeviceChoice, Trainer};
 use gs_core::image_loss::{psnr, PhotometricObjective};
-use gs_core::model::{BaseModel, GaussianLrs, View};
+use gs_core::model::{GaussianLrs, View};
 use gs_core::raster::render;
-use gs_core::train::{train, TrainConfig, ViewSampler};
+use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{GaussianSet, Image};
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -55,6 +56,9 @@ struct FitDemoArgs {
     /// Seed of the initial Gaussians and of the view order.
     #[arg(long, default_value_t = 0)]
     seed: u64,
+    /// Where to train: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
 }
 
 fn main() -> Result<()> {
@@ -76,6 +80,8 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
     if args.views == 0 || args.gaussians == 0 || args.size < 16 {
         bail!("--views and --gaussians must be at least 1 and --size at least 16");
     }
+    let backend = args.device.open()?;
+    println!("device: {}", backend.describe());
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create the output folder {}", args.out.display()))?;
     let bg = [1.0f32; 3];
@@ -85,12 +91,12 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
         .iter()
         .map(|v| render(&scene, &v.camera, bg).image)
         .collect();
-    let mut model = demo_scene::random_init(args.gaussians, args.seed);
+    let initial = demo_scene::random_init(args.gaussians, args.seed);
     let before: Vec<Image> = views
         .iter()
-        .map(|v| render(&model, &v.camera, bg).image)
+        .map(|v| render(&initial, &v.camera, bg).image)
         .collect();
-    let psnr_before = mean_psnr(&model, &views, &targets, bg);
+    let psnr_before = mean_psnr(&initial, &views, &targets, bg);
 
     // 3DGS's fitting rates, the means' rate scaled up for this small scene and decaying over
     // the run.
@@ -105,7 +111,7 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
         opacities: 0.05,
         feature: 0.0025,
     };
-    let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
+    let mut trainer = Trainer::new(&backend, initial, lrs.groups(), AdamHyper::default())?;
     let config = TrainConfig {
         steps: args.steps,
         background: bg,
@@ -123,25 +129,18 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
     );
     let start = Instant::now();
     let mut phase_secs = [0.0f64; 3];
-    train(
-        &mut model,
-        &views,
-        &mut objective,
-        &mut adam,
-        &mut sampler,
-        &config,
-        |r| {
-            phase_secs[0] += r.render_time.as_secs_f64();
-            phase_secs[1] += r.objective_time.as_secs_f64();
-            phase_secs[2] += r.backward_time.as_secs_f64();
-            bar.set_position(r.step);
-            if r.step % 10 == 0 || r.step == r.steps {
-                bar.set_message(format!("loss {:.4}", r.value.loss));
-            }
-            ControlFlow::Continue(())
-        },
-    )?;
+    trainer.train(&views, &mut objective, &mut sampler, &config, |r| {
+        phase_secs[0] += r.render_time.as_secs_f64();
+        phase_secs[1] += r.objective_time.as_secs_f64();
+        phase_secs[2] += r.backward_time.as_secs_f64();
+        bar.set_position(r.step);
+        if r.step % 10 == 0 || r.step == r.steps {
+            bar.set_message(format!("loss {:.4}", r.value.loss));
+        }
+        ControlFlow::Continue(())
+    })?;
     bar.finish();
+    let model = trainer.into_model();
     let psnr_after = mean_psnr(&model, &views, &targets, bg);
 
     let rows: Vec<Image> = views

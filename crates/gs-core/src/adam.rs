@@ -221,90 +221,128 @@ impl Adam {
         self.step = t;
     }
 
-    /// The state (step count and every moment) as bytes, for checkpoints.
+    /// The state (step count and every moment) as bytes, for checkpoints (the format of
+    /// [`encode_state`], shared with the GPU optimizer).
     pub fn save_state(&self) -> Vec<u8> {
-        let mut out = Vec::new();
-        out.extend_from_slice(STATE_MAGIC);
-        out.extend_from_slice(&self.step.to_le_bytes());
-        out.extend_from_slice(&(self.groups.len() as u64).to_le_bytes());
-        for (g, m) in self.groups.iter().zip(&self.moments) {
-            out.extend_from_slice(&(g.name.len() as u64).to_le_bytes());
-            out.extend_from_slice(g.name.as_bytes());
-            let len = m.as_ref().map_or(u64::MAX, |m| m.m.len() as u64);
-            out.extend_from_slice(&len.to_le_bytes());
-            if let Some(m) = m {
-                for v in m.m.iter().chain(&m.v) {
-                    out.extend_from_slice(&v.to_le_bytes());
-                }
-            }
-        }
-        out
+        encode_state(
+            self.step,
+            &self.groups,
+            self.moments
+                .iter()
+                .map(|m| m.as_ref().map(|m| (m.m.as_slice(), m.v.as_slice()))),
+        )
     }
 
-    /// Restores state saved by [`Adam::save_state`] from an optimizer with the same groups
-    /// (names, sizes and frozen flags); anything else is an error that names the difference.
+    /// Restores state saved by [`Adam::save_state`] (or by the GPU optimizer) from an optimizer
+    /// with the same groups (names, sizes and frozen flags); anything else is an error that
+    /// names the difference.
     pub fn restore_state(&mut self, bytes: &[u8]) -> Result<(), GsError> {
-        let err = |m: String| GsError::OptimizerState(m);
-        let mut r = ByteReader { bytes, pos: 0 };
-        if r.take(8).ok_or_else(|| err("truncated header".into()))? != STATE_MAGIC {
-            return Err(err("not an optimizer state (bad magic)".into()));
-        }
-        let step = r.u64().ok_or_else(|| err("truncated step".into()))?;
-        let n = r.u64().ok_or_else(|| err("truncated group count".into()))?;
-        if n != self.groups.len() as u64 {
-            return Err(err(format!(
-                "{n} groups saved, {} expected",
-                self.groups.len()
-            )));
-        }
-        let mut restored = Vec::with_capacity(self.groups.len());
-        for (g, mine) in self.groups.iter().zip(&self.moments) {
-            let name_len = r.u64().ok_or_else(|| err("truncated name".into()))? as usize;
-            let name = r
-                .take(name_len)
-                .ok_or_else(|| err("truncated name".into()))?;
-            if name != g.name.as_bytes() {
-                return Err(err(format!(
-                    "group '{}' saved where '{}' was expected",
-                    String::from_utf8_lossy(name),
-                    g.name
-                )));
-            }
-            let len = r
-                .u64()
-                .ok_or_else(|| err(format!("truncated group '{}'", g.name)))?;
-            let expected = mine.as_ref().map_or(u64::MAX, |m| m.m.len() as u64);
-            if len != expected {
-                return Err(err(format!(
-                    "group '{}' was saved with {} values, {} expected",
-                    g.name,
-                    describe_len(len),
-                    describe_len(expected)
-                )));
-            }
-            if len == u64::MAX {
-                restored.push(None);
-                continue;
-            }
-            let mut read = || -> Option<Vec<f32>> {
-                let raw = r.take(4 * len as usize)?;
-                Some(
-                    raw.chunks_exact(4)
-                        .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                        .collect(),
-                )
-            };
-            let m = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
-            let v = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
-            restored.push(Some(Moments { m, v }));
-        }
-        if r.pos != bytes.len() {
-            return Err(err(format!("{} trailing bytes", bytes.len() - r.pos)));
-        }
+        let lens: Vec<Option<usize>> = self
+            .moments
+            .iter()
+            .map(|m| m.as_ref().map(|m| m.m.len()))
+            .collect();
+        let (step, moments) = decode_state(bytes, &self.groups, &lens)?;
         self.step = step;
-        self.moments = restored;
+        self.moments = moments
+            .into_iter()
+            .map(|m| m.map(|(m, v)| Moments { m, v }))
+            .collect();
         Ok(())
     }
+}
+
+/// The first and second moments of one trained group, as saved.
+pub(crate) type SavedMoments = (Vec<f32>, Vec<f32>);
+
+/// Optimizer state as bytes, little-endian: the magic `CGADAM01`, the `u64` step count and
+/// group count, then per group a `u64` name length, the UTF-8 name, a `u64` value count
+/// (`u64::MAX` for a frozen group, which has no moments) and the `f32` first then second moments.
+pub(crate) fn encode_state<'a>(
+    step: u64,
+    groups: &[GroupConfig],
+    moments: impl Iterator<Item = Option<(&'a [f32], &'a [f32])>>,
+) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.extend_from_slice(STATE_MAGIC);
+    out.extend_from_slice(&step.to_le_bytes());
+    out.extend_from_slice(&(groups.len() as u64).to_le_bytes());
+    for (g, m) in groups.iter().zip(moments) {
+        out.extend_from_slice(&(g.name.len() as u64).to_le_bytes());
+        out.extend_from_slice(g.name.as_bytes());
+        let len = m.map_or(u64::MAX, |(m, _)| m.len() as u64);
+        out.extend_from_slice(&len.to_le_bytes());
+        if let Some((m, v)) = m {
+            for x in m.iter().chain(v) {
+                out.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+    }
+    out
+}
+
+/// Reads state written by [`encode_state`] for an optimizer of `groups` whose trained groups
+/// have `lens[i]` values (`None`: frozen): the step count and the moments of each group.
+pub(crate) fn decode_state(
+    bytes: &[u8],
+    groups: &[GroupConfig],
+    lens: &[Option<usize>],
+) -> Result<(u64, Vec<Option<SavedMoments>>), GsError> {
+    let err = |m: String| GsError::OptimizerState(m);
+    let mut r = ByteReader { bytes, pos: 0 };
+    if r.take(8).ok_or_else(|| err("truncated header".into()))? != STATE_MAGIC {
+        return Err(err("not an optimizer state (bad magic)".into()));
+    }
+    let step = r.u64().ok_or_else(|| err("truncated step".into()))?;
+    let n = r.u64().ok_or_else(|| err("truncated group count".into()))?;
+    if n != groups.len() as u64 {
+        return Err(err(format!("{n} groups saved, {} expected", groups.len())));
+    }
+    let mut restored = Vec::with_capacity(groups.len());
+    for (g, mine) in groups.iter().zip(lens) {
+        let name_len = r.u64().ok_or_else(|| err("truncated name".into()))? as usize;
+        let name = r
+            .take(name_len)
+            .ok_or_else(|| err("truncated name".into()))?;
+        if name != g.name.as_bytes() {
+            return Err(err(format!(
+                "group '{}' saved where '{}' was expected",
+                String::from_utf8_lossy(name),
+                g.name
+            )));
+        }
+        let len = r
+            .u64()
+            .ok_or_else(|| err(format!("truncated group '{}'", g.name)))?;
+        let expected = mine.map_or(u64::MAX, |n| n as u64);
+        if len != expected {
+            return Err(err(format!(
+                "group '{}' was saved with {} values, {} expected",
+                g.name,
+                describe_len(len),
+                describe_len(expected)
+            )));
+        }
+        if len == u64::MAX {
+            restored.push(None);
+            continue;
+        }
+        let mut read = || -> Option<Vec<f32>> {
+            let raw = r.take(4 * len as usize)?;
+            Some(
+                raw.chunks_exact(4)
+                    .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+                    .collect(),
+            )
+        };
+        let m = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
+        let v = read().ok_or_else(|| err(format!("truncated moments of '{}'", g.name)))?;
+        restored.push(Some((m, v)));
+    }
+    if r.pos != bytes.len() {
+        return Err(err(format!("{} trailing bytes", bytes.len() - r.pos)));
+    }
+    Ok((step, restored))
 }
 
 fn describe_len(len: u64) -> String {

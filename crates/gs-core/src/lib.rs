@@ -10,10 +10,13 @@
 //!   the format of 3DGS and MiraGe models alike.
 //! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
 //! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
+//! - [`backend`]: the device chosen at run time (`cpu|gpu|auto`), training and rendering on it.
+//! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
 //!
 //! Conventions follow gsplat; see `docs/conventions.md` in the repository.
 
 pub mod adam;
+pub mod backend;
 pub mod camera;
 pub mod fs;
 pub mod gaussians;

@@ -11,7 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use crate::adam::Adam;
 use crate::image::Image;
 use crate::model::{BaseModel, View};
-use crate::raster::{self, OutputGrads};
+use crate::raster::{self, GradMask, OutputGrads};
 
 /// Shuffle-without-replacement over view indices: every view once per epoch, in a fresh
 /// random order each epoch. Deterministic for a seed.
@@ -122,35 +122,61 @@ pub enum TrainError<E: std::error::Error + 'static> {
         /// What was not finite.
         what: &'static str,
     },
+    /// The compute device failed (e.g. the GPU ran out of memory).
+    #[error("device failed at step {step}: {source}")]
+    Device {
+        /// Step (1-based) at which it failed.
+        step: u64,
+        /// The device's error.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
 }
 
-/// Trains `model` on `views` with `objective` and `adam` until `adam` has taken `config.steps`
-/// steps, calling `on_step` after each (return `ControlFlow::Break` to stop early, e.g. on
-/// Ctrl-C). A run resumed from a checkpoint passes the restored optimizer and a sampler advanced
-/// by the steps already taken ([`resumed_sampler`]).
-pub fn train<M, O, F>(
-    model: &mut M,
+/// How a step ended on a [`StepBackend`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum StepEnd {
+    /// The optimizer stepped.
+    Taken,
+    /// The objective gave no gradient; nothing changed.
+    Abandoned,
+    /// A parameter gradient was not finite; nothing changed.
+    NonFiniteGradient,
+}
+
+/// Where the parameters and the optimizer live, and how one step is computed there: the cpu
+/// backend below, the wgpu one in `crate::wgpu`. [`run_steps`] is the loop both share.
+pub(crate) trait StepBackend {
+    /// A failure of the device.
+    type Error: std::error::Error + Send + Sync + 'static;
+
+    /// Steps the optimizer has taken.
+    fn step_count(&self) -> u64;
+
+    /// Renders `view` over `background`, hands the image to `evaluate` and, when that returns
+    /// dL/dimage, back-propagates it and steps the optimizer unless a parameter gradient is
+    /// not finite.
+    fn step<'g>(
+        &mut self,
+        view: &View,
+        background: [f32; 3],
+        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
+    ) -> Result<StepEnd, Self::Error>;
+}
+
+/// The training loop of every backend: see [`train`].
+pub(crate) fn run_steps<B, O, F>(
+    backend: &mut B,
     views: &[View],
     objective: &mut O,
-    adam: &mut Adam,
     sampler: &mut ViewSampler,
     config: &TrainConfig,
     mut on_step: F,
 ) -> Result<(), TrainError<O::Error>>
 where
-    M: BaseModel,
+    B: StepBackend,
     O: Objective,
     F: FnMut(&StepReport) -> ControlFlow<()>,
 {
-    let lens = model.group_lens();
-    if adam.groups().len() != lens.len() {
-        return Err(TrainError::Mismatch(format!(
-            "the optimizer has {} parameter groups, the model {} ({})",
-            adam.groups().len(),
-            lens.len(),
-            model.group_names().join(", ")
-        )));
-    }
     if sampler.count() != views.len() {
         return Err(TrainError::Mismatch(format!(
             "the view sampler draws from {} views but {} were given",
@@ -158,71 +184,172 @@ where
             views.len()
         )));
     }
-    let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
-    let mask = model.grad_mask(&trained);
-    while adam.step_count() < config.steps {
-        let step = adam.step_count() + 1;
+    while backend.step_count() < config.steps {
+        let step = backend.step_count() + 1;
         let view_index = sampler.next_view();
-        let view = &views[view_index];
-
-        let t0 = Instant::now();
-        let gaussians = model.gaussians(view);
-        let rendered = raster::render(gaussians.as_ref(), &view.camera, config.background);
-        let t1 = Instant::now();
-        let value = objective
-            .evaluate(view_index, &rendered.image)
-            .map_err(|source| TrainError::Objective { step, source })?;
-        let t2 = Instant::now();
         let non_finite = |what| TrainError::NonFinite {
             step,
             view: view_index,
             what,
         };
-        if !value.loss.is_finite() {
-            return Err(non_finite("loss"));
+        let mut value = None;
+        let mut failure = None;
+        let t0 = Instant::now();
+        let (mut t1, mut t2) = (t0, t0);
+        let (value_slot, failure_slot) = (&mut value, &mut failure);
+        let (t1_slot, t2_slot) = (&mut t1, &mut t2);
+        let objective = &mut *objective;
+        let end = backend
+            .step(&views[view_index], config.background, move |image| {
+                *t1_slot = Instant::now();
+                let result = objective.evaluate(view_index, image);
+                *t2_slot = Instant::now();
+                let checked = match result {
+                    Err(source) => Err(TrainError::Objective { step, source }),
+                    Ok(v) if !v.loss.is_finite() => Err(non_finite("loss")),
+                    Ok(v) if !v.grad.iter().all(|g| g.is_finite()) => Err(non_finite("dL/dimage")),
+                    Ok(v) => Ok(v),
+                };
+                match checked {
+                    Ok(v) => {
+                        let value: &ObjectiveValue = value_slot.insert(v);
+                        Some(value.grad.as_slice())
+                    }
+                    Err(e) => {
+                        *failure_slot = Some(e);
+                        None
+                    }
+                }
+            })
+            .map_err(|e| TrainError::Device {
+                step,
+                source: Box::new(e),
+            })?;
+        let t3 = Instant::now();
+        match (end, value, failure) {
+            (_, _, Some(e)) => return Err(e),
+            (StepEnd::NonFiniteGradient, ..) => return Err(non_finite("parameter gradient")),
+            (StepEnd::Taken, Some(value), None) => {
+                let report = StepReport {
+                    step,
+                    steps: config.steps,
+                    view: view_index,
+                    value,
+                    render_time: t1 - t0,
+                    objective_time: t2 - t1,
+                    backward_time: t3 - t2,
+                };
+                if on_step(&report).is_break() {
+                    break;
+                }
+            }
+            (end, ..) => unreachable!("a step ended {end:?} without a value or a failure"),
         }
-        if !value.grad.iter().all(|g| g.is_finite()) {
-            return Err(non_finite("dL/dimage"));
-        }
+    }
+    Ok(())
+}
+
+/// The cpu backend: the model's own parameters, the rayon rasterizer and [`Adam`].
+struct CpuBackend<'a, M> {
+    model: &'a mut M,
+    adam: &'a mut Adam,
+    trained: Vec<bool>,
+    mask: GradMask,
+    lens: Vec<usize>,
+}
+
+impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
+    type Error = std::convert::Infallible;
+
+    fn step_count(&self) -> u64 {
+        self.adam.step_count()
+    }
+
+    fn step<'g>(
+        &mut self,
+        view: &View,
+        background: [f32; 3],
+        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
+    ) -> Result<StepEnd, Self::Error> {
+        let gaussians = self.model.gaussians(view);
+        let rendered = raster::render(gaussians.as_ref(), &view.camera, background);
+        let Some(grad) = evaluate(&rendered.image) else {
+            return Ok(StepEnd::Abandoned);
+        };
         let grads = raster::backward(
             gaussians.as_ref(),
             &view.camera,
             &rendered,
             &OutputGrads {
-                rgb: &value.grad,
+                rgb: grad,
                 alpha: None,
                 depth: None,
             },
-            mask,
+            self.mask,
         );
-        let mut group_grads: Vec<Vec<f32>> = lens
+        let mut group_grads: Vec<Vec<f32>> = self
+            .lens
             .iter()
-            .zip(&trained)
+            .zip(&self.trained)
             .map(|(&n, &t)| if t { vec![0.0; n] } else { Vec::new() })
             .collect();
-        model.backward(view, &grads.gaussians, &trained, &mut group_grads);
+        self.model
+            .backward(view, &grads.gaussians, &self.trained, &mut group_grads);
         drop(gaussians);
         if !group_grads.iter().flatten().all(|g| g.is_finite()) {
-            return Err(non_finite("parameter gradient"));
+            return Ok(StepEnd::NonFiniteGradient);
         }
         let grad_refs: Vec<&[f32]> = group_grads.iter().map(|g| g.as_slice()).collect();
-        adam.step(&mut model.groups_mut(), &grad_refs);
-        let t3 = Instant::now();
+        self.adam.step(&mut self.model.groups_mut(), &grad_refs);
+        Ok(StepEnd::Taken)
+    }
+}
 
-        let report = StepReport {
-            step,
-            steps: config.steps,
-            view: view_index,
-            value,
-            render_time: t1 - t0,
-            objective_time: t2 - t1,
-            backward_time: t3 - t2,
-        };
-        if on_step(&report).is_break() {
-            break;
-        }
+/// Checks that an optimizer of `optimizer_groups` groups fits a model with `names`.
+pub(crate) fn check_groups<E: std::error::Error>(
+    optimizer_groups: usize,
+    names: &[String],
+) -> Result<(), TrainError<E>> {
+    if optimizer_groups != names.len() {
+        return Err(TrainError::Mismatch(format!(
+            "the optimizer has {} parameter groups, the model {} ({})",
+            optimizer_groups,
+            names.len(),
+            names.join(", ")
+        )));
     }
     Ok(())
+}
+
+/// Trains `model` on `views` with `objective` and `adam` on the cpu until `adam` has taken
+/// `config.steps` steps, calling `on_step` after each (return `ControlFlow::Break` to stop
+/// early, e.g. on Ctrl-C). A run resumed from a checkpoint passes the restored optimizer and a
+/// sampler advanced by the steps already taken ([`resumed_sampler`]). `crate::wgpu::train` is
+/// the same loop with everything on the GPU.
+pub fn train<M, O, F>(
+    model: &mut M,
+    views: &[View],
+    objective: &mut O,
+    adam: &mut Adam,
+    sampler: &mut ViewSampler,
+    config: &TrainConfig,
+    on_step: F,
+) -> Result<(), TrainError<O::Error>>
+where
+    M: BaseModel,
+    O: Objective,
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    check_groups(adam.groups().len(), &model.group_names())?;
+    let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
+    let mut backend = CpuBackend {
+        mask: model.grad_mask(&trained),
+        lens: model.group_lens(),
+        trained,
+        model,
+        adam,
+    };
+    run_steps(&mut backend, views, objective, sampler, config, on_step)
 }
 
 /// A sampler in the state it has after `steps_done` draws, so a resumed run sees the same view

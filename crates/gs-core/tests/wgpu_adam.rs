@@ -84,3 +84,45 @@ fn matches_the_cpu_adam_step_for_step() {
         "a frozen group has no moments"
     );
 }
+
+#[test]
+fn state_saved_on_either_device_restores_on_the_other() {
+    let ctx = gpu();
+    let groups = vec![
+        GroupConfig::new("means", LrSchedule::Constant(0.01)),
+        GroupConfig::frozen("scales"),
+        GroupConfig::new("colours", LrSchedule::Constant(0.0025)),
+        GroupConfig::new("empty", LrSchedule::Constant(0.1)),
+    ];
+    let lens = [300usize, 5, 40, 0];
+    let hyper = AdamHyper::default();
+    let mut cpu = Adam::new(groups.clone(), &lens, hyper);
+    let mut params: Vec<Vec<f32>> = lens.iter().map(|&n| vec![0.5; n]).collect();
+    for step in 0..3u64 {
+        let grads: Vec<Vec<f32>> = lens
+            .iter()
+            .enumerate()
+            .map(|(i, &n)| f32s(weights(10 * step + i as u64, n)))
+            .collect();
+        let mut slices: Vec<&mut [f32]> = params.iter_mut().map(|p| &mut p[..]).collect();
+        let grad_slices: Vec<&[f32]> = grads.iter().map(|g| &g[..]).collect();
+        cpu.step(&mut slices, &grad_slices);
+    }
+    let cpu_bytes = cpu.save_state();
+
+    let mut on_gpu = GpuAdam::new(ctx, groups.clone(), &lens, hyper).expect("moments");
+    on_gpu.restore_state(ctx, &cpu_bytes).unwrap();
+    assert_eq!(on_gpu.step_count(), 3);
+    assert_eq!(on_gpu.save_state(ctx), cpu_bytes, "cpu -> gpu -> bytes");
+    let mut back = Adam::new(groups.clone(), &lens, hyper);
+    back.restore_state(&on_gpu.save_state(ctx)).unwrap();
+    assert_eq!(back, cpu, "gpu -> cpu");
+
+    let mut other = GpuAdam::new(ctx, groups, &[301, 5, 40, 0], hyper).expect("moments");
+    let e = other
+        .restore_state(ctx, &cpu_bytes)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("means") && e.contains("301"), "{e}");
+    assert_eq!(other.step_count(), 0, "a refused state changes nothing");
+}

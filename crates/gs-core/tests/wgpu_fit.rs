@@ -1,45 +1,59 @@
-//! Fitting on the GPU: the test of tests/fit.rs (a random set trained with L1 + D-SSIM towards
-//! renders of another scene) with parameters, gradients and Adam moments on the GPU and only
-//! the image and dL/dimage crossing; it must converge as on the cpu backend. Needs a GPU adapter
-//! (lavapipe in CI).
+//! Training on the GPU with [`gs_core::wgpu::train`]: the test of tests/fit.rs (a random set
+//! trained with L1 + D-SSIM towards renders of another scene) with parameters, gradients and
+//! Adam moments on the GPU; it must converge as on the cpu backend, and a non-finite gradient
+//! must stop it as on the cpu, the parameters unchanged. Needs a GPU adapter (lavapipe in CI).
 #![cfg(feature = "wgpu")]
 
 mod common;
 
+use std::ops::ControlFlow;
+
 use common::{gpu, random_scene};
 use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, GaussianLrs};
-use gs_core::raster::{GradMask, OutputGrads};
-use gs_core::train::{Objective, ViewSampler};
-use gs_core::wgpu::{backward, render, GpuAdam, GpuContext, GpuGaussians};
-use gs_core::{Camera, GaussianSet};
+use gs_core::model::{BaseModel, GaussianLrs, View};
+use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError, ViewSampler};
+use gs_core::wgpu::{render, train, GpuAdam, GpuContext, GpuGaussians, GpuParams};
+use gs_core::{Camera, GaussianSet, Image};
 
-fn ring_views(count: usize, size: u32) -> Vec<Camera> {
+fn ring_views(count: usize, size: u32) -> Vec<View> {
     (0..count)
         .map(|i| {
             let a = i as f64 / count as f64 * std::f64::consts::TAU;
             let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
-            Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap()
+            View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap())
         })
         .collect()
 }
 
 fn mean_loss(
     ctx: &GpuContext,
-    model: &GpuGaussians,
-    views: &[Camera],
+    model: &GaussianSet,
+    views: &[View],
     obj: &mut PhotometricObjective,
 ) -> f32 {
+    let uploaded = GpuGaussians::upload(ctx, model).unwrap();
     let total: f32 = views
         .iter()
         .enumerate()
-        .map(|(i, cam)| {
-            let image = render(ctx, model, cam, [0.0; 3]).unwrap().image(ctx);
+        .map(|(i, v)| {
+            let image = render(ctx, &uploaded, &v.camera, [0.0; 3])
+                .unwrap()
+                .image(ctx);
             obj.evaluate(i, &image).unwrap().loss
         })
         .sum();
     total / views.len() as f32
+}
+
+fn lrs() -> GaussianLrs {
+    GaussianLrs {
+        means: LrSchedule::Constant(0.004),
+        scales: 0.01,
+        rotations: 0.01,
+        opacities: 0.05,
+        feature: 0.05,
+    }
 }
 
 #[test]
@@ -51,44 +65,113 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let target_gpu = GpuGaussians::upload(ctx, &target).unwrap();
     let targets = views
         .iter()
-        .map(|cam| render(ctx, &target_gpu, cam, bg).unwrap().image(ctx))
+        .map(|v| render(ctx, &target_gpu, &v.camera, bg).unwrap().image(ctx))
         .collect();
     let mut objective = PhotometricObjective {
         targets,
         lambda: 0.2,
     };
-    let initial: GaussianSet = random_scene(2, 150, 1);
-    let model = GpuGaussians::upload(ctx, &initial).unwrap();
+    let mut model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(ctx, &model, &views, &mut objective);
 
-    let lrs = GaussianLrs {
-        means: LrSchedule::Constant(0.004),
-        scales: 0.01,
-        rotations: 0.01,
-        opacities: 0.05,
-        feature: 0.05,
-    };
+    let params = GpuParams::upload(ctx, &mut model).unwrap();
     let mut adam = GpuAdam::new(
         ctx,
-        lrs.groups(),
-        &initial.group_lens(),
+        lrs().groups(),
+        &model.group_lens(),
         AdamHyper::default(),
     )
     .unwrap();
-    let mut sampler = ViewSampler::new(views.len(), 5);
-    for _ in 0..800 {
-        let v = sampler.next_view();
-        let rendered = render(ctx, &model, &views[v], bg).unwrap();
-        let value = objective.evaluate(v, &rendered.image(ctx)).unwrap();
-        assert!(value.loss.is_finite());
-        let out = OutputGrads {
-            rgb: &value.grad,
-            alpha: None,
-            depth: None,
-        };
-        let grads = backward(ctx, &model, &rendered, &out, GradMask::ALL).unwrap();
-        adam.step(ctx, &model.buffers(), &grads.buffers());
-    }
+    let config = TrainConfig {
+        steps: 800,
+        background: bg,
+    };
+    let mut reports = 0;
+    train(
+        ctx,
+        &model,
+        &params,
+        &views,
+        &mut objective,
+        &mut adam,
+        &mut ViewSampler::new(views.len(), 5),
+        &config,
+        |r| {
+            reports += 1;
+            assert_eq!((r.step, r.steps), (reports, 800));
+            ControlFlow::Continue(())
+        },
+    )
+    .unwrap();
+    assert_eq!(adam.step_count(), 800);
+    params.download_into(ctx, &mut model);
     let after = mean_loss(ctx, &model, &views, &mut objective);
     assert!(after * 10.0 < before, "loss {before} -> {after}");
+}
+
+/// An objective whose gradient turns NaN at a chosen call.
+struct PoisonAt(usize, usize);
+
+impl Objective for PoisonAt {
+    type Error = std::io::Error;
+    fn evaluate(&mut self, _view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error> {
+        self.0 += 1;
+        Ok(ObjectiveValue {
+            loss: 1.0,
+            terms: Vec::new(),
+            grad: vec![if self.0 == self.1 { f32::NAN } else { 0.01 }; image.data.len()],
+        })
+    }
+}
+
+#[test]
+fn a_non_finite_gradient_stops_the_run_with_the_parameters_of_the_step_before() {
+    let ctx = gpu();
+    let views = ring_views(2, 16);
+    let start: GaussianSet = random_scene(3, 20, 0);
+    let run = |steps: u64, poison: usize| {
+        let mut model = start.clone();
+        let params = GpuParams::upload(ctx, &mut model).unwrap();
+        let mut adam = GpuAdam::new(
+            ctx,
+            lrs().groups(),
+            &model.group_lens(),
+            AdamHyper::default(),
+        )
+        .unwrap();
+        let result = train(
+            ctx,
+            &model,
+            &params,
+            &views,
+            &mut PoisonAt(0, poison),
+            &mut adam,
+            &mut ViewSampler::new(2, 0),
+            &TrainConfig {
+                steps,
+                background: [0.0; 3],
+            },
+            |_| ControlFlow::Continue(()),
+        );
+        params.download_into(ctx, &mut model);
+        (model, adam.step_count(), result)
+    };
+    let (poisoned, taken, result) = run(10, 3);
+    let err = result.unwrap_err();
+    assert!(
+        matches!(
+            err,
+            TrainError::NonFinite {
+                step: 3,
+                what: "dL/dimage",
+                ..
+            }
+        ),
+        "{err}"
+    );
+    assert_eq!(taken, 2);
+    let (clean, _, result) = run(2, usize::MAX);
+    result.unwrap();
+    assert_eq!(poisoned, clean);
+    assert_ne!(clean, start, "two steps must have moved the parameters");
 }

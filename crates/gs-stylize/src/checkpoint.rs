@@ -28,9 +28,16 @@ const PARAMS_MAGIC: &[u8; 8] = b"GSPARAMS";
 const PARAMS_VERSION: u32 = 1;
 
 /// Configuration fields that may change when a run is resumed: they do not change the
-/// trajectory of the parameters. `out` (the output folder, which holds the checkpoint, may be
+/// trajectory of the parameters (`device` only within float rounding: a checkpoint of either
+/// device resumes on the other). `out` (the output folder, which holds the checkpoint, may be
 /// spelled differently) and `preview_views` are the modalities' names of those fields.
-pub const RESUMABLE_CHANGES: [&str; 4] = ["steps", "checkpoint_every", "preview_views", "out"];
+pub const RESUMABLE_CHANGES: [&str; 5] = [
+    "steps",
+    "checkpoint_every",
+    "preview_views",
+    "out",
+    "device",
+];
 
 /// One parameter group of a model ([`BaseModel::group_names`] and its values).
 #[derive(Clone, Debug, PartialEq)]

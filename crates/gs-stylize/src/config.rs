@@ -9,6 +9,7 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::adam::{GroupConfig, LrSchedule};
+use gs_core::backend::DeviceChoice;
 use gs_core::model::GaussianLrs;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -31,6 +32,10 @@ pub struct StyleSettings {
     pub steps: u64,
     /// Seed of the view order and of the patch sampling.
     pub seed: u64,
+    /// Where the Gaussians are trained: `cpu`, `gpu` or `auto` (a real GPU when there is one,
+    /// else the cpu). A run may resume on another device.
+    #[serde(with = "device_name")]
+    pub device: DeviceChoice,
     /// Weight of the directional CLIP loss.
     pub lambda_directional: f64,
     /// Weight of the patch CLIP loss.
@@ -84,6 +89,7 @@ impl StyleSettings {
             source_prompt: style_loss::DEFAULT_SOURCE_PROMPT.to_string(),
             steps: 5000,
             seed: 0,
+            device: DeviceChoice::Auto,
             lambda_directional: 5.0,
             lambda_patch: 90.0,
             lambda_content: 0.8,
@@ -199,6 +205,22 @@ impl StyleSettings {
             feature: self.feature_lr,
         }
         .groups()
+    }
+}
+
+/// [`DeviceChoice`] as its name (`"cpu"`, `"gpu"`, `"auto"`) in configuration files.
+mod device_name {
+    use gs_core::backend::DeviceChoice;
+    use serde::{Deserialize, Deserializer, Serializer};
+
+    pub fn serialize<S: Serializer>(device: &DeviceChoice, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(device)
+    }
+
+    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<DeviceChoice, D::Error> {
+        String::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
     }
 }
 
@@ -397,6 +419,13 @@ mod tests {
         assert_eq!((c.style.steps, c.preview_views), (9, vec![1, 3]));
         assert_eq!(c.style.style_prompt.as_deref(), Some("fire"));
         assert_eq!(c.style.feature_lr, StyleSettings::paper_3d().feature_lr);
+        let c: Modality = resolve_config(None, &[Override::parse("device=gpu").unwrap()]).unwrap();
+        assert_eq!(c.style.device, DeviceChoice::Gpu);
+        let e = error(&[Override::parse("device=cuda").unwrap()]);
+        assert!(
+            e.contains("device: ") && e.contains("cpu, gpu, auto"),
+            "{e}"
+        );
         assert!(Override::parse("no-equals-sign").is_err());
         assert!(Override::parse("=3").is_err());
     }

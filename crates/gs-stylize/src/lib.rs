@@ -21,7 +21,7 @@ pub mod run;
 use std::path::PathBuf;
 
 pub use config::{resolve_config, Override, StyleSettings};
-pub use run::{stylize, RunOptions, StylizeJob, StylizeOutcome};
+pub use run::{open_device, stylize, RunOptions, StylizeJob, StylizeOutcome};
 
 /// Why a stylization could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
@@ -39,6 +39,9 @@ pub enum StylizeError {
     /// The optimizer or an image operation of gs-core.
     #[error("{0}")]
     Core(#[from] gs_core::GsError),
+    /// The compute device asked for is missing or failed.
+    #[error("{0}")]
+    Device(#[from] gs_core::backend::DeviceError),
     /// Training stopped with an error.
     #[error("training: {0}")]
     Train(Box<gs_core::train::TrainError<style_loss::StyleLossError>>),

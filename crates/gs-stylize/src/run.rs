@@ -9,9 +9,10 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 
 use candle_core::Device;
-use gs_core::adam::{Adam, AdamHyper, GroupConfig};
+use gs_core::adam::{AdamHyper, GroupConfig};
+use gs_core::backend::{Backend, DeviceChoice, TrainableModel, Trainer};
 use gs_core::model::{BaseModel, View};
-use gs_core::train::{resumed_sampler, train, TrainConfig};
+use gs_core::train::{resumed_sampler, TrainConfig};
 use gs_core::Image;
 use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
@@ -21,7 +22,7 @@ use style_loss::{
     StyleObjective, Vgg19Features, Vgg19Widths,
 };
 
-use crate::checkpoint::{self, changed_fields, model_params, restore_params, Checkpoint};
+use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
 use crate::loss_plot::write_plot;
 use crate::outputs::{write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use crate::picture::load_picture;
@@ -74,7 +75,15 @@ pub struct StylizeOutcome<M> {
     pub losses: Vec<StepLosses>,
 }
 
-/// Stylizes `job.model` with `settings` (see the module documentation), writing to `out`:
+/// Opens the device `choice` names and prints it in one line (`device: ...`).
+pub fn open_device(choice: DeviceChoice) -> Result<Backend, StylizeError> {
+    let backend = choice.open()?;
+    println!("device: {}", backend.describe());
+    Ok(backend)
+}
+
+/// Stylizes `job.model` on `backend` ([`open_device`]) with `settings` (see the module
+/// documentation), writing to `out`:
 /// `config.json` (`config`, the modality's whole resolved configuration, whose `settings` these
 /// are), checkpoints, `losses.json` and `losses.png`. Bad inputs are reported before anything
 /// is written; a fresh run refuses an output folder that holds a checkpoint, a resumed one a
@@ -87,9 +96,10 @@ pub fn stylize<M, C>(
     job: StylizeJob<M>,
     out: &Path,
     options: &RunOptions,
+    backend: &Backend,
 ) -> Result<StylizeOutcome<M>, StylizeError>
 where
-    M: BaseModel,
+    M: TrainableModel,
     C: Serialize,
 {
     settings.validate()?;
@@ -112,39 +122,22 @@ where
         settings.seed.wrapping_add(PATCH_SEED_OFFSET),
         &device,
     )?;
-    let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
     let config_json = serde_json::to_value(config).expect("the config serializes");
-    let mut losses = Vec::new();
-    if options.resume {
+    let bad_checkpoint = |message: String| StylizeError::Checkpoint {
+        path: checkpoint::checkpoint_dir(out),
+        message,
+    };
+    let saved = if options.resume {
         let saved = checkpoint::load(out)?;
-        let bad = |message: String| StylizeError::Checkpoint {
-            path: checkpoint::checkpoint_dir(out),
-            message,
-        };
         let changed = changed_fields(&saved.config, &config_json);
         if !changed.is_empty() {
-            return Err(bad(format!(
+            return Err(bad_checkpoint(format!(
                 "saved by a run with different values of {}; resume with the same settings",
                 changed.join(", ")
             )));
         }
-        restore_params(&mut model, &saved.params).map_err(bad)?;
-        adam.restore_state(&saved.adam_state)?;
-        if adam.step_count() != saved.step {
-            return Err(bad(format!(
-                "the optimizer took {} steps, the state says {}",
-                adam.step_count(),
-                saved.step
-            )));
-        }
-        if saved.step > settings.steps {
-            return Err(bad(format!(
-                "saved at step {}, past the {} steps asked for",
-                saved.step, settings.steps
-            )));
-        }
-        objective.set_rng(saved.rng);
-        losses = saved.losses;
+        restore_params(&mut model, &saved.params).map_err(bad_checkpoint)?;
+        Some(saved)
     } else {
         checkpoint::recover_interrupted_save(out)?;
         if checkpoint::checkpoint_dir(out).exists() {
@@ -154,6 +147,28 @@ where
                 out.display()
             )));
         }
+        None
+    };
+    let names = model.group_names();
+    let mut trainer = Trainer::new(backend, model, groups, AdamHyper::default())?;
+    let mut losses = Vec::new();
+    if let Some(saved) = saved {
+        trainer.restore_optimizer(&saved.adam_state)?;
+        if trainer.step_count() != saved.step {
+            return Err(bad_checkpoint(format!(
+                "the optimizer took {} steps, the state says {}",
+                trainer.step_count(),
+                saved.step
+            )));
+        }
+        if saved.step > settings.steps {
+            return Err(bad_checkpoint(format!(
+                "saved at step {}, past the {} steps asked for",
+                saved.step, settings.steps
+            )));
+        }
+        objective.set_rng(saved.rng);
+        losses = saved.losses;
     }
 
     std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
@@ -165,20 +180,18 @@ where
         steps: settings.steps,
         background,
     };
-    let mut sampler = resumed_sampler(views.len(), settings.seed, adam.step_count());
+    let mut sampler = resumed_sampler(views.len(), settings.seed, trainer.step_count());
     let bar = progress_bar(
         options.progress,
         "stylize",
         settings.steps,
-        adam.step_count(),
+        trainer.step_count(),
     );
     let every = settings.checkpoint_every;
-    while adam.step_count() < settings.steps {
-        train(
-            &mut model,
+    while trainer.step_count() < settings.steps {
+        trainer.train(
             &views,
             &mut objective,
-            &mut adam,
             &mut sampler,
             &train_config,
             |report| {
@@ -194,14 +207,20 @@ where
                 }
             },
         )?;
-        let stopped = options.stop.load(Ordering::SeqCst) && adam.step_count() < settings.steps;
-        if stopped || adam.step_count().checked_rem(every) == Some(0) {
+        let stopped = options.stop.load(Ordering::SeqCst) && trainer.step_count() < settings.steps;
+        if stopped || trainer.step_count().checked_rem(every) == Some(0) {
+            let params = names
+                .iter()
+                .cloned()
+                .zip(trainer.param_groups())
+                .map(|(name, values)| ParamGroup { name, values })
+                .collect();
             checkpoint::save(
                 out,
                 &Checkpoint {
-                    step: adam.step_count(),
-                    params: model_params(&mut model),
-                    adam_state: adam.save_state(),
+                    step: trainer.step_count(),
+                    params,
+                    adam_state: trainer.save_optimizer(),
                     rng: objective.rng().clone(),
                     config: config_json.clone(),
                     losses: losses.clone(),
@@ -211,7 +230,7 @@ where
         if stopped {
             bar.abandon();
             return Err(StylizeError::Interrupted {
-                step: adam.step_count(),
+                step: trainer.step_count(),
                 out: out.to_path_buf(),
             });
         }
@@ -221,7 +240,10 @@ where
     write_json(&out.join(LOSSES_JSON), &losses)?;
     let totals: Vec<f32> = losses.iter().map(|l| l.total).collect();
     write_plot(&out.join(LOSSES_PNG), &totals)?;
-    Ok(StylizeOutcome { model, losses })
+    Ok(StylizeOutcome {
+        model: trainer.into_model(),
+        losses,
+    })
 }
 
 /// Checks that the job's lists agree, that its optimizer groups match the model's, and that
@@ -320,9 +342,12 @@ pub struct WeightFiles {
 pub fn resolve_weights(settings: &StyleSettings) -> Result<WeightFiles, StylizeError> {
     let clip = CLIP_VIT_B_32_WEIGHTS.resolve(settings.clip_weights.as_deref());
     let tokenizer = CLIP_TOKENIZER.resolve(settings.tokenizer.as_deref());
-    let vgg = (settings.lambda_content > 0.0)
-        .then(|| VGG19_WEIGHTS.resolve(settings.vgg_weights.as_deref()))
-        .transpose();
+    let vgg = if settings.lambda_content > 0.0 {
+        Some(VGG19_WEIGHTS.resolve(settings.vgg_weights.as_deref()))
+    } else {
+        None
+    }
+    .transpose();
     match (clip, tokenizer, vgg) {
         (Ok(clip), Ok(tokenizer), Ok(vgg)) => Ok(WeightFiles {
             clip,

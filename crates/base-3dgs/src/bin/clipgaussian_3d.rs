@@ -16,9 +16,11 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics, ClipFiles, Style};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
+use gs_core::backend::DeviceChoice;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use gs_stylize::open_device;
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -105,6 +107,10 @@ struct StylizeArgs {
     /// VGG-19 weights (safetensors, torchvision layout).
     #[arg(long)]
     vgg_weights: Option<PathBuf>,
+    /// Where to stylize: cpu, gpu, or auto (a real GPU when there is one, else the cpu; the
+    /// default).
+    #[arg(long)]
+    device: Option<DeviceChoice>,
     /// Any configuration field, e.g. `--set feature_lr=0.002 --set preview_views=[0,3]`.
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     set: Vec<String>,
@@ -133,6 +139,7 @@ impl StylizeArgs {
             ("clip_weights", path(&self.clip_weights).map(Into::into)),
             ("tokenizer", path(&self.tokenizer).map(Into::into)),
             ("vgg_weights", path(&self.vgg_weights).map(Into::into)),
+            ("device", self.device.map(|d| d.to_string().into())),
         ];
         let mut overrides: Vec<Override> = flags
             .into_iter()
@@ -211,6 +218,9 @@ struct RenderArgs {
     /// The background colour (white by default, as `stylize` renders).
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
+    /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
 }
 
 /// Arguments of `interpolate`.
@@ -310,7 +320,14 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         (None, Some(camera)) => vec![camera_from_file(camera)?],
         (None, None) => return Err("one of --data and --camera is required".into()),
     };
-    let written = render_to_folder(&ply.gaussians, &cameras, args.background.rgb(), &args.out)?;
+    let backend = open_device(args.device)?;
+    let written = render_to_folder(
+        &ply.gaussians,
+        &cameras,
+        args.background.rgb(),
+        &args.out,
+        &backend,
+    )?;
     println!(
         "wrote {} picture(s) to {}",
         written.len(),

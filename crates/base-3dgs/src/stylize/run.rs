@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::outputs::{write_previews, StepLosses};
-use gs_stylize::{stylize, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
+use gs_stylize::{open_device, stylize, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
 
 use super::StylizeConfig;
 use crate::dataset::nerf_synthetic::{self, Split};
@@ -34,6 +34,7 @@ pub struct RunSummary {
 /// checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
     config.validate()?;
+    let backend = open_device(config.style.device)?;
     let (ply, format) = read_ply_with_format(config.ply_path()).map_err(ply_error)?;
     let dataset = load_dataset(config)?;
     let count = dataset.views.len();
@@ -61,7 +62,8 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         background: dataset.background,
     };
     let out = config.out_path();
-    let StylizeOutcome { model, losses } = stylize(&config.style, config, job, out, options)?;
+    let StylizeOutcome { model, losses } =
+        stylize(&config.style, config, job, out, options, &backend)?;
 
     let stylized_ply = out.join(STYLIZED_PLY);
     let stylized = PlyGaussians {

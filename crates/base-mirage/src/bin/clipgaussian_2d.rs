@@ -13,19 +13,20 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use base_mirage::fit::{render_picture, FitSettings};
-use base_mirage::mirror::DEFAULT_DISTANCE;
+use base_mirage::mirror::{mirage_camera, DEFAULT_DISTANCE};
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{
     fit_with_progress, load_model, run, write_model, MirageError, MirageStylizeConfig,
     SIDE_BY_SIDE_PNG, STYLIZED_PNG,
 };
 use clap::{Args, Parser, Subcommand};
+use gs_core::backend::DeviceChoice;
 use gs_core::image_loss::psnr;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_core::Image;
 use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
-use gs_stylize::{resolve_config, Override, RunOptions, StylizeError};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -142,6 +143,10 @@ struct StylizeArgs {
     /// the cache, or a download).
     #[arg(long)]
     vgg_weights: Option<PathBuf>,
+    /// Where to fit and stylize: cpu, gpu, or auto (a real GPU when there is one, else the
+    /// cpu; the default).
+    #[arg(long)]
+    device: Option<DeviceChoice>,
     /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     set: Vec<String>,
@@ -176,6 +181,7 @@ impl StylizeArgs {
             ("clip_weights", path(&self.clip_weights)),
             ("tokenizer", path(&self.tokenizer)),
             ("vgg_weights", path(&self.vgg_weights)),
+            ("device", self.device.map(|d| Value::from(d.to_string()))),
         ];
         if self.style_image.is_some() {
             flags.push(("style_prompt", Some(Value::Null)));
@@ -218,6 +224,9 @@ struct FitArgs {
     /// Distance of the cameras from the picture plane, world units.
     #[arg(long, default_value_t = DEFAULT_DISTANCE)]
     distance: f64,
+    /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
@@ -244,6 +253,9 @@ struct RenderArgs {
     /// Distance of the camera from the picture plane (the fit's).
     #[arg(long, default_value_t = DEFAULT_DISTANCE)]
     distance: f64,
+    /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
     /// The output PNG.
     #[arg(long)]
     out: PathBuf,
@@ -305,8 +317,9 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         progress: !args.quiet,
         stop: stop_on_ctrl_c()?,
     };
+    let backend = open_device(args.device)?;
     let start = Instant::now();
-    let model = fit_with_progress(&picture, &settings, &options)?;
+    let model = fit_with_progress(&picture, &settings, &options, &backend)?;
     let seconds = start.elapsed().as_secs_f64();
     let (w, h) = (picture.width, picture.height);
     let fitted = render_picture(&model, w, h, settings.distance, false, settings.background)?;
@@ -327,14 +340,11 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let model = load_model(&args.model)?;
-    let image = render_picture(
-        &model,
-        args.width,
-        args.height,
-        args.distance,
-        args.mirror,
-        args.background,
-    )?;
+    let camera = mirage_camera(args.width, args.height, args.distance, args.mirror)?;
+    let backend = open_device(args.device)?;
+    let image = backend
+        .renderer(&model.renderable())?
+        .render(&camera, args.background)?;
     image.save_png(&args.out)?;
     println!(
         "wrote {} ({}x{})",

@@ -5,7 +5,8 @@ use super::buffers::{read, storage, uniform};
 use super::device::{GpuContext, GpuError};
 use super::forward::WORKGROUP;
 use super::shaders::KernelId;
-use crate::adam::{AdamHyper, GroupConfig};
+use crate::adam::{decode_state, encode_state, AdamHyper, GroupConfig};
+use crate::GsError;
 
 /// The uniform of adam_step.wgsl.
 #[repr(C)]
@@ -69,13 +70,55 @@ impl GpuAdam {
         })
     }
 
+    /// The group configurations.
+    pub fn groups(&self) -> &[GroupConfig] {
+        &self.groups
+    }
+
     /// Steps taken so far.
     pub fn step_count(&self) -> u64 {
         self.step
     }
 
+    /// The state (step count and every moment, read back) as bytes, in the format of
+    /// [`crate::adam::Adam::save_state`]: either optimizer resumes from the other's state.
+    pub fn save_state(&self, ctx: &GpuContext) -> Vec<u8> {
+        let moments: Vec<Option<(Vec<f32>, Vec<f32>)>> = (0..self.groups.len())
+            .map(|i| self.moments(ctx, i))
+            .collect();
+        encode_state(
+            self.step,
+            &self.groups,
+            moments
+                .iter()
+                .map(|m| m.as_ref().map(|(m, v)| (m.as_slice(), v.as_slice()))),
+        )
+    }
+
+    /// Restores state saved by [`GpuAdam::save_state`] or [`crate::adam::Adam::save_state`]
+    /// into an optimizer with the same groups (names, sizes and frozen flags); anything else is
+    /// an error that names the difference, and changes nothing.
+    pub fn restore_state(&mut self, ctx: &GpuContext, bytes: &[u8]) -> Result<(), GsError> {
+        let lens: Vec<Option<usize>> = self
+            .moments
+            .iter()
+            .map(|m| m.as_ref().map(|m| m.len))
+            .collect();
+        let (step, saved) = decode_state(bytes, &self.groups, &lens)?;
+        for (mine, saved) in self.moments.iter().zip(saved) {
+            if let (Some(mine), Some((m, v))) = (mine, saved) {
+                if mine.len > 0 {
+                    ctx.queue.write_buffer(&mine.m, 0, bytemuck::cast_slice(&m));
+                    ctx.queue.write_buffer(&mine.v, 0, bytemuck::cast_slice(&v));
+                }
+            }
+        }
+        self.step = step;
+        Ok(())
+    }
+
     /// One Adam step: `params[i]` is group `i`'s buffer, `grads[i]` its gradient (`None` is
-    /// allowed for frozen groups only).
+    /// allowed for frozen and empty groups only).
     ///
     /// # Panics
     /// If the number of groups differs from construction or a trained group has no gradient.
@@ -105,11 +148,11 @@ impl GpuAdam {
                 continue;
             };
             let group = &self.groups[i];
-            let grad =
-                grads[i].unwrap_or_else(|| panic!("trained group {} has no gradient", group.name));
             if mom.len == 0 {
                 continue;
             }
+            let grad =
+                grads[i].unwrap_or_else(|| panic!("trained group {} has no gradient", group.name));
             let lr = group.schedule.at(self.step);
             let params_uniform = uniform(
                 ctx,

@@ -40,6 +40,12 @@ impl GpuGradients {
         self.arrays.each_ref().map(Option::as_ref)
     }
 
+    /// The gradient buffers, consumed (for a model's [`super::GpuBaseModel::gpu_backward`],
+    /// which may hand them on as its own groups' gradients).
+    pub fn into_buffers(self) -> [Option<wgpu::Buffer>; 6] {
+        self.arrays
+    }
+
     /// Reads every gradient back (zeros for frozen arrays).
     pub fn download(&self, ctx: &GpuContext) -> Gradients {
         let mut g = GaussianGrads::zero_grads(self.len, self.sh_degree);

@@ -127,6 +127,18 @@ impl GpuGaussians {
         })
     }
 
+    /// Gaussians whose six arrays are `arrays` (the layout of [`GaussianSet`], in
+    /// [`PARAM_NAMES`] order), for `len` Gaussians of SH degree `sh_degree`: the buffers are
+    /// shared, not copied, so a model whose parameters are (some of) its rendered arrays builds
+    /// its Gaussians at no cost.
+    pub fn from_buffers(len: usize, sh_degree: usize, arrays: [wgpu::Buffer; 6]) -> Self {
+        Self {
+            len,
+            sh_degree,
+            arrays,
+        }
+    }
+
     /// Overwrites the parameters with `gaussians` (same count and degree).
     ///
     /// # Panics
@@ -180,6 +192,11 @@ impl GpuGaussians {
 /// gradients computed elsewhere, tests).
 pub fn upload_f32(ctx: &GpuContext, data: &[f32]) -> Result<wgpu::Buffer, GpuError> {
     storage_from(ctx, "f32 data", data)
+}
+
+/// A zeroed GPU storage buffer of `count` `f32` values; `what` names it in errors.
+pub fn zeroed_f32(ctx: &GpuContext, what: &str, count: usize) -> Result<wgpu::Buffer, GpuError> {
+    storage(ctx, what, 4 * count as u64)
 }
 
 /// Waits for the GPU and reads the first `count` values of an `f32` buffer.

@@ -1,7 +1,9 @@
 //! The GPU device: adapter choice, the adapter's limits and features, compiled kernels, and
 //! dispatch grids that respect the per-dimension workgroup limit.
 
-use super::shaders::{Kernel, KernelId, Kernels};
+use std::sync::{Arc, Mutex};
+
+use super::shaders::{Kernel, KernelId, KernelSource, Kernels};
 
 /// Which adapters may be used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -92,6 +94,14 @@ pub struct GpuContext {
     max_workgroups: u32,
     max_binding: u64,
     kernels: Kernels,
+    /// Kernels of other crates ([`GpuContext::run_kernel`]), compiled on first use.
+    extra_kernels: Mutex<Vec<(&'static str, Arc<Kernel>)>>,
+}
+
+impl std::fmt::Debug for GpuContext {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_tuple("GpuContext").field(&self.describe()).finish()
+    }
 }
 
 /// Preference of an adapter type: lower is better; `None` when the choice excludes it.
@@ -181,6 +191,7 @@ impl GpuContext {
             info,
             float_atomics,
             kernels,
+            extra_kernels: Mutex::new(Vec::new()),
         })
     }
 
@@ -218,7 +229,8 @@ impl GpuContext {
         self.max_binding
     }
 
-    pub(crate) fn adapter_name(&self) -> &str {
+    /// The adapter's name alone, e.g. `NVIDIA GeForce RTX 4090`.
+    pub fn adapter_name(&self) -> &str {
         &self.info.name
     }
 
@@ -264,6 +276,51 @@ impl GpuContext {
         pass.set_pipeline(kernel.pipeline());
         pass.set_bind_group(0, &bind, &[]);
         pass.dispatch_workgroups(grid[0], grid[1], 1);
+    }
+
+    /// Runs `kernel` over `workgroups` workgroups (split over y past the per-dimension limit,
+    /// which `flat_index` of helpers.wgsl undoes) on `buffers`, one per binding in order;
+    /// compiles it on first use.
+    ///
+    /// # Panics
+    /// If the number of buffers is not the kernel's number of bindings.
+    pub fn run_kernel(&self, kernel: &KernelSource, buffers: &[&wgpu::Buffer], workgroups: u32) {
+        assert_eq!(
+            buffers.len(),
+            kernel.bindings.len(),
+            "{}: one buffer per binding",
+            kernel.name
+        );
+        let compiled = {
+            let mut cache = self.extra_kernels.lock().expect("kernel cache");
+            match cache.iter().find(|(name, _)| *name == kernel.name) {
+                Some((_, k)) => Arc::clone(k),
+                None => {
+                    let k = Arc::new(Kernel::extra(&self.device, kernel, self.float_atomics));
+                    cache.push((kernel.name, Arc::clone(&k)));
+                    k
+                }
+            }
+        };
+        let bind = compiled.bind(&self.device, buffers);
+        let mut encoder = self.encoder();
+        {
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+                label: Some(compiled.name()),
+                timestamp_writes: None,
+            });
+            pass.set_pipeline(compiled.pipeline());
+            pass.set_bind_group(0, &bind, &[]);
+            let (x, y) = self.grid(workgroups);
+            pass.dispatch_workgroups(x, y, 1);
+        }
+        self.submit(encoder);
+    }
+
+    /// A 16-byte uniform buffer of four words (`u32`s; `f32`s as their bits), for the
+    /// parameters of a [`KernelSource`].
+    pub fn uniform_words(&self, words: [u32; 4]) -> wgpu::Buffer {
+        super::buffers::uniform(self, &words)
     }
 
     /// Blocks until the GPU has finished all submitted work (for timings).

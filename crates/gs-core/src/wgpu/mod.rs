@@ -8,21 +8,33 @@
 //! - [`render`] and [`backward`]: projection, SH colour, tile binning, a GPU radix sort by
 //!   depth and then by tile, front-to-back compositing, and the exact backward pass.
 //! - [`GpuAdam`]: Adam whose moments stay on the GPU.
+//! - [`GpuParams`] and [`GpuBaseModel`]: a model's parameters on the GPU and the per-view
+//!   construction of its Gaussians there (the identity for a plain [`crate::GaussianSet`]).
+//! - [`train`](fn@train): the training loop of [`crate::train`] with all of the above.
+//! - [`KernelSource`]: WGSL kernels of other crates (a base model's own construction), with
+//!   the same `//#import` of gs-core's shader files.
 //!
-//! Per step, the only traffic between host and GPU is the rendered image read back, dL/dimage
-//! uploaded, and one `u32` (the number of tile-Gaussian pairs, which sizes the pair lists).
+//! Per training step, the only traffic between host and GPU is the rendered image read back,
+//! dL/dimage uploaded, and two `u32`s (the number of tile-Gaussian pairs, which sizes the pair
+//! lists, and whether every gradient is finite).
 
 mod adam;
 mod backward;
 mod buffers;
 mod device;
 mod forward;
+mod model;
 mod scan;
 mod shaders;
 mod sort;
+mod train;
 
 pub use adam::GpuAdam;
 pub use backward::{backward, GpuGradients};
-pub use buffers::{read_f32, upload_f32, GpuGaussians};
+pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
 pub use device::{AdapterChoice, GpuContext, GpuError, GpuOptions};
 pub use forward::{render, GpuRendered};
+pub use model::{GpuBaseModel, GpuParams};
+pub use shaders::{Access, KernelSource};
+pub use train::train;
+pub use wgpu::Buffer;

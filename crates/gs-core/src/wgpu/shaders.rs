@@ -1,5 +1,5 @@
-//! The WGSL kernels, compiled into the crate from the repository's `shaders/`, and the tiny
-//! import mechanism they share helpers with.
+//! The WGSL kernels, compiled into the crate from the repository's `shaders/`, the tiny
+//! import mechanism they share helpers with, and kernels other crates bring ([`KernelSource`]).
 //!
 //! Every kernel file has one compute entry point, `main`. A line `//#import NAME.wgsl` is
 //! replaced by the text of `shaders/NAME.wgsl` (imports nest; a file imported twice is
@@ -74,6 +74,10 @@ const FILES: &[(&str, &str)] = &[
         "adam_step.wgsl",
         include_str!("../../../../shaders/adam_step.wgsl"),
     ),
+    (
+        "check_finite.wgsl",
+        include_str!("../../../../shaders/check_finite.wgsl"),
+    ),
 ];
 
 const IMPORT: &str = "//#import ";
@@ -88,19 +92,25 @@ fn file(name: &str) -> &'static str {
 
 /// The text of kernel file `name` with its imports resolved.
 pub(crate) fn source(name: &str, float_atomics: bool) -> String {
-    fn expand(name: &str, float_atomics: bool, done: &mut Vec<String>, out: &mut String) {
-        let real = match name {
-            "accumulate.wgsl" if float_atomics => "accumulate_float_atomic.wgsl",
-            "accumulate.wgsl" => "accumulate_cas.wgsl",
-            other => other,
-        };
-        if done.iter().any(|d| d == real) {
-            return;
-        }
-        done.push(real.to_string());
-        for line in file(real).lines() {
+    expand(name, file(name), float_atomics)
+}
+
+/// `text` (the file `name`) with its imports of gs-core's shader files resolved.
+fn expand(name: &str, text: &str, float_atomics: bool) -> String {
+    fn resolve(text: &str, float_atomics: bool, done: &mut Vec<String>, out: &mut String) {
+        for line in text.lines() {
             match line.trim().strip_prefix(IMPORT) {
-                Some(import) => expand(import.trim(), float_atomics, done, out),
+                Some(import) => {
+                    let real = match import.trim() {
+                        "accumulate.wgsl" if float_atomics => "accumulate_float_atomic.wgsl",
+                        "accumulate.wgsl" => "accumulate_cas.wgsl",
+                        other => other,
+                    };
+                    if !done.iter().any(|d| d == real) {
+                        done.push(real.to_string());
+                        resolve(file(real), float_atomics, done, out);
+                    }
+                }
                 None => {
                     out.push_str(line);
                     out.push('\n');
@@ -109,13 +119,13 @@ pub(crate) fn source(name: &str, float_atomics: bool) -> String {
         }
     }
     let mut out = String::new();
-    expand(name, float_atomics, &mut Vec::new(), &mut out);
+    resolve(text, float_atomics, &mut vec![name.to_string()], &mut out);
     out
 }
 
-/// How a kernel sees one binding.
+/// How a kernel sees one of its bindings.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Access {
+pub enum Access {
     /// A uniform buffer.
     Uniform,
     /// A read-only storage buffer.
@@ -125,6 +135,21 @@ enum Access {
 }
 
 use Access::{Read as R, Uniform as U, Write as W};
+
+/// A compute kernel that a crate other than gs-core brings (e.g. a base model's per-view
+/// construction of its Gaussians): WGSL with one entry point `main`, whose `//#import` lines
+/// name gs-core's shader files (`helpers.wgsl` has `flat_index`, `finite` and the uniforms),
+/// run with [`super::GpuContext::run_kernel`]. Bindings are `@group(0) @binding(0..)` in the
+/// order of `bindings`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KernelSource {
+    /// The file name, e.g. `flat_gaussians_forward.wgsl` (names the kernel in errors and caches).
+    pub name: &'static str,
+    /// The WGSL text.
+    pub wgsl: &'static str,
+    /// How the kernel sees each binding, in order.
+    pub bindings: &'static [Access],
+}
 
 /// The kernels, each named after its cpu twin (see the file's header).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -141,10 +166,11 @@ pub(crate) enum KernelId {
     CompositeBackward,
     ProjectBackward,
     AdamStep,
+    CheckFinite,
 }
 
 impl KernelId {
-    const ALL: [KernelId; 12] = [
+    const ALL: [KernelId; 13] = [
         KernelId::ProjectForward,
         KernelId::BinCounts,
         KernelId::BinTiles,
@@ -157,6 +183,7 @@ impl KernelId {
         KernelId::CompositeBackward,
         KernelId::ProjectBackward,
         KernelId::AdamStep,
+        KernelId::CheckFinite,
     ];
 
     /// The kernel's file and its bindings `0..` in order.
@@ -179,6 +206,7 @@ impl KernelId {
                 &[U, R, R, R, R, R, R, R, W, W, W, W, W, W],
             ),
             KernelId::AdamStep => ("adam_step.wgsl", &[U, W, R, W, W]),
+            KernelId::CheckFinite => ("check_finite.wgsl", &[U, R, W]),
         }
     }
 }
@@ -193,6 +221,16 @@ pub(crate) struct Kernel {
 impl Kernel {
     fn new(device: &wgpu::Device, id: KernelId, float_atomics: bool) -> Self {
         let (name, access) = id.spec();
+        Self::compile(device, name, &source(name, float_atomics), access)
+    }
+
+    /// Compiles a kernel brought by another crate, its imports resolved.
+    pub(crate) fn extra(device: &wgpu::Device, kernel: &KernelSource, float_atomics: bool) -> Self {
+        let text = expand(kernel.name, kernel.wgsl, float_atomics);
+        Self::compile(device, kernel.name, &text, kernel.bindings)
+    }
+
+    fn compile(device: &wgpu::Device, name: &'static str, text: &str, access: &[Access]) -> Self {
         let entries: Vec<wgpu::BindGroupLayoutEntry> = access
             .iter()
             .enumerate()
@@ -222,7 +260,7 @@ impl Kernel {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(source(name, float_atomics).into()),
+            source: wgpu::ShaderSource::Wgsl(text.into()),
         });
         let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(name),

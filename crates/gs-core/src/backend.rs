@@ -1,0 +1,351 @@
+//! The compute device of a run, chosen at run time (`--device cpu|gpu|auto`), and what runs on
+//! it: training ([`Trainer`]) and rendering ([`Renderer`]).
+//!
+//! `auto` takes a real GPU adapter when there is one, else the cpu; a software Vulkan device
+//! (Mesa's lavapipe) is for tests, never a default: `gpu` refuses it unless the environment
+//! variable [`ALLOW_SOFTWARE_GPU`] is `1`.
+
+use std::fmt;
+use std::ops::ControlFlow;
+use std::str::FromStr;
+#[cfg(feature = "wgpu")]
+use std::sync::Arc;
+
+use crate::adam::{Adam, AdamHyper, GroupConfig};
+use crate::camera::Camera;
+use crate::gaussians::GaussianSet;
+use crate::image::Image;
+use crate::model::View;
+use crate::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
+#[cfg(feature = "wgpu")]
+use crate::wgpu::{AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuParams};
+use crate::GsError;
+
+/// The environment variable that lets `gpu` take a software adapter (for tests on lavapipe).
+pub const ALLOW_SOFTWARE_GPU: &str = "CLIPGAUSSIAN_ALLOW_SOFTWARE_GPU";
+
+/// The device asked for: `cpu`, `gpu` or `auto`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// The cpu backend (rayon).
+    Cpu,
+    /// A real GPU through wgpu; an error when there is none.
+    Gpu,
+    /// A real GPU when there is one, else the cpu.
+    #[default]
+    Auto,
+}
+
+impl FromStr for DeviceChoice {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "gpu" => Ok(Self::Gpu),
+            "auto" => Ok(Self::Auto),
+            other => Err(format!("device {other:?} is not one of cpu, gpu, auto")),
+        }
+    }
+}
+
+impl fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Cpu => "cpu",
+            Self::Gpu => "gpu",
+            Self::Auto => "auto",
+        })
+    }
+}
+
+/// Why the device asked for cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum DeviceError {
+    /// `gpu` was asked for and there is no GPU this run may use.
+    #[error("--device gpu: {0}")]
+    NoGpu(String),
+    /// The GPU failed.
+    #[cfg(feature = "wgpu")]
+    #[error("GPU: {0}")]
+    Gpu(#[from] GpuError),
+}
+
+impl DeviceChoice {
+    /// Opens the device: the cpu, or a GPU adapter as described in the module documentation.
+    pub fn open(self) -> Result<Backend, DeviceError> {
+        match self {
+            Self::Cpu => Ok(Backend::Cpu),
+            Self::Gpu => open_gpu(),
+            Self::Auto => Ok(open_hardware_gpu().unwrap_or(Backend::Cpu)),
+        }
+    }
+}
+
+/// A real GPU, when there is one.
+#[cfg(feature = "wgpu")]
+fn open_hardware_gpu() -> Option<Backend> {
+    GpuContext::new(AdapterChoice::Hardware)
+        .ok()
+        .map(|ctx| Backend::Gpu(Arc::new(ctx)))
+}
+
+/// Built without the wgpu backend: never a GPU.
+#[cfg(not(feature = "wgpu"))]
+fn open_hardware_gpu() -> Option<Backend> {
+    None
+}
+
+/// A real GPU, or a software one when [`ALLOW_SOFTWARE_GPU`] is `1`.
+#[cfg(feature = "wgpu")]
+fn open_gpu() -> Result<Backend, DeviceError> {
+    let software = std::env::var(ALLOW_SOFTWARE_GPU).is_ok_and(|v| v == "1");
+    let choice = if software {
+        AdapterChoice::AllowSoftware
+    } else {
+        AdapterChoice::Hardware
+    };
+    match GpuContext::new(choice) {
+        Ok(ctx) => Ok(Backend::Gpu(Arc::new(ctx))),
+        Err(GpuError::NoAdapter { seen, .. }) => Err(DeviceError::NoGpu(format!(
+            "no GPU adapter (adapters seen: {seen}); software devices such as lavapipe are for \
+             tests and need {ALLOW_SOFTWARE_GPU}=1; use --device cpu or auto to run on the cpu"
+        ))),
+        Err(e) => Err(e.into()),
+    }
+}
+
+/// Built without the wgpu backend: `gpu` is an error.
+#[cfg(not(feature = "wgpu"))]
+fn open_gpu() -> Result<Backend, DeviceError> {
+    Err(DeviceError::NoGpu(
+        "gs-core was built without its wgpu feature; use --device cpu".into(),
+    ))
+}
+
+/// An opened device.
+#[derive(Clone, Debug)]
+pub enum Backend {
+    /// The cpu backend: the rayon rasterizer and [`Adam`].
+    Cpu,
+    /// The wgpu backend on one adapter.
+    #[cfg(feature = "wgpu")]
+    Gpu(Arc<GpuContext>),
+}
+
+impl Backend {
+    /// One line naming the device: `cpu (rayon, 8 threads)` or the GPU adapter.
+    pub fn describe(&self) -> String {
+        match self {
+            Self::Cpu => format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
+            #[cfg(feature = "wgpu")]
+            Self::Gpu(ctx) => format!("gpu: {}", ctx.describe()),
+        }
+    }
+
+    /// A renderer of `gaussians` on this device (on a GPU they are uploaded once).
+    pub fn renderer<'a>(&self, gaussians: &'a GaussianSet) -> Result<Renderer<'a>, DeviceError> {
+        match self {
+            Self::Cpu => Ok(Renderer::Cpu(gaussians)),
+            #[cfg(feature = "wgpu")]
+            Self::Gpu(ctx) => Ok(Renderer::Gpu {
+                gaussians: Box::new(GpuGaussians::upload(ctx, gaussians)?),
+                ctx: Arc::clone(ctx),
+            }),
+        }
+    }
+}
+
+/// A Gaussian set ready to render from any camera on one device.
+pub enum Renderer<'a> {
+    /// The cpu rasterizer.
+    Cpu(&'a GaussianSet),
+    /// The set on a GPU.
+    #[cfg(feature = "wgpu")]
+    Gpu {
+        /// The device.
+        ctx: Arc<GpuContext>,
+        /// The set, uploaded.
+        gaussians: Box<GpuGaussians>,
+    },
+}
+
+impl Renderer<'_> {
+    /// The image through `camera` over `background`.
+    pub fn render(&self, camera: &Camera, background: [f32; 3]) -> Result<Image, DeviceError> {
+        match self {
+            Self::Cpu(g) => Ok(crate::raster::render(g, camera, background).image),
+            #[cfg(feature = "wgpu")]
+            Self::Gpu { ctx, gaussians } => {
+                Ok(crate::wgpu::render(ctx, gaussians, camera, background)?.image(ctx))
+            }
+        }
+    }
+}
+
+/// A model a [`Trainer`] can train on every backend this build has: a
+/// [`crate::model::BaseModel`], and with the wgpu feature a [`crate::wgpu::GpuBaseModel`].
+#[cfg(feature = "wgpu")]
+pub trait TrainableModel: crate::wgpu::GpuBaseModel {}
+#[cfg(feature = "wgpu")]
+impl<M: crate::wgpu::GpuBaseModel> TrainableModel for M {}
+
+/// A model a [`Trainer`] can train on every backend this build has: a
+/// [`crate::model::BaseModel`].
+#[cfg(not(feature = "wgpu"))]
+pub trait TrainableModel: crate::model::BaseModel {}
+#[cfg(not(feature = "wgpu"))]
+impl<M: crate::model::BaseModel> TrainableModel for M {}
+
+/// Where a trainer's parameters and optimizer live.
+enum State {
+    Cpu(Adam),
+    #[cfg(feature = "wgpu")]
+    Gpu {
+        ctx: Arc<GpuContext>,
+        params: GpuParams,
+        adam: GpuAdam,
+    },
+}
+
+/// A model and its optimizer on one device, trained by [`crate::train::train`] or
+/// [`crate::wgpu::train`]. On a GPU the parameters and moments are uploaded once and read
+/// back only on request ([`Trainer::param_groups`], [`Trainer::save_optimizer`],
+/// [`Trainer::into_model`]); optimizer state is in one format on both devices, so a run saved
+/// on one resumes on the other.
+pub struct Trainer<M> {
+    model: M,
+    state: State,
+}
+
+impl<M: TrainableModel> Trainer<M> {
+    /// `model` with a fresh Adam over `groups` (one per parameter group) on `backend`.
+    pub fn new(
+        backend: &Backend,
+        #[cfg_attr(not(feature = "wgpu"), allow(unused_mut))] mut model: M,
+        groups: Vec<GroupConfig>,
+        hyper: AdamHyper,
+    ) -> Result<Self, DeviceError> {
+        let lens = model.group_lens();
+        let state = match backend {
+            Backend::Cpu => State::Cpu(Adam::new(groups, &lens, hyper)),
+            #[cfg(feature = "wgpu")]
+            Backend::Gpu(ctx) => State::Gpu {
+                params: GpuParams::upload(ctx, &mut model)?,
+                adam: GpuAdam::new(ctx, groups, &lens, hyper)?,
+                ctx: Arc::clone(ctx),
+            },
+        };
+        Ok(Self { model, state })
+    }
+
+    /// Steps the optimizer has taken.
+    pub fn step_count(&self) -> u64 {
+        match &self.state {
+            State::Cpu(adam) => adam.step_count(),
+            #[cfg(feature = "wgpu")]
+            State::Gpu { adam, .. } => adam.step_count(),
+        }
+    }
+
+    /// Trains until the optimizer has taken `config.steps` steps or `on_step` breaks (see
+    /// [`crate::train::train`]).
+    pub fn train<O, F>(
+        &mut self,
+        views: &[View],
+        objective: &mut O,
+        sampler: &mut ViewSampler,
+        config: &TrainConfig,
+        on_step: F,
+    ) -> Result<(), TrainError<O::Error>>
+    where
+        O: Objective,
+        F: FnMut(&StepReport) -> ControlFlow<()>,
+    {
+        match &mut self.state {
+            State::Cpu(adam) => crate::train::train(
+                &mut self.model,
+                views,
+                objective,
+                adam,
+                sampler,
+                config,
+                on_step,
+            ),
+            #[cfg(feature = "wgpu")]
+            State::Gpu { ctx, params, adam } => crate::wgpu::train(
+                ctx,
+                &self.model,
+                params,
+                views,
+                objective,
+                adam,
+                sampler,
+                config,
+                on_step,
+            ),
+        }
+    }
+
+    /// The current values of every parameter group, in
+    /// [`crate::model::BaseModel::group_names`] order (read
+    /// back from a GPU).
+    pub fn param_groups(&mut self) -> Vec<Vec<f32>> {
+        match &self.state {
+            State::Cpu(_) => self
+                .model
+                .groups_mut()
+                .into_iter()
+                .map(|g| g.to_vec())
+                .collect(),
+            #[cfg(feature = "wgpu")]
+            State::Gpu { ctx, params, .. } => params.download(ctx),
+        }
+    }
+
+    /// The optimizer state as bytes ([`Adam::save_state`]'s format on every device).
+    pub fn save_optimizer(&self) -> Vec<u8> {
+        match &self.state {
+            State::Cpu(adam) => adam.save_state(),
+            #[cfg(feature = "wgpu")]
+            State::Gpu { ctx, adam, .. } => adam.save_state(ctx),
+        }
+    }
+
+    /// Restores optimizer state saved on any device ([`Trainer::save_optimizer`]).
+    pub fn restore_optimizer(&mut self, bytes: &[u8]) -> Result<(), GsError> {
+        match &mut self.state {
+            State::Cpu(adam) => adam.restore_state(bytes),
+            #[cfg(feature = "wgpu")]
+            State::Gpu { ctx, adam, .. } => adam.restore_state(ctx, bytes),
+        }
+    }
+
+    /// The trained model (its parameters read back from a GPU).
+    pub fn into_model(self) -> M {
+        match self.state {
+            State::Cpu(_) => self.model,
+            #[cfg(feature = "wgpu")]
+            State::Gpu { ctx, params, .. } => {
+                let mut model = self.model;
+                params.download_into(&ctx, &mut model);
+                model
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn device_names_parse_and_print_back() {
+        for d in [DeviceChoice::Cpu, DeviceChoice::Gpu, DeviceChoice::Auto] {
+            assert_eq!(d.to_string().parse::<DeviceChoice>(), Ok(d));
+        }
+        let e = "cuda".parse::<DeviceChoice>().unwrap_err();
+        assert!(e.contains("cuda") && e.contains("cpu, gpu, auto"), "{e}");
+        assert_eq!(DeviceChoice::default(), DeviceChoice::Auto);
+    }
+}

@@ -1,0 +1,137 @@
+//! The training loop on the GPU: [`crate::train::train`]'s loop (the same sampler, objective,
+//! reports, callback and checks) over a model built on the GPU ([`GpuBaseModel`]), with the
+//! parameters, gradients and Adam moments staying there. Per step the image is read back,
+//! dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag).
+
+use std::ops::ControlFlow;
+
+use super::adam::GpuAdam;
+use super::backward::backward;
+use super::buffers::{read, storage, uniform};
+use super::device::{GpuContext, GpuError};
+use super::forward::{render, WORKGROUP};
+use super::model::{GpuBaseModel, GpuParams};
+use super::scan::PassUniform;
+use super::shaders::KernelId;
+use crate::image::Image;
+use crate::model::View;
+use crate::raster::{GradMask, OutputGrads};
+use crate::train::{
+    check_groups, run_steps, Objective, StepBackend, StepEnd, StepReport, TrainConfig, TrainError,
+    ViewSampler,
+};
+
+/// The wgpu backend of the training loop.
+struct GpuBackend<'a, M> {
+    ctx: &'a GpuContext,
+    model: &'a M,
+    params: &'a GpuParams,
+    adam: &'a mut GpuAdam,
+    trained: Vec<bool>,
+    mask: GradMask,
+}
+
+impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
+    type Error = GpuError;
+
+    fn step_count(&self) -> u64 {
+        self.adam.step_count()
+    }
+
+    fn step<'g>(
+        &mut self,
+        view: &View,
+        background: [f32; 3],
+        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
+    ) -> Result<StepEnd, GpuError> {
+        let ctx = self.ctx;
+        let gaussians = self.model.gpu_gaussians(ctx, self.params, view)?;
+        let rendered = render(ctx, &gaussians, &view.camera, background)?;
+        let Some(grad) = evaluate(&rendered.image(ctx)) else {
+            return Ok(StepEnd::Abandoned);
+        };
+        let out = OutputGrads {
+            rgb: grad,
+            alpha: None,
+            depth: None,
+        };
+        let grads = backward(ctx, &gaussians, &rendered, &out, self.mask)?;
+        let group_grads = self
+            .model
+            .gpu_backward(ctx, self.params, view, grads, &self.trained)?;
+        if !all_finite(ctx, &group_grads, self.params.lens())? {
+            return Ok(StepEnd::NonFiniteGradient);
+        }
+        let grad_refs: Vec<Option<&wgpu::Buffer>> =
+            group_grads.iter().map(Option::as_ref).collect();
+        let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
+        self.adam.step(ctx, &params, &grad_refs);
+        Ok(StepEnd::Taken)
+    }
+}
+
+/// True when every value of every gradient (`lens[i]` values of `grads[i]`) is finite.
+fn all_finite(
+    ctx: &GpuContext,
+    grads: &[Option<wgpu::Buffer>],
+    lens: &[usize],
+) -> Result<bool, GpuError> {
+    let flag = storage(ctx, "finiteness flag", 4)?;
+    let mut encoder = ctx.encoder();
+    for (g, &n) in grads.iter().zip(lens) {
+        let Some(g) = g.as_ref().filter(|_| n > 0) else {
+            continue;
+        };
+        let n = u32::try_from(n).expect("at most u32::MAX values a group");
+        let count = uniform(ctx, &PassUniform::new(n, 0));
+        ctx.dispatch(
+            &mut encoder,
+            KernelId::CheckFinite,
+            &[&count, g, &flag],
+            n.div_ceil(WORKGROUP),
+        );
+    }
+    ctx.submit(encoder);
+    Ok(read::<u32>(ctx, &flag, 1)[0] == 0)
+}
+
+/// Trains `model`, whose parameters are `params` on the GPU of `ctx`, on `views` with
+/// `objective` and `adam` until `adam` has taken `config.steps` steps, exactly as
+/// [`crate::train::train`] does on the cpu (same view order, reports, callback and errors).
+/// The parameters stay on the GPU: read them with [`GpuParams::download_into`].
+#[allow(clippy::too_many_arguments)]
+pub fn train<M, O, F>(
+    ctx: &GpuContext,
+    model: &M,
+    params: &GpuParams,
+    views: &[View],
+    objective: &mut O,
+    adam: &mut GpuAdam,
+    sampler: &mut ViewSampler,
+    config: &TrainConfig,
+    on_step: F,
+) -> Result<(), TrainError<O::Error>>
+where
+    M: GpuBaseModel,
+    O: Objective,
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    check_groups(adam.groups().len(), &model.group_names())?;
+    if params.lens() != model.group_lens() {
+        return Err(TrainError::Mismatch(format!(
+            "the parameters on the GPU have groups of {:?} values, the model {:?}",
+            params.lens(),
+            model.group_lens()
+        )));
+    }
+    let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
+    let mut backend = GpuBackend {
+        ctx,
+        model,
+        params,
+        mask: model.grad_mask(&trained),
+        trained,
+        adam,
+    };
+    run_steps(&mut backend, views, objective, sampler, config, on_step)
+}
