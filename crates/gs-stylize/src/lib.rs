@@ -2,6 +2,7 @@
 //! crate loads its model ([`gs_core::model::BaseModel`]) and views, hands them to [`stylize`],
 //! and writes its own results (a stylized PLY, previews) from the trained model.
 //!
+//! - [`cli`]: the `stylize` flags every binary shares.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
@@ -11,6 +12,7 @@
 //! - [`picture`]: pictures as CLIP inputs (the style image).
 
 pub mod checkpoint;
+pub mod cli;
 pub mod config;
 pub mod interrupt;
 pub mod loss_plot;

@@ -14,12 +14,13 @@ use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics, ClipFiles, Style};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
-use base_3dgs::stylize::{run, Override, RunOptions, StylizeConfig, StylizeError};
+use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
-use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use gs_stylize::cli::{path_value, StyleArgs};
+use gs_stylize::interrupt::INTERRUPTED_EXIT;
 use gs_stylize::open_device;
 
 /// Command-line arguments.
@@ -80,77 +81,23 @@ struct StylizeArgs {
     /// The output folder.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// The style as text.
-    #[arg(long)]
-    style_prompt: Option<String>,
-    /// The style as a picture.
-    #[arg(long)]
-    style_image: Option<PathBuf>,
-    /// The source prompt (default "a Photo").
-    #[arg(long)]
-    source_prompt: Option<String>,
-    /// Optimizer steps.
-    #[arg(long)]
-    steps: Option<u64>,
     /// Resolution divisor of the dataset images.
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
-    /// CLIP config.json (default: ViT-B/32).
-    #[arg(long)]
-    clip_config: Option<PathBuf>,
-    /// CLIP weights (safetensors).
-    #[arg(long)]
-    clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json.
-    #[arg(long)]
-    tokenizer: Option<PathBuf>,
-    /// VGG-19 weights (safetensors, torchvision layout).
-    #[arg(long)]
-    vgg_weights: Option<PathBuf>,
-    /// Where to stylize: cpu, gpu, or auto (a real GPU when there is one, else the cpu; the
-    /// default).
-    #[arg(long)]
-    device: Option<DeviceChoice>,
-    /// Any configuration field, e.g. `--set feature_lr=0.002 --set preview_views=[0,3]`.
-    #[arg(long = "set", value_name = "FIELD=VALUE")]
-    set: Vec<String>,
-    /// Continue the run from `<out>/checkpoint/`.
-    #[arg(long)]
-    resume: bool,
-    /// No progress bar.
-    #[arg(long)]
-    quiet: bool,
+    /// The style, model files, device and run controls.
+    #[command(flatten)]
+    style: StyleArgs,
 }
 
 impl StylizeArgs {
     /// The flags as overrides, then the `--set` ones.
     fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
-        let path = |p: &Option<PathBuf>| p.as_ref().map(|p| p.display().to_string());
-        let flags = [
-            ("ply", path(&self.ply).map(Into::into)),
-            ("data", path(&self.data).map(Into::into)),
-            ("out", path(&self.out).map(Into::into)),
-            ("style_prompt", self.style_prompt.clone().map(Into::into)),
-            ("style_image", path(&self.style_image).map(Into::into)),
-            ("source_prompt", self.source_prompt.clone().map(Into::into)),
-            ("steps", self.steps.map(Into::into)),
+        self.style.overrides(vec![
+            ("ply", path_value(&self.ply)),
+            ("data", path_value(&self.data)),
+            ("out", path_value(&self.out)),
             ("resolution", self.resolution.map(Into::into)),
-            ("clip_config", path(&self.clip_config).map(Into::into)),
-            ("clip_weights", path(&self.clip_weights).map(Into::into)),
-            ("tokenizer", path(&self.tokenizer).map(Into::into)),
-            ("vgg_weights", path(&self.vgg_weights).map(Into::into)),
-            ("device", self.device.map(|d| d.to_string().into())),
-        ];
-        let mut overrides: Vec<Override> = flags
-            .into_iter()
-            .filter_map(|(field, value): (&str, Option<serde_json::Value>)| {
-                value.map(|v| Override::new(field, v))
-            })
-            .collect();
-        for s in &self.set {
-            overrides.push(Override::parse(s)?);
-        }
-        Ok(overrides)
+        ])
     }
 }
 
@@ -286,12 +233,7 @@ struct EvalArgs {
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     let overrides = args.overrides()?;
     let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
-    let options = RunOptions {
-        resume: args.resume,
-        progress: !args.quiet,
-        stop: stop_on_ctrl_c()?,
-    };
-    let summary = run(&config, &options)?;
+    let summary = run(&config, &args.style.run_options()?)?;
     let last = summary.losses.last().map_or(f32::NAN, |l| l.total);
     println!(
         "wrote {} ({} Gaussians, final loss {last:.4})",

@@ -25,6 +25,7 @@ use gs_core::image_loss::psnr;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_core::Image;
+use gs_stylize::cli::{path_value, StyleArgs};
 use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
@@ -107,18 +108,6 @@ struct StylizeArgs {
     /// The output folder.
     #[arg(long)]
     out: Option<PathBuf>,
-    /// The style as text (default "Starry Night by Vincent van Gogh").
-    #[arg(long, conflicts_with = "style_image")]
-    style_prompt: Option<String>,
-    /// The style as a picture (replaces the default prompt).
-    #[arg(long)]
-    style_image: Option<PathBuf>,
-    /// The source prompt (default "a Photo").
-    #[arg(long)]
-    source_prompt: Option<String>,
-    /// Stylization steps.
-    #[arg(long)]
-    steps: Option<u64>,
     /// Gaussians of the fit.
     #[arg(long)]
     gaussians: Option<usize>,
@@ -129,71 +118,26 @@ struct StylizeArgs {
     /// (default black, as MiraGe).
     #[arg(long, value_parser = parse_background)]
     background: Option<[f32; 3]>,
-    /// CLIP config.json (default: ViT-B/32).
-    #[arg(long)]
-    clip_config: Option<PathBuf>,
-    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, the Hugging Face
-    /// cache, or a download).
-    #[arg(long)]
-    clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the cache, or a download).
-    #[arg(long)]
-    tokenizer: Option<PathBuf>,
-    /// VGG-19 weights, safetensors in torchvision's layout (default: $CLIPGAUSSIAN_VGG19_WEIGHTS,
-    /// the cache, or a download).
-    #[arg(long)]
-    vgg_weights: Option<PathBuf>,
-    /// Where to fit and stylize: cpu, gpu, or auto (a real GPU when there is one, else the
-    /// cpu; the default).
-    #[arg(long)]
-    device: Option<DeviceChoice>,
-    /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
-    #[arg(long = "set", value_name = "FIELD=VALUE")]
-    set: Vec<String>,
-    /// Continue the run from `<out>/checkpoint/` (and reuse `<out>/base.ply`).
-    #[arg(long)]
-    resume: bool,
-    /// No progress bars.
-    #[arg(long)]
-    quiet: bool,
+    /// The style (default "Starry Night by Vincent van Gogh"), model files, device and run
+    /// controls; `--resume` also reuses `<out>/base.ply`.
+    #[command(flatten)]
+    style: StyleArgs,
 }
 
 impl StylizeArgs {
     /// The flags as overrides, then the `--set` ones.
     fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
-        use serde_json::Value;
-        let path = |p: &Option<PathBuf>| p.as_ref().map(|p| Value::from(p.display().to_string()));
-        let mut flags: Vec<(&str, Option<Value>)> = vec![
-            ("picture", path(&self.picture)),
-            ("model", path(&self.model)),
-            ("out", path(&self.out)),
-            ("style_prompt", self.style_prompt.clone().map(Value::from)),
-            ("style_image", path(&self.style_image)),
-            ("source_prompt", self.source_prompt.clone().map(Value::from)),
-            ("steps", self.steps.map(Value::from)),
-            ("fit_gaussians", self.gaussians.map(Value::from)),
-            ("fit_steps", self.fit_steps.map(Value::from)),
+        self.style.overrides(vec![
+            ("picture", path_value(&self.picture)),
+            ("model", path_value(&self.model)),
+            ("out", path_value(&self.out)),
+            ("fit_gaussians", self.gaussians.map(Into::into)),
+            ("fit_steps", self.fit_steps.map(Into::into)),
             (
                 "background",
-                self.background.map(|b| Value::from(b.to_vec())),
+                self.background.map(|b| serde_json::Value::from(b.to_vec())),
             ),
-            ("clip_config", path(&self.clip_config)),
-            ("clip_weights", path(&self.clip_weights)),
-            ("tokenizer", path(&self.tokenizer)),
-            ("vgg_weights", path(&self.vgg_weights)),
-            ("device", self.device.map(|d| Value::from(d.to_string()))),
-        ];
-        if self.style_image.is_some() {
-            flags.push(("style_prompt", Some(Value::Null)));
-        }
-        let mut overrides: Vec<Override> = flags
-            .into_iter()
-            .filter_map(|(field, value)| value.map(|v| Override::new(field, v)))
-            .collect();
-        for s in &self.set {
-            overrides.push(Override::parse(s)?);
-        }
-        Ok(overrides)
+        ])
     }
 }
 
@@ -281,12 +225,7 @@ struct InterpolateArgs {
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     let config: MirageStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
-    let options = RunOptions {
-        resume: args.resume,
-        progress: !args.quiet,
-        stop: stop_on_ctrl_c()?,
-    };
-    let summary = run(&config, &options)?;
+    let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
     println!(
         "wrote {} and {} ({}x{}, {} Gaussians, final loss {:.4})",

@@ -1,0 +1,104 @@
+//! The `stylize` flags every modality's binary shares (flattened into its own arguments with
+//! clap) and their translation into configuration overrides: the flags first, then each
+//! `--set field=value` in order.
+
+use std::path::PathBuf;
+
+use gs_core::backend::DeviceChoice;
+use serde_json::Value;
+
+use crate::interrupt::stop_on_ctrl_c;
+use crate::{Override, RunOptions, StylizeError};
+
+/// The style, the model files, the device and the run controls of `stylize`.
+#[derive(clap::Args, Debug)]
+pub struct StyleArgs {
+    /// The style as text.
+    #[arg(long, conflicts_with = "style_image")]
+    pub style_prompt: Option<String>,
+    /// The style as a picture (PNG or JPEG; it replaces a prompt the configuration gives).
+    #[arg(long)]
+    pub style_image: Option<PathBuf>,
+    /// The source prompt the style direction starts from (default "a Photo").
+    #[arg(long)]
+    pub source_prompt: Option<String>,
+    /// Stylization steps.
+    #[arg(long)]
+    pub steps: Option<u64>,
+    /// CLIP config.json (default: ViT-B/32).
+    #[arg(long)]
+    pub clip_config: Option<PathBuf>,
+    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, the Hugging Face
+    /// cache, or a download where the binary is built with one).
+    #[arg(long)]
+    pub clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the cache, or a download).
+    #[arg(long)]
+    pub tokenizer: Option<PathBuf>,
+    /// VGG-19 weights, safetensors in torchvision's layout (default:
+    /// $CLIPGAUSSIAN_VGG19_WEIGHTS, the cache, or a download).
+    #[arg(long)]
+    pub vgg_weights: Option<PathBuf>,
+    /// Where the Gaussians are rendered and trained: cpu, gpu, or auto (a real GPU when there
+    /// is one, else the cpu; the default). CLIP and VGG run on the cpu.
+    #[arg(long)]
+    pub device: Option<DeviceChoice>,
+    /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
+    #[arg(long = "set", value_name = "FIELD=VALUE")]
+    pub set: Vec<String>,
+    /// Continue the run from `<out>/checkpoint/`.
+    #[arg(long)]
+    pub resume: bool,
+    /// No progress bars.
+    #[arg(long)]
+    pub quiet: bool,
+}
+
+/// A path flag as a JSON string.
+pub fn path_value(path: &Option<PathBuf>) -> Option<Value> {
+    path.as_ref().map(|p| Value::from(p.display().to_string()))
+}
+
+impl StyleArgs {
+    /// How to run: `--resume`, a progress bar unless `--quiet`, and the process's Ctrl-C
+    /// handler as the stop flag.
+    pub fn run_options(&self) -> Result<RunOptions, ctrlc::Error> {
+        Ok(RunOptions {
+            resume: self.resume,
+            progress: !self.quiet,
+            stop: stop_on_ctrl_c()?,
+        })
+    }
+
+    /// The overrides of the modality's own flags (`(field, value)`, `None` when the flag is
+    /// absent), then of these flags, then of every `--set`. A style image clears the prompt
+    /// a configuration may give, so that exactly one style remains.
+    pub fn overrides(
+        &self,
+        modality: Vec<(&str, Option<Value>)>,
+    ) -> Result<Vec<Override>, StylizeError> {
+        let mut flags = modality;
+        flags.extend([
+            ("style_prompt", self.style_prompt.clone().map(Value::from)),
+            ("style_image", path_value(&self.style_image)),
+            ("source_prompt", self.source_prompt.clone().map(Value::from)),
+            ("steps", self.steps.map(Value::from)),
+            ("clip_config", path_value(&self.clip_config)),
+            ("clip_weights", path_value(&self.clip_weights)),
+            ("tokenizer", path_value(&self.tokenizer)),
+            ("vgg_weights", path_value(&self.vgg_weights)),
+            ("device", self.device.map(|d| Value::from(d.to_string()))),
+        ]);
+        if self.style_image.is_some() {
+            flags.push(("style_prompt", Some(Value::Null)));
+        }
+        let mut overrides: Vec<Override> = flags
+            .into_iter()
+            .filter_map(|(field, value)| value.map(|v| Override::new(field, v)))
+            .collect();
+        for s in &self.set {
+            overrides.push(Override::parse(s)?);
+        }
+        Ok(overrides)
+    }
+}
