@@ -6,7 +6,10 @@
 
 mod common;
 
-use common::{front_camera, gpu, oblique_camera, random_scene, weights};
+use common::{
+    degenerate_cases, edge_on_flat, front_camera, gpu, oblique_camera, random_scene, stacked_scene,
+    weights,
+};
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
 use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
@@ -155,84 +158,19 @@ fn many_gaussians() {
     );
 }
 
-/// The scenes of tests/gradients.rs: one degenerate Gaussian and a normal one behind it.
-fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet {
-    let mut g = random_scene::<f64>(42, 2, 2);
-    g.means[3..6].copy_from_slice(&[0.1, -0.1, 0.6]);
-    g.log_scales[3..6].copy_from_slice(&[-1.0, -1.2, -1.1]);
-    g.opacity_logits[1] = 0.5;
-    g.means[0..3].copy_from_slice(&[-0.05, 0.05, 0.0]);
-    edit(&mut g);
-    g.cast()
-}
-
 #[test]
-fn degenerate_cases() {
+fn degenerate_cases_match_the_cpu() {
     let ctx = gpu();
     let cam = front_camera(24, 24);
-    let cases: Vec<(&str, GaussianSet)> = vec![
-        (
-            "near-zero scales",
-            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[-18.0, -19.0, -20.0])),
-        ),
-        (
-            "huge scales",
-            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[2.5, 2.0, 3.0])),
-        ),
-        (
-            "behind the camera",
-            degenerate_scene(|g| g.means[0..3].copy_from_slice(&[0.0, 0.0, -6.0])),
-        ),
-        (
-            "straddling the near plane",
-            degenerate_scene(|g| {
-                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
-                g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
-            }),
-        ),
-        (
-            "opacity near zero",
-            degenerate_scene(|g| g.opacity_logits[0] = -5.3),
-        ),
-        (
-            "opacity near one",
-            degenerate_scene(|g| g.opacity_logits[0] = 9.0),
-        ),
-        (
-            "overlapping at equal depth",
-            degenerate_scene(|g| {
-                g.means[0..3].copy_from_slice(&[0.05, 0.0, 0.3]);
-                g.means[3..6].copy_from_slice(&[-0.05, 0.02, 0.3]);
-            }),
-        ),
-        (
-            "centre outside the Jacobian clamp",
-            degenerate_scene(|g| {
-                g.means[0..3].copy_from_slice(&[2.8, 0.1, 0.0]);
-                g.log_scales[0..3].copy_from_slice(&[0.4, 0.3, 0.2]);
-            }),
-        ),
-    ];
-    for (name, g) in cases {
+    for (name, g) in degenerate_cases() {
+        let g = g.cast();
         check(name, ctx, &g, &cam, GradMask::ALL, true);
     }
-    let flat = degenerate_scene(|g| {
-        g.log_scales[0..3].copy_from_slice(&[-1.0, -1.0, -17.0]);
-        g.quats[0..4].copy_from_slice(&[1.0, 0.0, 1.0, 0.0]);
-    });
-    let side = Camera::look_at([-4.0, 0.0, 0.3], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 24, 24).unwrap();
+    let (flat, side) = edge_on_flat();
+    let flat = flat.cast();
     check("flat, seen edge-on", ctx, &flat, &side, GradMask::ALL, true);
 
-    let mut stacked = random_scene::<f32>(5, 5, 1);
-    for i in 0..5 {
-        stacked.means[3 * i..3 * i + 3].copy_from_slice(&[
-            0.02 * i as f32,
-            -0.01 * i as f32,
-            0.2 * i as f32,
-        ]);
-        stacked.log_scales[3 * i..3 * i + 3].copy_from_slice(&[-1.1, -1.2, -1.0]);
-        stacked.opacity_logits[i] = 3.0;
-    }
+    let stacked = stacked_scene();
     check(
         "pixels that stop early",
         ctx,

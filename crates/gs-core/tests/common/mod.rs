@@ -81,3 +81,91 @@ pub fn gpu() -> &'static gs_core::wgpu::GpuContext {
         ctx
     })
 }
+
+/// One degenerate Gaussian (index 0, after `edit`) in front of a normal one, the scenes of the
+/// degenerate-case tests.
+pub fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet<f64> {
+    let mut g = random_scene::<f64>(42, 2, 2);
+    g.means[3..6].copy_from_slice(&[0.1, -0.1, 0.6]);
+    g.log_scales[3..6].copy_from_slice(&[-1.0, -1.2, -1.1]);
+    g.opacity_logits[1] = 0.5;
+    g.means[0..3].copy_from_slice(&[-0.05, 0.05, 0.0]);
+    edit(&mut g);
+    g
+}
+
+/// The degenerate cases of design.md seen by [`front_camera`], named: near-zero and huge
+/// scales, behind the camera, straddling the near plane, opacity near 0 and near 1, equal
+/// depths, a centre past the Jacobian clamp.
+pub fn degenerate_cases() -> Vec<(&'static str, GaussianSet<f64>)> {
+    vec![
+        (
+            "near-zero scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[-18.0, -19.0, -20.0])),
+        ),
+        (
+            "huge scales",
+            degenerate_scene(|g| g.log_scales[0..3].copy_from_slice(&[2.5, 2.0, 3.0])),
+        ),
+        (
+            "behind the camera",
+            degenerate_scene(|g| g.means[0..3].copy_from_slice(&[0.0, 0.0, -6.0])),
+        ),
+        (
+            "straddling the near plane",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
+                g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
+            }),
+        ),
+        (
+            "opacity near zero",
+            degenerate_scene(|g| g.opacity_logits[0] = -5.3),
+        ),
+        (
+            "opacity near one",
+            degenerate_scene(|g| g.opacity_logits[0] = 9.0),
+        ),
+        (
+            "overlapping at equal depth",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[0.05, 0.0, 0.3]);
+                g.means[3..6].copy_from_slice(&[-0.05, 0.02, 0.3]);
+            }),
+        ),
+        (
+            "centre outside the Jacobian clamp",
+            degenerate_scene(|g| {
+                g.means[0..3].copy_from_slice(&[2.8, 0.1, 0.0]);
+                g.log_scales[0..3].copy_from_slice(&[0.4, 0.3, 0.2]);
+            }),
+        ),
+    ]
+}
+
+/// A Gaussian flat along world x and the camera that sees it edge-on (along x): only eps2d
+/// keeps its 2D covariance invertible.
+pub fn edge_on_flat() -> (GaussianSet<f64>, Camera) {
+    let flat = degenerate_scene(|g| {
+        g.log_scales[0..3].copy_from_slice(&[-1.0, -1.0, -17.0]);
+        g.quats[0..4].copy_from_slice(&[1.0, 0.0, 1.0, 0.0]);
+    });
+    let side = Camera::look_at([-4.0, 0.0, 0.3], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 24, 24)
+        .expect("a valid camera");
+    (flat, side)
+}
+
+/// Five opaque Gaussians stacked in depth, so pixels behind the first few stop early.
+pub fn stacked_scene() -> GaussianSet {
+    let mut g = random_scene::<f32>(5, 5, 1);
+    for i in 0..5 {
+        g.means[3 * i..3 * i + 3].copy_from_slice(&[
+            0.02 * i as f32,
+            -0.01 * i as f32,
+            0.2 * i as f32,
+        ]);
+        g.log_scales[3 * i..3 * i + 3].copy_from_slice(&[-1.1, -1.2, -1.0]);
+        g.opacity_logits[i] = 3.0;
+    }
+    g
+}
