@@ -1,8 +1,12 @@
-//! The `stylize` flags every modality's binary shares (flattened into its own arguments with
-//! clap) and their translation into configuration overrides: the flags first, then each
-//! `--set field=value` in order.
+//! The command-line pieces every modality's binary shares: the `stylize` flags (flattened into
+//! its own arguments with clap) and their translation into configuration overrides (the flags
+//! first, then each `--set field=value` in order), and the `interpolate` subcommand.
 
+use std::error::Error;
 use std::path::PathBuf;
+
+use gs_core::interpolate::interpolate_ply;
+use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 use gs_core::backend::DeviceChoice;
 use serde_json::Value;
@@ -100,5 +104,40 @@ impl StyleArgs {
             overrides.push(Override::parse(s)?);
         }
         Ok(overrides)
+    }
+}
+
+/// Arguments of `interpolate`: blends two PLY files of the same Gaussians (e.g. two
+/// stylizations of one base model) parameter by parameter.
+#[derive(clap::Args, Debug)]
+pub struct InterpolateArgs {
+    /// The first PLY (t = 0); its extra properties and format are kept.
+    #[arg(long)]
+    pub a: PathBuf,
+    /// The second PLY (t = 1), with as many Gaussians of the same SH degree as A.
+    #[arg(long)]
+    pub b: PathBuf,
+    /// The interpolation parameter; values outside [0, 1] extrapolate.
+    #[arg(long, allow_negative_numbers = true)]
+    pub t: f32,
+    /// The output PLY.
+    #[arg(long)]
+    pub out: PathBuf,
+}
+
+impl InterpolateArgs {
+    /// Writes `(1 - t) A + t B` to `out` and returns a line saying what was written.
+    pub fn run(&self) -> Result<String, Box<dyn Error>> {
+        let (a, format) = read_ply_with_format(&self.a)?;
+        let b = read_ply(&self.b)?;
+        let blended = interpolate_ply(&a, &b, self.t)
+            .map_err(|e| format!("{} and {}: {e}", self.a.display(), self.b.display()))?;
+        write_ply(&self.out, &blended, format)?;
+        Ok(format!(
+            "wrote {} ({} Gaussians, t = {})",
+            self.out.display(),
+            blended.gaussians.len(),
+            self.t
+        ))
     }
 }

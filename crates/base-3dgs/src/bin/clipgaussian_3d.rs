@@ -17,9 +17,8 @@ use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folde
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
-use gs_core::interpolate::interpolate_ply;
-use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
-use gs_stylize::cli::{path_value, StyleArgs};
+use gs_core::ply::read_ply;
+use gs_stylize::cli::{path_value, InterpolateArgs, StyleArgs};
 use gs_stylize::interrupt::INTERRUPTED_EXIT;
 use gs_stylize::open_device;
 
@@ -170,23 +169,6 @@ struct RenderArgs {
     device: DeviceChoice,
 }
 
-/// Arguments of `interpolate`.
-#[derive(Args, Debug)]
-struct InterpolateArgs {
-    /// The first PLY (t = 0); its extra properties and format are kept.
-    #[arg(long)]
-    a: PathBuf,
-    /// The second PLY (t = 1), with as many Gaussians of the same SH degree as A.
-    #[arg(long)]
-    b: PathBuf,
-    /// The interpolation parameter; values outside [0, 1] extrapolate.
-    #[arg(long, allow_negative_numbers = true)]
-    t: f32,
-    /// The output PLY.
-    #[arg(long)]
-    out: PathBuf,
-}
-
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 struct EvalArgs {
@@ -278,22 +260,6 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Runs `interpolate`.
-fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    let (a, format) = read_ply_with_format(&args.a)?;
-    let b = read_ply(&args.b)?;
-    let blended = interpolate_ply(&a, &b, args.t)
-        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
-    write_ply(&args.out, &blended, format)?;
-    println!(
-        "wrote {} ({} Gaussians, t = {})",
-        args.out.display(),
-        blended.gaussians.len(),
-        args.t
-    );
-    Ok(())
-}
-
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     let style = match (&args.style_prompt, &args.style_image) {
@@ -330,7 +296,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
         Command::Render(args) => render(args),
-        Command::Interpolate(args) => interpolate(args),
+        Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
         Command::Eval(args) => eval(args),
     };
     match result {

@@ -22,10 +22,8 @@ use base_mirage::stylize::{
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::DeviceChoice;
 use gs_core::image_loss::psnr;
-use gs_core::interpolate::interpolate_ply;
-use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_core::Image;
-use gs_stylize::cli::{path_value, StyleArgs};
+use gs_stylize::cli::{path_value, InterpolateArgs, StyleArgs};
 use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
@@ -205,23 +203,6 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `interpolate`.
-#[derive(Args, Debug)]
-struct InterpolateArgs {
-    /// The first model (t = 0).
-    #[arg(long)]
-    a: PathBuf,
-    /// The second model (t = 1), with as many Gaussians of the same SH degree as A.
-    #[arg(long)]
-    b: PathBuf,
-    /// The interpolation parameter; values outside [0, 1] extrapolate.
-    #[arg(long, allow_negative_numbers = true)]
-    t: f32,
-    /// The output PLY.
-    #[arg(long)]
-    out: PathBuf,
-}
-
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     let config: MirageStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
@@ -294,29 +275,13 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Runs `interpolate`.
-fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    let (a, format) = read_ply_with_format(&args.a)?;
-    let b = read_ply(&args.b)?;
-    let blended = interpolate_ply(&a, &b, args.t)
-        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
-    write_ply(&args.out, &blended, format)?;
-    println!(
-        "wrote {} ({} Gaussians, t = {})",
-        args.out.display(),
-        blended.gaussians.len(),
-        args.t
-    );
-    Ok(())
-}
-
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
-        Command::Interpolate(args) => interpolate(args),
+        Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
