@@ -1,8 +1,9 @@
-//! Rasterizer forward and backward time against Gaussian count at 800x800, and the error of the
-//! f32 render and gradients against the f64 reference.
+//! Rasterizer forward and backward time against Gaussian count at 800x800 (`--size WxH` for
+//! another resolution), and the error of the f32 render and gradients against the f64
+//! reference.
 //!
 //! `cargo bench -p gs-core --bench raster [--features wgpu] [-- [--volume] [--no-reference]
-//! [--backend cpu|wgpu] COUNT...]` (default counts 10000 100000 1000000); `--volume` times the
+//! [--backend cpu|wgpu] [--size WxH] COUNT...]` (default counts 10000 100000 1000000); `--volume` times the
 //! worst-case volume scene instead of the surface scene, `--no-reference` skips the f64
 //! reference and the error columns, `--backend wgpu` times the wgpu backend (a real GPU when
 //! there is one, else lavapipe) instead of the cpu backend: forward includes reading the image
@@ -206,15 +207,27 @@ fn main() {
     } else {
         counts
     };
+    let (width, height) = std::env::args()
+        .skip_while(|a| a != "--size")
+        .nth(1)
+        .map(|size| {
+            let (w, h) = size.split_once('x').expect("--size WIDTHxHEIGHT");
+            (
+                w.parse().expect("--size WIDTHxHEIGHT"),
+                h.parse().expect("--size WIDTHxHEIGHT"),
+            )
+        })
+        .unwrap_or((800, 800));
     let cam = Camera::look_at(
         [0.0, -0.5, -4.0],
         [0.0; 3],
         [0.0, -1.0, 0.0],
         0.75,
-        800,
-        800,
+        width,
+        height,
     )
     .expect("valid camera");
+    println!("image: {width}x{height}");
     let bg = [1.0f64, 1.0, 1.0];
     println!("threads: {}", rayon::current_num_threads());
     println!("| Gaussians | visible | tile pairs | forward ms | backward ms | total ms | image error: max / mean / share > 1e-3 | rel err means | rel err scales | rel err quats | rel err opacity | rel err sh |");
