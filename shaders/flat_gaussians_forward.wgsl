@@ -1,5 +1,6 @@
 // Twin of base_mirage::flat::renderable for the log-scales: the flat axis at `lo` (ln 1e-8),
-// the two in-plane log-scales clamped to [lo, hi] (ln 1e-8, ln 1); NaN stays NaN, as on the cpu.
+// the two in-plane log-scales clamped to [lo, hi] (ln 1e-8, ln 1). WGSL does not promise NaN
+// semantics; no NaN reaches here in training (PLY input refuses them, gradients are checked).
 
 struct Clamp {
     n: u32,

@@ -49,7 +49,8 @@ const BACKWARD_KERNEL: KernelSource = KernelSource {
 const WORKGROUP: u32 = 256;
 
 /// `log_scale` clamped to `[ln FLAT_SCALE, ln MAX_SCALE]`; NaN stays NaN, so the rasterizer
-/// culls it and training reports it rather than hiding it behind a bound.
+/// culls that Gaussian as it culls any non-finite one, rather than drawing it at a bound
+/// (no NaN reaches here in training: PLY input refuses them and gradients are checked).
 fn clamp_log_scale<T: Real>(log_scale: T) -> T {
     let (lo, hi) = (T::from_f64(FLAT_SCALE.ln()), T::from_f64(MAX_SCALE.ln()));
     if log_scale < lo {

@@ -2,9 +2,10 @@
 //! given, is stylized on both mirror cameras with the paper's 2D settings, and the result is
 //! rendered at exactly the picture's resolution.
 //!
-//! Every input (configuration, picture, model file, patch size against the picture, an
-//! earlier run in the output folder) is checked before the fit, so a bad input costs no time
-//! and leaves nothing behind. Outputs in `out`:
+//! Every input (configuration, picture, model file, patch size against the picture, style
+//! image, CLIP configuration, the presence of the weight files, the output folder's checkpoint)
+//! is checked before the fit, so such a bad input costs no time and leaves nothing behind.
+//! Outputs in `out`:
 //! - `stylized.png`: the stylized picture, the size of the original;
 //! - `side_by_side.png`: the original and the stylized picture, left and right;
 //! - `model.ply`: the stylized model (MiraGe PLY), to stylize again or interpolate;
@@ -19,8 +20,7 @@ use std::sync::atomic::Ordering;
 use gs_core::backend::Backend;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::Image;
-use gs_stylize::checkpoint::{checkpoint_dir, recover_interrupted_save};
-use gs_stylize::run::progress_bar;
+use gs_stylize::run::{check_out_folder, check_style_inputs, progress_bar};
 use gs_stylize::{open_device, stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
 
@@ -158,7 +158,7 @@ fn picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
     }
 }
 
-/// Checks the picture against the patches, the fit settings and the model count.
+/// Checks the background and the style settings, and the picture against the patch size.
 fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageError> {
     if config.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
         return Err(MirageError::Config(format!(
@@ -187,26 +187,18 @@ pub fn run(
     let out = config.out_path()?;
     let picture = picture(config)?;
     check(config, &picture)?;
-    gs_stylize::run::resolve_weights(&config.style)?;
+    check_style_inputs(&config.style)?;
     let backend = open_device(config.style.device)?;
     let given = match &config.model {
         Some(path) => Some(load_model(path)?),
         None => None,
     };
     let base_ply = out.join(BASE_PLY);
+    check_out_folder(out, options.resume)?;
     let model = match given {
         Some(model) => model,
         None if options.resume && base_ply.exists() => load_model(&base_ply)?,
         None => {
-            recover_interrupted_save(out)?;
-            if !options.resume && checkpoint_dir(out).exists() {
-                return Err(StylizeError::Input(format!(
-                    "{} holds a checkpoint of an earlier run: pass --resume to continue it, or \
-                     choose another output folder",
-                    out.display()
-                ))
-                .into());
-            }
             let fitted = fit_with_progress(&picture, &config.fit_settings(), options, &backend)?;
             create_out(out)?;
             write_model(&base_ply, &fitted)?;

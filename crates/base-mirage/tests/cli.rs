@@ -250,6 +250,23 @@ fn bad_inputs_are_named_and_leave_nothing() {
             "--picture",
             s(&picture),
             "--set",
+            &format!("style_image={}", s(&garbage)),
+            "--set",
+            "style_prompt=null",
+        ],
+        &["style image", "garbage.png"],
+    );
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--resume"],
+        &["no checkpoint", "without --resume"],
+    );
+    refused(
+        &dir,
+        &[
+            "--picture",
+            s(&picture),
+            "--set",
             &format!("clip_weights={}", s(&missing)),
         ],
         &["missing.jpg"],

@@ -139,14 +139,7 @@ where
         restore_params(&mut model, &saved.params).map_err(bad_checkpoint)?;
         Some(saved)
     } else {
-        checkpoint::recover_interrupted_save(out)?;
-        if checkpoint::checkpoint_dir(out).exists() {
-            return Err(StylizeError::Input(format!(
-                "{} holds a checkpoint of an earlier run: pass --resume to continue it, or choose \
-                 another output folder",
-                out.display()
-            )));
-        }
+        check_out_folder(out, false)?;
         None
     };
     let names = model.group_names();
@@ -320,6 +313,41 @@ pub fn progress_bar(show: bool, label: &str, steps: u64, done: u64) -> ProgressB
 
 /// One background mask per view, `[h * w]` each, 1 = background.
 type ViewMasks = Vec<Vec<f32>>;
+
+/// Checks the output folder for a run: a fresh run (`resume == false`) refuses a folder that
+/// holds a checkpoint, a resumed one needs it. A checkpoint that an interrupted save left
+/// parked is put back first. A modality calls it before any long preparation (a fit).
+pub fn check_out_folder(out: &Path, resume: bool) -> Result<(), StylizeError> {
+    checkpoint::recover_interrupted_save(out)?;
+    let dir = checkpoint::checkpoint_dir(out);
+    match (resume, dir.exists()) {
+        (false, true) => Err(StylizeError::Input(format!(
+            "{} holds a checkpoint of an earlier run: pass --resume to continue it, or choose \
+             another output folder",
+            out.display()
+        ))),
+        (true, false) => Err(StylizeError::Checkpoint {
+            path: dir,
+            message: "there is no checkpoint to resume from: run without --resume".into(),
+        }),
+        _ => Ok(()),
+    }
+}
+
+/// Checks the style inputs of `settings` that [`stylize`] would otherwise open only after a
+/// modality's preparation: the model files exist ([`resolve_weights`]), the style image
+/// decodes, the CLIP configuration parses.
+pub fn check_style_inputs(settings: &StyleSettings) -> Result<WeightFiles, StylizeError> {
+    let files = resolve_weights(settings)?;
+    if let Some(path) = &settings.style_image {
+        load_picture(path, [0.0; 3], &Device::Cpu)
+            .map_err(|e| StylizeError::Input(format!("style image: {e}")))?;
+    }
+    if let Some(path) = &settings.clip_config {
+        ClipConfig::from_json_file(path)?;
+    }
+    Ok(files)
+}
 
 /// The model files a run reads, found by [`resolve_weights`].
 #[derive(Clone, Debug, PartialEq)]
