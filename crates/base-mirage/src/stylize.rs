@@ -20,7 +20,7 @@ use std::sync::atomic::Ordering;
 use gs_core::backend::Backend;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::Image;
-use gs_stylize::run::{check_out_folder, check_style_inputs, progress_bar};
+use gs_stylize::run::{check_out_folder, check_patches_fit, check_style_inputs, progress_bar};
 use gs_stylize::{open_device, stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
 
@@ -158,6 +158,16 @@ fn picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
     }
 }
 
+/// How the picture is named in errors: its file, or "the default picture".
+fn picture_label(config: &MirageStylizeConfig) -> String {
+    config
+        .picture
+        .as_ref()
+        .map_or("the default picture".to_string(), |p| {
+            p.display().to_string()
+        })
+}
+
 /// Checks the background and the style settings, and the picture against the patch size.
 fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageError> {
     if config.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
@@ -168,14 +178,11 @@ fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageErro
     }
     let style = &config.style;
     style.validate()?;
-    let side = picture.width.min(picture.height) as usize;
-    if style.lambda_patch > 0.0 && side < style.patch_size {
-        return Err(MirageError::Config(format!(
-            "patch_size: {} is larger than the picture ({}x{}); lower patch_size (the picture is \
-             never resized)",
-            style.patch_size, picture.width, picture.height
-        )));
-    }
+    check_patches_fit(
+        style,
+        std::slice::from_ref(picture),
+        &[picture_label(config)],
+    )?;
     Ok(())
 }
 
@@ -207,12 +214,7 @@ pub fn run(
     };
     let (w, h) = (picture.width, picture.height);
     let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
-    let label = config
-        .picture
-        .as_ref()
-        .map_or("the default picture".to_string(), |p| {
-            p.display().to_string()
-        });
+    let label = picture_label(config);
     let job = StylizeJob {
         groups: config.style.optimizer_groups(extent(config.distance)),
         model,

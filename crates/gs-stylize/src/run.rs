@@ -265,14 +265,24 @@ fn check_job<M: BaseModel>(
             names.join(", ")
         )));
     }
+    check_patches_fit(settings, &job.images, &job.labels)
+}
+
+/// Checks that the patches of the patch loss (when it is on) fit every view; `labels` name
+/// the views in the error. Views are never resized to make them fit.
+pub fn check_patches_fit(
+    settings: &StyleSettings,
+    images: &[Image],
+    labels: &[String],
+) -> Result<(), StylizeError> {
     if settings.lambda_patch > 0.0 {
         let size = settings.patch_size;
-        for (i, img) in job.images.iter().enumerate() {
+        for (i, (img, label)) in images.iter().zip(labels).enumerate() {
             if (img.width as usize) < size || (img.height as usize) < size {
                 return Err(StylizeError::Input(format!(
-                    "patch_size {size} is larger than view {i} ({}, {}x{}); lower patch_size \
-                     or the resolution divisor",
-                    job.labels[i], img.width, img.height
+                    "patch_size {size} is larger than view {i} ({label}, {}x{}); lower \
+                     patch_size (or the resolution divisor of a dataset)",
+                    img.width, img.height
                 )));
             }
         }
