@@ -11,7 +11,6 @@ use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, DeviceError, Trainer};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::GaussianLrs;
-use gs_core::raster::render;
 use gs_core::train::{StepReport, TrainConfig, TrainError, ViewSampler};
 use gs_core::{GsError, Image};
 
@@ -162,7 +161,7 @@ where
 }
 
 /// The picture the model holds, seen by the front camera (`mirrored == false`) or the mirror
-/// camera, at `width x height` pixels.
+/// camera, at `width x height` pixels, rendered on `backend`.
 pub fn render_picture(
     model: &FlatGaussians,
     width: u32,
@@ -170,7 +169,9 @@ pub fn render_picture(
     distance: f64,
     mirrored: bool,
     background: [f32; 3],
-) -> Result<Image, GsError> {
+    backend: &Backend,
+) -> Result<Image, FitError> {
     let camera = mirage_camera(width, height, distance, mirrored)?;
-    Ok(render(&model.renderable(), &camera, background).image)
+    let shown = model.renderable();
+    Ok(backend.renderer(&shown)?.render(&camera, background)?)
 }

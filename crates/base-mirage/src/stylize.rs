@@ -232,8 +232,8 @@ pub fn run(
         config.distance,
         false,
         config.background,
-    )
-    .map_err(StylizeError::from)?;
+        &backend,
+    )?;
     write_model(&out.join(MODEL_PLY), &outcome.model)?;
     let save = |image: &Image, name: &str| {
         image

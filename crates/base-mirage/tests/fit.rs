@@ -89,9 +89,19 @@ fn fit_psnr(backend: &Backend, settings: &FitSettings) -> (f64, f64) {
     .unwrap();
     assert_eq!(model.params().len(), settings.gaussians);
     let (w, h) = (target.width, target.height);
-    let front =
-        render_picture(&model, w, h, settings.distance, false, settings.background).unwrap();
-    let back = render_picture(&model, w, h, settings.distance, true, settings.background).unwrap();
+    let view = |mirror| {
+        render_picture(
+            &model,
+            w,
+            h,
+            settings.distance,
+            mirror,
+            settings.background,
+            backend,
+        )
+        .unwrap()
+    };
+    let (front, back) = (view(false), view(true));
     let (p_front, p_back) = (psnr(&front, &target), psnr(&back, &mirrored(&target)));
     eprintln!(
         "{}: PSNR front {p_front:.2} dB, mirror {p_back:.2} dB; loss {first_loss:?} -> \

@@ -13,7 +13,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use base_mirage::fit::{render_picture, FitSettings};
-use base_mirage::mirror::{mirage_camera, DEFAULT_DISTANCE};
+use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{
     fit_with_progress, load_model, run, write_model, MirageError, MirageStylizeConfig,
@@ -242,7 +242,15 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let model = fit_with_progress(&picture, &settings, &options, &backend)?;
     let seconds = start.elapsed().as_secs_f64();
     let (w, h) = (picture.width, picture.height);
-    let fitted = render_picture(&model, w, h, settings.distance, false, settings.background)?;
+    let fitted = render_picture(
+        &model,
+        w,
+        h,
+        settings.distance,
+        false,
+        settings.background,
+        &backend,
+    )?;
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     write_model(&args.out.join("model.ply"), &model)?;
     fitted.save_png(&args.out.join("fitted.png"))?;
@@ -260,11 +268,16 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let model = load_model(&args.model)?;
-    let camera = mirage_camera(args.width, args.height, args.distance, args.mirror)?;
     let backend = open_device(args.device)?;
-    let image = backend
-        .renderer(&model.renderable())?
-        .render(&camera, args.background)?;
+    let image = render_picture(
+        &model,
+        args.width,
+        args.height,
+        args.distance,
+        args.mirror,
+        args.background,
+        &backend,
+    )?;
     image.save_png(&args.out)?;
     println!(
         "wrote {} ({}x{})",
