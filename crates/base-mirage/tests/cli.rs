@@ -274,6 +274,20 @@ fn bad_inputs_are_named_and_leave_nothing() {
 }
 
 #[test]
+fn a_failed_fit_leaves_no_folder() {
+    let dir = TempDir::new().unwrap();
+    let picture = write_picture(dir.path());
+    let out = dir.path().join("fit");
+    let err = fails(
+        bin()
+            .args(["fit", "--quiet", "--picture", s(&picture), "--out", s(&out)])
+            .args(["--gaussians", "0"]),
+    );
+    assert!(err.contains("gaussians"), "{err}");
+    assert!(!out.exists(), "the folder this run made is gone");
+}
+
+#[test]
 fn the_configuration_file_holds_the_paper_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/2d.json");
     let from_file: base_mirage::stylize::MirageStylizeConfig =

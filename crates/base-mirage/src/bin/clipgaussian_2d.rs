@@ -8,7 +8,7 @@
 //! - `interpolate`: blends two models of the same Gaussians.
 
 use std::error::Error;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
@@ -20,7 +20,7 @@ use base_mirage::stylize::{
     SIDE_BY_SIDE_PNG, STYLIZED_PNG,
 };
 use clap::{Args, Parser, Subcommand};
-use gs_core::backend::DeviceChoice;
+use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::Image;
 use gs_stylize::cli::{path_value, InterpolateArgs, StyleArgs};
@@ -238,31 +238,51 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         stop: stop_on_ctrl_c()?,
     };
     let backend = open_device(args.device)?;
-    let start = Instant::now();
-    let model = fit_with_progress(&picture, &settings, &options, &backend)?;
-    let seconds = start.elapsed().as_secs_f64();
-    let (w, h) = (picture.width, picture.height);
-    let fitted = render_picture(
-        &model,
-        w,
-        h,
-        settings.distance,
-        false,
-        settings.background,
-        &backend,
-    )?;
+    // The folder is made first, so one that cannot be made costs no fit, and removed again
+    // when this run made it and anything fails, so nothing partial is left.
+    let created = !args.out.exists();
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    write_model(&args.out.join("model.ply"), &model)?;
-    fitted.save_png(&args.out.join("fitted.png"))?;
-    Image::side_by_side(&[&picture, &fitted]).save_png(&args.out.join(SIDE_BY_SIDE_PNG))?;
+    let result = fit_into_folder(&picture, &settings, &options, &backend, &args.out);
+    if result.is_err() && created {
+        let _ = std::fs::remove_dir_all(&args.out);
+    }
+    let (psnr_db, seconds) = result?;
     println!(
-        "fitted {} ({w}x{h}) with {} Gaussians in {seconds:.1} s: PSNR {:.2} dB; wrote {}",
+        "fitted {} ({}x{}) with {} Gaussians in {seconds:.1} s: PSNR {psnr_db:.2} dB; wrote {}",
         args.picture.display(),
+        picture.width,
+        picture.height,
         settings.gaussians,
-        psnr(&fitted, &picture),
         args.out.display()
     );
     Ok(())
+}
+
+/// Fits `picture` and writes model.ply, fitted.png and side_by_side.png into `out`; returns
+/// the fit's PSNR (dB) and its time (s).
+fn fit_into_folder(
+    picture: &Image,
+    settings: &FitSettings,
+    options: &RunOptions,
+    backend: &Backend,
+    out: &Path,
+) -> Result<(f64, f64), Box<dyn Error>> {
+    let start = Instant::now();
+    let model = fit_with_progress(picture, settings, options, backend)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let fitted = render_picture(
+        &model,
+        picture.width,
+        picture.height,
+        settings.distance,
+        false,
+        settings.background,
+        backend,
+    )?;
+    write_model(&out.join("model.ply"), &model)?;
+    fitted.save_png(&out.join("fitted.png"))?;
+    Image::side_by_side(&[picture, &fitted]).save_png(&out.join(SIDE_BY_SIDE_PNG))?;
+    Ok((psnr(&fitted, picture), seconds))
 }
 
 /// Runs `render`.
