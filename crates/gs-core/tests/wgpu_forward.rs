@@ -6,7 +6,8 @@
 mod common;
 
 use common::{
-    degenerate_cases, edge_on_flat, front_camera, gpu, oblique_camera, random_scene, stacked_scene,
+    degenerate_cases, edge_on_flat, front_camera, gpu, oblique_camera, poisoned_scene,
+    random_scene, stacked_scene,
 };
 use gs_core::raster::render;
 use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
@@ -128,16 +129,6 @@ fn pixels_that_stop_early() {
 #[test]
 fn non_finite_and_extreme_parameters_are_culled() {
     let ctx = gpu();
-    let mut g = random_scene::<f32>(21, 12, 3);
-    g.means[0] = f32::NAN;
-    g.log_scales[3] = f32::INFINITY;
-    g.quats[8..12].fill(0.0);
-    g.opacity_logits[3] = f32::NEG_INFINITY;
-    g.sh_rest[4 * 45] = f32::NAN;
-    g.means[15..18].copy_from_slice(&[1e30, -1e30, 1e30]);
-    g.log_scales[18..21].fill(100.0);
-    g.log_scales[21..24].fill(-100.0);
-    g.opacity_logits[8] = 1e30;
-    g.opacity_logits[9] = -1e30;
+    let g = poisoned_scene();
     check("non-finite", &g, &oblique_camera(48, 40), [0.5; 3], ctx);
 }

@@ -169,3 +169,20 @@ pub fn stacked_scene() -> GaussianSet {
     }
     g
 }
+
+/// 21 Gaussians of SH degree 3, some with NaN, infinite, zero-quaternion or overflowing
+/// parameters, which must be culled and get zero gradient.
+pub fn poisoned_scene() -> GaussianSet {
+    let mut g = random_scene::<f32>(21, 12, 3);
+    g.means[0] = f32::NAN;
+    g.log_scales[3] = f32::INFINITY;
+    g.quats[8..12].fill(0.0);
+    g.opacity_logits[3] = f32::NEG_INFINITY;
+    g.sh_rest[4 * 45] = f32::NAN;
+    g.means[15..18].copy_from_slice(&[1e30, -1e30, 1e30]);
+    g.log_scales[18..21].fill(100.0);
+    g.log_scales[21..24].fill(-100.0);
+    g.opacity_logits[8] = 1e30;
+    g.opacity_logits[9] = -1e30;
+    g
+}
