@@ -168,8 +168,9 @@ fn picture_label(config: &MirageStylizeConfig) -> String {
         })
 }
 
-/// Checks the background and the style settings, and the picture against the patch size.
-fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageError> {
+/// Checks the background and the style settings, and the picture (named `label` in errors)
+/// against the patch size.
+fn check(config: &MirageStylizeConfig, picture: &Image, label: &str) -> Result<(), MirageError> {
     if config.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
         return Err(MirageError::Config(format!(
             "background: {:?} must have channels in [0, 1]",
@@ -178,11 +179,7 @@ fn check(config: &MirageStylizeConfig, picture: &Image) -> Result<(), MirageErro
     }
     let style = &config.style;
     style.validate()?;
-    check_patches_fit(
-        style,
-        std::slice::from_ref(picture),
-        &[picture_label(config)],
-    )?;
+    check_patches_fit(style, std::slice::from_ref(picture), &[label.to_string()])?;
     Ok(())
 }
 
@@ -193,7 +190,8 @@ pub fn run(
 ) -> Result<MirageSummary, MirageError> {
     let out = config.out_path()?;
     let picture = picture(config)?;
-    check(config, &picture)?;
+    let label = picture_label(config);
+    check(config, &picture, &label)?;
     check_style_inputs(&config.style)?;
     let backend = open_device(config.style.device)?;
     let given = match &config.model {
@@ -214,7 +212,6 @@ pub fn run(
     };
     let (w, h) = (picture.width, picture.height);
     let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
-    let label = picture_label(config);
     let job = StylizeJob {
         groups: config.style.optimizer_groups(extent(config.distance)),
         model,

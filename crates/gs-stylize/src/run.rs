@@ -347,8 +347,8 @@ pub fn check_out_folder(out: &Path, resume: bool) -> Result<(), StylizeError> {
 /// Checks the style inputs of `settings` that [`stylize`] would otherwise open only after a
 /// modality's preparation: the model files exist ([`resolve_weights`]), the style image
 /// decodes, the CLIP configuration parses.
-pub fn check_style_inputs(settings: &StyleSettings) -> Result<WeightFiles, StylizeError> {
-    let files = resolve_weights(settings)?;
+pub fn check_style_inputs(settings: &StyleSettings) -> Result<(), StylizeError> {
+    resolve_weights(settings)?;
     if let Some(path) = &settings.style_image {
         load_picture(path, [0.0; 3], &Device::Cpu)
             .map_err(|e| StylizeError::Input(format!("style image: {e}")))?;
@@ -356,7 +356,7 @@ pub fn check_style_inputs(settings: &StyleSettings) -> Result<WeightFiles, Styli
     if let Some(path) = &settings.clip_config {
         ClipConfig::from_json_file(path)?;
     }
-    Ok(files)
+    Ok(())
 }
 
 /// The model files a run reads, found by [`resolve_weights`].
