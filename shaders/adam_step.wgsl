@@ -2,7 +2,6 @@
 // correction, the step size and the inverse root of the second bias correction given.
 
 struct AdamStep {
-    n: u32,
     step_size: f32,
     inv_bc2_sqrt: f32,
     beta1: f32,
@@ -10,9 +9,10 @@ struct AdamStep {
     eps: f32,
     unused0: u32,
     unused1: u32,
+    unused2: u32,
 }
 
-//#import helpers.wgsl
+//#import chunk.wgsl
 
 @group(0) @binding(0) var<uniform> params: AdamStep;
 @group(0) @binding(1) var<storage, read_write> values: array<f32>;
@@ -26,8 +26,8 @@ fn main(
     @builtin(num_workgroups) nwg: vec3u,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let i = flat_index(wid, nwg, lid, 256u);
-    if i >= params.n {
+    let i = chunk_item(wid, nwg, lid);
+    if i >= chunk.count {
         return;
     }
     let g = grads[i];

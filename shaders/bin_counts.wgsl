@@ -2,11 +2,15 @@
 // (`order` is the depth-sorted Gaussian indices), to be prefix-summed into list offsets.
 
 //#import helpers.wgsl
+//#import splat_parts.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats: array<Splat>;
-@group(0) @binding(2) var<storage, read> order: array<u32>;
-@group(0) @binding(3) var<storage, read_write> counts: array<u32>;
+@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
+@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
+@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
+@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
+@group(0) @binding(5) var<storage, read> order: array<u32>;
+@group(0) @binding(6) var<storage, read_write> counts: array<u32>;
 
 @compute @workgroup_size(256)
 fn main(
@@ -18,7 +22,7 @@ fn main(
     if r >= view.scene.x {
         return;
     }
-    let s = splats[order[r]];
+    let s = load_splat(order[r]);
     var count = 0u;
     if s.cut_radius.z != 0.0 {
         let rect = tile_rect(s, view.size.zw);

@@ -3,13 +3,17 @@
 // back.
 
 //#import helpers.wgsl
+//#import splat_parts.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats: array<Splat>;
-@group(0) @binding(2) var<storage, read> order: array<u32>;
-@group(0) @binding(3) var<storage, read> offsets: array<u32>;
-@group(0) @binding(4) var<storage, read_write> tile_keys: array<u32>;
-@group(0) @binding(5) var<storage, read_write> tile_ids: array<u32>;
+@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
+@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
+@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
+@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
+@group(0) @binding(5) var<storage, read> order: array<u32>;
+@group(0) @binding(6) var<storage, read> offsets: array<u32>;
+@group(0) @binding(7) var<storage, read_write> tile_keys: array<u32>;
+@group(0) @binding(8) var<storage, read_write> tile_ids: array<u32>;
 
 @compute @workgroup_size(256)
 fn main(
@@ -22,7 +26,7 @@ fn main(
         return;
     }
     let gid = order[r];
-    let s = splats[gid];
+    let s = load_splat(gid);
     if s.cut_radius.z == 0.0 {
         return;
     }

@@ -1,11 +1,10 @@
 // Twin of the check of gs_core::train that every parameter gradient is finite: sets `flag` when
-// any of the first `n` values is NaN or infinite (by its bits, see `finite`).
+// any value of the chunk is NaN or infinite (by its bits, see `finite`).
 
-//#import helpers.wgsl
+//#import chunk.wgsl
 
-@group(0) @binding(0) var<uniform> params: Pass;
-@group(0) @binding(1) var<storage, read> values: array<f32>;
-@group(0) @binding(2) var<storage, read_write> flag: array<atomic<u32>>;
+@group(0) @binding(0) var<storage, read> values: array<f32>;
+@group(0) @binding(1) var<storage, read_write> flag: array<atomic<u32>>;
 
 @compute @workgroup_size(256)
 fn main(
@@ -13,8 +12,8 @@ fn main(
     @builtin(num_workgroups) nwg: vec3u,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let i = flat_index(wid, nwg, lid, 256u);
-    if i >= params.n {
+    let i = chunk_item(wid, nwg, lid);
+    if i >= chunk.count {
         return;
     }
     if !finite(values[i]) {

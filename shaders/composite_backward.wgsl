@@ -1,22 +1,30 @@
 // Twin of gs_core::raster::composite::backward: one workgroup per tile, one thread per pixel,
 // each pixel walking back to front from its last contributor and adding its share of each
-// splat's gradient to the splat's slots in `accum` (SPLAT_GRADS per Gaussian, then the
-// background's 3) with atomic adds, as the reference 3DGS rasterizer does; slots of frozen
-// parameter groups cost nothing.
+// splat's gradient to the splat's slots in `accum0` to `accum3` (SPLAT_GRADS per Gaussian, in
+// parts as the splats are) and the background's to `background_grad`, with atomic adds, as
+// the reference 3DGS rasterizer does; slots of frozen parameter groups cost nothing.
 
 //#import helpers.wgsl
+//#import splat_parts.wgsl
 //#import accumulate.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats: array<Splat>;
-@group(0) @binding(2) var<storage, read> tile_ids: array<u32>;
-@group(0) @binding(3) var<storage, read> ranges: array<vec2u>;
-@group(0) @binding(4) var<storage, read> final_t: array<f32>;
-@group(0) @binding(5) var<storage, read> n_contrib: array<u32>;
-@group(0) @binding(6) var<storage, read> grad_rgb: array<f32>;
-@group(0) @binding(7) var<storage, read> grad_alpha: array<f32>;
-@group(0) @binding(8) var<storage, read> grad_depth: array<f32>;
-@group(0) @binding(9) var<storage, read_write> accum: array<GradAtomic>;
+@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
+@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
+@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
+@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
+@group(0) @binding(5) var<storage, read> tile_ids: array<u32>;
+@group(0) @binding(6) var<storage, read> ranges: array<vec2u>;
+@group(0) @binding(7) var<storage, read> final_t: array<f32>;
+@group(0) @binding(8) var<storage, read> n_contrib: array<u32>;
+@group(0) @binding(9) var<storage, read> grad_rgb: array<f32>;
+@group(0) @binding(10) var<storage, read> grad_alpha: array<f32>;
+@group(0) @binding(11) var<storage, read> grad_depth: array<f32>;
+@group(0) @binding(12) var<storage, read_write> accum0: array<GradAtomic>;
+@group(0) @binding(13) var<storage, read_write> accum1: array<GradAtomic>;
+@group(0) @binding(14) var<storage, read_write> accum2: array<GradAtomic>;
+@group(0) @binding(15) var<storage, read_write> accum3: array<GradAtomic>;
+@group(0) @binding(16) var<storage, read_write> background_grad: array<GradAtomic>;
 
 const BATCH: u32 = 64u;
 
@@ -90,7 +98,7 @@ fn main(
     }
     workgroupBarrier();
     if lid < 3u {
-        accumulate(SPLAT_GRADS * view.scene.x + lid, partial[0][lid]);
+        accumulate_slot(BACKGROUND_PART, lid, partial[0][lid]);
     }
     atomicMax(&max_count, count);
     workgroupBarrier();
@@ -109,7 +117,7 @@ fn main(
         if lid < hi - lo {
             let gid = tile_ids[lo + lid];
             batch_ids[lid] = gid;
-            batch[lid] = splats[gid];
+            batch[lid] = load_splat(gid);
         }
         workgroupBarrier();
         for (var j = hi - lo; j > 0u; j--) {
@@ -153,7 +161,7 @@ fn main(
                     }
                     for (var q = 0u; q < SPLAT_GRADS; q++) {
                         if g[q] != 0.0 && slot_needed(q) {
-                            accumulate(SPLAT_GRADS * batch_ids[j - 1u] + q, g[q]);
+                            accumulate(batch_ids[j - 1u], q, g[q]);
                         }
                     }
                 }

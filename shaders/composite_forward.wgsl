@@ -4,16 +4,20 @@
 // workgroup stops when all of its pixels have.
 
 //#import helpers.wgsl
+//#import splat_parts.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats: array<Splat>;
-@group(0) @binding(2) var<storage, read> tile_ids: array<u32>;
-@group(0) @binding(3) var<storage, read> ranges: array<vec2u>;
-@group(0) @binding(4) var<storage, read_write> out_rgb: array<f32>;
-@group(0) @binding(5) var<storage, read_write> out_alpha: array<f32>;
-@group(0) @binding(6) var<storage, read_write> out_depth: array<f32>;
-@group(0) @binding(7) var<storage, read_write> final_t: array<f32>;
-@group(0) @binding(8) var<storage, read_write> n_contrib: array<u32>;
+@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
+@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
+@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
+@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
+@group(0) @binding(5) var<storage, read> tile_ids: array<u32>;
+@group(0) @binding(6) var<storage, read> ranges: array<vec2u>;
+@group(0) @binding(7) var<storage, read_write> out_rgb: array<f32>;
+@group(0) @binding(8) var<storage, read_write> out_alpha: array<f32>;
+@group(0) @binding(9) var<storage, read_write> out_depth: array<f32>;
+@group(0) @binding(10) var<storage, read_write> final_t: array<f32>;
+@group(0) @binding(11) var<storage, read_write> n_contrib: array<u32>;
 
 const BATCH: u32 = 128u;
 
@@ -55,7 +59,7 @@ fn main(
             break;
         }
         if lid < BATCH && start + lid < range.y {
-            batch[lid] = splats[tile_ids[start + lid]];
+            batch[lid] = load_splat(tile_ids[start + lid]);
         }
         workgroupBarrier();
         let count = min(BATCH, range.y - start);

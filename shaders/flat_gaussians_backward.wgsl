@@ -3,13 +3,13 @@
 // zero on the flat axis and where the clamp is active.
 
 struct Clamp {
-    n: u32,
     lo: f32,
     hi: f32,
-    unused: u32,
+    unused0: u32,
+    unused1: u32,
 }
 
-//#import helpers.wgsl
+//#import chunk.wgsl
 
 @group(0) @binding(0) var<uniform> params: Clamp;
 @group(0) @binding(1) var<storage, read> stored: array<f32>;
@@ -26,8 +26,8 @@ fn main(
     @builtin(num_workgroups) nwg: vec3u,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let i = flat_index(wid, nwg, lid, 256u);
-    if i >= params.n {
+    let i = chunk_item(wid, nwg, lid);
+    if i >= chunk.count {
         return;
     }
     grads[3u * i] = 0.0;

@@ -11,6 +11,8 @@ const TRANSMITTANCE_MIN: f32 = 1e-4;
 // Gradient slots per splat in the accumulation buffer: mean2d (2), conic (3), opacity,
 // colour (3), depth.
 const SPLAT_GRADS: u32 = 10u;
+// Parts a splat array (and the splat gradients) may be split into.
+const SPLAT_PARTS: u32 = 4u;
 
 // The camera, image and scene of one render (the Rust twin is `ViewUniform`).
 struct View {
@@ -30,6 +32,8 @@ struct View {
     size: vec4u,
     // Gaussian count, SH degree, SH coefficients per channel minus one, gradient flags.
     scene: vec4u,
+    // Splats (and splat gradient records) per part of a split array (splat_parts.wgsl).
+    parts: vec4u,
 }
 
 // Gradient flags in `View.scene.w`: the parameter groups that need a gradient, and which

@@ -1,11 +1,12 @@
 // Twin of gs_core::raster::project::project_backward: the gradient of every Gaussian parameter
-// from its splat's accumulated gradient (`accum`, SPLAT_GRADS per Gaussian). Only the groups
+// of the chunk from its splat's accumulated gradient (`accum`, SPLAT_GRADS per Gaussian). Only the groups
 // whose flag is set in view.scene.w are computed and written; the others may be bound to
 // placeholder buffers.
 
 //#import helpers.wgsl
 //#import sh.wgsl
 //#import project.wgsl
+//#import chunk.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> means: array<f32>;
@@ -83,8 +84,8 @@ fn main(
     @builtin(num_workgroups) nwg: vec3u,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let i = flat_index(wid, nwg, lid, 256u);
-    if i >= view.scene.x {
+    let i = chunk_item(wid, nwg, lid);
+    if i >= chunk.count {
         return;
     }
     let flags = view.scene.w;

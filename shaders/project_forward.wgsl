@@ -1,9 +1,11 @@
-// Twin of gs_core::raster::project::project: projects every Gaussian to its splat, writes its
-// depth as a sort key (culled Gaussians sort last with 0xffffffff) and the identity order.
+// Twin of gs_core::raster::project::project: projects every Gaussian of the chunk to its
+// splat, writes its depth as a sort key (culled Gaussians sort last with 0xffffffff) and the
+// identity order (the Gaussian's index in the scene).
 
 //#import helpers.wgsl
 //#import sh.wgsl
 //#import project.wgsl
+//#import chunk.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
 @group(0) @binding(1) var<storage, read> means: array<f32>;
@@ -22,11 +24,11 @@ fn main(
     @builtin(num_workgroups) nwg: vec3u,
     @builtin(local_invocation_index) lid: u32,
 ) {
-    let i = flat_index(wid, nwg, lid, 256u);
-    if i >= view.scene.x {
+    let i = chunk_item(wid, nwg, lid);
+    if i >= chunk.count {
         return;
     }
-    order[i] = i;
+    order[i] = chunk.first + i;
     let f = project_gaussian(i);
     if !f.valid {
         splats[i] = Splat(vec4f(0.0), vec4f(0.0), vec4f(0.0), vec4f(0.0));

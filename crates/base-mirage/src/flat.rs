@@ -17,8 +17,8 @@ use gs_core::gaussians::{GaussianGrads, PARAM_NAMES};
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::GradMask;
 use gs_core::wgpu::{
-    zeroed_f32, Access, Buffer, GpuBaseModel, GpuContext, GpuError, GpuGaussians, GpuGradients,
-    GpuParams, KernelSource,
+    zeroed_f32, Access, Binding, Buffer, GpuBaseModel, GpuContext, GpuError, GpuGaussians,
+    GpuGradients, GpuParams, KernelSource,
 };
 use gs_core::{GaussianSet, Real};
 
@@ -45,8 +45,8 @@ const BACKWARD_KERNEL: KernelSource = KernelSource {
     bindings: &[Access::Uniform, Access::Read, Access::Read, Access::Write],
 };
 
-/// Threads of a workgroup of the flat-Gaussian kernels.
-const WORKGROUP: u32 = 256;
+/// Bytes of one Gaussian's log-scales (three `f32`s), the record of the flat-Gaussian kernels.
+const SCALE_RECORD: u64 = 12;
 
 /// `log_scale` clamped to `[ln FLAT_SCALE, ln MAX_SCALE]`; NaN stays NaN, so the rasterizer
 /// culls that Gaussian as it culls any non-finite one, rather than drawing it at a bound
@@ -175,12 +175,12 @@ impl BaseModel for FlatGaussians {
 }
 
 impl FlatGaussians {
-    /// The uniform of the flat-Gaussian kernels (`Clamp`): the count and the clamp bounds.
+    /// The uniform of the flat-Gaussian kernels (`Clamp`: the clamp bounds) and the count.
     fn clamp_uniform(&self, ctx: &GpuContext) -> (Buffer, u32) {
         let n = u32::try_from(self.params.len()).expect("at most u32::MAX Gaussians");
         let lo = FLAT_SCALE.ln() as f32;
         let hi = MAX_SCALE.ln() as f32;
-        (ctx.uniform_words([n, lo.to_bits(), hi.to_bits(), 0]), n)
+        (ctx.uniform_words([lo.to_bits(), hi.to_bits(), 0, 0]), n)
     }
 }
 
@@ -196,9 +196,13 @@ impl GpuBaseModel for FlatGaussians {
         let stored = &params.buffers()[SCALES_GROUP];
         ctx.run_kernel(
             &FORWARD_KERNEL,
-            &[&uniform, stored, &scales],
-            n.div_ceil(WORKGROUP),
-        );
+            &[
+                Binding::Whole(&uniform),
+                Binding::PerItem(stored, SCALE_RECORD),
+                Binding::PerItem(&scales, SCALE_RECORD),
+            ],
+            n,
+        )?;
         let mut arrays: [Buffer; 6] = params
             .buffers()
             .to_vec()
@@ -232,13 +236,13 @@ impl GpuBaseModel for FlatGaussians {
             ctx.run_kernel(
                 &BACKWARD_KERNEL,
                 &[
-                    &uniform,
-                    &params.buffers()[SCALES_GROUP],
-                    &rendered,
-                    &stored_grads,
+                    Binding::Whole(&uniform),
+                    Binding::PerItem(&params.buffers()[SCALES_GROUP], SCALE_RECORD),
+                    Binding::PerItem(&rendered, SCALE_RECORD),
+                    Binding::PerItem(&stored_grads, SCALE_RECORD),
                 ],
-                n.div_ceil(WORKGROUP),
-            );
+                n,
+            )?;
             out[SCALES_GROUP] = Some(stored_grads);
         }
         Ok(out)

@@ -8,7 +8,9 @@ use base_mirage::mirror::{mirage_camera, plane_half_size};
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::{backward, render, OutputGrads};
-use gs_core::wgpu::{self as gpu, read_f32, AdapterChoice, GpuBaseModel, GpuContext, GpuParams};
+use gs_core::wgpu::{
+    self as gpu, read_f32, AdapterChoice, GpuBaseModel, GpuContext, GpuOptions, GpuParams,
+};
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -16,11 +18,11 @@ use rand_chacha::ChaCha8Rng;
 const W: u32 = 40;
 const H: u32 = 28;
 
-/// Flat Gaussians on the framed plane with scales inside, outside and on the clamp's bounds.
-fn model() -> FlatGaussians {
+/// `n` (at least 15) flat Gaussians on the framed plane with scales inside, outside and on
+/// the clamp's bounds.
+fn model(n: usize) -> FlatGaussians {
     let mut rng = ChaCha8Rng::seed_from_u64(21);
     let (hw, hh) = plane_half_size(W, H, 1.0);
-    let n = 30;
     let mut g = GaussianSet::zeros(n, 1);
     for i in 0..n {
         g.means[3 * i] = rng.random_range(-0.8 * hw..0.8 * hw) as f32;
@@ -46,8 +48,8 @@ fn model() -> FlatGaussians {
     FlatGaussians::new(g)
 }
 
-fn context() -> GpuContext {
-    GpuContext::new(AdapterChoice::AllowSoftware)
+fn context(options: GpuOptions) -> GpuContext {
+    GpuContext::with_options(AdapterChoice::AllowSoftware, options)
         .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter and found none: {e}"))
 }
 
@@ -65,8 +67,8 @@ fn assert_close(what: &str, want: &[f32], got: &[f32]) {
 
 #[test]
 fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
-    let ctx = context();
-    let mut model = model();
+    let ctx = context(GpuOptions::default());
+    let mut model = model(30);
     let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
     let bg = [0.1, 0.2, 0.3];
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
@@ -118,4 +120,22 @@ fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
             }
         }
     }
+}
+
+#[test]
+fn the_construction_runs_in_chunks_past_the_binding_limit() {
+    // 3 KiB bindings hold the log-scales of 256 Gaussians: 1000 are built in four chunks.
+    let ctx = context(GpuOptions {
+        max_binding_bytes: Some(3 * 1024),
+        ..GpuOptions::default()
+    });
+    let mut model = model(1000);
+    let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
+    let params = GpuParams::upload(&ctx, &mut model).unwrap();
+    let gaussians = model.gpu_gaussians(&ctx, &params, &view).unwrap();
+    assert_eq!(
+        gaussians.download(&ctx),
+        model.renderable(),
+        "rendered Gaussians, bit for bit"
+    );
 }

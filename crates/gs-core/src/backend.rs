@@ -18,7 +18,9 @@ use crate::image::Image;
 use crate::model::View;
 use crate::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
 #[cfg(feature = "wgpu")]
-use crate::wgpu::{AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuParams};
+use crate::wgpu::{
+    training_bytes, AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuParams,
+};
 use crate::GsError;
 
 /// The environment variable that lets `gpu` take a software adapter (for tests on lavapipe).
@@ -230,11 +232,15 @@ impl<M: TrainableModel> Trainer<M> {
         let state = match backend {
             Backend::Cpu => State::Cpu(Adam::new(groups, &lens, hyper)),
             #[cfg(feature = "wgpu")]
-            Backend::Gpu(ctx) => State::Gpu {
-                params: GpuParams::upload(ctx, &mut model)?,
-                adam: GpuAdam::new(ctx, groups, &lens, hyper)?,
-                ctx: Arc::clone(ctx),
-            },
+            Backend::Gpu(ctx) => {
+                let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
+                let needs = |e: GpuError| e.with_run_needs(training_bytes(&lens, &trained, 0, 0));
+                State::Gpu {
+                    params: GpuParams::upload(ctx, &mut model).map_err(needs)?,
+                    adam: GpuAdam::new(ctx, groups, &lens, hyper).map_err(needs)?,
+                    ctx: Arc::clone(ctx),
+                }
+            }
         };
         Ok(Self { model, state })
     }

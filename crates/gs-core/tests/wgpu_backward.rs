@@ -7,12 +7,12 @@
 mod common;
 
 use common::{
-    degenerate_cases, edge_on_flat, front_camera, gpu, oblique_camera, poisoned_scene,
-    random_scene, stacked_scene, weights,
+    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_with, oblique_camera, poisoned_scene,
+    random_scene, stacked_scene, weights, SMALL_BINDING,
 };
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
-use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
+use gs_core::wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions};
 use gs_core::{Camera, GaussianSet};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
@@ -89,14 +89,10 @@ fn random_scenes_every_degree() {
 
 #[test]
 fn compare_exchange_accumulation_gives_the_same_gradients() {
-    let ctx = GpuContext::with_options(
-        AdapterChoice::AllowSoftware,
-        GpuOptions {
-            float_atomics: false,
-            ..GpuOptions::default()
-        },
-    )
-    .unwrap_or_else(|e| panic!("this test needs a GPU adapter: {e}"));
+    let ctx = gpu_with(GpuOptions {
+        float_atomics: false,
+        ..GpuOptions::default()
+    });
     assert!(!ctx.float_atomics());
     for degree in [0, 3] {
         let g = random_scene::<f32>(50 + degree as u64, 40, degree);
@@ -105,6 +101,31 @@ fn compare_exchange_accumulation_gives_the_same_gradients() {
             &ctx,
             &g,
             &oblique_camera(48, 40),
+            GradMask::ALL,
+            true,
+        );
+    }
+}
+
+#[test]
+fn arrays_past_the_binding_limit_give_the_same_gradients() {
+    // Under a 64 KiB binding limit, 3000 Gaussians of degree 3 run in 12 chunks of 256 and
+    // accumulate into 3 parts of 1024; the compare-exchange variant covers its own part switch.
+    for float_atomics in [true, false] {
+        let ctx = gpu_with(GpuOptions {
+            float_atomics,
+            max_binding_bytes: Some(SMALL_BINDING),
+            ..GpuOptions::default()
+        });
+        let mut g = random_scene::<f32>(14, 3000, 3);
+        for v in &mut g.log_scales {
+            *v -= 1.0;
+        }
+        check(
+            &format!("split arrays, f32 atomics {float_atomics}"),
+            &ctx,
+            &g,
+            &oblique_camera(64, 48),
             GradMask::ALL,
             true,
         );

@@ -6,11 +6,11 @@
 mod common;
 
 use common::{
-    degenerate_cases, edge_on_flat, front_camera, gpu, oblique_camera, poisoned_scene,
-    random_scene, stacked_scene,
+    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_with, oblique_camera, poisoned_scene,
+    random_scene, stacked_scene, SMALL_BINDING,
 };
 use gs_core::raster::render;
-use gs_core::wgpu::{self as gpu_backend, AdapterChoice, GpuContext, GpuGaussians, GpuOptions};
+use gs_core::wgpu::{self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions};
 use gs_core::{Camera, GaussianSet};
 
 /// Renders `case` on both backends and checks that the image, alpha and depth agree.
@@ -80,14 +80,10 @@ fn many_gaussians_span_several_sort_and_prefix_sum_blocks() {
 #[test]
 fn dispatches_split_past_the_workgroup_limit() {
     // With at most 3 workgroups per dimension, every per-item dispatch is split over y.
-    let ctx = GpuContext::with_options(
-        AdapterChoice::AllowSoftware,
-        GpuOptions {
-            max_workgroups_per_dimension: Some(3),
-            ..GpuOptions::default()
-        },
-    )
-    .unwrap_or_else(|e| panic!("this test needs a GPU adapter: {e}"));
+    let ctx = gpu_with(GpuOptions {
+        max_workgroups_per_dimension: Some(3),
+        ..GpuOptions::default()
+    });
     let g = random_scene::<f32>(6, 2500, 2);
     check(
         "split dispatches",
@@ -96,6 +92,44 @@ fn dispatches_split_past_the_workgroup_limit() {
         [0.2; 3],
         &ctx,
     );
+}
+
+#[test]
+fn arrays_past_the_binding_limit_are_bound_in_chunks_and_parts() {
+    // Under a 64 KiB binding limit, 3000 Gaussians of degree 3 (180 bytes of sh_rest each)
+    // project in 12 chunks of 256, and their splats (64 bytes each) are bound as 3 parts of
+    // 1024: as 5M Gaussians are on an adapter whose bindings hold 128 MiB.
+    let ctx = gpu_with(GpuOptions {
+        max_binding_bytes: Some(SMALL_BINDING),
+        ..GpuOptions::default()
+    });
+    let mut g = random_scene::<f32>(9, 3000, 3);
+    for v in &mut g.log_scales {
+        *v -= 1.0;
+    }
+    check("split arrays", &g, &oblique_camera(64, 48), [0.1; 3], &ctx);
+}
+
+#[test]
+fn a_scene_past_every_part_is_refused_naming_its_splats() {
+    // 16 KiB bindings hold 256 splats: four parts hold 1024, not 1100.
+    let ctx = gpu_with(GpuOptions {
+        max_binding_bytes: Some(16 * 1024),
+        ..GpuOptions::default()
+    });
+    let g = random_scene::<f32>(10, 1100, 0);
+    let gg = GpuGaussians::upload(&ctx, &g).expect("upload");
+    match gpu_backend::render(&ctx, &gg, &oblique_camera(16, 16), [0.0; 3]) {
+        Err(e @ GpuError::TooLarge { .. }) => {
+            let message = e.to_string();
+            assert!(
+                message.contains("splats of 1100 Gaussians") && message.contains("70400"),
+                "{message}"
+            );
+        }
+        Err(e) => panic!("expected a too-large error, got {e}"),
+        Ok(_) => panic!("1100 splats rendered through four bindings of 256"),
+    }
 }
 
 #[test]

@@ -1,9 +1,8 @@
 //! Adam on the GPU: the update of [`crate::adam::Adam`], step for step, with the moments kept
 //! on the GPU next to the parameters.
 
-use super::buffers::{read, storage, uniform};
-use super::device::{GpuContext, GpuError};
-use super::forward::WORKGROUP;
+use super::buffers::{read, storage_per_item, uniform};
+use super::device::{Binding, GpuContext, GpuError};
 use super::shaders::KernelId;
 use crate::adam::{decode_state, encode_state, AdamHyper, GroupConfig};
 use crate::GsError;
@@ -12,13 +11,12 @@ use crate::GsError;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
 struct AdamUniform {
-    n: u32,
     step_size: f32,
     inv_bc2_sqrt: f32,
     beta1: f32,
     beta2: f32,
     eps: f32,
-    unused: [u32; 2],
+    unused: [u32; 3],
 }
 
 /// First and second moments of one trained group.
@@ -57,8 +55,8 @@ impl GpuAdam {
                 let bytes = 4 * len as u64;
                 Some(Moments {
                     len,
-                    m: storage(ctx, &format!("Adam m of {}", g.name), bytes)?,
-                    v: storage(ctx, &format!("Adam v of {}", g.name), bytes)?,
+                    m: storage_per_item(ctx, &format!("Adam m of {}", g.name), bytes)?,
+                    v: storage_per_item(ctx, &format!("Adam v of {}", g.name), bytes)?,
                 })
             });
         }
@@ -118,7 +116,8 @@ impl GpuAdam {
     }
 
     /// One Adam step: `params[i]` is group `i`'s buffer, `grads[i]` its gradient (`None` is
-    /// allowed for frozen and empty groups only).
+    /// allowed for frozen and empty groups only). Fails only when the adapter cannot bind
+    /// even one chunk of values.
     ///
     /// # Panics
     /// If the number of groups differs from construction or a trained group has no gradient.
@@ -127,7 +126,7 @@ impl GpuAdam {
         ctx: &GpuContext,
         params: &[&wgpu::Buffer],
         grads: &[Option<&wgpu::Buffer>],
-    ) {
+    ) -> Result<(), GpuError> {
         assert_eq!(
             params.len(),
             self.groups.len(),
@@ -157,24 +156,31 @@ impl GpuAdam {
             let params_uniform = uniform(
                 ctx,
                 &AdamUniform {
-                    n: mom.len as u32,
                     step_size: (lr / bc1) as f32,
                     inv_bc2_sqrt: (1.0 / bc2.sqrt()) as f32,
                     beta1: beta1 as f32,
                     beta2: beta2 as f32,
                     eps: eps as f32,
-                    unused: [0; 2],
+                    unused: [0; 3],
                 },
             );
-            ctx.dispatch(
+            let len = u32::try_from(mom.len).expect("at most u32::MAX values a group");
+            ctx.dispatch_items(
                 &mut encoder,
                 KernelId::AdamStep,
-                &[&params_uniform, params[i], grad, &mom.m, &mom.v],
-                (mom.len as u32).div_ceil(WORKGROUP),
-            );
+                &[
+                    Binding::Whole(&params_uniform),
+                    Binding::PerItem(params[i], 4),
+                    Binding::PerItem(grad, 4),
+                    Binding::PerItem(&mom.m, 4),
+                    Binding::PerItem(&mom.v, 4),
+                ],
+                len,
+            )?;
         }
         ctx.submit(encoder);
         self.step = t;
+        Ok(())
     }
 
     /// Reads group `i`'s first and second moments back (`None` for a frozen group).

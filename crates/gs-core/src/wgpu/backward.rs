@@ -2,15 +2,16 @@
 //! backward per Gaussian. Same gradients as [`crate::raster::backward`]; frozen parameter
 //! groups cost no work and no memory.
 
-use super::buffers::{read, storage, storage_from, uniform, GpuGaussians};
-use super::device::{GpuContext, GpuError};
-use super::forward::{GpuRendered, WORKGROUP};
+use super::buffers::{read, storage, storage_from, storage_per_item, uniform, GpuGaussians};
+use super::device::{Binding, GpuContext, GpuError};
+use super::forward::{part_bindings, GpuRendered, SPLAT_PARTS};
 use super::shaders::KernelId;
 use crate::gaussians::{sh_coeff_count, GaussianGrads};
 use crate::raster::{GradMask, Gradients, OutputGrads};
 
-/// Gradient slots per Gaussian in the accumulation buffer (`SPLAT_GRADS` of helpers.wgsl).
-const SPLAT_GRADS: u64 = 10;
+/// Bytes of one Gaussian's gradient slots in the accumulation buffer (`SPLAT_GRADS` `f32`s of
+/// helpers.wgsl).
+pub(crate) const SPLAT_GRAD_BYTES: u64 = 4 * 10;
 
 /// Flag bits of `View.scene.w` (shaders/helpers.wgsl).
 mod flags {
@@ -30,7 +31,7 @@ pub struct GpuGradients {
     len: usize,
     sh_degree: usize,
     arrays: [Option<wgpu::Buffer>; 6],
-    accum: wgpu::Buffer,
+    background: wgpu::Buffer,
 }
 
 impl GpuGradients {
@@ -63,8 +64,7 @@ impl GpuGradients {
 
     /// Reads dL/d(background RGB) back.
     pub fn background(&self, ctx: &GpuContext) -> [f32; 3] {
-        let all: Vec<f32> = read(ctx, &self.accum, SPLAT_GRADS as usize * self.len + 3);
-        let bg = &all[all.len() - 3..];
+        let bg: Vec<f32> = read(ctx, &self.background, 3);
         [bg[0], bg[1], bg[2]]
     }
 }
@@ -129,14 +129,18 @@ pub fn backward(
     };
     let grad_alpha = optional(out_grads.alpha, "dL/dalpha")?;
     let grad_depth = optional(out_grads.depth, "dL/ddepth")?;
-    let accum = storage(ctx, "splat gradients", 4 * (SPLAT_GRADS * n as u64 + 3))?;
+    let accum = storage_per_item(ctx, "splat gradients", SPLAT_GRAD_BYTES * n as u64)?;
+    let background = storage(ctx, "background gradient", 12)?;
+    let accum_fillers = (0..SPLAT_PARTS)
+        .map(|_| storage(ctx, "unused splat-gradient part", 0))
+        .collect::<Result<Vec<_>, _>>()?;
 
     let per_gaussian = [3, 3, 4, 1, 3, 3 * (sh_coeff_count(degree) - 1)];
     let mut arrays: [Option<wgpu::Buffer>; 6] = Default::default();
     for (k, ((on, _), width)) in wanted.iter().zip(per_gaussian).enumerate() {
         if *on {
             let name = crate::gaussians::PARAM_NAMES[k];
-            arrays[k] = Some(storage(
+            arrays[k] = Some(storage_per_item(
                 ctx,
                 &format!("gradient of {name}"),
                 4 * (width * n) as u64,
@@ -145,12 +149,10 @@ pub fn backward(
     }
 
     let mut encoder = ctx.encoder();
-    ctx.dispatch_2d(
-        &mut encoder,
-        KernelId::CompositeBackward,
-        &[
-            &view_buf,
-            &rendered.splats,
+    let mut bindings = vec![view_buf.as_entire_buffer_binding()];
+    bindings.extend(rendered.splat_bindings());
+    bindings.extend(
+        [
             &rendered.tile_ids,
             &rendered.ranges,
             &rendered.final_t,
@@ -158,25 +160,42 @@ pub fn backward(
             &grad_rgb,
             grad_alpha.as_ref().unwrap_or(&placeholder),
             grad_depth.as_ref().unwrap_or(&placeholder),
-            &accum,
-        ],
+        ]
+        .map(|b| b.as_entire_buffer_binding()),
+    );
+    // A part past the end binds a filler of its own: writable bindings must not alias.
+    bindings.extend(part_bindings(
+        &accum,
+        SPLAT_GRAD_BYTES,
+        n as u32,
+        view.parts[0],
+        |p| &accum_fillers[p],
+    ));
+    bindings.push(background.as_entire_buffer_binding());
+    ctx.dispatch_ranges(
+        &mut encoder,
+        KernelId::CompositeBackward,
+        &bindings,
         [view.size[2], view.size[3]],
     );
     if params_needed != 0 && n > 0 {
         let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
-        let out = |k: usize| arrays[k].as_ref().unwrap_or(&placeholder);
-        ctx.dispatch(
+        let out = |k: usize| match &arrays[k] {
+            Some(b) => Binding::PerItem(b, 4 * per_gaussian[k] as u64),
+            None => Binding::Whole(&placeholder),
+        };
+        ctx.dispatch_items(
             &mut encoder,
             KernelId::ProjectBackward,
             &[
-                &view_buf,
-                means,
-                scales,
-                quats,
-                opacities,
-                sh_dc,
-                sh_rest,
-                &accum,
+                Binding::Whole(&view_buf),
+                Binding::PerItem(means, 12),
+                Binding::PerItem(scales, 12),
+                Binding::PerItem(quats, 16),
+                Binding::PerItem(opacities, 4),
+                Binding::PerItem(sh_dc, 12),
+                Binding::PerItem(sh_rest, 4 * per_gaussian[5] as u64),
+                Binding::PerItem(&accum, SPLAT_GRAD_BYTES),
                 out(0),
                 out(1),
                 out(2),
@@ -184,14 +203,14 @@ pub fn backward(
                 out(4),
                 out(5),
             ],
-            (n as u32).div_ceil(WORKGROUP),
-        );
+            n as u32,
+        )?;
     }
     ctx.submit(encoder);
     Ok(GpuGradients {
         len: n,
         sh_degree: degree,
         arrays,
-        accum,
+        background,
     })
 }

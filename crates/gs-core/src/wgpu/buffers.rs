@@ -10,15 +10,35 @@ use crate::gaussians::{GaussianSet, PARAM_NAMES};
 /// bytes.
 const MIN_BYTES: u64 = 64;
 
-/// A zeroed storage buffer of `bytes` bytes (at least [`MIN_BYTES`]), or an error naming
-/// `what` when it exceeds the device's binding limit or the device is out of memory.
+/// A zeroed storage buffer of `bytes` bytes (at least [`MIN_BYTES`]) that kernels bind whole,
+/// or an error naming `what` when it exceeds the device's binding limit or the device is out
+/// of memory.
 pub(crate) fn storage(ctx: &GpuContext, what: &str, bytes: u64) -> Result<wgpu::Buffer, GpuError> {
+    allocate(ctx, what, bytes, ctx.max_binding())
+}
+
+/// A zeroed storage buffer of `bytes` bytes of per-item records (Gaussians, values), which
+/// kernels bind one chunk or part at a time: only the adapter's buffer-size limit applies.
+pub(crate) fn storage_per_item(
+    ctx: &GpuContext,
+    what: &str,
+    bytes: u64,
+) -> Result<wgpu::Buffer, GpuError> {
+    allocate(ctx, what, bytes, ctx.max_buffer())
+}
+
+fn allocate(
+    ctx: &GpuContext,
+    what: &str,
+    bytes: u64,
+    limit: u64,
+) -> Result<wgpu::Buffer, GpuError> {
     let size = bytes.max(MIN_BYTES).next_multiple_of(4);
-    if size > ctx.max_binding() {
+    if size > limit {
         return Err(GpuError::TooLarge {
             what: what.into(),
             needed: size,
-            limit: ctx.max_binding(),
+            limit,
             adapter: ctx.adapter_name().into(),
         });
     }
@@ -37,22 +57,39 @@ pub(crate) fn storage(ctx: &GpuContext, what: &str, bytes: u64) -> Result<wgpu::
             what: what.into(),
             needed: size,
             adapter: ctx.adapter_name().into(),
+            run: None,
         }),
     }
 }
 
-/// A storage buffer holding `data`.
+/// A storage buffer that kernels bind whole ([`storage`]) holding `data`.
 pub(crate) fn storage_from<T: bytemuck::Pod>(
     ctx: &GpuContext,
     what: &str,
     data: &[T],
 ) -> Result<wgpu::Buffer, GpuError> {
     let buffer = storage(ctx, what, std::mem::size_of_val(data) as u64)?;
+    write(ctx, &buffer, data);
+    Ok(buffer)
+}
+
+/// A per-item storage buffer ([`storage_per_item`]) holding `data`.
+pub(crate) fn per_item_from<T: bytemuck::Pod>(
+    ctx: &GpuContext,
+    what: &str,
+    data: &[T],
+) -> Result<wgpu::Buffer, GpuError> {
+    let buffer = storage_per_item(ctx, what, std::mem::size_of_val(data) as u64)?;
+    write(ctx, &buffer, data);
+    Ok(buffer)
+}
+
+/// Queues `data` to be written at the start of `buffer`.
+fn write<T: bytemuck::Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, data: &[T]) {
     if !data.is_empty() {
         ctx.queue
-            .write_buffer(&buffer, 0, bytemuck::cast_slice(data));
+            .write_buffer(buffer, 0, bytemuck::cast_slice(data));
     }
-    Ok(buffer)
 }
 
 /// A uniform buffer holding `value`.
@@ -118,7 +155,7 @@ impl GpuGaussians {
         let arrays = gaussians.arrays();
         let mut buffers = Vec::with_capacity(6);
         for (name, data) in PARAM_NAMES.iter().zip(arrays) {
-            buffers.push(storage_from(ctx, &format!("Gaussian {name}"), data)?);
+            buffers.push(per_item_from(ctx, &format!("Gaussian {name}"), data)?);
         }
         Ok(Self {
             len: gaussians.len(),
@@ -191,12 +228,12 @@ impl GpuGaussians {
 /// A GPU storage buffer holding `data` (for parameter groups other than a [`GpuGaussians`]'s,
 /// gradients computed elsewhere, tests).
 pub fn upload_f32(ctx: &GpuContext, data: &[f32]) -> Result<wgpu::Buffer, GpuError> {
-    storage_from(ctx, "f32 data", data)
+    per_item_from(ctx, "f32 data", data)
 }
 
 /// A zeroed GPU storage buffer of `count` `f32` values; `what` names it in errors.
 pub fn zeroed_f32(ctx: &GpuContext, what: &str, count: usize) -> Result<wgpu::Buffer, GpuError> {
-    storage(ctx, what, 4 * count as u64)
+    storage_per_item(ctx, what, 4 * count as u64)
 }
 
 /// Waits for the GPU and reads the first `count` values of an `f32` buffer.

@@ -5,6 +5,33 @@ use std::sync::{Arc, Mutex};
 
 use super::shaders::{Kernel, KernelId, KernelSource, Kernels};
 
+/// Items (Gaussians, values) of a per-item kernel are run in chunks of a multiple of this
+/// many: one workgroup, and a binding offset aligned for every adapter (256 items of at
+/// least 4 bytes are 1024 bytes, past the largest offset alignment WebGPU allows).
+pub(crate) const ITEM_ALIGN: u32 = 256;
+
+/// One binding of a per-item kernel ([`GpuContext::run_kernel`]): the kernels run over their
+/// items in chunks small enough for the adapter's binding limit, each chunk seeing its own
+/// items from index 0.
+#[derive(Clone, Copy, Debug)]
+pub enum Binding<'a> {
+    /// Bound whole in every chunk: uniforms, and storage not indexed by item.
+    Whole(&'a wgpu::Buffer),
+    /// A storage buffer of this many bytes per item, bound one chunk of items at a time:
+    /// item `first + i` of the run is element `i` of the chunk's binding (a record of zero
+    /// bytes binds the buffer whole; the kernel must not read it).
+    PerItem(&'a wgpu::Buffer, u64),
+}
+
+/// The chunk uniform of a per-item kernel (`Chunk` of shaders/chunk.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct ChunkUniform {
+    first: u32,
+    count: u32,
+    unused: [u32; 2],
+}
+
 /// Which adapters may be used.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum AdapterChoice {
@@ -51,7 +78,10 @@ pub enum GpuError {
         adapter: String,
     },
     /// The device ran out of memory.
-    #[error("{what} needs {needed} bytes of GPU memory and {adapter} has no more")]
+    #[error(
+        "{what} needs {needed} bytes of GPU memory and {adapter} has no more{}",
+        run_needs(*.run)
+    )]
     OutOfMemory {
         /// What was being allocated.
         what: String,
@@ -59,7 +89,41 @@ pub enum GpuError {
         needed: u64,
         /// The adapter.
         adapter: String,
+        /// What the whole run needs at least, bytes ([`super::training_bytes`]), when known.
+        run: Option<u64>,
     },
+}
+
+impl GpuError {
+    /// This error with `run`, the bytes the whole run needs, when it is [`GpuError::OutOfMemory`].
+    pub fn with_run_needs(self, run: u64) -> Self {
+        match self {
+            GpuError::OutOfMemory {
+                what,
+                needed,
+                adapter,
+                ..
+            } => GpuError::OutOfMemory {
+                what,
+                needed,
+                adapter,
+                run: Some(run),
+            },
+            other => other,
+        }
+    }
+}
+
+/// The sentence of [`GpuError::OutOfMemory`] on what the whole run needs.
+fn run_needs(run: Option<u64>) -> String {
+    match run {
+        Some(bytes) => format!(
+            "; this run needs at least {:.2} GiB ({bytes} bytes) of GPU memory, plus its tile \
+             lists: use fewer Gaussians, a smaller image, or --device cpu",
+            bytes as f64 / f64::from(1u32 << 30)
+        ),
+        None => String::new(),
+    }
 }
 
 /// Options of a [`GpuContext`]; the defaults suit every use but tests of the fallbacks.
@@ -71,6 +135,9 @@ pub struct GpuOptions {
     /// A lower limit on workgroups per dispatch dimension than the adapter's, to exercise
     /// split dispatches on small scenes.
     pub max_workgroups_per_dimension: Option<u32>,
+    /// A lower limit on the bytes one storage binding may hold than the adapter's, to
+    /// exercise chunked kernels and split splat arrays on small scenes.
+    pub max_binding_bytes: Option<u64>,
 }
 
 impl Default for GpuOptions {
@@ -78,12 +145,14 @@ impl Default for GpuOptions {
         Self {
             float_atomics: true,
             max_workgroups_per_dimension: None,
+            max_binding_bytes: None,
         }
     }
 }
 
-/// Storage buffers the widest kernel binds (project_backward).
-const STORAGE_BUFFERS_NEEDED: u32 = 13;
+/// Storage buffers the widest kernel binds (composite_backward: four splat parts, four
+/// gradient parts, the background's gradient and seven more).
+const STORAGE_BUFFERS_NEEDED: u32 = 16;
 
 /// A wgpu device with the rasterizer's kernels compiled for it.
 pub struct GpuContext {
@@ -93,6 +162,7 @@ pub struct GpuContext {
     float_atomics: bool,
     max_workgroups: u32,
     max_binding: u64,
+    max_buffer: u64,
     kernels: Kernels,
     /// Kernels of other crates ([`GpuContext::run_kernel`]), compiled on first use.
     extra_kernels: Mutex<Vec<(&'static str, Arc<Kernel>)>>,
@@ -185,9 +255,12 @@ impl GpuContext {
                 .map_or(limits.max_compute_workgroups_per_dimension, |m| {
                     m.clamp(1, limits.max_compute_workgroups_per_dimension)
                 }),
-            max_binding: limits
-                .max_storage_buffer_binding_size
+            max_binding: options
+                .max_binding_bytes
+                .unwrap_or(u64::MAX)
+                .min(limits.max_storage_buffer_binding_size)
                 .min(limits.max_buffer_size),
+            max_buffer: limits.max_buffer_size,
             info,
             float_atomics,
             kernels,
@@ -224,9 +297,30 @@ impl GpuContext {
         self.kernels.get(id)
     }
 
-    /// The largest buffer one binding may hold, bytes.
+    /// The most bytes one storage binding may hold.
     pub(crate) fn max_binding(&self) -> u64 {
         self.max_binding
+    }
+
+    /// The largest buffer the adapter can create, bytes.
+    pub(crate) fn max_buffer(&self) -> u64 {
+        self.max_buffer
+    }
+
+    /// The largest multiple of [`ITEM_ALIGN`] items of `record` bytes each that one binding
+    /// holds, or an error naming `what` when not even [`ITEM_ALIGN`] of them fit.
+    pub(crate) fn items_per_binding(&self, what: &str, record: u64) -> Result<u32, GpuError> {
+        let items = self.max_binding / record.max(1);
+        let items = items - items % u64::from(ITEM_ALIGN);
+        if items == 0 {
+            return Err(GpuError::TooLarge {
+                what: format!("{what} ({ITEM_ALIGN} items of {record} bytes)"),
+                needed: u64::from(ITEM_ALIGN) * record,
+                limit: self.max_binding,
+                adapter: self.info.name.clone(),
+            });
+        }
+        Ok(u32::try_from(items).unwrap_or(u32::MAX - ITEM_ALIGN + 1))
     }
 
     /// The adapter's name alone, e.g. `NVIDIA GeForce RTX 4090`.
@@ -267,8 +361,24 @@ impl GpuContext {
         buffers: &[&wgpu::Buffer],
         grid: [u32; 2],
     ) {
+        let bindings: Vec<_> = buffers
+            .iter()
+            .map(|b| b.as_entire_buffer_binding())
+            .collect();
+        self.dispatch_ranges(encoder, id, &bindings, grid);
+    }
+
+    /// Records `kernel` over an explicit `[x, y]` grid of workgroups, its bindings given as
+    /// buffer ranges (the parts of a split array).
+    pub(crate) fn dispatch_ranges(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        id: KernelId,
+        bindings: &[wgpu::BufferBinding<'_>],
+        grid: [u32; 2],
+    ) {
         let kernel = self.kernel(id);
-        let bind = kernel.bind(&self.device, buffers);
+        let bind = kernel.bind(&self.device, bindings);
         let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
             label: Some(kernel.name()),
             timestamp_writes: None,
@@ -278,15 +388,91 @@ impl GpuContext {
         pass.dispatch_workgroups(grid[0], grid[1], 1);
     }
 
-    /// Runs `kernel` over `workgroups` workgroups (split over y past the per-dimension limit,
-    /// which `flat_index` of helpers.wgsl undoes) on `buffers`, one per binding in order;
-    /// compiles it on first use.
+    /// Records per-item kernel `id` over `items` items, in chunks (see [`Binding`]).
+    pub(crate) fn dispatch_items(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        id: KernelId,
+        bindings: &[Binding<'_>],
+        items: u32,
+    ) -> Result<(), GpuError> {
+        self.record_items(encoder, self.kernel(id), bindings, items)
+    }
+
+    /// Records `kernel` over `items` items: one dispatch a chunk of as many items as the
+    /// binding limit allows for the widest per-item record, each with its own sub-ranges and
+    /// chunk uniform.
+    fn record_items(
+        &self,
+        encoder: &mut wgpu::CommandEncoder,
+        kernel: &Kernel,
+        bindings: &[Binding<'_>],
+        items: u32,
+    ) -> Result<(), GpuError> {
+        if items == 0 {
+            return Ok(());
+        }
+        let record = bindings
+            .iter()
+            .map(|b| match b {
+                Binding::PerItem(_, bytes) => *bytes,
+                Binding::Whole(_) => 0,
+            })
+            .max()
+            .unwrap_or(0);
+        let chunk = self.items_per_binding(kernel.name(), record)?;
+        let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
+            label: Some(kernel.name()),
+            timestamp_writes: None,
+        });
+        pass.set_pipeline(kernel.pipeline());
+        let mut first = 0;
+        while first < items {
+            let count = chunk.min(items - first);
+            let ranges: Vec<wgpu::BufferBinding<'_>> = bindings
+                .iter()
+                .map(|b| match *b {
+                    Binding::PerItem(buffer, bytes) if bytes > 0 => wgpu::BufferBinding {
+                        buffer,
+                        offset: u64::from(first) * bytes,
+                        size: std::num::NonZeroU64::new(u64::from(count) * bytes),
+                    },
+                    Binding::PerItem(buffer, _) | Binding::Whole(buffer) => {
+                        buffer.as_entire_buffer_binding()
+                    }
+                })
+                .collect();
+            let chunk_uniform = super::buffers::uniform(
+                self,
+                &ChunkUniform {
+                    first,
+                    count,
+                    unused: [0; 2],
+                },
+            );
+            pass.set_bind_group(0, &kernel.bind(&self.device, &ranges), &[]);
+            pass.set_bind_group(1, &kernel.bind_chunk(&self.device, &chunk_uniform), &[]);
+            let (x, y) = self.grid(count.div_ceil(ITEM_ALIGN));
+            pass.dispatch_workgroups(x, y, 1);
+            first += count;
+        }
+        Ok(())
+    }
+
+    /// Runs per-item kernel `kernel` over `items` items (Gaussians, values) with `bindings`, one
+    /// per binding in order, in chunks as the adapter's binding limit requires (see
+    /// [`Binding`] and [`KernelSource`]); compiles it on first use.
     ///
     /// # Panics
-    /// If the number of buffers is not the kernel's number of bindings.
-    pub fn run_kernel(&self, kernel: &KernelSource, buffers: &[&wgpu::Buffer], workgroups: u32) {
+    /// If the number of bindings is not the kernel's.
+    pub fn run_kernel(
+        &self,
+        kernel: &KernelSource,
+        bindings: &[Binding<'_>],
+        items: u32,
+    ) -> Result<(), GpuError> {
         assert_eq!(
-            buffers.len(),
+            bindings.len(),
             kernel.bindings.len(),
             "{}: one buffer per binding",
             kernel.name
@@ -302,19 +488,10 @@ impl GpuContext {
                 }
             }
         };
-        let bind = compiled.bind(&self.device, buffers);
         let mut encoder = self.encoder();
-        {
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor {
-                label: Some(compiled.name()),
-                timestamp_writes: None,
-            });
-            pass.set_pipeline(compiled.pipeline());
-            pass.set_bind_group(0, &bind, &[]);
-            let (x, y) = self.grid(workgroups);
-            pass.dispatch_workgroups(x, y, 1);
-        }
+        self.record_items(&mut encoder, &compiled, bindings, items)?;
         self.submit(encoder);
+        Ok(())
     }
 
     /// A 16-byte uniform buffer of four words (`u32`s; `f32`s as their bits), for the
@@ -345,6 +522,33 @@ impl GpuContext {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn out_of_memory_names_what_the_run_needs() {
+        let e = GpuError::OutOfMemory {
+            what: "splats".into(),
+            needed: 64,
+            adapter: "test".into(),
+            run: None,
+        };
+        assert_eq!(
+            e.to_string(),
+            "splats needs 64 bytes of GPU memory and test has no more"
+        );
+        let message = e.with_run_needs(3 << 30).to_string();
+        assert!(
+            message.contains("at least 3.00 GiB (3221225472 bytes)"),
+            "{message}"
+        );
+        let other = GpuError::Device {
+            adapter: "test".into(),
+            message: "lost".into(),
+        };
+        assert_eq!(
+            other.with_run_needs(1).to_string(),
+            "GPU adapter test: lost"
+        );
+    }
 
     #[test]
     fn software_adapters_only_when_allowed() {

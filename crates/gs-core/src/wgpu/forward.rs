@@ -1,8 +1,8 @@
 //! The forward pass on the GPU: projection and SH colour, depth sort, tile binning, sort by
 //! tile, compositing. Same outputs as [`crate::raster::render`].
 
-use super::buffers::{read, storage, uniform, GpuGaussians};
-use super::device::{GpuContext, GpuError};
+use super::buffers::{read, storage, storage_per_item, uniform, GpuGaussians};
+use super::device::{Binding, GpuContext, GpuError};
 use super::scan::{prefix_sum, PassUniform};
 use super::shaders::KernelId;
 use super::sort::radix_sort;
@@ -13,6 +13,56 @@ use crate::raster::TILE_SIZE;
 
 /// Threads of the per-Gaussian and per-item kernels.
 pub(crate) const WORKGROUP: u32 = 256;
+
+/// Bytes of one splat (`Splat` of shaders/helpers.wgsl).
+pub(crate) const SPLAT_BYTES: u64 = 64;
+
+/// Parts a splat array and the splat gradients may be split into (`SPLAT_PARTS` of
+/// shaders/helpers.wgsl): kernels that read splats by Gaussian index bind this many.
+pub(crate) const SPLAT_PARTS: u32 = 4;
+
+/// Splats per part of a split splat array on `ctx` (the most one binding holds), or an error
+/// when `n` splats need more than [`SPLAT_PARTS`] parts.
+pub(crate) fn splat_part_len(ctx: &GpuContext, n: u32) -> Result<u32, GpuError> {
+    let part_len = ctx.items_per_binding("splats", SPLAT_BYTES)?;
+    if u64::from(n) > u64::from(SPLAT_PARTS) * u64::from(part_len) {
+        return Err(GpuError::TooLarge {
+            what: format!(
+                "the splats of {n} Gaussians, bound as at most {SPLAT_PARTS} parts of \
+                 {part_len} splats,"
+            ),
+            needed: SPLAT_BYTES * u64::from(n),
+            limit: SPLAT_BYTES * u64::from(SPLAT_PARTS) * u64::from(part_len),
+            adapter: ctx.adapter_name().into(),
+        });
+    }
+    Ok(part_len)
+}
+
+/// The [`SPLAT_PARTS`] bindings of an array of `n` records of `record` bytes split into parts
+/// of `part_len` records; a part past the records binds `filler(part)` instead.
+pub(crate) fn part_bindings<'a>(
+    array: &'a wgpu::Buffer,
+    record: u64,
+    n: u32,
+    part_len: u32,
+    filler: impl Fn(usize) -> &'a wgpu::Buffer,
+) -> Vec<wgpu::BufferBinding<'a>> {
+    (0..SPLAT_PARTS)
+        .map(|p| {
+            let first = p * part_len;
+            if first >= n {
+                return filler(p as usize).as_entire_buffer_binding();
+            }
+            let count = part_len.min(n - first);
+            wgpu::BufferBinding {
+                buffer: array,
+                offset: u64::from(first) * record,
+                size: std::num::NonZeroU64::new(u64::from(count) * record),
+            }
+        })
+        .collect()
+}
 
 /// The uniform every rasterizer kernel reads (`View` of shaders/helpers.wgsl).
 #[repr(C)]
@@ -27,10 +77,12 @@ pub(crate) struct ViewUniform {
     pub size: [u32; 4],
     /// Gaussian count, SH degree, SH coefficients per channel minus one, gradient flags.
     pub scene: [u32; 4],
+    /// Splats per part of a split splat array, then padding.
+    pub parts: [u32; 4],
 }
 
 impl ViewUniform {
-    fn new(camera: &Camera, background: [f32; 3], gaussians: &GpuGaussians) -> Self {
+    fn new(camera: &Camera, background: [f32; 3], gaussians: &GpuGaussians, part_len: u32) -> Self {
         let cam = CameraT::<f32>::new(camera);
         let (tiles_x, tiles_y) = tiles(camera);
         let rot = std::array::from_fn(|r| {
@@ -55,8 +107,15 @@ impl ViewUniform {
                 (degree + 1) * (degree + 1) - 1,
                 0,
             ],
+            parts: [part_len, 0, 0, 0],
         }
     }
+}
+
+/// The grid of a kernel with one thread per item of `n` items.
+fn grid(ctx: &GpuContext, n: u32) -> [u32; 2] {
+    let (x, y) = ctx.grid(n.div_ceil(WORKGROUP));
+    [x, y]
 }
 
 /// Tiles per row and tile rows of the camera's image.
@@ -71,7 +130,9 @@ pub struct GpuRendered {
     pub(crate) height: u32,
     pub(crate) view: ViewUniform,
     pairs: u32,
-    pub(crate) splats: wgpu::Buffer,
+    splats: wgpu::Buffer,
+    /// Bound in place of the parts of the splat array past its end.
+    filler: wgpu::Buffer,
     pub(crate) tile_ids: wgpu::Buffer,
     pub(crate) ranges: wgpu::Buffer,
     rgb: wgpu::Buffer,
@@ -109,6 +170,22 @@ impl GpuRendered {
     fn pixels(&self) -> usize {
         self.width as usize * self.height as usize
     }
+
+    /// The [`SPLAT_PARTS`] bindings of the splat array.
+    pub(crate) fn splat_bindings(&self) -> Vec<wgpu::BufferBinding<'_>> {
+        splat_bindings(&self.splats, &self.filler, &self.view)
+    }
+}
+
+/// The [`SPLAT_PARTS`] bindings of `splats`, split as `view` says, `filler` past the end.
+fn splat_bindings<'a>(
+    splats: &'a wgpu::Buffer,
+    filler: &'a wgpu::Buffer,
+    view: &ViewUniform,
+) -> Vec<wgpu::BufferBinding<'a>> {
+    part_bindings(splats, SPLAT_BYTES, view.scene[0], view.parts[0], |_| {
+        filler
+    })
 }
 
 /// Renders `gaussians` through `camera` over `background`, as [`crate::raster::render`] does.
@@ -127,13 +204,14 @@ pub fn render(
         panic!("{e}");
     }
     let n = u32::try_from(gaussians.len()).expect("at most u32::MAX Gaussians");
-    let view = ViewUniform::new(camera, background, gaussians);
+    let view = ViewUniform::new(camera, background, gaussians, splat_part_len(ctx, n)?);
     let view_buf = uniform(ctx, &view);
     let (tiles_x, tiles_y) = tiles(camera);
     let n_tiles = tiles_x * tiles_y;
     let bytes = |count: u32, size: u64| size * u64::from(count);
 
-    let splats = storage(ctx, "splats", bytes(n, 64))?;
+    let splats = storage_per_item(ctx, "splats", bytes(n, SPLAT_BYTES))?;
+    let filler = storage(ctx, "unused splat part", 0)?;
     let counts = storage(ctx, "tile counts", bytes(n, 4))?;
     let mut pairs = 0;
     let mut order = storage(ctx, "depth order", bytes(n, 4))?;
@@ -141,30 +219,32 @@ pub fn render(
         let depth_keys = storage(ctx, "depth keys", bytes(n, 4))?;
         let mut encoder = ctx.encoder();
         let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
-        ctx.dispatch(
+        let sh_rest_bytes = 4 * u64::from(view.scene[2]) * 3;
+        ctx.dispatch_items(
             &mut encoder,
             KernelId::ProjectForward,
             &[
-                &view_buf,
-                means,
-                scales,
-                quats,
-                opacities,
-                sh_dc,
-                sh_rest,
-                &splats,
-                &depth_keys,
-                &order,
+                Binding::Whole(&view_buf),
+                Binding::PerItem(means, 12),
+                Binding::PerItem(scales, 12),
+                Binding::PerItem(quats, 16),
+                Binding::PerItem(opacities, 4),
+                Binding::PerItem(sh_dc, 12),
+                Binding::PerItem(sh_rest, sh_rest_bytes),
+                Binding::PerItem(&splats, SPLAT_BYTES),
+                Binding::PerItem(&depth_keys, 4),
+                Binding::PerItem(&order, 4),
             ],
-            n.div_ceil(WORKGROUP),
-        );
+            n,
+        )?;
         (_, order) = radix_sort(ctx, &mut encoder, depth_keys, order, n, 32)?;
-        ctx.dispatch(
-            &mut encoder,
-            KernelId::BinCounts,
-            &[&view_buf, &splats, &order, &counts],
-            n.div_ceil(WORKGROUP),
-        );
+        let mut bindings = vec![view_buf.as_entire_buffer_binding()];
+        bindings.extend(splat_bindings(&splats, &filler, &view));
+        bindings.extend([
+            order.as_entire_buffer_binding(),
+            counts.as_entire_buffer_binding(),
+        ]);
+        ctx.dispatch_ranges(&mut encoder, KernelId::BinCounts, &bindings, grid(ctx, n));
         let total = prefix_sum(ctx, &mut encoder, &counts, n)?;
         ctx.submit(encoder);
         pairs = read::<u32>(ctx, &total, 1)[0];
@@ -175,12 +255,11 @@ pub fn render(
     let mut tile_ids = storage(ctx, "tile lists", bytes(pairs, 4))?;
     let ranges = storage(ctx, "tile ranges", bytes(n_tiles, 8))?;
     if pairs > 0 {
-        ctx.dispatch(
-            &mut encoder,
-            KernelId::BinTiles,
-            &[&view_buf, &splats, &order, &counts, &tile_keys, &tile_ids],
-            n.div_ceil(WORKGROUP),
-        );
+        let mut bindings = vec![view_buf.as_entire_buffer_binding()];
+        bindings.extend(splat_bindings(&splats, &filler, &view));
+        bindings
+            .extend([&order, &counts, &tile_keys, &tile_ids].map(|b| b.as_entire_buffer_binding()));
+        ctx.dispatch_ranges(&mut encoder, KernelId::BinTiles, &bindings, grid(ctx, n));
         let tile_bits = u32::BITS - (n_tiles - 1).leading_zeros();
         (tile_keys, tile_ids) =
             radix_sort(ctx, &mut encoder, tile_keys, tile_ids, pairs, tile_bits)?;
@@ -198,12 +277,18 @@ pub fn render(
     let depth = storage(ctx, "depth", bytes(pixels, 4))?;
     let final_t = storage(ctx, "final transmittance", bytes(pixels, 4))?;
     let n_contrib = storage(ctx, "contributor counts", bytes(pixels, 4))?;
-    ctx.dispatch_2d(
+    let mut bindings = vec![view_buf.as_entire_buffer_binding()];
+    bindings.extend(splat_bindings(&splats, &filler, &view));
+    bindings.extend(
+        [
+            &tile_ids, &ranges, &rgb, &alpha, &depth, &final_t, &n_contrib,
+        ]
+        .map(|b| b.as_entire_buffer_binding()),
+    );
+    ctx.dispatch_ranges(
         &mut encoder,
         KernelId::CompositeForward,
-        &[
-            &view_buf, &splats, &tile_ids, &ranges, &rgb, &alpha, &depth, &final_t, &n_contrib,
-        ],
+        &bindings,
         [tiles_x, tiles_y],
     );
     ctx.submit(encoder);
@@ -213,6 +298,7 @@ pub fn render(
         view,
         pairs,
         splats,
+        filler,
         tile_ids,
         ranges,
         rgb,

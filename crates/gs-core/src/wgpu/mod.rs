@@ -11,6 +11,7 @@
 //! - [`GpuParams`] and [`GpuBaseModel`]: a model's parameters on the GPU and the per-view
 //!   construction of its Gaussians there (the identity for a plain [`crate::GaussianSet`]).
 //! - [`train`](fn@train): the training loop of [`crate::train`] with all of the above.
+//! - [`training_bytes`]: the GPU memory a training run needs, reported when an allocation fails.
 //! - [`KernelSource`]: WGSL kernels of other crates (a base model's own construction), with
 //!   the same `//#import` of gs-core's shader files.
 //!
@@ -23,6 +24,7 @@ mod backward;
 mod buffers;
 mod device;
 mod forward;
+mod memory;
 mod model;
 mod scan;
 mod shaders;
@@ -32,8 +34,9 @@ mod train;
 pub use adam::GpuAdam;
 pub use backward::{backward, GpuGradients};
 pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
-pub use device::{AdapterChoice, GpuContext, GpuError, GpuOptions};
+pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions};
 pub use forward::{render, GpuRendered};
+pub use memory::training_bytes;
 pub use model::{GpuBaseModel, GpuParams};
 pub use shaders::{Access, KernelSource};
 pub use train::train;

@@ -3,7 +3,7 @@
 //! of [`BaseModel::gaussians`] and [`BaseModel::backward`].
 
 use super::backward::GpuGradients;
-use super::buffers::{read, storage_from, GpuGaussians};
+use super::buffers::{per_item_from, read, GpuGaussians};
 use super::device::{GpuContext, GpuError};
 use crate::gaussians::GaussianSet;
 use crate::model::{BaseModel, View};
@@ -24,7 +24,7 @@ impl GpuParams {
         let mut buffers = Vec::with_capacity(names.len());
         let mut lens = Vec::with_capacity(names.len());
         for (name, values) in names.iter().zip(model.groups_mut()) {
-            buffers.push(storage_from(ctx, &format!("parameters {name}"), values)?);
+            buffers.push(per_item_from(ctx, &format!("parameters {name}"), values)?);
             lens.push(values.len());
         }
         Ok(Self { buffers, lens })

@@ -14,6 +14,11 @@ const FILES: &[(&str, &str)] = &[
         include_str!("../../../../shaders/helpers.wgsl"),
     ),
     ("sh.wgsl", include_str!("../../../../shaders/sh.wgsl")),
+    ("chunk.wgsl", include_str!("../../../../shaders/chunk.wgsl")),
+    (
+        "splat_parts.wgsl",
+        include_str!("../../../../shaders/splat_parts.wgsl"),
+    ),
     (
         "project.wgsl",
         include_str!("../../../../shaders/project.wgsl"),
@@ -21,6 +26,10 @@ const FILES: &[(&str, &str)] = &[
     (
         "accumulate_float_atomic.wgsl",
         include_str!("../../../../shaders/accumulate_float_atomic.wgsl"),
+    ),
+    (
+        "accumulate_parts.wgsl",
+        include_str!("../../../../shaders/accumulate_parts.wgsl"),
     ),
     (
         "accumulate_cas.wgsl",
@@ -136,11 +145,13 @@ pub enum Access {
 
 use Access::{Read as R, Uniform as U, Write as W};
 
-/// A compute kernel that a crate other than gs-core brings (e.g. a base model's per-view
-/// construction of its Gaussians): WGSL with one entry point `main`, whose `//#import` lines
-/// name gs-core's shader files (`helpers.wgsl` has `flat_index`, `finite` and the uniforms),
-/// run with [`super::GpuContext::run_kernel`]. Bindings are `@group(0) @binding(0..)` in the
-/// order of `bindings`.
+/// A per-item compute kernel that a crate other than gs-core brings (e.g. a base model's
+/// per-view construction of its Gaussians): WGSL with one entry point `main`, whose
+/// `//#import` lines name gs-core's shader files, run with
+/// [`super::GpuContext::run_kernel`]. Bindings are `@group(0) @binding(0..)` in the order of
+/// `bindings`. The kernel imports `chunk.wgsl` and runs over the items of one chunk:
+/// `chunk_item(...)` is the item's index within the chunk (also its index into every
+/// per-item binding), valid below `chunk.count`; `chunk.first` is the chunk's first item.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct KernelSource {
     /// The file name, e.g. `flat_gaussians_forward.wgsl` (names the kernel in errors and caches).
@@ -186,27 +197,42 @@ impl KernelId {
         KernelId::CheckFinite,
     ];
 
+    /// True for per-item kernels, run in chunks with a `Chunk` uniform (shaders/chunk.wgsl).
+    fn per_item(self) -> bool {
+        matches!(
+            self,
+            KernelId::ProjectForward
+                | KernelId::ProjectBackward
+                | KernelId::AdamStep
+                | KernelId::CheckFinite
+        )
+    }
+
     /// The kernel's file and its bindings `0..` in order.
     fn spec(self) -> (&'static str, &'static [Access]) {
         match self {
             KernelId::ProjectForward => ("project_forward.wgsl", &[U, R, R, R, R, R, R, W, W, W]),
-            KernelId::BinCounts => ("bin_counts.wgsl", &[U, R, R, W]),
-            KernelId::BinTiles => ("bin_tiles.wgsl", &[U, R, R, R, W, W]),
+            KernelId::BinCounts => ("bin_counts.wgsl", &[U, R, R, R, R, R, W]),
+            KernelId::BinTiles => ("bin_tiles.wgsl", &[U, R, R, R, R, R, R, W, W]),
             KernelId::PrefixSumBlocks => ("prefix_sum_blocks.wgsl", &[U, W, W]),
             KernelId::PrefixSumAdd => ("prefix_sum_add.wgsl", &[U, W, R]),
             KernelId::RadixSortCount => ("radix_sort_count.wgsl", &[U, R, W]),
             KernelId::RadixSortScatter => ("radix_sort_scatter.wgsl", &[U, R, R, R, W, W]),
             KernelId::TileRanges => ("tile_ranges.wgsl", &[U, R, W]),
-            KernelId::CompositeForward => ("composite_forward.wgsl", &[U, R, R, R, W, W, W, W, W]),
-            KernelId::CompositeBackward => {
-                ("composite_backward.wgsl", &[U, R, R, R, R, R, R, R, R, W])
-            }
+            KernelId::CompositeForward => (
+                "composite_forward.wgsl",
+                &[U, R, R, R, R, R, R, W, W, W, W, W],
+            ),
+            KernelId::CompositeBackward => (
+                "composite_backward.wgsl",
+                &[U, R, R, R, R, R, R, R, R, R, R, R, W, W, W, W, W],
+            ),
             KernelId::ProjectBackward => (
                 "project_backward.wgsl",
                 &[U, R, R, R, R, R, R, R, W, W, W, W, W, W],
             ),
             KernelId::AdamStep => ("adam_step.wgsl", &[U, W, R, W, W]),
-            KernelId::CheckFinite => ("check_finite.wgsl", &[U, R, W]),
+            KernelId::CheckFinite => ("check_finite.wgsl", &[R, W]),
         }
     }
 }
@@ -215,47 +241,67 @@ impl KernelId {
 pub(crate) struct Kernel {
     name: &'static str,
     layout: wgpu::BindGroupLayout,
+    /// The layout of group 1, the `Chunk` uniform, for per-item kernels.
+    chunk_layout: Option<wgpu::BindGroupLayout>,
     pipeline: wgpu::ComputePipeline,
+}
+
+/// The layout of bindings `0..` of the given accesses, in order.
+fn group_layout(device: &wgpu::Device, name: &str, access: &[Access]) -> wgpu::BindGroupLayout {
+    let entries: Vec<wgpu::BindGroupLayoutEntry> = access
+        .iter()
+        .enumerate()
+        .map(|(i, a)| wgpu::BindGroupLayoutEntry {
+            binding: i as u32,
+            visibility: wgpu::ShaderStages::COMPUTE,
+            ty: wgpu::BindingType::Buffer {
+                ty: match a {
+                    Access::Uniform => wgpu::BufferBindingType::Uniform,
+                    Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
+                    Access::Write => wgpu::BufferBindingType::Storage { read_only: false },
+                },
+                has_dynamic_offset: false,
+                min_binding_size: None,
+            },
+            count: None,
+        })
+        .collect();
+    device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+        label: Some(name),
+        entries: &entries,
+    })
 }
 
 impl Kernel {
     fn new(device: &wgpu::Device, id: KernelId, float_atomics: bool) -> Self {
         let (name, access) = id.spec();
-        Self::compile(device, name, &source(name, float_atomics), access)
+        Self::compile(
+            device,
+            name,
+            &source(name, float_atomics),
+            access,
+            id.per_item(),
+        )
     }
 
-    /// Compiles a kernel brought by another crate, its imports resolved.
+    /// Compiles a per-item kernel brought by another crate, its imports resolved.
     pub(crate) fn extra(device: &wgpu::Device, kernel: &KernelSource, float_atomics: bool) -> Self {
         let text = expand(kernel.name, kernel.wgsl, float_atomics);
-        Self::compile(device, kernel.name, &text, kernel.bindings)
+        Self::compile(device, kernel.name, &text, kernel.bindings, true)
     }
 
-    fn compile(device: &wgpu::Device, name: &'static str, text: &str, access: &[Access]) -> Self {
-        let entries: Vec<wgpu::BindGroupLayoutEntry> = access
-            .iter()
-            .enumerate()
-            .map(|(i, a)| wgpu::BindGroupLayoutEntry {
-                binding: i as u32,
-                visibility: wgpu::ShaderStages::COMPUTE,
-                ty: wgpu::BindingType::Buffer {
-                    ty: match a {
-                        Access::Uniform => wgpu::BufferBindingType::Uniform,
-                        Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
-                        Access::Write => wgpu::BufferBindingType::Storage { read_only: false },
-                    },
-                    has_dynamic_offset: false,
-                    min_binding_size: None,
-                },
-                count: None,
-            })
-            .collect();
-        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
-            label: Some(name),
-            entries: &entries,
-        });
+    fn compile(
+        device: &wgpu::Device,
+        name: &'static str,
+        text: &str,
+        access: &[Access],
+        per_item: bool,
+    ) -> Self {
+        let layout = group_layout(device, name, access);
+        let chunk_layout = per_item.then(|| group_layout(device, name, &[Access::Uniform]));
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some(name),
-            bind_group_layouts: &[Some(&layout)],
+            bind_group_layouts: &[Some(&layout), chunk_layout.as_ref()],
             immediate_size: 0,
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
@@ -273,6 +319,7 @@ impl Kernel {
         Self {
             name,
             layout,
+            chunk_layout,
             pipeline,
         }
     }
@@ -285,23 +332,49 @@ impl Kernel {
         &self.pipeline
     }
 
-    /// A bind group of `buffers`, one per binding in order.
+    /// A bind group of `bindings`, one per binding in order.
     ///
     /// # Panics
-    /// If the number of buffers is not the kernel's number of bindings.
-    pub(crate) fn bind(&self, device: &wgpu::Device, buffers: &[&wgpu::Buffer]) -> wgpu::BindGroup {
-        let entries: Vec<wgpu::BindGroupEntry> = buffers
+    /// If the number of bindings is not the kernel's.
+    pub(crate) fn bind(
+        &self,
+        device: &wgpu::Device,
+        bindings: &[wgpu::BufferBinding<'_>],
+    ) -> wgpu::BindGroup {
+        let entries: Vec<wgpu::BindGroupEntry> = bindings
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry {
                 binding: i as u32,
-                resource: b.as_entire_binding(),
+                resource: wgpu::BindingResource::Buffer(b.clone()),
             })
             .collect();
         device.create_bind_group(&wgpu::BindGroupDescriptor {
             label: Some(self.name),
             layout: &self.layout,
             entries: &entries,
+        })
+    }
+
+    /// The group-1 bind group of a per-item kernel: its `Chunk` uniform.
+    ///
+    /// # Panics
+    /// If the kernel is not a per-item kernel.
+    pub(crate) fn bind_chunk(
+        &self,
+        device: &wgpu::Device,
+        chunk: &wgpu::Buffer,
+    ) -> wgpu::BindGroup {
+        device.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: Some(self.name),
+            layout: self
+                .chunk_layout
+                .as_ref()
+                .unwrap_or_else(|| panic!("{} is not a per-item kernel", self.name)),
+            entries: &[wgpu::BindGroupEntry {
+                binding: 0,
+                resource: chunk.as_entire_binding(),
+            }],
         })
     }
 }

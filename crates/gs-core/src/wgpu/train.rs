@@ -7,11 +7,11 @@ use std::ops::ControlFlow;
 
 use super::adam::GpuAdam;
 use super::backward::backward;
-use super::buffers::{read, storage, uniform};
-use super::device::{GpuContext, GpuError};
-use super::forward::{render, WORKGROUP};
+use super::buffers::{read, storage, GpuGaussians};
+use super::device::{Binding, GpuContext, GpuError};
+use super::forward::render;
+use super::memory::training_bytes;
 use super::model::{GpuBaseModel, GpuParams};
-use super::scan::PassUniform;
 use super::shaders::KernelId;
 use crate::image::Image;
 use crate::model::View;
@@ -46,7 +46,28 @@ impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
     ) -> Result<StepEnd, GpuError> {
         let ctx = self.ctx;
         let gaussians = self.model.gpu_gaussians(ctx, self.params, view)?;
-        let rendered = render(ctx, &gaussians, &view.camera, background)?;
+        let run_needs = training_bytes(
+            self.params.lens(),
+            &self.trained,
+            gaussians.len(),
+            view.camera.pixel_count() as u64,
+        );
+        self.take_step(&gaussians, view, background, evaluate)
+            .map_err(|e| e.with_run_needs(run_needs))
+    }
+}
+
+impl<M: GpuBaseModel> GpuBackend<'_, M> {
+    /// [`StepBackend::step`] on the Gaussians the model built for `view`.
+    fn take_step<'g>(
+        &mut self,
+        gaussians: &GpuGaussians,
+        view: &View,
+        background: [f32; 3],
+        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
+    ) -> Result<StepEnd, GpuError> {
+        let ctx = self.ctx;
+        let rendered = render(ctx, gaussians, &view.camera, background)?;
         let Some(grad) = evaluate(&rendered.image(ctx)) else {
             return Ok(StepEnd::Abandoned);
         };
@@ -55,7 +76,7 @@ impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
             alpha: None,
             depth: None,
         };
-        let grads = backward(ctx, &gaussians, &rendered, &out, self.mask)?;
+        let grads = backward(ctx, gaussians, &rendered, &out, self.mask)?;
         let group_grads = self
             .model
             .gpu_backward(ctx, self.params, view, grads, &self.trained)?;
@@ -65,7 +86,7 @@ impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
         let grad_refs: Vec<Option<&wgpu::Buffer>> =
             group_grads.iter().map(Option::as_ref).collect();
         let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
-        self.adam.step(ctx, &params, &grad_refs);
+        self.adam.step(ctx, &params, &grad_refs)?;
         Ok(StepEnd::Taken)
     }
 }
@@ -79,17 +100,16 @@ fn all_finite(
     let flag = storage(ctx, "finiteness flag", 4)?;
     let mut encoder = ctx.encoder();
     for (g, &n) in grads.iter().zip(lens) {
-        let Some(g) = g.as_ref().filter(|_| n > 0) else {
+        let Some(g) = g.as_ref() else {
             continue;
         };
         let n = u32::try_from(n).expect("at most u32::MAX values a group");
-        let count = uniform(ctx, &PassUniform::new(n, 0));
-        ctx.dispatch(
+        ctx.dispatch_items(
             &mut encoder,
             KernelId::CheckFinite,
-            &[&count, g, &flag],
-            n.div_ceil(WORKGROUP),
-        );
+            &[Binding::PerItem(g, 4), Binding::Whole(&flag)],
+            n,
+        )?;
     }
     ctx.submit(encoder);
     Ok(read::<u32>(ctx, &flag, 1)[0] == 0)

@@ -82,6 +82,21 @@ pub fn gpu() -> &'static gs_core::wgpu::GpuContext {
     })
 }
 
+/// A GPU context of its own with `options` (real GPU first, else a software device), for the
+/// tests of the fallbacks; fails as [`gpu`] does when there is no adapter.
+#[cfg(feature = "wgpu")]
+pub fn gpu_with(options: gs_core::wgpu::GpuOptions) -> gs_core::wgpu::GpuContext {
+    use gs_core::wgpu::{AdapterChoice, GpuContext};
+    GpuContext::with_options(AdapterChoice::AllowSoftware, options)
+        .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter and found none: {e}"))
+}
+
+/// The binding limit, bytes, under which the split-array tests run: sixteen times smaller
+/// than a 1 MiB binding, so that a few thousand Gaussians of degree 3 run in 256-Gaussian
+/// chunks and their splats in parts of 1024.
+#[cfg(feature = "wgpu")]
+pub const SMALL_BINDING: u64 = 64 * 1024;
+
 /// One degenerate Gaussian (index 0, after `edit`) in front of a normal one, the scenes of the
 /// degenerate-case tests.
 pub fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet<f64> {

@@ -1,0 +1,24 @@
+// The splats of a render, read by Gaussian index: the splat array is bound as SPLAT_PARTS
+// consecutive parts of `view.parts.x` splats each, so that no binding exceeds the adapter's
+// limit. The importing kernel declares `view` and `splats0` to `splats3`.
+
+//#import helpers.wgsl
+
+fn load_splat(id: u32) -> Splat {
+    let part = id / view.parts.x;
+    let i = id - part * view.parts.x;
+    switch part {
+        case 0u: {
+            return splats0[i];
+        }
+        case 1u: {
+            return splats1[i];
+        }
+        case 2u: {
+            return splats2[i];
+        }
+        default: {
+            return splats3[i];
+        }
+    }
+}
