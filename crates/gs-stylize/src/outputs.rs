@@ -5,8 +5,8 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
+use gs_core::backend::Backend;
 use gs_core::model::{BaseModel, View};
-use gs_core::raster::render;
 use gs_core::train::StepReport;
 use gs_core::Image;
 use serde::de::DeserializeOwned;
@@ -90,8 +90,8 @@ pub fn write_preview(
     Ok(path)
 }
 
-/// Renders `before` and `after` from each of the views `which` over `background` and writes
-/// their previews in `dir` ([`write_preview`]); returns the files.
+/// Renders `before` and `after` on `backend` from each of the views `which` over `background`
+/// and writes their previews in `dir` ([`write_preview`]); returns the files.
 pub fn write_previews<M: BaseModel>(
     dir: &Path,
     before: &M,
@@ -99,6 +99,7 @@ pub fn write_previews<M: BaseModel>(
     views: &[View],
     which: &[usize],
     background: [f32; 3],
+    backend: &Backend,
 ) -> Result<Vec<PathBuf>, StylizeError> {
     which
         .iter()
@@ -109,8 +110,12 @@ pub fn write_previews<M: BaseModel>(
                     views.len()
                 ))
             })?;
-            let shot = |model: &M| render(&model.gaussians(view), &view.camera, background).image;
-            write_preview(dir, v, &shot(before), &shot(after))
+            let shot = |model: &M| {
+                backend
+                    .renderer(&model.gaussians(view))?
+                    .render(&view.camera, background)
+            };
+            write_preview(dir, v, &shot(before)?, &shot(after)?)
         })
         .collect()
 }

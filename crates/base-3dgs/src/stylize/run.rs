@@ -78,6 +78,7 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         &dataset.views,
         &config.preview_views,
         dataset.background,
+        &backend,
     )?;
     Ok(RunSummary {
         gaussians: stylized.gaussians,
