@@ -5,10 +5,6 @@
 //#import splat_parts.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
-@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
-@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
-@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
 @group(0) @binding(5) var<storage, read> order: array<u32>;
 @group(0) @binding(6) var<storage, read_write> counts: array<u32>;
 

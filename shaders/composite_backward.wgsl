@@ -9,10 +9,6 @@
 //#import accumulate.wgsl
 
 @group(0) @binding(0) var<uniform> view: View;
-@group(0) @binding(1) var<storage, read> splats0: array<Splat>;
-@group(0) @binding(2) var<storage, read> splats1: array<Splat>;
-@group(0) @binding(3) var<storage, read> splats2: array<Splat>;
-@group(0) @binding(4) var<storage, read> splats3: array<Splat>;
 @group(0) @binding(5) var<storage, read> tile_ids: array<u32>;
 @group(0) @binding(6) var<storage, read> ranges: array<vec2u>;
 @group(0) @binding(7) var<storage, read> final_t: array<f32>;
