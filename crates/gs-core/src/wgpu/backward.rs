@@ -6,7 +6,7 @@ use super::buffers::{read, storage, storage_from, storage_per_item, uniform, Gpu
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::{part_bindings, GpuRendered, SPLAT_PARTS};
 use super::shaders::KernelId;
-use crate::gaussians::{sh_coeff_count, GaussianGrads};
+use crate::gaussians::GaussianGrads;
 use crate::raster::{GradMask, Gradients, OutputGrads};
 
 /// Bytes of one Gaussian's gradient slots in the accumulation buffer (`SPLAT_GRADS` `f32`s of
@@ -135,15 +135,15 @@ pub fn backward(
         .map(|_| storage(ctx, "unused splat-gradient part", 0))
         .collect::<Result<Vec<_>, _>>()?;
 
-    let per_gaussian = [3, 3, 4, 1, 3, 3 * (sh_coeff_count(degree) - 1)];
+    let record_bytes = gaussians.record_bytes();
     let mut arrays: [Option<wgpu::Buffer>; 6] = Default::default();
-    for (k, ((on, _), width)) in wanted.iter().zip(per_gaussian).enumerate() {
+    for (k, ((on, _), bytes)) in wanted.iter().zip(record_bytes).enumerate() {
         if *on {
             let name = crate::gaussians::PARAM_NAMES[k];
             arrays[k] = Some(storage_per_item(
                 ctx,
                 &format!("gradient of {name}"),
-                4 * (width * n) as u64,
+                bytes * n as u64,
             )?);
         }
     }
@@ -179,32 +179,14 @@ pub fn backward(
         [view.size[2], view.size[3]],
     );
     if params_needed != 0 && n > 0 {
-        let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
-        let out = |k: usize| match &arrays[k] {
-            Some(b) => Binding::PerItem(b, 4 * per_gaussian[k] as u64),
+        let mut bindings = vec![Binding::Whole(&view_buf)];
+        bindings.extend(gaussians.per_item_bindings());
+        bindings.push(Binding::PerItem(&accum, SPLAT_GRAD_BYTES));
+        bindings.extend(arrays.iter().zip(record_bytes).map(|(g, bytes)| match g {
+            Some(b) => Binding::PerItem(b, bytes),
             None => Binding::Whole(&placeholder),
-        };
-        ctx.dispatch_items(
-            &mut encoder,
-            KernelId::ProjectBackward,
-            &[
-                Binding::Whole(&view_buf),
-                Binding::PerItem(means, 12),
-                Binding::PerItem(scales, 12),
-                Binding::PerItem(quats, 16),
-                Binding::PerItem(opacities, 4),
-                Binding::PerItem(sh_dc, 12),
-                Binding::PerItem(sh_rest, 4 * per_gaussian[5] as u64),
-                Binding::PerItem(&accum, SPLAT_GRAD_BYTES),
-                out(0),
-                out(1),
-                out(2),
-                out(3),
-                out(4),
-                out(5),
-            ],
-            n as u32,
-        )?;
+        }));
+        ctx.dispatch_items(&mut encoder, KernelId::ProjectBackward, &bindings, n as u32)?;
     }
     ctx.submit(encoder);
     Ok(GpuGradients {

@@ -3,7 +3,7 @@
 
 use wgpu::util::DeviceExt;
 
-use super::device::{GpuContext, GpuError};
+use super::device::{Binding, GpuContext, GpuError};
 use crate::gaussians::{GaussianSet, PARAM_NAMES};
 
 /// Smallest buffer created: bindings cannot be empty, and the largest element (a splat) is 64
@@ -217,6 +217,20 @@ impl GpuGaussians {
     /// SH degree.
     pub fn sh_degree(&self) -> usize {
         self.sh_degree
+    }
+
+    /// Bytes of one Gaussian's record in each array, in the order of [`PARAM_NAMES`]
+    /// (`sh_rest` is empty at degree 0).
+    pub(crate) fn record_bytes(&self) -> [u64; 6] {
+        let rest = 3 * (crate::gaussians::sh_coeff_count(self.sh_degree) - 1);
+        [3, 3, 4, 1, 3, rest].map(|floats| 4 * floats as u64)
+    }
+
+    /// The six arrays as per-item bindings of a chunked kernel, in the order of
+    /// [`PARAM_NAMES`].
+    pub(crate) fn per_item_bindings(&self) -> [Binding<'_>; 6] {
+        let bytes = self.record_bytes();
+        std::array::from_fn(|k| Binding::PerItem(&self.arrays[k], bytes[k]))
     }
 
     /// The parameter buffers in the order of [`PARAM_NAMES`] (for [`super::GpuAdam`]).

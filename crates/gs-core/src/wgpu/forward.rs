@@ -218,25 +218,14 @@ pub fn render(
     if n > 0 {
         let depth_keys = storage(ctx, "depth keys", bytes(n, 4))?;
         let mut encoder = ctx.encoder();
-        let [means, scales, quats, opacities, sh_dc, sh_rest] = gaussians.buffers();
-        let sh_rest_bytes = 4 * u64::from(view.scene[2]) * 3;
-        ctx.dispatch_items(
-            &mut encoder,
-            KernelId::ProjectForward,
-            &[
-                Binding::Whole(&view_buf),
-                Binding::PerItem(means, 12),
-                Binding::PerItem(scales, 12),
-                Binding::PerItem(quats, 16),
-                Binding::PerItem(opacities, 4),
-                Binding::PerItem(sh_dc, 12),
-                Binding::PerItem(sh_rest, sh_rest_bytes),
-                Binding::PerItem(&splats, SPLAT_BYTES),
-                Binding::PerItem(&depth_keys, 4),
-                Binding::PerItem(&order, 4),
-            ],
-            n,
-        )?;
+        let mut bindings = vec![Binding::Whole(&view_buf)];
+        bindings.extend(gaussians.per_item_bindings());
+        bindings.extend([
+            Binding::PerItem(&splats, SPLAT_BYTES),
+            Binding::PerItem(&depth_keys, 4),
+            Binding::PerItem(&order, 4),
+        ]);
+        ctx.dispatch_items(&mut encoder, KernelId::ProjectForward, &bindings, n)?;
         (_, order) = radix_sort(ctx, &mut encoder, depth_keys, order, n, 32)?;
         let mut bindings = vec![view_buf.as_entire_buffer_binding()];
         bindings.extend(splat_bindings(&splats, &filler, &view));
