@@ -18,13 +18,18 @@ Oracles, one per Rust component:
     torchvision `resize` (bilinear with antialias, as `transforms.Resize` does on tensors).
   * Perspective warp: torchvision `functional.perspective` with fill 0, as `RandomPerspective`
     calls it on tensors.
-  * VGG features: torchvision's VGG with vgg19's layer list (channels divided by 16).
+  * VGG features: torchvision's VGG with vgg19's layer list (channels divided by 16), once with
+    random biases and once as torchvision initialises it (Kaiming weights, zero biases: exact
+    zeros before the ReLUs), on random images and on images with flat regions (white
+    backgrounds, constant borders, flat fields), where 2x2 max-pool windows tie.
   * Token ids: `transformers.CLIPTokenizer` built from CLIP's real BPE vocabulary (shipped by
     open_clip), cross-checked against open_clip's `SimpleTokenizer` (OpenAI's original code).
   * The four losses together: the authors' training step (3D/train_style.py) transcribed with the
-    patch augmentation parameters drawn here and written out.
+    patch augmentation parameters drawn here and written out; the render has flat regions and
+    pixels exactly equal to the ground truth (ties in max pooling, zeros in |render - gt|).
 """
 
+import copy
 import gzip
 import json
 import os
@@ -227,9 +232,18 @@ def make_tiny_vgg():
     return vgg.features.double().eval()
 
 
+def make_torchvision_init_vgg():
+    """torchvision's own initialisation: Kaiming-normal weights (fan_out) and zero biases, so a
+    channel that is zero everywhere in a neighbourhood gives a pre-activation of exactly 0."""
+    vgg = VGG(make_layers(TINY_VGG19_CFG), init_weights=True)
+    weights = {f"features.{k}": v for k, v in vgg.features.state_dict().items()}
+    save("tiny_vgg19_torchvision_init.safetensors", weights)
+    return vgg.features.double().eval()
+
+
 def vgg_features(features, image):
     """Run torchvision's features up to index 31 and keep the outputs of 22 and 31."""
-    x = (image - IMAGENET_MEAN) / IMAGENET_STD
+    x = (image - IMAGENET_MEAN.to(image.dtype)) / IMAGENET_STD.to(image.dtype)
     kept = {}
     for index, layer in enumerate(features):
         x = layer(x)
@@ -249,6 +263,62 @@ def vgg_fixtures(features):
          dict(image=image, relu4_2=f4, relu5_2=f5, upstream4_2=w4, upstream5_2=w5, grad=image.grad))
 
 
+def object_on_white(h, w):
+    """A white background with a random object in a box: flat around, textured inside."""
+    top, bottom, left, right = h // 4, 3 * h // 4, w // 4, 2 * w // 3
+    image = torch.ones(1, 3, h, w, dtype=torch.float64)
+    image[:, :, top:bottom, left:right] = torch.rand(1, 3, bottom - top, right - left, dtype=torch.float64)
+    return image
+
+
+def noise_in_black_border(h, w, border):
+    image = torch.zeros(1, 3, h, w, dtype=torch.float64)
+    image[:, :, border:-border, border:-border] = torch.rand(1, 3, h - 2 * border, w - 2 * border, dtype=torch.float64)
+    return image
+
+
+def two_flat_fields(h, w, left, right):
+    """Two flat colours side by side (split at an odd column) with a small noisy blob."""
+    image = torch.empty(1, 3, h, w, dtype=torch.float64)
+    image[..., : w // 2 + 1] = left
+    image[..., w // 2 + 1 :] = right
+    image[:, :, 4:12, 6:16] = torch.rand(1, 3, 8, 10, dtype=torch.float64)
+    return image
+
+
+def vgg_tie_fixtures(vggs):
+    """The content loss (conv4_2 + conv5_2 MSE) and its image gradient on images with flat
+    regions, rectangular, for both weight sets: render and ground truth share their flat parts,
+    as a render and its view do.
+
+    In float32, the precision a run has: in float64 rounding differs between positions and breaks
+    a few of the ties float32 keeps (4 of 597 windows at the second pool of `white_background`),
+    which would test rounding noise instead of the tie rule."""
+    cases = {
+        "white_background": ("torchvision_init", lambda: object_on_white(40, 56)),
+        "constant_border": ("torchvision_init", lambda: noise_in_black_border(52, 36, 6)),
+        "flat_fields": ("random_bias", lambda: two_flat_fields(44, 60, 0.2, 0.9)),
+        "flat_gray": ("random_bias", lambda: torch.full((1, 3, 32, 48), 0.5, dtype=torch.float64)),
+        "white_background_random_bias": ("random_bias", lambda: object_on_white(48, 40)),
+    }
+    vggs = {name: copy.deepcopy(features).float() for name, features in vggs.items()}
+    tensors = {}
+    for name, (weights, make) in cases.items():
+        render = make().float().requires_grad_(True)
+        gt = make().float() if name != "flat_gray" else torch.full_like(render, 0.6)
+        features = vggs[weights]
+        with torch.no_grad():
+            gt4, gt5 = vgg_features(features, gt)
+        f4, f5 = vgg_features(features, render)
+        loss = ((f4 - gt4) ** 2).mean() + ((f5 - gt5) ** 2).mean()
+        loss.backward()
+        tensors.update({f"{name}.render": render, f"{name}.gt": gt, f"{name}.loss": loss.reshape(1),
+                        f"{name}.grad": render.grad})
+    save("vgg_ties_reference.safetensors", tensors)
+    json.dump({name: weights for name, (weights, _) in cases.items()},
+              open(OUT / "vgg_ties_reference.json", "w"), indent=1)
+
+
 # --------------------------------------------------------------------------------------------
 # The four losses of one stylization step
 # --------------------------------------------------------------------------------------------
@@ -260,6 +330,8 @@ def loss_fixtures(model, vgg):
     gt = torch.rand(1, 3, h, w, dtype=torch.float64) * 0.99
     gt[:, :, 50:, 10:40] = 1.0  # exactly the background colour: the background-loss mask
     render_init = torch.rand(1, 3, h, w, dtype=torch.float64)
+    render_init[:, :, 50:70, 10:40] = 1.0  # equal to the ground truth there: |render - gt| = 0
+    render_init[:, :, :16, :] = 0.25  # a flat band: tied max-pool windows in VGG
     direction = unit(torch.randn(model.config.projection_dim, dtype=torch.float64))
     crops, corners = [], []
     for _ in range(num_patch):
@@ -404,8 +476,10 @@ def main():
     perspective_fixtures()
     vgg = make_tiny_vgg()
     vgg_fixtures(vgg)
-    loss_fixtures(model, vgg)
+    vgg_torchvision_init = make_torchvision_init_vgg()
+    loss_fixtures(model, vgg_torchvision_init)
     tokenizer_fixtures()
+    vgg_tie_fixtures(dict(random_bias=vgg, torchvision_init=vgg_torchvision_init))
     total = sum(f.stat().st_size for f in OUT.rglob("*") if f.is_file())
     print(f"wrote {OUT} ({total / 1e6:.2f} MB)")
 

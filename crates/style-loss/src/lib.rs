@@ -26,6 +26,7 @@ pub mod tensor_file;
 #[cfg(feature = "test-models")]
 pub mod test_models;
 pub mod tokenizer;
+pub mod torch_ties;
 pub mod vgg;
 pub mod weight_resolution;
 

@@ -9,6 +9,7 @@ use crate::clip::ClipModel;
 use crate::error::{Result, StyleLossError};
 use crate::patches::{warped_patches, PatchAugmentation, PatchSettings};
 use crate::style_direction::StyleDirection;
+use crate::torch_ties;
 use crate::vgg::{Vgg19Features, VggFeatures};
 
 /// The weights `lambda` of the four terms. A zero weight skips all work for its term.
@@ -342,7 +343,7 @@ impl StyleLoss {
                 .as_ref()
                 .ok_or_else(|| missing("background mask"))?;
             if target.count > 0.0 {
-                let per_pixel = (image - &target.gt)?.abs()?.mean_keepdim(1)?;
+                let per_pixel = torch_ties::abs(&(image - &target.gt)?)?.mean_keepdim(1)?;
                 let sum = (per_pixel * &target.mask)?.sum_all()?;
                 Some((sum / target.count)?)
             } else {

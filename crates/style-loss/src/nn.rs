@@ -89,12 +89,16 @@ pub(crate) fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
     e.broadcast_div(&e.sum_keepdim(D::Minus1)?)
 }
 
-/// `x / max(||x||, NORMALIZE_EPS)` over the last dimension. A zero row gives zeros and a finite
-/// gradient (the norm is taken as `sqrt(max(sum x^2, eps^2))`).
+/// `x / max(||x||, NORMALIZE_EPS)` over the last dimension, as `torch.nn.functional.normalize`.
+/// A zero row gives zeros and a finite gradient. At a norm of exactly `NORMALIZE_EPS` the
+/// gradient flows through the norm, as PyTorch's `clamp_min` (candle's `maximum` would halve it).
 pub fn l2_normalize(x: &Tensor) -> candle_core::Result<Tensor> {
+    let floor = NORMALIZE_EPS * NORMALIZE_EPS;
     let sum_sq = x.sqr()?.sum_keepdim(D::Minus1)?;
-    let norm = sum_sq.maximum(NORMALIZE_EPS * NORMALIZE_EPS)?.sqrt()?;
-    x.broadcast_div(&norm)
+    let floored = sum_sq
+        .ge(floor)?
+        .where_cond(&sum_sq, &sum_sq.ones_like()?.affine(floor, 0.0)?)?;
+    x.broadcast_div(&floored.sqrt()?)
 }
 
 /// The MLP activation named by `hidden_act` in a Hugging Face CLIP config.

@@ -10,6 +10,7 @@ use crate::clip::normalize_channels;
 use crate::custom_grad::attach_input_gradient;
 use crate::error::{Result, StyleLossError};
 use crate::tensor_file::NamedTensors;
+use crate::torch_ties::max_pool_2x2;
 
 /// ImageNet per-channel mean (RGB, for values in [0, 1]).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -57,28 +58,22 @@ impl Conv3x3Relu {
         })
     }
 
+    /// `relu(conv(x) + bias)`. The input gradient is the convolution's adjoint applied to the
+    /// upstream gradient where the output is positive: 0 at a pre-activation of exactly 0, as
+    /// PyTorch's ReLU (candle's would pass it).
     fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let value = x
             .detach()
             .conv2d(&self.weight, 1, 1, 1, 1)?
-            .broadcast_add(&self.bias)?;
+            .broadcast_add(&self.bias)?
+            .relu()?;
+        let output = value.clone();
         let adjoint = self.adjoint.clone();
-        attach_input_gradient(&value, x, move |g| g.conv2d(&adjoint, 1, 1, 1, 1))?.relu()
+        attach_input_gradient(&value, x, move |g| {
+            let active = output.gt(0.0)?.to_dtype(g.dtype())?;
+            (g * active)?.conv2d(&adjoint, 1, 1, 1, 1)
+        })
     }
-}
-
-/// 2x2 max pool, stride 2, dropping a last odd row or column (PyTorch's floor mode).
-///
-/// Written as a reshape and two max reductions: candle's `max_pool2d` backward scales the
-/// gradient by 1/4 (candle 0.11).
-fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
-    let (n, c, h, w) = x.dims4()?;
-    let (h2, w2) = (h / 2, w / 2);
-    x.narrow(2, 0, 2 * h2)?
-        .narrow(3, 0, 2 * w2)?
-        .reshape(vec![n, c, h2, 2, w2, 2])?
-        .max(5)?
-        .max(3)
 }
 
 /// The two feature maps of the content loss.
@@ -178,5 +173,38 @@ impl Vgg19Features {
             relu4_2,
             relu5_2: x,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{DType, Device, Tensor, Var};
+
+    use super::*;
+
+    /// One output channel `x0 - x1` at the centre tap: a pre-activation of exactly 0 where the
+    /// two input channels are equal, positive where `x0 > x1`.
+    fn difference_conv() -> Conv3x3Relu {
+        let mut w = vec![0f32; 2 * 9];
+        w[4] = 1.0;
+        w[9 + 4] = -1.0;
+        let weight = Tensor::from_vec(w, (1, 2, 3, 3), &Device::Cpu).unwrap();
+        Conv3x3Relu::new(weight, Tensor::zeros(1, DType::F32, &Device::Cpu).unwrap()).unwrap()
+    }
+
+    #[test]
+    fn relu_passes_no_gradient_at_an_exact_zero() {
+        // Pixel 0: x0 = x1 = 1 (pre-activation 0); pixel 1: x0 = 2, x1 = 1 (positive).
+        let x = Tensor::from_vec(vec![1f32, 2.0, 1.0, 1.0], (1, 2, 1, 2), &Device::Cpu).unwrap();
+        let x = Var::from_tensor(&x).unwrap();
+        let y = difference_conv().forward(x.as_tensor()).unwrap();
+        assert_eq!(
+            y.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+            [0.0, 1.0]
+        );
+        let grads = y.sum_all().unwrap().backward().unwrap();
+        let g = grads.get(x.as_tensor()).unwrap().flatten_all().unwrap();
+        // PyTorch: [0, 1] for x0 and [0, -1] for x1; candle's ReLU would give [1, 1], [-1, -1].
+        assert_eq!(g.to_vec1::<f32>().unwrap(), [0.0, 1.0, 0.0, -1.0]);
     }
 }

@@ -1,5 +1,7 @@
 //! The four losses and their image gradients against the authors' training step transcribed
-//! in PyTorch (tiny CLIP, tiny VGG-19, random weights, given patch augmentations).
+//! in PyTorch (tiny CLIP, tiny VGG-19 as torchvision initialises it, given patch augmentations).
+//! The render has flat regions and pixels equal to the ground truth, so max pooling ties and
+//! `|render - gt|` is 0 at some pixels.
 
 mod common;
 
@@ -32,7 +34,7 @@ fn setup() -> Setup {
     )
     .unwrap();
     let vgg = Vgg19Features::load(
-        &fixture("tiny_vgg19.safetensors"),
+        &fixture("tiny_vgg19_torchvision_init.safetensors"),
         Vgg19Widths([4, 8, 16, 32, 32]),
         &Device::Cpu,
     )

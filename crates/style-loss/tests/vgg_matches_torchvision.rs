@@ -2,8 +2,8 @@
 
 mod common;
 
-use candle_core::{Device, Var};
-use common::{fixture, load, relative_error};
+use candle_core::{Device, Tensor, Var};
+use common::{fixture, load, load_json, relative_error, values};
 use style_loss::vgg::{Vgg19Features, Vgg19Widths};
 
 const TINY_WIDTHS: Vgg19Widths = Vgg19Widths([4, 8, 16, 32, 32]);
@@ -40,6 +40,54 @@ fn features_and_input_gradient_match() {
         .expect("gradient reaches the image");
     let err = relative_error(grad, &r["grad"]);
     assert!(err < 1e-4, "gradient relative error {err}");
+}
+
+/// The content loss `mse(relu4_2) + mse(relu5_2)` of `render` against `gt` and its image
+/// gradient.
+fn content_loss_and_grad(vgg: &Vgg19Features, render: &Tensor, gt: &Tensor) -> (f64, Tensor) {
+    let gt = vgg.forward(gt).unwrap().detach();
+    let render = Var::from_tensor(render).unwrap();
+    let f = vgg.forward(render.as_tensor()).unwrap();
+    let mse = |a: &Tensor, b: &Tensor| (a - b).unwrap().sqr().unwrap().mean_all().unwrap();
+    let loss = (mse(&f.relu4_2, &gt.relu4_2) + mse(&f.relu5_2, &gt.relu5_2)).unwrap();
+    let grad = loss
+        .backward()
+        .unwrap()
+        .get(render.as_tensor())
+        .unwrap()
+        .clone();
+    (values(&loss)[0], grad)
+}
+
+/// Flat regions (white backgrounds, constant borders, flat fields) tie in every 2x2 pooling
+/// window, and torchvision's initialisation (zero biases) gives pre-activations of exactly 0:
+/// the gradient must go to the first maximum of a window and stop at a ReLU of 0, as PyTorch's.
+#[test]
+fn content_gradient_matches_at_ties_and_zeros() {
+    let weights = |name: &str| {
+        let file = match name {
+            "random_bias" => "tiny_vgg19.safetensors",
+            "torchvision_init" => "tiny_vgg19_torchvision_init.safetensors",
+            other => panic!("unknown weights {other}"),
+        };
+        Vgg19Features::load(&fixture(file), TINY_WIDTHS, &Device::Cpu).unwrap()
+    };
+    let r = load("vgg_ties_reference.safetensors");
+    let cases = load_json("vgg_ties_reference.json");
+    let cases = cases.as_object().unwrap();
+    assert_eq!(cases.len(), 5);
+    for (name, weight_set) in cases {
+        let vgg = weights(weight_set.as_str().unwrap());
+        let t = |what: &str| r[&format!("{name}.{what}")].clone();
+        let (loss, grad) = content_loss_and_grad(&vgg, &t("render"), &t("gt"));
+        let reference = values(&t("loss"))[0];
+        assert!(
+            (loss - reference).abs() <= 1e-5 * reference.abs(),
+            "{name}: loss {loss} vs {reference}"
+        );
+        let err = relative_error(&grad, &t("grad"));
+        assert!(err < 1e-4, "{name}: gradient relative error {err}");
+    }
 }
 
 #[test]
