@@ -19,6 +19,7 @@ pub mod nn;
 pub mod objective;
 pub mod patches;
 pub mod perspective;
+pub mod pil_resize;
 pub mod resize;
 pub mod style_direction;
 pub mod templates;

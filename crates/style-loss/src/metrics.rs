@@ -7,12 +7,12 @@
 //! cosine of a zero vector (e.g. the difference of two identical embeddings) is defined as 0,
 //! never NaN. Nothing here is differentiated: inputs are detached.
 
-use candle_core::{DType, Tensor};
+use candle_core::{DType, Device, Tensor};
 
 use crate::clip::{normalize_channels, ClipModel, CLIP_MEAN, CLIP_STD};
 use crate::error::{Result, StyleLossError};
 use crate::nn::l2_normalize;
-use crate::resize::{resize, ResizeKernel};
+use crate::pil_resize::pil_bicubic_resize;
 use crate::style_direction::prompt_embedding;
 use crate::tokenizer::ClipTokenizer;
 
@@ -73,19 +73,23 @@ pub enum StyleReference<'a> {
     Image(&'a Tensor),
 }
 
-/// The paper's evaluation preprocess of one image `[3, h, w]` or `[1, c, h, w]` (`c >= 3`; only
-/// the first three channels are used) in [0, 1] to CLIP input `[1, 3, size, size]`
-/// (`size` = 224 for ViT-L/14):
-/// 1. resize so that the short side is `size` and the long side `floor(size * long / short)`
-///    (torchvision's `Resize(size)`), bicubic **without antialias**:
-///    `F.interpolate(mode="bicubic", align_corners=False, antialias=False)`, i.e. torchvision's
-///    tensor `Resize` with `antialias=False`. OpenAI CLIP's own preprocess resizes PIL images,
-///    which always antialias when downscaling; this crate's resizes have no antialiased bicubic
-///    kernel, so scores of large images (e.g. 800 px NeRF-synthetic views) can differ slightly
-///    from a PIL-based evaluation. No clamp after the resize (bicubic can overshoot [0, 1]).
-/// 2. centre crop `size x size` (offsets `round((h - size) / 2)`, ties to even, as Python's
+/// The authors' evaluation preprocess (their `metrics.py`: OpenAI CLIP's `preprocess` of each
+/// PNG file, `Resize(size, BICUBIC)`, `CenterCrop(size)`, `ToTensor`, `Normalize`) of one image
+/// `[3, h, w]` or `[1, c, h, w]` (`c >= 3`; only the first three channels are used) in [0, 1],
+/// to CLIP input `[1, 3, size, size]` (`size` = 224 for ViT-L/14) on the image's device:
+/// 1. to 8 bits as torchvision's `save_image` writes the authors' renders to PNG:
+///    `floor(clamp(255 x + 0.5, 0, 255))` (an image read from an 8-bit file, `k / 255`, comes
+///    back to `k` unchanged); a NaN pixel is an error;
+/// 2. resize so that the short side is `size` and the long side `floor(size * long / short)`
+///    (torchvision's `Resize(size)`) with Pillow's bicubic on 8-bit RGB
+///    ([`pil_bicubic_resize`]): antialiased when shrinking, horizontal then vertical pass with
+///    8-bit rounding and clamping after each;
+/// 3. centre crop `size x size` (offsets `round((extent - size) / 2)`, ties to even, as Python's
 ///    `round` in torchvision's `CenterCrop`);
-/// 3. CLIP's per-channel normalization.
+/// 4. `ToTensor` (`k / 255` in f32) and CLIP's per-channel normalization.
+///
+/// The training loss does not use this: it squashes with non-antialiased bicubic
+/// ([`crate::clip::clip_preprocess`]), as the authors' training does.
 pub fn evaluation_preprocess(image: &Tensor, size: usize) -> Result<Tensor> {
     let image = match image.rank() {
         3 => image.unsqueeze(0)?,
@@ -107,7 +111,20 @@ pub fn evaluation_preprocess(image: &Tensor, size: usize) -> Result<Tensor> {
             ),
         });
     }
-    let rgb = image.detach().narrow(1, 0, 3)?;
+    let values = image
+        .detach()
+        .narrow(1, 0, 3)?
+        .to_dtype(DType::F32)?
+        .to_device(&Device::Cpu)?
+        .flatten_all()?
+        .to_vec1::<f32>()?;
+    let bytes = values
+        .iter()
+        .map(|&v| to_8_bits(v))
+        .collect::<Option<Vec<u8>>>()
+        .ok_or_else(|| StyleLossError::NonFinite {
+            what: "image (NaN pixel)".into(),
+        })?;
     let (short, long) = (h.min(w), h.max(w));
     let long_out = size * long / short;
     let (oh, ow) = if h <= w {
@@ -115,12 +132,27 @@ pub fn evaluation_preprocess(image: &Tensor, size: usize) -> Result<Tensor> {
     } else {
         (long_out, size)
     };
-    let resized = resize(&rgb, (oh, ow), ResizeKernel::Bicubic)?;
+    let resized = pil_bicubic_resize(&bytes, 3, (h, w), (oh, ow))?;
     let offset = |extent: usize| ((extent - size) as f64 / 2.0).round_ties_even() as usize;
-    let cropped = resized
-        .narrow(2, offset(oh), size)?
-        .narrow(3, offset(ow), size)?;
-    Ok(normalize_channels(&cropped, CLIP_MEAN, CLIP_STD)?)
+    let (top, left) = (offset(oh), offset(ow));
+    let cropped: Vec<f32> = resized
+        .chunks_exact(ow)
+        .enumerate()
+        .filter(|(row, _)| (top..top + size).contains(&(row % oh)))
+        .flat_map(|(_, line)| &line[left..left + size])
+        .map(|&v| f32::from(v) / 255.0)
+        .collect();
+    let pixels = Tensor::from_vec(cropped, (1, 3, size, size), image.device())?;
+    Ok(normalize_channels(&pixels, CLIP_MEAN, CLIP_STD)?)
+}
+
+/// torchvision `save_image`'s 8-bit conversion of one value in f32 (`x * 255 + 0.5`, clamped,
+/// truncated); `None` for NaN.
+fn to_8_bits(value: f32) -> Option<u8> {
+    if value.is_nan() {
+        return None;
+    }
+    Some((value * 255.0 + 0.5).clamp(0.0, 255.0) as u8)
 }
 
 /// Normalized embeddings `[n, projection_dim]` of `images` (each as
@@ -133,15 +165,13 @@ pub fn image_embeddings(clip: &ClipModel, images: &[Tensor]) -> Result<Tensor> {
             reason: "no image to embed".into(),
         });
     }
+    let preprocess = |image: &Tensor| -> Result<Tensor> {
+        Ok(evaluation_preprocess(image, clip.image_size())?.to_device(clip.device())?)
+    };
     let embeddings = images
         .chunks(EMBEDDING_BATCH)
         .map(|chunk| {
-            let pixels = chunk
-                .iter()
-                .map(|image| {
-                    evaluation_preprocess(&image.to_device(clip.device())?, clip.image_size())
-                })
-                .collect::<Result<Vec<_>>>()?;
+            let pixels = chunk.iter().map(preprocess).collect::<Result<Vec<_>>>()?;
             Ok(l2_normalize(
                 &clip.encode_pixels(&Tensor::cat(&pixels, 0)?)?,
             )?)

@@ -120,44 +120,31 @@ fn degenerate_inputs_are_errors() {
 
 #[test]
 fn preprocess_resizes_the_short_side_and_crops_the_centre() {
-    // 2 x 6 image whose columns are 0..6: short side to 4 gives 4 x 12, the centre crop keeps
-    // columns 4..8 of the resized image.
-    let columns: Vec<f32> = (0..3 * 2 * 6).map(|i| (i % 6) as f32 / 5.0).collect();
+    // 2 x 6 image whose columns are 8-bit values: short side to 4 gives 4 x 12 (Pillow's
+    // bicubic), the centre crop keeps columns 4..8 of the resized image.
+    let column_bytes: Vec<u8> = (0..3 * 2 * 6)
+        .map(|i| (i % 6 * 40 + i / 12) as u8)
+        .collect();
+    let columns: Vec<f32> = column_bytes.iter().map(|&b| f32::from(b) / 255.0).collect();
     let image = Tensor::from_vec(columns, (3, 2, 6), &Device::Cpu).unwrap();
     let pixels = evaluation_preprocess(&image, 4).unwrap();
     assert_eq!(pixels.dims(), &[1, 3, 4, 4]);
-    let full = style_loss::resize::resize(
-        &image.unsqueeze(0).unwrap(),
-        (4, 12),
-        style_loss::resize::ResizeKernel::Bicubic,
-    )
-    .unwrap();
-    let crop = full.narrow(3, 4, 4).unwrap();
-    let mean = style_loss::clip::CLIP_MEAN[0] as f64;
-    let std = style_loss::clip::CLIP_STD[0] as f64;
-    let got = pixels
-        .get(0)
-        .unwrap()
-        .get(0)
-        .unwrap()
-        .to_vec2::<f32>()
-        .unwrap();
-    let want = crop
-        .get(0)
-        .unwrap()
-        .get(0)
-        .unwrap()
-        .to_vec2::<f32>()
-        .unwrap();
-    for (g, w) in got.iter().flatten().zip(want.iter().flatten()) {
-        assert!(
-            (*g as f64 - (*w as f64 - mean) / std).abs() < 1e-5,
-            "{g} vs {w}"
-        );
+    let full =
+        style_loss::pil_resize::pil_bicubic_resize(&column_bytes, 3, (2, 6), (4, 12)).unwrap();
+    let mean = style_loss::clip::CLIP_MEAN;
+    let std = style_loss::clip::CLIP_STD;
+    let got = pixels.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+    for (k, g) in got.iter().enumerate() {
+        let (c, row, col) = (k / 16, k / 4 % 4, k % 4);
+        let byte = full[c * 48 + row * 12 + 4 + col];
+        let want = (f32::from(byte) / 255.0 - mean[c]) / std[c];
+        assert!((g - want).abs() < 1e-5, "{k}: {g} vs {want}");
     }
     // Tall images crop rows; odd margins round half to even (margin 1 -> offset round(0.5) = 0).
     // The 5 x 4 image needs no resize; rows hold their index, so the crop starts at row 0.
-    let rows: Vec<f32> = (0..4 * 5 * 4).map(|i| ((i / 4) % 5) as f32).collect();
+    let rows: Vec<f32> = (0..4 * 5 * 4)
+        .map(|i| ((i / 4) % 5) as f32 / 255.0)
+        .collect();
     let tall = Tensor::from_vec(rows, (1, 4, 5, 4), &Device::Cpu).unwrap();
     let pixels = evaluation_preprocess(&tall, 4).unwrap();
     assert_eq!(pixels.dims(), &[1, 3, 4, 4]);
@@ -169,11 +156,40 @@ fn preprocess_resizes_the_short_side_and_crops_the_centre() {
         .to_vec2::<f32>()
         .unwrap()
         .iter()
-        .map(|row| row[0] as f64 * std + mean)
+        .map(|row| (row[0] * std[0] + mean[0]) as f64 * 255.0)
         .collect();
     for (k, v) in first_column.iter().enumerate() {
-        assert!((v - k as f64).abs() < 1e-5, "{first_column:?}");
+        assert!((v - k as f64).abs() < 1e-3, "{first_column:?}");
     }
+    // Values are taken to 8 bits as torchvision's `save_image` does (clamped, 255 x + 0.5
+    // truncated); NaN is an error, an empty image too.
+    let odd = Tensor::from_vec(
+        vec![-0.5f32, 1.5, 0.5 / 255.0, 0.49 / 255.0],
+        (1, 1, 2, 2),
+        &Device::Cpu,
+    )
+    .unwrap()
+    .broadcast_as((1, 3, 2, 2))
+    .unwrap()
+    .contiguous()
+    .unwrap();
+    let bytes: Vec<f32> = evaluation_preprocess(&odd, 2)
+        .unwrap()
+        .get(0)
+        .unwrap()
+        .get(0)
+        .unwrap()
+        .flatten_all()
+        .unwrap()
+        .to_vec1::<f32>()
+        .unwrap()
+        .iter()
+        .map(|v| ((v * std[0] + mean[0]) * 255.0).round())
+        .collect();
+    assert_eq!(bytes, [0.0, 255.0, 1.0, 0.0]);
+    let nan = Tensor::full(f32::NAN, (3, 4, 4), &Device::Cpu).unwrap();
+    let err = evaluation_preprocess(&nan, 4).unwrap_err().to_string();
+    assert!(err.contains("NaN"), "{err}");
     let flat = Tensor::ones((3, 0, 4), candle_core::DType::F32, &Device::Cpu).unwrap();
     assert!(evaluation_preprocess(&flat, 4).is_err());
 }
