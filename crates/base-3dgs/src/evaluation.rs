@@ -1,12 +1,16 @@
 //! The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of a folder of renders
 //! against a folder of ground truths: pictures are paired by file name and taken in file-name
-//! order (CLIP-CONS and CLIP-F use consecutive pairs in that order).
+//! order (CLIP-CONS and CLIP-F use consecutive pairs in that order). The cheap checks come
+//! first (the prompts, as stylization checks them; the folders; the model files), the pictures
+//! and CLIP after.
 
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
+use gs_stylize::config::check_prompt;
 use gs_stylize::picture::load_picture;
+use gs_stylize::weights::{resolve_all, MissingWeights, WeightRequest};
 use serde::Serialize;
 use style_loss::metrics::{evaluate, StyleReference};
 use style_loss::weight_resolution::{CLIP_TOKENIZER, CLIP_VIT_L_14_WEIGHTS};
@@ -48,6 +52,12 @@ pub enum EvalError {
     /// A picture that could not be read.
     #[error("{0}")]
     Image(#[from] gs_core::GsError),
+    /// An empty style or source prompt.
+    #[error("{0}")]
+    Prompt(String),
+    /// CLIP's files that cannot be found.
+    #[error("{0}")]
+    Weights(#[from] MissingWeights),
     /// Loading CLIP or the tokenizer, or computing the metrics.
     #[error("{0}")]
     Clip(Box<StyleLossError>),
@@ -69,7 +79,8 @@ pub enum Style {
 }
 
 /// The CLIP model files; `None` resolves the ViT-L/14 defaults (see
-/// [`style_loss::weight_resolution`]).
+/// [`style_loss::weight_resolution`]); a missing one is reported with the flag of
+/// `clipgaussian-3d eval` that passes it.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct ClipFiles {
     /// CLIP `config.json` (ViT-L/14 when `None`).
@@ -171,7 +182,30 @@ pub fn evaluate_folders(
     clip_files: &ClipFiles,
     background: [f32; 3],
 ) -> Result<Metrics, EvalError> {
+    if let Style::Prompt(prompt) = style {
+        check_prompt("style prompt", prompt).map_err(EvalError::Prompt)?;
+    }
+    check_prompt("source prompt", source_prompt).map_err(EvalError::Prompt)?;
     let names = matching_names(renders, ground_truths)?;
+    let config = match &clip_files.config {
+        Some(path) => ClipConfig::from_json_file(path)?,
+        None => ClipConfig::vit_l_14(),
+    };
+    let found = resolve_all(&[
+        WeightRequest {
+            hub: CLIP_VIT_L_14_WEIGHTS,
+            explicit: clip_files.weights.as_deref(),
+            flag: "--clip-weights",
+            field: None,
+        },
+        WeightRequest {
+            hub: CLIP_TOKENIZER,
+            explicit: clip_files.tokenizer.as_deref(),
+            flag: "--tokenizer",
+            field: None,
+        },
+    ])?;
+    let (weights, tokenizer) = (&found[0], &found[1]);
     let load_all = |dir: &Path| -> Result<Vec<Tensor>, EvalError> {
         names
             .iter()
@@ -188,14 +222,8 @@ pub fn evaluate_folders(
             StyleReference::Image(&style_image)
         }
     };
-    let config = match &clip_files.config {
-        Some(path) => ClipConfig::from_json_file(path)?,
-        None => ClipConfig::vit_l_14(),
-    };
-    let weights = CLIP_VIT_L_14_WEIGHTS.resolve(clip_files.weights.as_deref())?;
-    let tokenizer =
-        ClipTokenizer::from_file(&CLIP_TOKENIZER.resolve(clip_files.tokenizer.as_deref())?)?;
-    let clip = ClipModel::load(&config, &weights, &Device::Cpu)?;
+    let tokenizer = ClipTokenizer::from_file(tokenizer)?;
+    let clip = ClipModel::load(&config, weights, &Device::Cpu)?;
     let scores = evaluate(
         &clip,
         &tokenizer,

@@ -412,3 +412,188 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
         &missing,
     );
 }
+
+#[test]
+fn a_gpu_run_without_a_desktop_session_prints_no_error_line() {
+    // Without XDG_RUNTIME_DIR, Mesa's Vulkan layer VK_LAYER_MESA_device_select made
+    // libwayland print `error: XDG_RUNTIME_DIR is invalid or not set in the environment.`
+    // while the adapters were enumerated, on runs that then succeeded.
+    let dir = TempDir::new("cli-no-session");
+    let (ply, data) = write_scene(dir.path());
+    let out = dir.path().join("renders");
+    let run = Command::new(env!("CARGO_BIN_EXE_clipgaussian-3d"))
+        .args([
+            "render",
+            "--ply",
+            s(&ply),
+            "--data",
+            s(&data),
+            "--out",
+            s(&out),
+        ])
+        .args(["--device", "gpu"])
+        .env_remove("XDG_RUNTIME_DIR")
+        .env_remove("NODEVICE_SELECT")
+        .env(gs_core::backend::ALLOW_SOFTWARE_GPU, "1")
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{stderr}");
+    assert!(
+        String::from_utf8_lossy(&run.stdout).contains("device: gpu: "),
+        "the run opened the GPU"
+    );
+    let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error:")).collect();
+    assert!(errors.is_empty(), "a successful run printed {errors:?}");
+    assert!(out.join("r_0.png").is_file());
+}
+
+#[test]
+fn outputs_that_cannot_be_written_are_refused_before_any_work() {
+    let dir = TempDir::new("cli-outputs");
+    let (ply, data) = write_scene(dir.path());
+    let file = dir.path().join("notes.txt");
+    std::fs::write(&file, "not a folder").unwrap();
+    let notes = s(&file);
+    let missing_ply = dir.path().join("none.ply");
+    // The other inputs are bad too: the output is checked first.
+    let out = cli(&[
+        "render",
+        "--ply",
+        s(&missing_ply),
+        "--data",
+        s(&data),
+        "--out",
+        notes,
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        !out.status.success()
+            && stderr.contains(&format!("output folder {notes}: it is a file"))
+            && stderr.contains("must be a folder")
+            && !stderr.contains("none.ply"),
+        "{stderr}"
+    );
+    let inside = file.join("renders");
+    let out = cli(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "--out",
+        s(&inside),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("{notes} is a file, so no folder can be made")),
+        "{stderr}"
+    );
+
+    let clip = write_tiny_clip(dir.path());
+    let metrics = file.join("metrics.json");
+    let args = eval_args(&clip, &missing_ply, &data, &metrics);
+    let out = cli(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("output file {}: {notes} is a file", s(&metrics))),
+        "{stderr}"
+    );
+    let args = eval_args(&clip, &data, &data, dir.path());
+    let out = cli(&args.iter().map(String::as_str).collect::<Vec<_>>());
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("it is a folder"), "{stderr}");
+
+    let out = cli(&["interpolate", "--a", s(&ply), "--b", s(&ply), "--t", "0.5"]);
+    assert!(!out.status.success(), "--out is required");
+    let out = cli(&[
+        "interpolate",
+        "--a",
+        s(&missing_ply),
+        "--b",
+        s(&ply),
+        "--t",
+        "0.5",
+        "--out",
+        s(&dir.path().join("none/mix.ply")),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("none does not exist"), "{stderr}");
+
+    let out = cli(&[
+        "stylize",
+        "--ply",
+        s(&missing_ply),
+        "--data",
+        s(&data),
+        "--out",
+        notes,
+        "--style-prompt",
+        "fire",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains(&format!("output folder {notes}: it is a file"))
+            && !stderr.contains("none.ply"),
+        "{stderr}"
+    );
+    let mut names: Vec<String> = std::fs::read_dir(dir.path())
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert!(!names.iter().any(|n| n.starts_with('.')), "{names:?}");
+}
+
+#[test]
+fn eval_refuses_an_empty_prompt_and_names_the_flag_of_a_missing_model_file() {
+    let dir = TempDir::new("cli-eval-inputs");
+    let (_, data) = write_scene(dir.path());
+    let clip = write_tiny_clip(dir.path());
+    let gt = data.join("train");
+    let metrics = dir.path().join("metrics.json");
+    let mut args = eval_args(&clip, &gt, &gt, &metrics);
+    let prompt = args.iter().position(|a| a == "fire").unwrap();
+    for empty in ["", "   "] {
+        args[prompt] = empty.to_string();
+        fails(
+            &args.iter().map(String::as_str).collect::<Vec<_>>(),
+            &["error: the style prompt is empty"],
+            &metrics,
+        );
+    }
+    args[prompt] = "fire".into();
+    let weights = args.iter().position(|a| a == "--clip-weights").unwrap() + 1;
+    args[weights] = s(&dir.path().join("gone.safetensors")).to_string();
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &[
+            "1 model file(s) missing",
+            "gone.safetensors",
+            "pass its path with --clip-weights, set",
+        ],
+        &metrics,
+    );
+}
+
+#[test]
+fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
+    let help = succeeds(&["stylize", "--help"]);
+    for text in [
+        "stylized.ply",
+        "preview_view000.png",
+        "losses.json",
+        "losses.png",
+        "config.json",
+        "checkpoint/",
+        "default 1",
+        "downloaded from the Hugging Face Hub",
+    ] {
+        assert!(help.contains(text), "{text:?} not in {help}");
+    }
+    let help = succeeds(&["eval", "--help"]);
+    assert!(
+        help.contains("downloaded from the Hugging Face Hub"),
+        "{help}"
+    );
+}

@@ -264,12 +264,15 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     let first = run(&styled("parts", 10, 10), &quiet()).unwrap();
     assert_eq!(first.losses[..], whole.losses[..10]);
     assert!(first.gaussians != whole.gaussians);
-    let e = run(&styled("parts", 20, 10), &quiet())
+    let parts_out = styled("parts", 20, 10).out.unwrap();
+    assert_eq!(checkpoint::finished_step(&parts_out), Some(10));
+    // A finished run has nothing to resume at its own step count; it continues with more.
+    let e = run(&styled("parts", 10, 10), &resume())
         .unwrap_err()
         .to_string();
     assert!(
-        e.contains("--resume"),
-        "a fresh run must not overwrite a checkpoint: {e}"
+        e.contains("finished all its 10 steps") && e.contains("raise --steps above 10"),
+        "{e}"
     );
     let other_seed = setup.with(|c| {
         *c = styled("parts", 20, 10);
@@ -281,11 +284,10 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     let e = run(&styled("parts", 5, 10), &resume())
         .unwrap_err()
         .to_string();
-    assert!(e.contains("step 10") && e.contains("5 steps"), "{e}");
+    assert!(e.contains("finished all its 10 steps"), "{e}");
 
     // A save interrupted between its two renames leaves the checkpoint parked in
     // `checkpoint.old`; resuming finds it there.
-    let parts_out = styled("parts", 20, 10).out.unwrap();
     std::fs::rename(
         checkpoint::checkpoint_dir(&parts_out),
         parts_out.join("checkpoint.old"),
@@ -321,9 +323,24 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     assert!(e.to_string().contains("--resume"), "{e}");
     assert_eq!(checkpoint::load(&out).unwrap().step, 1);
     assert!(!out.join("stylized.ply").exists());
+    let e = run(&stopped, &quiet()).unwrap_err().to_string();
+    assert!(
+        e.contains("unfinished run") && e.contains("--resume"),
+        "a fresh run must not overwrite the checkpoint of an unfinished run: {e}"
+    );
     let finished = run(&stopped, &resume()).unwrap();
     assert!(finished.gaussians == whole.gaussians);
     assert_eq!(finished.losses, whole.losses);
+    // Its last step is saved and marked finished, although checkpoint_every is 0; a new run in
+    // the folder is then allowed and replaces it.
+    assert_eq!(checkpoint::load(&out).unwrap().step, 20);
+    assert_eq!(checkpoint::finished_step(&out), Some(20));
+    let again = run(&stopped, &quiet()).unwrap();
+    assert!(again.gaussians == whole.gaussians);
+    assert!(
+        !checkpoint::checkpoint_dir(&out).exists(),
+        "checkpoint_every 0 keeps none"
+    );
 }
 
 #[test]

@@ -7,18 +7,17 @@
 //! the gradient of a clamped log-scale is zero, as torch's `clamp` gives, and the held axis
 //! never receives one, so Adam leaves it exactly where it is.
 //!
-//! On the GPU ([`GpuBaseModel`]) the same transform runs as two small kernels,
+//! On the GPU ([`BaseModel::gpu_forward`]) the same transform runs as two small kernels,
 //! `shaders/flat_gaussians_forward.wgsl` and `..._backward.wgsl`; every other array is rendered
 //! from the parameter buffers themselves.
 
 use std::borrow::Cow;
 
 use gs_core::gaussians::{GaussianGrads, PARAM_NAMES};
-use gs_core::model::{BaseModel, View};
+use gs_core::model::{add_identity_grads, BaseModel, Forward, ModelError, View};
 use gs_core::raster::GradMask;
 use gs_core::wgpu::{
-    zeroed_f32, Access, Binding, Buffer, GpuBaseModel, GpuContext, GpuError, GpuGaussians,
-    GpuGradients, GpuParams, KernelSource,
+    zeroed_f32, Access, Binding, Buffer, GpuError, GpuForward, GpuGradients, GpuStep, KernelSource,
 };
 use gs_core::{GaussianSet, Real};
 
@@ -130,6 +129,8 @@ impl FlatGaussians {
 }
 
 impl BaseModel for FlatGaussians {
+    type Tape = ();
+
     fn group_names(&self) -> Vec<String> {
         PARAM_NAMES.iter().map(|s| s.to_string()).collect()
     }
@@ -142,59 +143,47 @@ impl BaseModel for FlatGaussians {
         self.params.group_lens()
     }
 
-    fn gaussians(&self, _view: &View) -> Cow<'_, GaussianSet> {
-        Cow::Owned(self.renderable())
+    fn grad_mask(&self, trained: &[bool]) -> GradMask {
+        self.params.grad_mask(trained)
+    }
+
+    fn forward(&self, _view: &View) -> Result<Forward<'_, ()>, ModelError> {
+        Ok(Forward::untaped(Cow::Owned(self.renderable())))
     }
 
     fn backward(
         &self,
         _view: &View,
+        _tape: (),
         grads: &GaussianGrads,
         trained: &[bool],
         out: &mut [Vec<f32>],
-    ) {
-        let arrays = grads.arrays();
-        for (group, ((src, dst), &t)) in arrays.iter().zip(out.iter_mut()).zip(trained).enumerate()
-        {
-            if !t {
-                continue;
-            }
-            if group == SCALES_GROUP {
-                add_scale_grads(&self.params.log_scales, src, dst);
-            } else {
-                for (d, s) in dst.iter_mut().zip(src.iter()) {
-                    *d += *s;
-                }
-            }
+    ) -> Result<(), ModelError> {
+        add_identity_grads(grads, trained, out, Some(SCALES_GROUP));
+        if trained[SCALES_GROUP] {
+            add_scale_grads(
+                &self.params.log_scales,
+                &grads.log_scales,
+                &mut out[SCALES_GROUP],
+            );
         }
+        Ok(())
     }
 
-    fn grad_mask(&self, trained: &[bool]) -> GradMask {
-        self.params.grad_mask(trained)
-    }
-}
-
-impl FlatGaussians {
-    /// The uniform of the flat-Gaussian kernels (`Clamp`: the clamp bounds) and the count.
-    fn clamp_uniform(&self, ctx: &GpuContext) -> (Buffer, u32) {
-        let n = u32::try_from(self.params.len()).expect("at most u32::MAX Gaussians");
-        let lo = FLAT_SCALE.ln() as f32;
-        let hi = MAX_SCALE.ln() as f32;
-        (ctx.uniform_words([lo.to_bits(), hi.to_bits(), 0, 0]), n)
-    }
-}
-
-impl GpuBaseModel for FlatGaussians {
-    fn gpu_gaussians(
-        &self,
-        ctx: &GpuContext,
-        params: &GpuParams,
+    fn gpu_forward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
         _view: &View,
-    ) -> Result<GpuGaussians, GpuError> {
-        let (uniform, n) = self.clamp_uniform(ctx);
-        let scales = zeroed_f32(ctx, "flat rendered log-scales", 3 * n as usize)?;
-        let stored = &params.buffers()[SCALES_GROUP];
-        ctx.run_kernel(
+    ) -> Result<GpuForward<()>, ModelError> {
+        let n = self.kernel_items();
+        let uniform = self.clamp_uniform(gpu)?;
+        let scales = gpu.scratch.buffer(
+            "flat rendered log-scales",
+            u64::from(n) * SCALE_RECORD,
+            || zeroed_f32(gpu.ctx, "flat rendered log-scales", 3 * n as usize),
+        )?;
+        let stored = &gpu.params.buffers()[SCALES_GROUP];
+        gpu.ctx.run_kernel(
             &FORWARD_KERNEL,
             &[
                 Binding::Whole(&uniform),
@@ -203,41 +192,33 @@ impl GpuBaseModel for FlatGaussians {
             ],
             n,
         )?;
-        let mut arrays: [Buffer; 6] = params
-            .buffers()
-            .to_vec()
-            .try_into()
-            .expect("six parameter groups");
-        arrays[SCALES_GROUP] = scales;
-        Ok(GpuGaussians::from_buffers(
-            self.params.len(),
-            self.params.sh_degree(),
-            arrays,
-        ))
+        let mut gaussians = gpu.params.as_gaussians(self.params.sh_degree());
+        gaussians.replace_array(SCALES_GROUP, scales);
+        Ok(GpuForward::untaped(gaussians))
     }
 
     fn gpu_backward(
-        &self,
-        ctx: &GpuContext,
-        params: &GpuParams,
+        &mut self,
+        gpu: &mut GpuStep<'_>,
         _view: &View,
+        _tape: (),
         grads: GpuGradients,
         trained: &[bool],
-    ) -> Result<Vec<Option<Buffer>>, GpuError> {
-        let mut out: Vec<Option<Buffer>> = grads
-            .into_buffers()
-            .into_iter()
-            .zip(trained)
-            .map(|(g, &t)| g.filter(|_| t))
-            .collect();
+    ) -> Result<Vec<Option<Buffer>>, ModelError> {
+        let mut out = grads.into_trained(trained);
         if let Some(rendered) = out[SCALES_GROUP].take() {
-            let (uniform, n) = self.clamp_uniform(ctx);
-            let stored_grads = zeroed_f32(ctx, "flat log-scale gradients", 3 * n as usize)?;
-            ctx.run_kernel(
+            let n = self.kernel_items();
+            let uniform = self.clamp_uniform(gpu)?;
+            let stored_grads = gpu.scratch.buffer(
+                "flat log-scale gradients",
+                u64::from(n) * SCALE_RECORD,
+                || zeroed_f32(gpu.ctx, "flat log-scale gradients", 3 * n as usize),
+            )?;
+            gpu.ctx.run_kernel(
                 &BACKWARD_KERNEL,
                 &[
                     Binding::Whole(&uniform),
-                    Binding::PerItem(&params.buffers()[SCALES_GROUP], SCALE_RECORD),
+                    Binding::PerItem(&gpu.params.buffers()[SCALES_GROUP], SCALE_RECORD),
                     Binding::PerItem(&rendered, SCALE_RECORD),
                     Binding::PerItem(&stored_grads, SCALE_RECORD),
                 ],
@@ -246,5 +227,22 @@ impl GpuBaseModel for FlatGaussians {
             out[SCALES_GROUP] = Some(stored_grads);
         }
         Ok(out)
+    }
+}
+
+impl FlatGaussians {
+    /// The number of Gaussians, the item count of the flat-Gaussian kernels.
+    fn kernel_items(&self) -> u32 {
+        u32::try_from(self.params.len()).expect("at most u32::MAX Gaussians")
+    }
+
+    /// The uniform of the flat-Gaussian kernels (`Clamp`: the clamp bounds), made once.
+    fn clamp_uniform(&self, gpu: &mut GpuStep<'_>) -> Result<Buffer, GpuError> {
+        let lo = FLAT_SCALE.ln() as f32;
+        let hi = MAX_SCALE.ln() as f32;
+        let ctx = gpu.ctx;
+        gpu.scratch.buffer("flat clamp bounds", 16, || {
+            Ok(ctx.uniform_words([lo.to_bits(), hi.to_bits(), 0, 0]))
+        })
     }
 }

@@ -2,31 +2,37 @@
 //! given, is stylized on both mirror cameras with the paper's 2D settings, and the result is
 //! rendered at exactly the picture's resolution.
 //!
-//! Every input (configuration, picture, model file, patch size against the picture, style
-//! image, CLIP configuration, the presence of the weight files, the output folder's checkpoint)
-//! is checked before the fit, so such a bad input costs no time and leaves nothing behind.
+//! Every input (configuration, the output folder and its checkpoint, picture, model file and
+//! its fit to the picture ([`crate::model_file`]), patch size against the picture, style image,
+//! CLIP configuration, the presence of the weight files) is checked before the fit, so such a
+//! bad input costs no time and leaves nothing behind.
 //! Outputs in `out`:
 //! - `stylized.png`: the stylized picture, the size of the original;
 //! - `side_by_side.png`: the original and the stylized picture, left and right;
 //! - `model.ply`: the stylized model (MiraGe PLY), to stylize again or interpolate;
 //! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
 //! - `original.png`: the picture when it is the embedded default;
-//! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
+//! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize; marked
+//!   finished once the rest is written).
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::Ordering;
 
 use gs_core::backend::Backend;
-use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::Image;
-use gs_stylize::run::{check_out_folder, check_patches_fit, check_style_inputs, progress_bar};
-use gs_stylize::{open_device, stylize, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::progress::Progress;
+use gs_stylize::run::check_patches_fit;
+use gs_stylize::{prepare, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{fit, render_picture, FitError, FitSettings};
+use crate::fit::{
+    fit_logged, render_picture, write_psnr_plot, FitError, FitSettings, Fitted, FIT_PSNR_PNG,
+};
 use crate::flat::FlatGaussians;
 use crate::mirror::{extent, mirror_views, mirrored, DEFAULT_DISTANCE};
+use crate::model_file::{check_fits_picture, read_model, write_model, FittedTo};
 use crate::picture::{default_picture, load_picture, PictureError};
 
 /// The style of the README's main job and of a run that names none.
@@ -55,7 +61,9 @@ pub struct MirageStylizeConfig {
     pub model: Option<PathBuf>,
     /// The output folder.
     pub out: Option<PathBuf>,
-    /// Colour behind transparent picture pixels and behind the Gaussians, RGB in `[0, 1]`.
+    /// Colour behind transparent picture pixels and behind the Gaussians, RGB in `[0, 1]`;
+    /// also read as `white`, `black` or `"R,G,B"` ([`crate::background`]).
+    #[serde(deserialize_with = "crate::background::deserialize")]
     pub background: [f32; 3],
     /// Distance of the cameras from the picture plane, world units (MiraGe: 1).
     pub distance: f64,
@@ -128,6 +136,14 @@ pub enum MirageError {
         /// What is wrong with it.
         source: gs_core::ply::PlyError,
     },
+    /// A model file that is not a 2D model, or not one of the run's picture.
+    #[error("model {}: {reason}", path.display())]
+    ModelMismatch {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
     /// The fit.
     #[error("{0}")]
     Fit(#[from] FitError),
@@ -189,28 +205,37 @@ pub fn run(
     options: &RunOptions,
 ) -> Result<MirageSummary, MirageError> {
     let out = config.out_path()?;
+    let prepared = prepare(&config.style, out, options.clone())?;
+    let backend = prepared.backend();
     let picture = picture(config)?;
     let label = picture_label(config);
     check(config, &picture, &label)?;
-    check_style_inputs(&config.style)?;
-    let backend = open_device(config.style.device)?;
-    let given = match &config.model {
-        Some(path) => Some(load_model(path)?),
-        None => None,
+    let (w, h) = (picture.width, picture.height);
+    let fitted_to = FittedTo {
+        width: w,
+        height: h,
+        distance: config.distance,
     };
+    let of_picture = |path: &Path| -> Result<FlatGaussians, MirageError> {
+        let file = read_model(path)?;
+        if let Some(warning) = check_fits_picture(path, &file, w, h, config.distance, &label)? {
+            eprintln!("warning: {warning}");
+        }
+        Ok(file.model)
+    };
+    let given = config.model.as_deref().map(of_picture).transpose()?;
     let base_ply = out.join(BASE_PLY);
-    check_out_folder(out, options.resume)?;
     let model = match given {
         Some(model) => model,
-        None if options.resume && base_ply.exists() => load_model(&base_ply)?,
+        None if options.resume && base_ply.exists() => of_picture(&base_ply)?,
         None => {
-            let fitted = fit_with_progress(&picture, &config.fit_settings(), options, &backend)?;
+            let fitted = fit_with_progress(&picture, &config.fit_settings(), options, backend)?;
             create_out(out)?;
-            write_model(&base_ply, &fitted)?;
-            fitted
+            write_model(&base_ply, &fitted.model, &fitted_to)?;
+            write_psnr_plot(&out.join(FIT_PSNR_PNG), &fitted.psnr)?;
+            fitted.model
         }
     };
-    let (w, h) = (picture.width, picture.height);
     let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
     let job = StylizeJob {
         groups: config.style.optimizer_groups(extent(config.distance)),
@@ -221,17 +246,17 @@ pub fn run(
         masks: None,
         background: config.background,
     };
-    let outcome = stylize(&config.style, config, job, out, options, &backend)?;
+    let mut outcome = prepared.stylize(config, job)?;
     let stylized = render_picture(
-        &outcome.model,
+        &mut outcome.model,
         w,
         h,
         config.distance,
         false,
         config.background,
-        &backend,
+        backend,
     )?;
-    write_model(&out.join(MODEL_PLY), &outcome.model)?;
+    write_model(&out.join(MODEL_PLY), &outcome.model, &fitted_to)?;
     let save = |image: &Image, name: &str| {
         image
             .save_png(&out.join(name))
@@ -245,32 +270,11 @@ pub fn run(
     if config.picture.is_none() {
         save(&picture, ORIGINAL_PNG)?;
     }
+    mark_finished(out, config.style.steps)?;
     Ok(MirageSummary {
         model: outcome.model,
         stylized,
         losses: outcome.losses.iter().map(|l| l.total).collect(),
-    })
-}
-
-/// Reads a MiraGe (or any INRIA) PLY as flat Gaussians.
-pub fn load_model(path: &Path) -> Result<FlatGaussians, MirageError> {
-    let ply = read_ply(path).map_err(|source| MirageError::Model {
-        path: path.to_path_buf(),
-        source,
-    })?;
-    Ok(FlatGaussians::new(ply.gaussians))
-}
-
-/// Writes flat Gaussians as a MiraGe PLY (binary little-endian, `scale_0 = ln 1e-8`).
-pub fn write_model(path: &Path, model: &FlatGaussians) -> Result<(), MirageError> {
-    write_ply(
-        path,
-        &PlyGaussians::new(model.params().clone()),
-        PlyFormat::BinaryLittleEndian,
-    )
-    .map_err(|source| MirageError::Model {
-        path: path.to_path_buf(),
-        source,
     })
 }
 
@@ -284,28 +288,27 @@ fn create_out(out: &Path) -> Result<(), MirageError> {
     })
 }
 
-/// Fits `picture` on `backend`, with a progress bar when `options.progress`; the stop flag
-/// ends the fit with [`MirageError::InterruptedFit`].
+/// Fits `picture` on `backend`, showing the progress when `options.progress` ([`Progress`]);
+/// the stop flag ends the fit with [`MirageError::InterruptedFit`].
 pub fn fit_with_progress(
     picture: &Image,
     settings: &FitSettings,
     options: &RunOptions,
     backend: &Backend,
-) -> Result<FlatGaussians, MirageError> {
-    let bar = progress_bar(options.progress, "fit", settings.steps, 0);
-    let model = fit(picture, settings, backend, |report| {
-        bar.set_position(report.step);
-        bar.set_message(format!("loss {:.4}", report.value.loss));
+) -> Result<Fitted, MirageError> {
+    let progress = Progress::new(options.progress, "fit", settings.steps, 0);
+    let fitted = fit_logged(picture, settings, backend, |report| {
+        progress.update(report.step, &format!("loss {:.4}", report.value.loss));
         if options.stop.load(Ordering::SeqCst) {
             ControlFlow::Break(())
         } else {
             ControlFlow::Continue(())
         }
-    })?;
+    });
+    progress.finish();
+    let fitted = fitted?;
     if options.stop.load(Ordering::SeqCst) {
-        bar.abandon();
         return Err(MirageError::InterruptedFit);
     }
-    bar.finish();
-    Ok(model)
+    Ok(fitted)
 }

@@ -6,6 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
+use base_mirage::model_file::FittedTo;
 use gs_core::backend::ALLOW_SOFTWARE_GPU;
 use gs_core::ply::read_ply;
 use gs_core::wgpu::{AdapterChoice, GpuContext};
@@ -52,9 +53,15 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-/// `stylize` arguments with the tiny models and small patches, `steps` steps.
+/// `stylize` arguments with the tiny models and small patches, `steps` steps, no progress.
 fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
-    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
+    shown_stylize_args(cmd, models, steps);
+    cmd.arg("--quiet");
+}
+
+/// [`stylize_args`] with the progress shown.
+fn shown_stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
+    cmd.args(["stylize", "--steps", &steps.to_string()])
         .args(["--clip-config", s(&models.clip_config)])
         .args(["--clip-weights", s(&models.clip_weights)])
         .args(["--tokenizer", s(&models.tokenizer)])
@@ -120,7 +127,7 @@ fn fit_then_stylize_from_file_to_file() {
             "--model",
             s(&fit_dir.join("model.ply")),
         ])
-        .args(["--out", s(&sty), "--background", "white"]));
+        .args(["--out", s(&sty), "--set", "background=white"]));
     assert_eq!(
         png_size(&sty.join("stylized.png")),
         (W, H),
@@ -153,7 +160,7 @@ fn stylize_fits_first_and_resumes_bit_identically() {
     let dir = TempDir::new().unwrap();
     let models = write_tiny_models(dir.path());
     let picture = write_picture(dir.path());
-    let stylize_to = |out: &Path, steps: u64, resume: bool| {
+    let command = |out: &Path, steps: u64, resume: bool| {
         let mut cmd = bin();
         stylize_args(&mut cmd, &models, steps);
         cmd.args(["--device", "cpu"]);
@@ -166,7 +173,10 @@ fn stylize_fits_first_and_resumes_bit_identically() {
         if resume {
             cmd.arg("--resume");
         }
-        run(&mut cmd);
+        cmd
+    };
+    let stylize_to = |out: &Path, steps: u64, resume: bool| {
+        run(&mut command(out, steps, resume));
     };
     let whole = dir.path().join("whole");
     stylize_to(&whole, 6, false);
@@ -181,12 +191,21 @@ fn stylize_fits_first_and_resumes_bit_identically() {
         std::fs::read(parts.join("model.ply")).unwrap(),
         "a run resumed at step 3 ends where an uninterrupted one does"
     );
-    let mut again = bin();
-    stylize_args(&mut again, &models, 6);
-    let err = fails(again.args(["--picture", s(&picture), "--out", s(&parts)]));
+    let model = std::fs::read(parts.join("model.ply")).unwrap();
+
+    // The run resumed to its end is finished: resuming it again at the same step count has
+    // nothing to do and says so, and the same command without --resume runs afresh.
+    let err = fails(&mut command(&parts, 6, true));
     assert!(
-        err.contains("--resume"),
-        "a fresh run refuses a folder with a checkpoint: {err}"
+        err.contains("finished all its 6 steps") && err.contains("--steps"),
+        "{err}"
+    );
+    assert_eq!(std::fs::read(parts.join("model.ply")).unwrap(), model);
+    stylize_to(&parts, 6, false);
+    assert_eq!(
+        std::fs::read(parts.join("model.ply")).unwrap(),
+        model,
+        "a new run in a finished run's folder starts from the fit again"
     );
 }
 
@@ -382,9 +401,14 @@ fn stylize_on_the_gpu_ends_close_to_the_cpu_and_resumes_on_the_cpu() {
 fn devices_that_are_not_there_are_refused_clearly() {
     let dir = TempDir::new().unwrap();
     let model_ply = dir.path().join("model.ply");
-    base_mirage::stylize::write_model(
+    base_mirage::model_file::write_model(
         &model_ply,
         &base_mirage::flat::FlatGaussians::new(GaussianSet::zeros(4, 0)),
+        &FittedTo {
+            width: 8,
+            height: 8,
+            distance: 1.0,
+        },
     )
     .unwrap();
     let render = |device: &str| {
@@ -423,4 +447,291 @@ fn devices_that_are_not_there_are_refused_clearly() {
             "{err}"
         );
     }
+}
+
+/// The lines of `text` that start with `prefix`.
+fn lines_starting<'a>(text: &'a str, prefix: &str) -> Vec<&'a str> {
+    text.lines().filter(|l| l.starts_with(prefix)).collect()
+}
+
+#[test]
+fn a_redirected_run_prints_a_progress_line_every_five_percent_and_no_error_line() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let mut cmd = bin();
+    shown_stylize_args(&mut cmd, &models, 6);
+    let out = run(cmd
+        .args([
+            "--picture",
+            s(&picture),
+            "--out",
+            s(&dir.path().join("out")),
+        ])
+        .args(["--gaussians", "200", "--fit-steps", "40", "--device", "cpu"]));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    let fit = lines_starting(&stderr, "fit: step ");
+    assert_eq!(fit.len(), 20, "one line every 5 % of 40 steps: {stderr}");
+    assert!(
+        fit[0].starts_with("fit: step 2/40 (5%), 0:00:"),
+        "{}",
+        fit[0]
+    );
+    assert!(
+        fit[0].contains(" elapsed, about 0:") && fit[0].contains(" left, loss 0."),
+        "{}",
+        fit[0]
+    );
+    assert!(fit[19].starts_with("fit: step 40/40 (100%)") && fit[19].contains("done"));
+    let stylize = lines_starting(&stderr, "stylize: step ");
+    assert_eq!(
+        stylize.len(),
+        6,
+        "every step is past the next 5 %: {stderr}"
+    );
+    assert!(
+        stylize[5].starts_with("stylize: step 6/6 (100%)") && stylize[5].contains("loss "),
+        "{}",
+        stylize[5]
+    );
+    assert!(lines_starting(&stderr, "error").is_empty(), "{stderr}");
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert_eq!(lines_starting(&stdout, "wrote ").len(), 1, "{stdout}");
+}
+
+#[test]
+fn outputs_that_cannot_be_written_are_refused_first_naming_the_path() {
+    let dir = TempDir::new().unwrap();
+    let file = dir.path().join("notes.txt");
+    std::fs::write(&file, "not a folder").unwrap();
+    let missing_picture = dir.path().join("missing.png");
+    let model = dir.path().join("model.ply");
+    base_mirage::model_file::write_model(
+        &model,
+        &base_mirage::flat::FlatGaussians::new(GaussianSet::zeros(4, 0)),
+        &FittedTo {
+            width: 8,
+            height: 8,
+            distance: 1.0,
+        },
+    )
+    .unwrap();
+    let notes = s(&file);
+    let inside = file.join("sub");
+    // Every other input is bad too: the output is what is checked first.
+    let err = fails(bin().args(["fit", "--picture", s(&missing_picture), "--out", notes]));
+    assert!(
+        err.contains(&format!("output folder {notes}: it is a file"))
+            && err.contains("must be a folder"),
+        "{err}"
+    );
+    let err = fails(bin().args(["fit", "--picture", s(&missing_picture), "--out", s(&inside)]));
+    assert!(
+        err.contains(&format!("{notes} is a file, so no folder can be made")),
+        "{err}"
+    );
+    let err = fails(bin().args(["stylize", "--picture", s(&missing_picture), "--out", notes]));
+    assert!(
+        err.contains("it is a file") && !err.contains("missing.png"),
+        "{err}"
+    );
+    let render = |out: &Path| {
+        let mut cmd = bin();
+        cmd.args([
+            "render",
+            "--model",
+            s(&model),
+            "--width",
+            "8",
+            "--height",
+            "8",
+        ])
+        .args(["--device", "cpu", "--out", s(out)]);
+        cmd
+    };
+    let err = fails(&mut render(dir.path()));
+    assert!(err.contains("it is a folder"), "{err}");
+    let err = fails(&mut render(&inside.join("r.png")));
+    assert!(
+        err.contains(&format!("{notes} is a file, not a folder")),
+        "{err}"
+    );
+    let err = fails(&mut render(&dir.path().join("none/r.png")));
+    assert!(
+        err.contains("the folder") && err.contains("none does not exist"),
+        "{err}"
+    );
+    let err = fails(
+        bin()
+            .args(["interpolate", "--a", s(&missing_picture), "--b", s(&model)])
+            .args(["--t", "0.5", "--out", s(&inside.join("mix.ply"))]),
+    );
+    assert!(
+        err.contains(&format!("{notes} is a file, not a folder")),
+        "{err}"
+    );
+    run(&mut render(&dir.path().join("r.png")));
+    let names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
+    assert_eq!(names.len(), 3, "nothing else was written: {names:?}");
+}
+
+#[test]
+fn configuration_files_are_checked_as_written_and_set_takes_the_flag_spellings() {
+    let dir = TempDir::new().unwrap();
+    let config = dir.path().join("run.json");
+    std::fs::write(&config, r#"{"fit_steps": "many", "num_patches": 3}"#).unwrap();
+    // --fit-steps replaces the bad value, but the file is still wrong.
+    let err = refused_with(&dir, &["--config", s(&config), "--fit-steps", "2"]);
+    assert!(
+        err.contains("run.json: fit_steps = \"many\": invalid type"),
+        "{err}"
+    );
+    assert_eq!(err.matches("configuration").count(), 1, "{err}");
+    let err = refused_with(&dir, &["--set", "steps=abc"]);
+    assert!(
+        err.starts_with("error: configuration: steps = \"abc\": "),
+        "{err}"
+    );
+
+    let missing = dir.path().join("missing.png");
+    for spelling in ["white", "black", "0.5,0.5,1", "[1, 0, 0]"] {
+        let err = refused_with(
+            &dir,
+            &[
+                "--set",
+                &format!("background={spelling}"),
+                "--picture",
+                s(&missing),
+            ],
+        );
+        assert!(
+            err.contains("missing.png") && !err.contains("background"),
+            "{err}"
+        );
+    }
+    let err = refused_with(&dir, &["--set", "background=grey"]);
+    assert!(
+        err.contains("background = \"grey\"") && err.contains("not white, black or R,G,B"),
+        "{err}"
+    );
+}
+
+/// Runs `stylize` with the tiny models into a folder of `dir` with `extra` arguments, expects
+/// a failure that leaves no output folder, and returns stderr.
+fn refused_with(dir: &TempDir, extra: &[&str]) -> String {
+    let models = write_tiny_models(dir.path());
+    let out = dir.path().join("refused");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let err = fails(cmd.args(["--out", s(&out)]).args(extra));
+    assert!(!out.exists(), "nothing written for {extra:?}");
+    err
+}
+
+#[test]
+fn models_of_another_picture_shape_or_of_a_3d_scene_are_named() {
+    let dir = TempDir::new().unwrap();
+    let picture = write_picture(dir.path());
+    let fit_dir = dir.path().join("fit");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--picture",
+            s(&picture),
+        ])
+        .args(["--out", s(&fit_dir), "--gaussians", "100", "--steps", "2"]));
+    let fitted = fit_dir.join("model.ply");
+    let comments = read_ply(&fitted).unwrap().comments;
+    assert_eq!(
+        comments,
+        [format!("clipgaussian-2d picture {W}x{H} distance 1")]
+    );
+
+    let square = dir.path().join("square.png");
+    image::RgbImage::from_pixel(W, W, image::Rgb([90, 20, 200]))
+        .save(&square)
+        .unwrap();
+    let err = refused_with(&dir, &["--picture", s(&square), "--model", s(&fitted)]);
+    assert!(
+        err.contains(&format!("fitted to a {W}x{H} picture"))
+            && err.contains(&format!("square.png is {W}x{W}")),
+        "{err}"
+    );
+
+    // Twice the size, the same shape: one warning naming both sizes, and the run goes on.
+    let double = dir.path().join("double.png");
+    image::RgbImage::from_pixel(2 * W, 2 * H, image::Rgb([90, 20, 200]))
+        .save(&double)
+        .unwrap();
+    let models = write_tiny_models(dir.path());
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let out = run(cmd
+        .args([
+            "--device",
+            "cpu",
+            "--out",
+            s(&dir.path().join("double-out")),
+        ])
+        .args(["--picture", s(&double), "--model", s(&fitted)]));
+    let err = String::from_utf8_lossy(&out.stderr);
+    let warnings = lines_starting(&err, "warning: ");
+    assert_eq!(warnings.len(), 1, "{err}");
+    assert!(
+        warnings[0].contains(&format!("{W}x{H}"))
+            && warnings[0].contains(&format!("{}x{}", 2 * W, 2 * H)),
+        "{err}"
+    );
+    assert!(lines_starting(&err, "error").is_empty(), "{err}");
+
+    let mut scene = GaussianSet::zeros(50, 0);
+    for (i, v) in scene.means.iter_mut().enumerate() {
+        *v = ((i * 37 % 101) as f32 / 50.0) - 1.0;
+    }
+    scene.log_scales.iter_mut().for_each(|v| *v = -3.0);
+    let scene_ply = dir.path().join("scene.ply");
+    gs_core::ply::write_ply(
+        &scene_ply,
+        &gs_core::ply::PlyGaussians::new(scene),
+        gs_core::ply::PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    let err = refused_with(&dir, &["--picture", s(&picture), "--model", s(&scene_ply)]);
+    assert!(
+        err.contains("scene.ply: not a 2D model")
+            && err.contains("50 of its 50 Gaussians have no flat axis")
+            && err.contains("off the picture plane"),
+        "{err}"
+    );
+    let err = fails(
+        bin()
+            .args(["render", "--model", s(&scene_ply), "--width", "8"])
+            .args(["--height", "8", "--out", s(&dir.path().join("r.png"))]),
+    );
+    assert!(err.contains("scene.ply: not a 2D model"), "{err}");
+}
+
+#[test]
+fn stylize_help_lists_every_file_it_writes() {
+    let help = String::from_utf8_lossy(&run(bin().args(["stylize", "--help"])).stdout).into_owned();
+    for file in [
+        "stylized.png",
+        "side_by_side.png",
+        "model.ply",
+        "base.ply",
+        "original.png",
+        "losses.json",
+        "losses.png",
+        "config.json",
+        "checkpoint/",
+    ] {
+        assert!(help.contains(file), "{file} not in {help}");
+    }
+    assert!(
+        help.contains("downloaded from the Hugging Face Hub"),
+        "{help}"
+    );
 }

@@ -81,7 +81,7 @@ fn fit_psnr(backend: &Backend, settings: &FitSettings) -> (f64, f64) {
     let target = picture();
     let mut first_loss = None;
     let mut last_loss = 0.0;
-    let model = fit(&target, settings, backend, |r| {
+    let mut model = fit(&target, settings, backend, |r| {
         first_loss.get_or_insert(r.value.loss);
         last_loss = r.value.loss;
         ControlFlow::Continue(())
@@ -89,9 +89,9 @@ fn fit_psnr(backend: &Backend, settings: &FitSettings) -> (f64, f64) {
     .unwrap();
     assert_eq!(model.params().len(), settings.gaussians);
     let (w, h) = (target.width, target.height);
-    let view = |mirror| {
+    let mut view = |mirror| {
         render_picture(
-            &model,
+            &mut model,
             w,
             h,
             settings.distance,

@@ -1,4 +1,4 @@
-//! MiraGe's flat Gaussians built on the GPU ([`GpuBaseModel`]) against the cpu path
+//! MiraGe's flat Gaussians built on the GPU (its `gpu_forward` kernels) against the cpu path
 //! ([`BaseModel`]): the rendered log-scales exactly, the image, and the gradient of every
 //! parameter group, with in-plane scales clamped at either bound, on a bound, and with frozen
 //! groups. Needs a GPU adapter (lavapipe in CI).
@@ -9,7 +9,7 @@ use gs_core::gaussians::PARAM_NAMES;
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::{backward, render, OutputGrads};
 use gs_core::wgpu::{
-    self as gpu, read_f32, AdapterChoice, GpuBaseModel, GpuContext, GpuOptions, GpuParams,
+    self as gpu, read_f32, AdapterChoice, GpuContext, GpuOptions, GpuParams, GpuScratch, GpuStep,
 };
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
@@ -72,7 +72,13 @@ fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
     let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
     let bg = [0.1, 0.2, 0.3];
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
-    let gaussians = model.gpu_gaussians(&ctx, &params, &view).unwrap();
+    let mut scratch = GpuScratch::default();
+    let mut step = GpuStep {
+        ctx: &ctx,
+        params: &params,
+        scratch: &mut scratch,
+    };
+    let gaussians = model.gpu_forward(&mut step, &view).unwrap().gaussians;
     let renderable = model.renderable();
     assert_eq!(
         gaussians.download(&ctx),
@@ -97,10 +103,12 @@ fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
         let mask = model.grad_mask(&trained);
         let cpu_grads = backward(&renderable, &view.camera, &cpu_r, &out, mask);
         let mut want: Vec<Vec<f32>> = model.group_lens().iter().map(|&n| vec![0.0; n]).collect();
-        model.backward(&view, &cpu_grads.gaussians, &trained, &mut want);
+        model
+            .backward(&view, (), &cpu_grads.gaussians, &trained, &mut want)
+            .unwrap();
         let gpu_grads = gpu::backward(&ctx, &gaussians, &gpu_r, &out, mask).unwrap();
         let got = model
-            .gpu_backward(&ctx, &params, &view, gpu_grads, &trained)
+            .gpu_backward(&mut step, &view, (), gpu_grads, &trained)
             .unwrap();
         for (k, name) in PARAM_NAMES.iter().enumerate() {
             let what = format!("trained {trained:?}: gradient of {name}");
@@ -132,7 +140,13 @@ fn the_construction_runs_in_chunks_past_the_binding_limit() {
     let mut model = model(1000);
     let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
-    let gaussians = model.gpu_gaussians(&ctx, &params, &view).unwrap();
+    let mut scratch = GpuScratch::default();
+    let mut step = GpuStep {
+        ctx: &ctx,
+        params: &params,
+        scratch: &mut scratch,
+    };
+    let gaussians = model.gpu_forward(&mut step, &view).unwrap().gaussians;
     assert_eq!(
         gaussians.download(&ctx),
         model.renderable(),

@@ -1,5 +1,6 @@
 //! The compute device of a run, chosen at run time (`--device cpu|gpu|auto`), and what runs on
-//! it: training ([`Trainer`]) and rendering ([`Renderer`]).
+//! it: training ([`Trainer`]) and rendering a model view by view ([`ModelRenderer`]) or a
+//! fixed Gaussian set ([`Renderer`]).
 //!
 //! `auto` takes a real GPU adapter when there is one, else the cpu; a software Vulkan device
 //! (Mesa's lavapipe) is for tests, never a default: `gpu` refuses it unless the environment
@@ -15,7 +16,8 @@ use crate::adam::{Adam, AdamHyper, GroupConfig};
 use crate::camera::Camera;
 use crate::gaussians::GaussianSet;
 use crate::image::Image;
-use crate::model::View;
+use crate::model::{BaseModel, ModelError, View};
+use crate::raster::{GradMask, Gradients, OutputGrads};
 use crate::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
 #[cfg(feature = "wgpu")]
 use crate::wgpu::{
@@ -74,13 +76,21 @@ pub enum DeviceError {
 }
 
 impl DeviceChoice {
-    /// Opens the device: the cpu, or a GPU adapter as described in the module documentation.
-    pub fn open(self) -> Result<Backend, DeviceError> {
+    /// Opens the device: the cpu, or a GPU adapter as described in the module documentation;
+    /// `gpu` takes a software adapter only when `allow_software` (an embedder's switch; the
+    /// binaries and tests set it with [`ALLOW_SOFTWARE_GPU`], see [`DeviceChoice::open`]).
+    pub fn open_with(self, allow_software: bool) -> Result<Backend, DeviceError> {
         match self {
             Self::Cpu => Ok(Backend::Cpu),
-            Self::Gpu => open_gpu(),
+            Self::Gpu => open_gpu(allow_software),
             Self::Auto => Ok(open_hardware_gpu().unwrap_or(Backend::Cpu)),
         }
+    }
+
+    /// [`DeviceChoice::open_with`], allowing a software adapter when the environment variable
+    /// [`ALLOW_SOFTWARE_GPU`] is `1`.
+    pub fn open(self) -> Result<Backend, DeviceError> {
+        self.open_with(std::env::var(ALLOW_SOFTWARE_GPU).is_ok_and(|v| v == "1"))
     }
 }
 
@@ -98,10 +108,9 @@ fn open_hardware_gpu() -> Option<Backend> {
     None
 }
 
-/// A real GPU, or a software one when [`ALLOW_SOFTWARE_GPU`] is `1`.
+/// A real GPU, or a software one when `software` is allowed.
 #[cfg(feature = "wgpu")]
-fn open_gpu() -> Result<Backend, DeviceError> {
-    let software = std::env::var(ALLOW_SOFTWARE_GPU).is_ok_and(|v| v == "1");
+fn open_gpu(software: bool) -> Result<Backend, DeviceError> {
     let choice = if software {
         AdapterChoice::AllowSoftware
     } else {
@@ -119,7 +128,7 @@ fn open_gpu() -> Result<Backend, DeviceError> {
 
 /// Built without the wgpu backend: `gpu` is an error.
 #[cfg(not(feature = "wgpu"))]
-fn open_gpu() -> Result<Backend, DeviceError> {
+fn open_gpu(_software: bool) -> Result<Backend, DeviceError> {
     Err(DeviceError::NoGpu(
         "gs-core was built without its wgpu feature; use --device cpu".into(),
     ))
@@ -158,6 +167,85 @@ impl Backend {
     }
 }
 
+/// Why rendering a model failed.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// The device failed.
+    #[error(transparent)]
+    Device(#[from] DeviceError),
+    /// The model failed to build the view's Gaussians.
+    #[error("the model failed: {0}")]
+    Model(ModelError),
+}
+
+#[cfg(feature = "wgpu")]
+impl From<GpuError> for RenderError {
+    fn from(e: GpuError) -> Self {
+        Self::Device(e.into())
+    }
+}
+
+impl Backend {
+    /// A renderer of `model` on this device, view by view through the model's own forward
+    /// (on a GPU its parameters are uploaded once and each view's Gaussians built there).
+    pub fn model_renderer<'m, M: BaseModel>(
+        &self,
+        model: &'m mut M,
+    ) -> Result<ModelRenderer<'m, M>, RenderError> {
+        let device = match self {
+            Self::Cpu => ModelDevice::Cpu,
+            #[cfg(feature = "wgpu")]
+            Self::Gpu(ctx) => ModelDevice::Gpu {
+                params: Box::new(GpuParams::upload(ctx, model)?),
+                scratch: Box::default(),
+                ctx: Arc::clone(ctx),
+            },
+        };
+        Ok(ModelRenderer { model, device })
+    }
+}
+
+/// Where a [`ModelRenderer`] builds and renders.
+enum ModelDevice {
+    Cpu,
+    #[cfg(feature = "wgpu")]
+    Gpu {
+        ctx: Arc<GpuContext>,
+        params: Box<GpuParams>,
+        scratch: Box<crate::wgpu::GpuScratch>,
+    },
+}
+
+/// A model ready to render any view on one device (frames of a video, times of a dynamic
+/// scene), with the same forward as training.
+pub struct ModelRenderer<'m, M> {
+    model: &'m mut M,
+    device: ModelDevice,
+}
+
+impl<M: BaseModel> ModelRenderer<'_, M> {
+    /// The image of `view` over `background`.
+    pub fn render(&mut self, view: &View, background: [f32; 3]) -> Result<Image, RenderError> {
+        match &mut self.device {
+            ModelDevice::Cpu => {
+                let forward = self.model.forward(view).map_err(RenderError::Model)?;
+                Ok(crate::raster::render(&forward.gaussians, &view.camera, background).image)
+            }
+            #[cfg(feature = "wgpu")]
+            ModelDevice::Gpu {
+                ctx,
+                params,
+                scratch,
+            } => {
+                let gaussians =
+                    crate::wgpu::gaussians_for_view(self.model, ctx, params, scratch, view)
+                        .map_err(RenderError::Model)?;
+                Ok(crate::wgpu::render(ctx, &gaussians, &view.camera, background)?.image(ctx))
+            }
+        }
+    }
+}
+
 /// A Gaussian set ready to render from any camera on one device.
 pub enum Renderer<'a> {
     /// The cpu rasterizer.
@@ -183,21 +271,88 @@ impl Renderer<'_> {
             }
         }
     }
+
+    /// The image through `camera` over `background`, kept with what its backward needs
+    /// ([`DifferentiableRender::backward`]).
+    pub fn render_differentiable(
+        &self,
+        camera: &Camera,
+        background: [f32; 3],
+    ) -> Result<DifferentiableRender<'_>, DeviceError> {
+        let state = match self {
+            Self::Cpu(g) => RenderState::Cpu {
+                gaussians: g,
+                camera: camera.clone(),
+                rendered: Box::new(crate::raster::render(g, camera, background)),
+            },
+            #[cfg(feature = "wgpu")]
+            Self::Gpu { ctx, gaussians } => RenderState::Gpu {
+                rendered: Box::new(crate::wgpu::render(ctx, gaussians, camera, background)?),
+                ctx,
+                gaussians,
+            },
+        };
+        Ok(DifferentiableRender { state })
+    }
 }
 
-/// A model a [`Trainer`] can train on every backend this build has: a
-/// [`crate::model::BaseModel`], and with the wgpu feature a [`crate::wgpu::GpuBaseModel`].
-#[cfg(feature = "wgpu")]
-pub trait TrainableModel: crate::wgpu::GpuBaseModel {}
-#[cfg(feature = "wgpu")]
-impl<M: crate::wgpu::GpuBaseModel> TrainableModel for M {}
+/// A render kept for its backward pass, on the device that made it.
+pub struct DifferentiableRender<'r> {
+    state: RenderState<'r>,
+}
 
-/// A model a [`Trainer`] can train on every backend this build has: a
-/// [`crate::model::BaseModel`].
-#[cfg(not(feature = "wgpu"))]
-pub trait TrainableModel: crate::model::BaseModel {}
-#[cfg(not(feature = "wgpu"))]
-impl<M: crate::model::BaseModel> TrainableModel for M {}
+enum RenderState<'r> {
+    Cpu {
+        gaussians: &'r GaussianSet,
+        camera: Camera,
+        rendered: Box<crate::raster::Rendered>,
+    },
+    #[cfg(feature = "wgpu")]
+    Gpu {
+        ctx: &'r GpuContext,
+        gaussians: &'r GpuGaussians,
+        rendered: Box<crate::wgpu::GpuRendered>,
+    },
+}
+
+impl DifferentiableRender<'_> {
+    /// The rendered image (read back from a GPU).
+    pub fn image(&self) -> Image {
+        match &self.state {
+            RenderState::Cpu { rendered, .. } => rendered.image.clone(),
+            #[cfg(feature = "wgpu")]
+            RenderState::Gpu { ctx, rendered, .. } => rendered.image(ctx),
+        }
+    }
+
+    /// The gradients of the arrays `mask` asks for and of the background, given
+    /// `dl_dimage`, the gradient of a loss with respect to the image (`[H, W, 3]`).
+    ///
+    /// # Panics
+    /// If `dl_dimage` does not have the image's size.
+    pub fn backward(&self, dl_dimage: &[f32], mask: GradMask) -> Result<Gradients, DeviceError> {
+        let out = OutputGrads {
+            rgb: dl_dimage,
+            alpha: None,
+            depth: None,
+        };
+        match &self.state {
+            RenderState::Cpu {
+                gaussians,
+                camera,
+                rendered,
+            } => Ok(crate::raster::backward(
+                gaussians, camera, rendered, &out, mask,
+            )),
+            #[cfg(feature = "wgpu")]
+            RenderState::Gpu {
+                ctx,
+                gaussians,
+                rendered,
+            } => Ok(crate::wgpu::backward(ctx, gaussians, rendered, &out, mask)?.download(ctx)),
+        }
+    }
+}
 
 /// Where a trainer's parameters and optimizer live.
 enum State {
@@ -220,7 +375,7 @@ pub struct Trainer<M> {
     state: State,
 }
 
-impl<M: TrainableModel> Trainer<M> {
+impl<M: BaseModel> Trainer<M> {
     /// `model` with a fresh Adam over `groups` (one per parameter group) on `backend`.
     pub fn new(
         backend: &Backend,
@@ -281,7 +436,7 @@ impl<M: TrainableModel> Trainer<M> {
             #[cfg(feature = "wgpu")]
             State::Gpu { ctx, params, adam } => crate::wgpu::train(
                 ctx,
-                &self.model,
+                &mut self.model,
                 params,
                 views,
                 objective,

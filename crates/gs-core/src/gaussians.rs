@@ -73,6 +73,58 @@ impl<T: Real> GaussianSet<T> {
         }
     }
 
+    /// The set of the arrays a pipeline holds: `means` `[N, 3]`, `log_scales` `[N, 3]`,
+    /// `quats` `[N, 4]` (w, x, y, z), `opacity_logits` `[N]` and `sh` `[N, K, 3]` with
+    /// `K = (degree + 1)^2` (all coefficients of a Gaussian together, channel last, as gsplat
+    /// and 3DGS hold them); the degree follows from `K`. An error names the array whose
+    /// length does not fit.
+    pub fn from_arrays(
+        means: Vec<T>,
+        log_scales: Vec<T>,
+        quats: Vec<T>,
+        opacity_logits: Vec<T>,
+        sh: &[T],
+    ) -> Result<Self, String> {
+        let len = opacity_logits.len();
+        let per_gaussian = sh.len().checked_div(len).unwrap_or(3);
+        let sh_degree = (0..=MAX_SH_DEGREE)
+            .find(|&d| 3 * sh_coeff_count(d) == per_gaussian && sh.len() == per_gaussian * len)
+            .ok_or_else(|| {
+                format!(
+                    "sh has {} values: {len} Gaussians need (degree + 1)^2 * 3 each, degree 0 to                      {MAX_SH_DEGREE}",
+                    sh.len()
+                )
+            })?;
+        let (mut sh_dc, mut sh_rest) = (Vec::with_capacity(3 * len), Vec::new());
+        for coefficients in sh.chunks_exact(per_gaussian) {
+            sh_dc.extend_from_slice(&coefficients[..3]);
+            sh_rest.extend_from_slice(&coefficients[3..]);
+        }
+        let set = Self {
+            len,
+            sh_degree,
+            means,
+            log_scales,
+            quats,
+            opacity_logits,
+            sh_dc,
+            sh_rest,
+        };
+        set.check_shapes()?;
+        Ok(set)
+    }
+
+    /// All SH coefficients as `[N, K, 3]` (the layout of [`GaussianSet::from_arrays`]).
+    pub fn sh(&self) -> Vec<T> {
+        let rest = 3 * (self.sh_coeffs() - 1);
+        let mut out = Vec::with_capacity(3 * self.sh_coeffs() * self.len);
+        for i in 0..self.len {
+            out.extend_from_slice(&self.sh_dc[3 * i..3 * i + 3]);
+            out.extend_from_slice(&self.sh_rest[rest * i..rest * (i + 1)]);
+        }
+        out
+    }
+
     /// A set with every entry zero, quaternions included: the starting point of a gradient.
     pub fn zero_grads(len: usize, sh_degree: usize) -> Self {
         let mut g = Self::zeros(len, sh_degree);
@@ -187,3 +239,48 @@ pub const PARAM_NAMES: [&str; 6] = [
     "sh_dc",
     "sh_rest",
 ];
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn arrays_with_sh_of_shape_n_k_3_round_trip() {
+        // Two Gaussians of degree 1: K = 4 coefficients of 3 channels each.
+        let sh: Vec<f32> = (0..24).map(|v| v as f32).collect();
+        let set = GaussianSet::from_arrays(
+            vec![0.0; 6],
+            vec![-1.0; 6],
+            vec![1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+            vec![0.5, -0.5],
+            &sh,
+        )
+        .unwrap();
+        assert_eq!(set.sh_degree(), 1);
+        assert_eq!(set.sh_dc, [0.0, 1.0, 2.0, 12.0, 13.0, 14.0]);
+        assert_eq!(&set.sh_rest[..3], [3.0, 4.0, 5.0]);
+        assert_eq!(set.sh(), sh);
+    }
+
+    #[test]
+    fn arrays_of_the_wrong_length_are_named() {
+        let e = GaussianSet::<f32>::from_arrays(
+            vec![0.0; 6],
+            vec![0.0; 6],
+            vec![0.0; 8],
+            vec![0.0; 2],
+            &[0.0; 10],
+        )
+        .unwrap_err();
+        assert!(e.contains("sh has 10 values"), "{e}");
+        let e = GaussianSet::<f32>::from_arrays(
+            vec![0.0; 5],
+            vec![0.0; 6],
+            vec![0.0; 8],
+            vec![0.0; 2],
+            &[0.0; 6],
+        )
+        .unwrap_err();
+        assert!(e.starts_with("means has 5 values"), "{e}");
+    }
+}

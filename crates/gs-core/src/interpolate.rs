@@ -102,7 +102,7 @@ pub fn interpolate(
 }
 
 /// [`interpolate`] of the Gaussians of two PLY files; the extra properties (normals and any
-/// other vertex property) are those of `a`, unchanged.
+/// other vertex property) and the header comments are those of `a`, unchanged.
 pub fn interpolate_ply(
     a: &PlyGaussians,
     b: &PlyGaussians,
@@ -111,5 +111,6 @@ pub fn interpolate_ply(
     Ok(PlyGaussians {
         gaussians: interpolate(&a.gaussians, &b.gaussians, t)?,
         extras: a.extras.clone(),
+        comments: a.comments.clone(),
     })
 }

@@ -14,6 +14,34 @@
 //! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
 //!
 //! Conventions follow gsplat; see `docs/conventions.md` in the repository.
+//!
+//! Rendering a pipeline's own arrays and differentiating the render, on the cpu or (with
+//! `DeviceChoice::Gpu` or `Auto`) on a GPU through the same calls:
+//!
+//! ```
+//! use gs_core::backend::{Backend, DeviceChoice};
+//! use gs_core::raster::GradMask;
+//! use gs_core::{Camera, GaussianSet};
+//!
+//! // One Gaussian at the origin, SH degree 0 ([N, K, 3] = [1, 1, 3]).
+//! let set = GaussianSet::from_arrays(
+//!     vec![0.0, 0.0, 0.0],
+//!     vec![-1.5; 3],
+//!     vec![1.0, 0.0, 0.0, 0.0],
+//!     vec![2.0],
+//!     &[0.5, 0.2, -0.3],
+//! )?;
+//! let camera = Camera::look_at([0.0, 0.0, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 32, 24)?;
+//! let backend: Backend = DeviceChoice::Cpu.open()?;
+//! let renderer = backend.renderer(&set)?;
+//! let render = renderer.render_differentiable(&camera, [1.0; 3])?;
+//! let image = render.image();
+//! // dL/dimage of L = sum of the image: all ones.
+//! let grads = render.backward(&vec![1.0; image.data.len()], GradMask::ALL)?;
+//! assert_eq!(grads.gaussians.means.len(), 3);
+//! assert!(grads.gaussians.sh_dc[0] > 0.0);
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod adam;
 pub mod backend;

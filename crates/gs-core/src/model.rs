@@ -1,5 +1,12 @@
 //! The `BaseModel` trait: how a modality (3DGS, MiraGe, VeGaS, D-MiSo) turns its parameters
 //! into renderable Gaussians for a view and takes back their gradient.
+//!
+//! One view's construction is a fallible forward, which returns the Gaussians and a tape (what
+//! the backward of the same step needs: D-MiSo's network graph; `()` for most models), and a
+//! fallible backward that consumes the tape. With gs-core's `wgpu` feature the trait also has
+//! the GPU twins of both, provided: by default the Gaussians are built on the host and
+//! uploaded and their gradient is brought back, so every model trains on either device; a
+//! model overrides them with its own kernels where measurement says they pay.
 
 use std::borrow::Cow;
 
@@ -7,6 +14,12 @@ use crate::adam::{GroupConfig, LrSchedule};
 use crate::camera::Camera;
 use crate::gaussians::{GaussianGrads, GaussianSet, PARAM_NAMES};
 use crate::raster::GradMask;
+#[cfg(feature = "wgpu")]
+use crate::wgpu::{GpuForward, GpuGradients, GpuStep};
+
+/// A model's failure to build or differentiate a view's Gaussians (a network call that
+/// failed, a view out of its range); it keeps its source.
+pub type ModelError = Box<dyn std::error::Error + Send + Sync + 'static>;
 
 /// One training view: a camera and, for dynamic modalities, a time.
 #[derive(Clone, Debug, PartialEq)]
@@ -24,11 +37,36 @@ impl View {
     }
 }
 
+/// What [`BaseModel::forward`] returns: the Gaussians of a view and the tape its backward
+/// consumes.
+#[derive(Debug)]
+pub struct Forward<'a, T> {
+    /// The Gaussians to render (borrowed when they are the parameters themselves).
+    pub gaussians: Cow<'a, GaussianSet>,
+    /// What the backward of the same step needs.
+    pub tape: T,
+}
+
+impl<'a> Forward<'a, ()> {
+    /// Gaussians that need no tape.
+    pub fn untaped(gaussians: Cow<'a, GaussianSet>) -> Self {
+        Self {
+            gaussians,
+            tape: (),
+        }
+    }
+}
+
 /// A model whose parameters (theta) produce the Gaussians rendered for each view.
 ///
 /// Parameters are exposed as named groups of `f32` values, each trained by its own Adam group;
-/// gradients come back in the same group order and layout.
+/// gradients come back in the same group order and layout. One step is
+/// [`BaseModel::forward`] -> render -> loss -> rasterizer backward -> [`BaseModel::backward`]
+/// (or their GPU twins) -> Adam.
 pub trait BaseModel {
+    /// What a view's forward keeps for its backward (`()` when nothing).
+    type Tape;
+
     /// Names of the parameter groups, in a fixed order.
     fn group_names(&self) -> Vec<String>;
 
@@ -38,20 +76,86 @@ pub trait BaseModel {
     /// Lengths of the parameter groups, in [`BaseModel::group_names`] order.
     fn group_lens(&self) -> Vec<usize>;
 
-    /// The Gaussians to render for `view` (borrowed when they are the parameters themselves).
-    fn gaussians(&self, view: &View) -> Cow<'_, GaussianSet>;
-
-    /// Adds to `out` (one buffer per group, already sized) the gradient of the loss with respect
-    /// to every group, given its gradient `grads` with respect to the Gaussians of `view`.
-    /// Groups for which `trained[i]` is false may be skipped.
-    fn backward(&self, view: &View, grads: &GaussianGrads, trained: &[bool], out: &mut [Vec<f32>]);
-
     /// Which Gaussian arrays need a gradient when only the groups with `trained[i]` are trained.
     fn grad_mask(&self, trained: &[bool]) -> GradMask;
+
+    /// The Gaussians to render for `view` and the tape of this step.
+    fn forward(&self, view: &View) -> Result<Forward<'_, Self::Tape>, ModelError>;
+
+    /// Adds to `out` (one buffer per group, already sized where `trained[i]`) the gradient of
+    /// the loss with respect to every trained group, given its gradient `grads` with respect to
+    /// the Gaussians [`BaseModel::forward`] built for `view` and that step's `tape`.
+    fn backward(
+        &self,
+        view: &View,
+        tape: Self::Tape,
+        grads: &GaussianGrads,
+        trained: &[bool],
+        out: &mut [Vec<f32>],
+    ) -> Result<(), ModelError>;
+
+    /// The GPU twin of [`BaseModel::forward`], from the parameters on the GPU (`gpu.params`;
+    /// the host values of `self` may be stale). Provided: brings the parameters back when they
+    /// changed, builds on the host and uploads (buffers kept in `gpu.scratch` for the next
+    /// step).
+    #[cfg(feature = "wgpu")]
+    fn gpu_forward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        view: &View,
+    ) -> Result<GpuForward<Self::Tape>, ModelError>
+    where
+        Self: Sized,
+    {
+        crate::wgpu::host_forward(self, gpu, view)
+    }
+
+    /// The GPU twin of [`BaseModel::backward`]: the gradient of every group (`None` where
+    /// `trained[i]` is false), given `grads` with respect to the Gaussians of
+    /// [`BaseModel::gpu_forward`] (which may be handed on without a copy). Provided: brings
+    /// the gradient back, runs [`BaseModel::backward`] and uploads the result.
+    #[cfg(feature = "wgpu")]
+    fn gpu_backward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        view: &View,
+        tape: Self::Tape,
+        grads: GpuGradients,
+        trained: &[bool],
+    ) -> Result<Vec<Option<crate::wgpu::Buffer>>, ModelError>
+    where
+        Self: Sized,
+    {
+        crate::wgpu::host_backward(self, gpu, view, tape, grads, trained)
+    }
+}
+
+/// Adds `src` to `dst` for every trained group: the backward of groups rendered as they are.
+pub fn add_identity_grads(
+    grads: &GaussianGrads,
+    trained: &[bool],
+    out: &mut [Vec<f32>],
+    skip_group: Option<usize>,
+) {
+    for (group, ((src, dst), &t)) in grads
+        .arrays()
+        .iter()
+        .zip(out.iter_mut())
+        .zip(trained)
+        .enumerate()
+    {
+        if t && Some(group) != skip_group {
+            for (d, s) in dst.iter_mut().zip(src.iter()) {
+                *d += *s;
+            }
+        }
+    }
 }
 
 /// Plain 3D Gaussians are their own renderable set: theta is the identity.
 impl BaseModel for GaussianSet {
+    type Tape = ();
+
     fn group_names(&self) -> Vec<String> {
         PARAM_NAMES.iter().map(|s| s.to_string()).collect()
     }
@@ -67,26 +171,6 @@ impl BaseModel for GaussianSet {
         self.arrays().iter().map(|a| a.len()).collect()
     }
 
-    fn gaussians(&self, _view: &View) -> Cow<'_, GaussianSet> {
-        Cow::Borrowed(self)
-    }
-
-    fn backward(
-        &self,
-        _view: &View,
-        grads: &GaussianGrads,
-        trained: &[bool],
-        out: &mut [Vec<f32>],
-    ) {
-        for ((src, dst), &t) in grads.arrays().iter().zip(out.iter_mut()).zip(trained) {
-            if t {
-                for (d, s) in dst.iter_mut().zip(src.iter()) {
-                    *d += *s;
-                }
-            }
-        }
-    }
-
     fn grad_mask(&self, trained: &[bool]) -> GradMask {
         GradMask {
             means: trained[0],
@@ -96,6 +180,45 @@ impl BaseModel for GaussianSet {
             sh_dc: trained[4],
             sh_rest: trained[5],
         }
+    }
+
+    fn forward(&self, _view: &View) -> Result<Forward<'_, ()>, ModelError> {
+        Ok(Forward::untaped(Cow::Borrowed(self)))
+    }
+
+    fn backward(
+        &self,
+        _view: &View,
+        _tape: (),
+        grads: &GaussianGrads,
+        trained: &[bool],
+        out: &mut [Vec<f32>],
+    ) -> Result<(), ModelError> {
+        add_identity_grads(grads, trained, out, None);
+        Ok(())
+    }
+
+    #[cfg(feature = "wgpu")]
+    fn gpu_forward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        _view: &View,
+    ) -> Result<GpuForward<()>, ModelError> {
+        Ok(GpuForward::untaped(
+            gpu.params.as_gaussians(self.sh_degree()),
+        ))
+    }
+
+    #[cfg(feature = "wgpu")]
+    fn gpu_backward(
+        &mut self,
+        _gpu: &mut GpuStep<'_>,
+        _view: &View,
+        _tape: (),
+        grads: GpuGradients,
+        trained: &[bool],
+    ) -> Result<Vec<Option<crate::wgpu::Buffer>>, ModelError> {
+        Ok(grads.into_trained(trained))
     }
 }
 

@@ -10,7 +10,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::adam::Adam;
 use crate::image::Image;
-use crate::model::{BaseModel, View};
+use crate::model::{BaseModel, Forward, ModelError, View};
 use crate::raster::{self, GradMask, OutputGrads};
 
 /// Shuffle-without-replacement over view indices: every view once per epoch, in a fresh
@@ -122,6 +122,14 @@ pub enum TrainError<E: std::error::Error + 'static> {
         /// What was not finite.
         what: &'static str,
     },
+    /// The base model failed to build or differentiate a view's Gaussians.
+    #[error("the model failed at step {step}: {source}")]
+    Model {
+        /// Step (1-based) at which it failed.
+        step: u64,
+        /// The model's error.
+        source: ModelError,
+    },
     /// The compute device failed (e.g. the GPU ran out of memory).
     #[error("device failed at step {step}: {source}")]
     Device {
@@ -143,6 +151,21 @@ pub(crate) enum StepEnd {
     NonFiniteGradient,
 }
 
+/// Why a step on a [`StepBackend`] failed.
+#[derive(Debug)]
+pub(crate) enum StepFailure<E> {
+    /// The device failed.
+    Device(E),
+    /// The model failed.
+    Model(ModelError),
+}
+
+impl<E> From<ModelError> for StepFailure<E> {
+    fn from(e: ModelError) -> Self {
+        Self::Model(e)
+    }
+}
+
 /// Where the parameters and the optimizer live, and how one step is computed there: the cpu
 /// backend below, the wgpu one in `crate::wgpu`. [`run_steps`] is the loop both share.
 pub(crate) trait StepBackend {
@@ -160,7 +183,7 @@ pub(crate) trait StepBackend {
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, Self::Error>;
+    ) -> Result<StepEnd, StepFailure<Self::Error>>;
 }
 
 /// The training loop of every backend: see [`train`].
@@ -221,9 +244,12 @@ where
                     }
                 }
             })
-            .map_err(|e| TrainError::Device {
-                step,
-                source: Box::new(e),
+            .map_err(|e| match e {
+                StepFailure::Device(e) => TrainError::Device {
+                    step,
+                    source: Box::new(e),
+                },
+                StepFailure::Model(source) => TrainError::Model { step, source },
             })?;
         let t3 = Instant::now();
         match (end, value, failure) {
@@ -270,8 +296,8 @@ impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, Self::Error> {
-        let gaussians = self.model.gaussians(view);
+    ) -> Result<StepEnd, StepFailure<Self::Error>> {
+        let Forward { gaussians, tape } = self.model.forward(view)?;
         let rendered = raster::render(gaussians.as_ref(), &view.camera, background);
         let Some(grad) = evaluate(&rendered.image) else {
             return Ok(StepEnd::Abandoned);
@@ -293,9 +319,14 @@ impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
             .zip(&self.trained)
             .map(|(&n, &t)| if t { vec![0.0; n] } else { Vec::new() })
             .collect();
-        self.model
-            .backward(view, &grads.gaussians, &self.trained, &mut group_grads);
         drop(gaussians);
+        self.model.backward(
+            view,
+            tape,
+            &grads.gaussians,
+            &self.trained,
+            &mut group_grads,
+        )?;
         if !group_grads.iter().flatten().all(|g| g.is_finite()) {
             return Ok(StepEnd::NonFiniteGradient);
         }

@@ -98,6 +98,11 @@ fn extra_properties_are_preserved_and_reported() {
     let ply = PlyGaussians {
         gaussians: random_set(n, 2, 3),
         extras,
+        comments: vec![
+            "made by a test".into(),
+            String::new(),
+            "picture 40x32".into(),
+        ],
     };
     for format in FORMATS {
         let path = dir.path().join(format!("extras-{}.ply", format.name()));
@@ -106,6 +111,10 @@ fn extra_properties_are_preserved_and_reported() {
         assert_eq!(back, ply, "{format:?}");
         assert_eq!(back.unknown_properties(), ["red", "weight", "label", "tag"]);
     }
+    let mut two_lines = ply.clone();
+    two_lines.comments.push("one\ntwo".into());
+    let e = write_ply(&dir.path().join("bad.ply"), &two_lines, PlyFormat::Ascii).unwrap_err();
+    assert!(e.to_string().contains("one line"), "{e}");
 }
 
 /// The INRIA header of degree `degree` (property order of `save_ply`).
@@ -231,6 +240,7 @@ fn property_order_and_double_types_may_vary() {
     assert_eq!(g.opacity_logits, [1.5]);
     assert_eq!(ply.unknown_properties(), ["confidence"]);
     assert_eq!(ply.extras[0].ty, ScalarType::Float64);
+    assert_eq!(ply.comments, ["made by hand"]);
 }
 
 /// Writes `text` (a whole file) and returns the error message of reading it.

@@ -89,7 +89,7 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let mut reports = 0;
     train(
         ctx,
-        &model,
+        &mut model,
         &params,
         &views,
         &mut objective,
@@ -141,7 +141,7 @@ fn a_non_finite_gradient_stops_the_run_with_the_parameters_of_the_step_before() 
         .unwrap();
         let result = train(
             ctx,
-            &model,
+            &mut model,
             &params,
             &views,
             &mut PoisonAt(0, poison),

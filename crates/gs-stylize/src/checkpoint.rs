@@ -4,6 +4,12 @@
 //! is written into a fresh folder that then replaces the previous one, so a crash leaves the old
 //! one whole.
 //!
+//! A run that took all its steps saves a last checkpoint of the final step; once the modality
+//! has written its outputs it marks the checkpoint finished ([`mark_finished`], a file
+//! `finished` holding the step). A finished checkpoint does not hold the output folder: a new
+//! run may start there (and discards it, [`discard_finished`]), and resuming it continues only
+//! with more steps than it took.
+//!
 //! `params.bin`, little-endian: the magic `GSPARAMS`, a `u32` version (1), a `u32` group count,
 //! then per group a `u32` name length, the UTF-8 name, a `u64` value count and the `f32` values.
 
@@ -24,6 +30,7 @@ pub const CHECKPOINT_DIR: &str = "checkpoint";
 const PARAMS: &str = "params.bin";
 const ADAM: &str = "adam.bin";
 const STATE: &str = "state.json";
+const FINISHED: &str = "finished";
 const PARAMS_MAGIC: &[u8; 8] = b"GSPARAMS";
 const PARAMS_VERSION: u32 = 1;
 
@@ -144,7 +151,7 @@ pub fn recover_interrupted_save(out: &Path) -> Result<(), StylizeError> {
 }
 
 /// Saves `checkpoint` into `<out>/checkpoint/`, replacing the previous one only once the new
-/// one is complete.
+/// one is complete (the new one is not [finished](mark_finished)).
 pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
     recover_interrupted_save(out)?;
     let dir = checkpoint_dir(out);
@@ -183,6 +190,37 @@ pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
     std::fs::rename(&tmp, &dir).map_err(io(&dir))?;
     if old.exists() {
         std::fs::remove_dir_all(&old).map_err(io(&old))?;
+    }
+    Ok(())
+}
+
+/// The step at which the run of `out` finished, when its checkpoint is marked finished
+/// ([`mark_finished`]: the file `finished` whose first line is the step); `None` when there is
+/// no checkpoint or it is not finished.
+pub fn finished_step(out: &Path) -> Option<u64> {
+    let text = std::fs::read_to_string(checkpoint_dir(out).join(FINISHED)).ok()?;
+    text.lines().next()?.trim().parse().ok()
+}
+
+/// Marks the checkpoint of `out`, saved at `step`, as that of a finished run, once its outputs
+/// are written (see the module documentation). Nothing happens when there is no checkpoint (a
+/// run with `checkpoint_every = 0`).
+pub fn mark_finished(out: &Path, step: u64) -> Result<(), StylizeError> {
+    let dir = checkpoint_dir(out);
+    if !dir.is_dir() {
+        return Ok(());
+    }
+    let text = format!("{step}\nthe run finished at this step and wrote its outputs\n");
+    write_atomic(&dir.join(FINISHED), text.as_bytes())
+}
+
+/// Removes the checkpoint of `out` when it is [finished](mark_finished): a new run in `out`
+/// must not leave a finished checkpoint of an earlier run beside its own outputs. An
+/// unfinished checkpoint is kept.
+pub fn discard_finished(out: &Path) -> Result<(), StylizeError> {
+    let dir = checkpoint_dir(out);
+    if finished_step(out).is_some() {
+        std::fs::remove_dir_all(&dir).map_err(|source| StylizeError::Io { path: dir, source })?;
     }
     Ok(())
 }
@@ -375,6 +413,52 @@ mod tests {
         std::fs::write(&params, bytes).unwrap();
         let e = load(dir.path()).unwrap_err().to_string();
         assert!(e.contains("params.bin") && e.contains("truncated"), "{e}");
+    }
+
+    #[test]
+    fn a_finished_mark_names_the_step_and_a_new_save_clears_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path();
+        mark_finished(out, 3).unwrap();
+        assert!(
+            !checkpoint_dir(out).exists(),
+            "no checkpoint, nothing to mark"
+        );
+        let checkpoint = Checkpoint {
+            step: 3,
+            params: model_params(&mut GaussianSet::zeros(2, 0)),
+            adam_state: Vec::new(),
+            rng: style_loss::style_rng(1),
+            config: serde_json::json!({}),
+            losses: Vec::new(),
+        };
+        let losses: Vec<StepLosses> = (1..=3)
+            .map(|step| StepLosses {
+                step,
+                view: 0,
+                total: 1.0,
+                terms: Default::default(),
+            })
+            .collect();
+        let checkpoint = Checkpoint {
+            losses,
+            ..checkpoint
+        };
+        save(out, &checkpoint).unwrap();
+        assert_eq!(finished_step(out), None);
+        discard_finished(out).unwrap();
+        assert!(
+            checkpoint_dir(out).exists(),
+            "an unfinished checkpoint stays"
+        );
+        mark_finished(out, 3).unwrap();
+        assert_eq!(finished_step(out), Some(3));
+        assert_eq!(load(out).unwrap().step, 3);
+        save(out, &checkpoint).unwrap();
+        assert_eq!(finished_step(out), None, "a new save is not finished");
+        mark_finished(out, 3).unwrap();
+        discard_finished(out).unwrap();
+        assert!(!checkpoint_dir(out).exists());
     }
 
     #[test]

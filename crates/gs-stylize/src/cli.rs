@@ -1,9 +1,13 @@
 //! The command-line pieces every modality's binary shares: the `stylize` flags (flattened into
 //! its own arguments with clap) and their translation into configuration overrides (the flags
-//! first, then each `--set field=value` in order), and the `interpolate` subcommand.
+//! first, then each `--set field=value` in order), the `interpolate` subcommand, and the exit
+//! of every subcommand ([`exit_code`]: the error line and the exit code). Model
+//! files the binaries cannot find are reported with these flags ([`crate::weights`]); outputs
+//! are checked before any work ([`crate::writable`]).
 
 use std::error::Error;
 use std::path::PathBuf;
+use std::process::ExitCode;
 
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
@@ -11,7 +15,8 @@ use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_core::backend::DeviceChoice;
 use serde_json::Value;
 
-use crate::interrupt::stop_on_ctrl_c;
+use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use crate::writable::check_output_file;
 use crate::{Override, RunOptions, StylizeError};
 
 /// The style, the model files, the device and the run controls of `stylize`.
@@ -32,15 +37,16 @@ pub struct StyleArgs {
     /// CLIP config.json (default: ViT-B/32).
     #[arg(long)]
     pub clip_config: Option<PathBuf>,
-    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, the Hugging Face
-    /// cache, or a download where the binary is built with one).
+    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, else the Hugging
+    /// Face cache, else downloaded from the Hugging Face Hub into that cache on first use).
     #[arg(long)]
     pub clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the cache, or a download).
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face cache,
+    /// else downloaded on first use).
     #[arg(long)]
     pub tokenizer: Option<PathBuf>,
     /// VGG-19 weights, safetensors in torchvision's layout (default:
-    /// $CLIPGAUSSIAN_VGG19_WEIGHTS, the cache, or a download).
+    /// $CLIPGAUSSIAN_VGG19_WEIGHTS, else the Hugging Face cache, else downloaded on first use).
     #[arg(long)]
     pub vgg_weights: Option<PathBuf>,
     /// Where the Gaussians are rendered and trained: cpu, gpu, or auto (a real GPU when there
@@ -50,10 +56,11 @@ pub struct StyleArgs {
     /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     pub set: Vec<String>,
-    /// Continue the run from `<out>/checkpoint/`.
+    /// Continue the run from `<out>/checkpoint/` (a finished run: only with more --steps).
     #[arg(long)]
     pub resume: bool,
-    /// No progress bars.
+    /// Show no progress (else a bar on a terminal, or a line every 5 % of the steps when
+    /// stderr is a file or a pipe).
     #[arg(long)]
     pub quiet: bool,
 }
@@ -64,7 +71,7 @@ pub fn path_value(path: &Option<PathBuf>) -> Option<Value> {
 }
 
 impl StyleArgs {
-    /// How to run: `--resume`, a progress bar unless `--quiet`, and the process's Ctrl-C
+    /// How to run: `--resume`, the progress unless `--quiet`, and the process's Ctrl-C
     /// handler as the stop flag.
     pub fn run_options(&self) -> Result<RunOptions, ctrlc::Error> {
         Ok(RunOptions {
@@ -126,8 +133,10 @@ pub struct InterpolateArgs {
 }
 
 impl InterpolateArgs {
-    /// Writes `(1 - t) A + t B` to `out` and returns a line saying what was written.
+    /// Writes `(1 - t) A + t B` to `out` (checked first: [`check_output_file`]) and returns a
+    /// line saying what was written.
     pub fn run(&self) -> Result<String, Box<dyn Error>> {
+        check_output_file(&self.out)?;
         let (a, format) = read_ply_with_format(&self.a)?;
         let b = read_ply(&self.b)?;
         let blended = interpolate_ply(&a, &b, self.t)
@@ -140,4 +149,31 @@ impl InterpolateArgs {
             self.t
         ))
     }
+}
+
+/// A subcommand's result as the process's exit: nothing more on success; on failure the error
+/// on one `error: ...` line (and the lines of [`StylizeError::Several`]) and exit code
+/// [`INTERRUPTED_EXIT`] when the run was stopped by Ctrl-C (a [`StylizeError::Interrupted`]
+/// anywhere in the error's chain, or an error `interrupted` recognizes: a modality's own
+/// interruption), else 1.
+pub fn exit_code(
+    result: Result<(), Box<dyn Error>>,
+    interrupted: impl Fn(&(dyn Error + 'static)) -> bool,
+) -> ExitCode {
+    let Err(e) = result else {
+        return ExitCode::SUCCESS;
+    };
+    eprintln!("error: {e}");
+    let mut cause: Option<&(dyn Error + 'static)> = Some(e.as_ref());
+    while let Some(c) = cause {
+        let stopped = matches!(
+            c.downcast_ref::<StylizeError>(),
+            Some(StylizeError::Interrupted { .. })
+        );
+        if stopped || interrupted(c) {
+            return ExitCode::from(INTERRUPTED_EXIT);
+        }
+        cause = c.source();
+    }
+    ExitCode::FAILURE
 }

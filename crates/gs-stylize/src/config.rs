@@ -141,13 +141,15 @@ impl StyleSettings {
                     "a style is required: a prompt or an image",
                 )
             }
-            (Some(p), None) if p.trim().is_empty() => {
-                return bad("style_prompt", "the style prompt is empty")
+            (Some(p), None) => {
+                if let Err(why) = check_prompt("style prompt", p) {
+                    return bad("style_prompt", &why);
+                }
             }
             _ => {}
         }
-        if self.source_prompt.trim().is_empty() {
-            return bad("source_prompt", "the source prompt is empty");
+        if let Err(why) = check_prompt("source prompt", &self.source_prompt) {
+            return bad("source_prompt", &why);
         }
         if self.steps == 0 {
             return bad("steps", "must be at least 1");
@@ -208,6 +210,17 @@ impl StyleSettings {
     }
 }
 
+/// Checks that a prompt has text (not only spaces); `what` names it in the error (`the style
+/// prompt is empty`). Stylization ([`StyleSettings::validate`]) and evaluation refuse empty
+/// prompts alike.
+pub fn check_prompt(what: &str, prompt: &str) -> Result<(), String> {
+    if prompt.trim().is_empty() {
+        Err(format!("the {what} is empty"))
+    } else {
+        Ok(())
+    }
+}
+
 /// [`DeviceChoice`] as its name (`"cpu"`, `"gpu"`, `"auto"`) in configuration files.
 mod device_name {
     use gs_core::backend::DeviceChoice;
@@ -262,9 +275,11 @@ impl Override {
 }
 
 /// The configuration `C` of `file` (`C::default()` alone when `None`) with `overrides` applied
-/// in order. Fields the file leaves out keep their default. A field that `C::default()` does
-/// not serialize is an error naming every such field; a value of the wrong type is an error
-/// naming its field. Checking the values is the caller's (e.g. [`StyleSettings::validate`]).
+/// in order. Fields the file leaves out keep their default. The file is checked as written,
+/// before any override: an unknown field or a value of the wrong type in it is an error naming
+/// the file, the field and the value, even when an override replaces that field. Then the
+/// overrides are checked the same way (their errors name the field and the value). Checking
+/// the values' ranges is the caller's (e.g. [`StyleSettings::validate`]).
 ///
 /// Only top-level fields are checked against the defaults; a nested struct refuses unknown
 /// fields with its own `#[serde(deny_unknown_fields)]`.
@@ -272,64 +287,79 @@ pub fn resolve_config<C>(file: Option<&Path>, overrides: &[Override]) -> Result<
 where
     C: Serialize + DeserializeOwned + Default,
 {
-    let source = file.map_or("the configuration".into(), |p| p.display().to_string());
-    let config_error = |message: String| StylizeError::Config(format!("{source}: {message}"));
     let Value::Object(defaults) = serde_json::to_value(C::default()).expect("configs serialize")
     else {
         panic!("a configuration must serialize to a JSON object");
     };
-    let mut given = match file {
-        Some(path) => {
-            let text = std::fs::read_to_string(path).map_err(|source| StylizeError::Io {
-                path: path.to_path_buf(),
-                source,
-            })?;
-            match serde_json::from_str(&text).map_err(|e| config_error(e.to_string()))? {
-                Value::Object(fields) => fields,
-                _ => return Err(config_error("must be a JSON object".into())),
-            }
-        }
-        None => Map::new(),
-    };
+    let mut fields = defaults.clone();
+    if let Some(path) = file {
+        let in_file =
+            |message: String| StylizeError::Config(format!("{}: {message}", path.display()));
+        let text = std::fs::read_to_string(path).map_err(|source| StylizeError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?;
+        let Value::Object(given) =
+            serde_json::from_str(&text).map_err(|e| in_file(e.to_string()))?
+        else {
+            return Err(in_file("must be a JSON object".into()));
+        };
+        check_fields::<C>(&fields, &given).map_err(in_file)?;
+        fields.extend(given);
+    }
+    let mut given = Map::new();
     for o in overrides {
         given.insert(o.field.clone(), o.value.clone());
     }
+    check_fields::<C>(&fields, &given).map_err(StylizeError::Config)?;
+    fields.extend(given);
+    serde_json::from_value(Value::Object(fields)).map_err(|e| StylizeError::Config(e.to_string()))
+}
+
+/// Checks the fields `given` over the configuration `base` (every field of `C`): each is a
+/// field of `C`, and `base` with them deserializes. The error names every unknown field, or
+/// else every field whose value does not deserialize, with its value.
+fn check_fields<C: DeserializeOwned>(
+    base: &Map<String, Value>,
+    given: &Map<String, Value>,
+) -> Result<(), String> {
     let unknown: Vec<&str> = given
         .keys()
-        .filter(|k| !defaults.contains_key(*k))
+        .filter(|k| !base.contains_key(*k))
         .map(String::as_str)
         .collect();
     if !unknown.is_empty() {
-        let known: Vec<&str> = defaults.keys().map(String::as_str).collect();
-        return Err(config_error(format!(
+        let known: Vec<&str> = base.keys().map(String::as_str).collect();
+        return Err(format!(
             "unknown field{} `{}`; the fields are {}",
             if unknown.len() > 1 { "s" } else { "" },
             unknown.join("`, `"),
             known.join(", ")
-        )));
+        ));
     }
-    let mut merged = defaults.clone();
+    let mut merged = base.clone();
     merged.extend(given.clone());
-    serde_json::from_value(Value::Object(merged)).map_err(|whole| {
-        config_error(name_bad_fields::<C>(&defaults, &given).unwrap_or(whole.to_string()))
-    })
+    match serde_json::from_value::<C>(Value::Object(merged)) {
+        Ok(_) => Ok(()),
+        Err(whole) => Err(name_bad_fields::<C>(base, given).unwrap_or(whole.to_string())),
+    }
 }
 
-/// `field: why` for every field of `given` that does not deserialize on its own over
-/// `defaults` (serde's messages inside a `#[serde(flatten)]` field do not name the field);
-/// `None` when each does.
+/// `field = value: why` for every field of `given` that does not deserialize on its own over
+/// `base` (serde's messages inside a `#[serde(flatten)]` field do not name the field); `None`
+/// when each does.
 fn name_bad_fields<C: DeserializeOwned>(
-    defaults: &Map<String, Value>,
+    base: &Map<String, Value>,
     given: &Map<String, Value>,
 ) -> Option<String> {
     let bad: Vec<String> = given
         .iter()
         .filter_map(|(field, value)| {
-            let mut alone = defaults.clone();
+            let mut alone = base.clone();
             alone.insert(field.clone(), value.clone());
             serde_json::from_value::<C>(Value::Object(alone))
                 .err()
-                .map(|e| format!("{field}: {e}"))
+                .map(|e| format!("{field} = {value}: {e}"))
         })
         .collect();
     (!bad.is_empty()).then(|| bad.join("; "))
@@ -389,17 +419,14 @@ mod tests {
     #[test]
     fn a_bad_type_names_its_field_inside_and_outside_the_flattened_settings() {
         let e = error(&[Override::parse("steps=abc").unwrap()]);
-        assert!(
-            e.starts_with("configuration: the configuration: steps: "),
-            "{e}"
-        );
+        assert!(e.starts_with("configuration: steps = \"abc\": "), "{e}");
         assert!(e.contains("invalid type") && e.contains("abc"), "{e}");
         let e = error(&[
             Override::parse("resolution=-1").unwrap(),
             Override::parse("vgg_widths=[1,2]").unwrap(),
         ]);
         assert!(
-            e.contains("resolution: ") && e.contains("vgg_widths: "),
+            e.contains("resolution = -1: ") && e.contains("vgg_widths = [1,2]: "),
             "{e}"
         );
     }
@@ -423,7 +450,7 @@ mod tests {
         assert_eq!(c.style.device, DeviceChoice::Gpu);
         let e = error(&[Override::parse("device=cuda").unwrap()]);
         assert!(
-            e.contains("device: ") && e.contains("cpu, gpu, auto"),
+            e.contains("device = \"cuda\": ") && e.contains("cpu, gpu, auto"),
             "{e}"
         );
         assert!(Override::parse("no-equals-sign").is_err());
@@ -456,8 +483,41 @@ mod tests {
     }
 
     #[test]
+    fn the_file_is_checked_as_written_even_where_an_override_replaces_a_field() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("run.json");
+        let resolve = |text: &str, overrides: &[Override]| {
+            std::fs::write(&path, text).unwrap();
+            resolve_config::<Modality>(Some(&path), overrides)
+                .unwrap_err()
+                .to_string()
+        };
+        let e = resolve(r#"{"steps": "many"}"#, &[Override::new("steps", 5)]);
+        assert!(
+            e.starts_with("configuration: ")
+                && e.contains("run.json: steps = \"many\": invalid type"),
+            "{e}"
+        );
+        assert_eq!(e.matches("configuration").count(), 1, "{e}");
+        let e = resolve(r#"{"stpes": 5}"#, &[]);
+        assert!(e.contains("run.json: unknown field `stpes`"), "{e}");
+        let e = resolve(
+            r#"{"steps": 5}"#,
+            &[Override::parse("resolution=x").unwrap()],
+        );
+        assert!(
+            e.starts_with("configuration: resolution = \"x\": ") && !e.contains("run.json"),
+            "{e}"
+        );
+    }
+
+    #[test]
     fn validation_names_the_field() {
         let mut s = StyleSettings::paper_3d();
+        s.style_prompt = Some("  ".into());
+        let e = s.validate().unwrap_err().to_string();
+        assert_eq!(e, "configuration: style_prompt: the style prompt is empty");
+        s.style_prompt = None;
         assert!(s
             .validate()
             .unwrap_err()

@@ -8,22 +8,28 @@
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
 //! - [`interrupt`]: Ctrl-C as a request to stop after the current step.
-//! - [`loss_plot`]: the loss curve as a picture.
+//! - [`plot`]: line charts as pictures: the loss curves (`losses.png`), a fit's PSNR.
 //! - [`picture`]: pictures as CLIP inputs (the style image).
+//! - [`progress`]: the progress of a long loop on stderr: a bar, or plain lines in a log.
+//! - [`weights`]: finding the CLIP, tokenizer and VGG-19 files, errors naming their flags.
+//! - [`writable`]: checking before any work that every output can be written.
 
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
 pub mod interrupt;
-pub mod loss_plot;
 pub mod outputs;
 pub mod picture;
+pub mod plot;
+pub mod progress;
 pub mod run;
+pub mod weights;
+pub mod writable;
 
 use std::path::PathBuf;
 
 pub use config::{resolve_config, Override, StyleSettings};
-pub use run::{open_device, stylize, RunOptions, StylizeJob, StylizeOutcome};
+pub use run::{open_device, prepare, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
 
 /// Why a stylization could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
@@ -35,6 +41,12 @@ pub enum StylizeError {
     /// the patch size, the style image).
     #[error("{0}")]
     Input(String),
+    /// Model files (CLIP, its tokenizer, VGG-19) that cannot be found.
+    #[error("{0}")]
+    Weights(#[from] weights::MissingWeights),
+    /// An output (folder or file) that cannot be written.
+    #[error("{0}")]
+    Output(#[from] writable::OutputError),
     /// Loading CLIP, VGG or the tokenizer, or computing the style direction.
     #[error("style loss: {0}")]
     Style(Box<style_loss::StyleLossError>),
@@ -44,9 +56,18 @@ pub enum StylizeError {
     /// The compute device asked for is missing or failed.
     #[error("{0}")]
     Device(#[from] gs_core::backend::DeviceError),
+    /// Rendering a model failed.
+    #[error("render: {0}")]
+    Render(#[from] gs_core::backend::RenderError),
     /// Training stopped with an error.
     #[error("training: {0}")]
     Train(Box<gs_core::train::TrainError<style_loss::StyleLossError>>),
+    /// A chart that could not be drawn.
+    #[error("plot: {0}")]
+    Plot(#[source] Box<dyn std::error::Error + Send + Sync>),
+    /// More than one problem, each on a line of its own.
+    #[error("{} problems:{}", .0.len(), .0.iter().map(|e| format!("\n  - {e}")).collect::<String>())]
+    Several(Vec<StylizeError>),
     /// A file that could not be read or written.
     #[error("{}: {source}", path.display())]
     Io {

@@ -91,31 +91,39 @@ pub fn write_preview(
 }
 
 /// Renders `before` and `after` on `backend` from each of the views `which` over `background`
-/// and writes their previews in `dir` ([`write_preview`]); returns the files.
+/// (through each model's own forward) and writes their previews in `dir` ([`write_preview`]);
+/// returns the files.
 pub fn write_previews<M: BaseModel>(
     dir: &Path,
-    before: &M,
-    after: &M,
+    before: &mut M,
+    after: &mut M,
     views: &[View],
     which: &[usize],
     background: [f32; 3],
     backend: &Backend,
 ) -> Result<Vec<PathBuf>, StylizeError> {
-    which
+    let chosen: Vec<(usize, &View)> = which
         .iter()
         .map(|&v| {
-            let view = views.get(v).ok_or_else(|| {
+            views.get(v).map(|view| (v, view)).ok_or_else(|| {
                 StylizeError::Input(format!(
                     "preview view {v} does not exist (there are {})",
                     views.len()
                 ))
-            })?;
-            let shot = |model: &M| {
-                backend
-                    .renderer(&model.gaussians(view))?
-                    .render(&view.camera, background)
-            };
-            write_preview(dir, v, &shot(before)?, &shot(after)?)
+            })
         })
+        .collect::<Result<_, _>>()?;
+    let render_all = |model: &mut M| -> Result<Vec<Image>, StylizeError> {
+        let mut renderer = backend.model_renderer(model)?;
+        chosen
+            .iter()
+            .map(|(_, view)| Ok(renderer.render(view, background)?))
+            .collect()
+    };
+    let (befores, afters) = (render_all(before)?, render_all(after)?);
+    chosen
+        .iter()
+        .zip(befores.iter().zip(&afters))
+        .map(|((v, _), (b, a))| write_preview(dir, *v, b, a))
         .collect()
 }

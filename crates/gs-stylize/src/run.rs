@@ -1,7 +1,10 @@
-//! The stylization driver of every modality: check the job, build the style objective and the
-//! optimizer, resume or refuse an earlier run's checkpoint, then (and only then) create the
-//! output folder, train with checkpoints and a progress bar, and write the loss log and plot.
-//! The modality loads its model and views before and writes its own results after.
+//! The stylization driver of every modality, in two phases. [`prepare`] checks everything a
+//! run needs before any long work (settings, output folder, weights, style image, CLIP
+//! configuration, device) and reports every problem at once; the modality then loads or fits
+//! its model and views and calls [`PreparedRun::stylize`], which checks the job, builds the
+//! style objective and the optimizer, resumes or refuses an earlier run's checkpoint, then (and
+//! only then) creates the output folder, trains with checkpoints and progress, and writes the
+//! loss log and plot. The modality writes its own results after.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -10,22 +13,23 @@ use std::sync::Arc;
 
 use candle_core::Device;
 use gs_core::adam::{AdamHyper, GroupConfig};
-use gs_core::backend::{Backend, DeviceChoice, TrainableModel, Trainer};
+use gs_core::backend::{Backend, DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
 use gs_core::train::{resumed_sampler, TrainConfig};
 use gs_core::Image;
-use indicatif::{ProgressBar, ProgressStyle};
 use serde::Serialize;
-use style_loss::weight_resolution::{CLIP_TOKENIZER, CLIP_VIT_B_32_WEIGHTS, VGG19_WEIGHTS};
 use style_loss::{
     ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection, StyleLoss,
     StyleObjective, Vgg19Features, Vgg19Widths,
 };
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
-use crate::loss_plot::write_plot;
 use crate::outputs::{write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use crate::picture::load_picture;
+use crate::plot::write_loss_plot;
+use crate::progress::Progress;
+use crate::weights::{resolve_weights, WeightFiles};
+use crate::writable::check_output_folder;
 use crate::{StyleSettings, StylizeError};
 
 /// The patch stream is seeded with `seed + PATCH_SEED_OFFSET`, so that it is not the same
@@ -38,7 +42,7 @@ pub struct RunOptions {
     /// Continue from the checkpoint in `<out>/checkpoint/` (the configuration must be the
     /// saved one except for [`checkpoint::RESUMABLE_CHANGES`]).
     pub resume: bool,
-    /// Draw a progress bar on the terminal.
+    /// Show the progress on stderr ([`Progress`]: a bar on a terminal, else plain lines).
     pub progress: bool,
     /// Set (e.g. by a Ctrl-C handler) to stop after the current step: the run then writes a
     /// checkpoint and returns [`StylizeError::Interrupted`].
@@ -82,27 +86,122 @@ pub fn open_device(choice: DeviceChoice) -> Result<Backend, StylizeError> {
     Ok(backend)
 }
 
-/// Stylizes `job.model` on `backend` ([`open_device`]) with `settings` (see the module
-/// documentation), writing to `out`:
-/// `config.json` (`config`, the modality's whole resolved configuration, whose `settings` these
-/// are), checkpoints, `losses.json` and `losses.png`. Bad inputs are reported before anything
-/// is written; a fresh run refuses an output folder that holds a checkpoint, a resumed one a
-/// checkpoint of another configuration ([`checkpoint::changed_fields`]) or model. When
-/// [`RunOptions::stop`] is set, the run ends after the current step with a checkpoint of it and
-/// [`StylizeError::Interrupted`].
-pub fn stylize<M, C>(
+/// A stylization run whose inputs are all checked ([`prepare`]), on an opened device.
+#[derive(Debug)]
+pub struct PreparedRun {
+    settings: StyleSettings,
+    out: PathBuf,
+    options: RunOptions,
+    backend: Backend,
+    weights: WeightFiles,
+}
+
+/// Checks everything a stylization with `settings` into `out` needs before any long work: the
+/// settings, the output folder ([`check_out_folder`]), the model files ([`resolve_weights`]),
+/// the style image, the CLIP configuration, and the device, which it opens and names in one
+/// line (`device: ...`). Every problem found is reported at once
+/// ([`StylizeError::Several`] when there are more than one).
+pub fn prepare(
     settings: &StyleSettings,
+    out: &Path,
+    options: RunOptions,
+) -> Result<PreparedRun, StylizeError> {
+    let mut problems = Vec::new();
+    let mut check = |result: Result<(), StylizeError>| {
+        if let Err(e) = result {
+            problems.push(e);
+        }
+    };
+    check(settings.validate());
+    check(check_out_folder(out, options.resume, settings.steps));
+    check(check_style_image_and_clip_config(settings));
+    let weights = resolve_weights(settings)
+        .map_err(|e| problems.push(e.into()))
+        .ok();
+    let backend = settings
+        .device
+        .open()
+        .map_err(|e| problems.push(e.into()))
+        .ok();
+    match (weights, backend) {
+        (Some(weights), Some(backend)) if problems.is_empty() => {
+            println!("device: {}", backend.describe());
+            Ok(PreparedRun {
+                settings: settings.clone(),
+                out: out.to_path_buf(),
+                options,
+                backend,
+                weights,
+            })
+        }
+        _ if problems.len() == 1 => Err(problems.remove(0)),
+        _ => Err(StylizeError::Several(problems)),
+    }
+}
+
+impl PreparedRun {
+    /// The device the run trains on (a modality fits and renders there too).
+    pub fn backend(&self) -> &Backend {
+        &self.backend
+    }
+
+    /// The output folder.
+    pub fn out(&self) -> &Path {
+        &self.out
+    }
+
+    /// How to run.
+    pub fn options(&self) -> &RunOptions {
+        &self.options
+    }
+
+    /// The settings.
+    pub fn settings(&self) -> &StyleSettings {
+        &self.settings
+    }
+
+    /// Stylizes `job.model` on this run's device with its settings (see the module
+    /// documentation), writing to its output folder:
+    /// `config.json` (`config`, the modality's whole resolved configuration, whose `settings` these
+    /// are), checkpoints, `losses.json` and `losses.png`. Bad inputs are reported before anything
+    /// is written; a fresh run refuses an output folder that holds the checkpoint of an unfinished
+    /// run ([`check_out_folder`]), a resumed one a checkpoint of another configuration
+    /// ([`checkpoint::changed_fields`]) or model. When [`RunOptions::stop`] is set, the run ends
+    /// after the current step with a checkpoint of it and [`StylizeError::Interrupted`]. A run that
+    /// takes all its steps saves a checkpoint of the last one (unless `checkpoint_every` is 0 and
+    /// there is no checkpoint of an earlier stop); the modality marks it finished
+    /// ([`checkpoint::mark_finished`]) once its own outputs are written.
+    pub fn stylize<M, C>(
+        &self,
+        config: &C,
+        job: StylizeJob<M>,
+    ) -> Result<StylizeOutcome<M>, StylizeError>
+    where
+        M: BaseModel,
+        C: Serialize,
+    {
+        run_stylization(self, config, job)
+    }
+}
+
+/// The body of [`PreparedRun::stylize`].
+fn run_stylization<M, C>(
+    run: &PreparedRun,
     config: &C,
     job: StylizeJob<M>,
-    out: &Path,
-    options: &RunOptions,
-    backend: &Backend,
 ) -> Result<StylizeOutcome<M>, StylizeError>
 where
-    M: TrainableModel,
+    M: BaseModel,
     C: Serialize,
 {
-    settings.validate()?;
+    let PreparedRun {
+        settings,
+        out,
+        options,
+        backend,
+        weights,
+    } = run;
+    let out = out.as_path();
     check_job(settings, &job)?;
     let StylizeJob {
         mut model,
@@ -114,7 +213,7 @@ where
         ..
     } = job;
     let device = Device::Cpu;
-    let (loss, masks) = build_loss(settings, masks, background, &device)?;
+    let (loss, masks) = build_loss(settings, weights, masks, background, &device)?;
     let mut objective = StyleObjective::new(
         loss,
         &images,
@@ -139,7 +238,6 @@ where
         restore_params(&mut model, &saved.params).map_err(bad_checkpoint)?;
         Some(saved)
     } else {
-        check_out_folder(out, false)?;
         None
     };
     let names = model.group_names();
@@ -164,6 +262,9 @@ where
         losses = saved.losses;
     }
 
+    if !options.resume {
+        checkpoint::discard_finished(out)?;
+    }
     std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
         path: out.to_path_buf(),
         source,
@@ -174,13 +275,33 @@ where
         background,
     };
     let mut sampler = resumed_sampler(views.len(), settings.seed, trainer.step_count());
-    let bar = progress_bar(
+    let progress = Progress::new(
         options.progress,
         "stylize",
         settings.steps,
         trainer.step_count(),
     );
     let every = settings.checkpoint_every;
+    let mut saved_at = trainer.step_count();
+    let save = |trainer: &mut Trainer<M>, objective: &StyleObjective, losses: &[StepLosses]| {
+        let params = names
+            .iter()
+            .cloned()
+            .zip(trainer.param_groups())
+            .map(|(name, values)| ParamGroup { name, values })
+            .collect();
+        checkpoint::save(
+            out,
+            &Checkpoint {
+                step: trainer.step_count(),
+                params,
+                adam_state: trainer.save_optimizer(),
+                rng: objective.rng().clone(),
+                config: config_json.clone(),
+                losses: losses.to_vec(),
+            },
+        )
+    };
     while trainer.step_count() < settings.steps {
         trainer.train(
             &views,
@@ -189,8 +310,7 @@ where
             &train_config,
             |report| {
                 let step = StepLosses::from_report(report);
-                bar.set_position(report.step);
-                bar.set_message(describe(&step));
+                progress.update(report.step, &describe(&step));
                 losses.push(step);
                 if report.step.checked_rem(every) == Some(0) || options.stop.load(Ordering::SeqCst)
                 {
@@ -202,37 +322,27 @@ where
         )?;
         let stopped = options.stop.load(Ordering::SeqCst) && trainer.step_count() < settings.steps;
         if stopped || trainer.step_count().checked_rem(every) == Some(0) {
-            let params = names
-                .iter()
-                .cloned()
-                .zip(trainer.param_groups())
-                .map(|(name, values)| ParamGroup { name, values })
-                .collect();
-            checkpoint::save(
-                out,
-                &Checkpoint {
-                    step: trainer.step_count(),
-                    params,
-                    adam_state: trainer.save_optimizer(),
-                    rng: objective.rng().clone(),
-                    config: config_json.clone(),
-                    losses: losses.clone(),
-                },
-            )?;
+            save(&mut trainer, &objective, &losses)?;
+            saved_at = trainer.step_count();
         }
         if stopped {
-            bar.abandon();
+            progress.finish();
             return Err(StylizeError::Interrupted {
                 step: trainer.step_count(),
                 out: out.to_path_buf(),
             });
         }
     }
-    bar.finish();
+    progress.finish();
+    // The last step's checkpoint, which the modality marks finished; also when checkpoints are
+    // off but this run resumed from one (a Ctrl-C), so that one does not stay behind.
+    let has_checkpoint = every > 0 || checkpoint::checkpoint_dir(out).exists();
+    if has_checkpoint && saved_at != trainer.step_count() {
+        save(&mut trainer, &objective, &losses)?;
+    }
 
     write_json(&out.join(LOSSES_JSON), &losses)?;
-    let totals: Vec<f32> = losses.iter().map(|l| l.total).collect();
-    write_plot(&out.join(LOSSES_PNG), &totals)?;
+    write_loss_plot(&out.join(LOSSES_PNG), &losses)?;
     Ok(StylizeOutcome {
         model: trainer.into_model(),
         losses,
@@ -300,55 +410,43 @@ fn describe(step: &StepLosses) -> String {
     format!("loss {:.4} ({})", step.total, terms.join(", "))
 }
 
-/// A progress bar over `steps` steps with `done` already taken, elapsed time, ETA and a
-/// message (hidden when `show` is false); `label` (e.g. "fit") is shown before the bar.
-pub fn progress_bar(show: bool, label: &str, steps: u64, done: u64) -> ProgressBar {
-    if !show {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::new(steps);
-    bar.set_style(
-        ProgressStyle::with_template(
-            "{prefix}{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
-        )
-        .expect("a valid template"),
-    );
-    if !label.is_empty() {
-        bar.set_prefix(format!("{label} "));
-    }
-    bar.set_position(done);
-    bar.reset_eta();
-    bar
-}
-
 /// One background mask per view, `[h * w]` each, 1 = background.
 type ViewMasks = Vec<Vec<f32>>;
 
-/// Checks the output folder for a run: a fresh run (`resume == false`) refuses a folder that
-/// holds a checkpoint, a resumed one needs it. A checkpoint that an interrupted save left
-/// parked is put back first. A modality calls it before any long preparation (a fit).
-pub fn check_out_folder(out: &Path, resume: bool) -> Result<(), StylizeError> {
+/// Checks the output folder of a run before any work: it can be written
+/// ([`check_output_folder`]); a fresh run (`resume == false`) refuses a folder that holds the
+/// checkpoint of an unfinished run (a finished run's is replaced); a resumed one needs a
+/// checkpoint, and one of a finished run continues only with more `steps` than it took. A
+/// checkpoint that an interrupted save left parked is put back first. A modality calls it
+/// before any long preparation (loading a scene, a fit); [`stylize`] calls it again.
+pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), StylizeError> {
+    check_output_folder(out)?;
     checkpoint::recover_interrupted_save(out)?;
     let dir = checkpoint::checkpoint_dir(out);
-    match (resume, dir.exists()) {
-        (false, true) => Err(StylizeError::Input(format!(
-            "{} holds a checkpoint of an earlier run: pass --resume to continue it, or choose \
-             another output folder",
+    match (resume, dir.exists(), checkpoint::finished_step(out)) {
+        (false, true, None) => Err(StylizeError::Input(format!(
+            "{} holds the checkpoint of an unfinished run: pass --resume to continue it, or \
+             choose another output folder",
             out.display()
         ))),
-        (true, false) => Err(StylizeError::Checkpoint {
+        (true, false, _) => Err(StylizeError::Checkpoint {
             path: dir,
             message: "there is no checkpoint to resume from: run without --resume".into(),
+        }),
+        (true, true, Some(done)) if steps <= done => Err(StylizeError::Checkpoint {
+            path: dir,
+            message: format!(
+                "the run finished all its {done} steps and wrote its outputs, so there is \
+                 nothing to resume: raise --steps above {done} to continue it, or run without \
+                 --resume to start again"
+            ),
         }),
         _ => Ok(()),
     }
 }
 
-/// Checks the style inputs of `settings` that [`stylize`] would otherwise open only after a
-/// modality's preparation: the model files exist ([`resolve_weights`]), the style image
-/// decodes, the CLIP configuration parses.
-pub fn check_style_inputs(settings: &StyleSettings) -> Result<(), StylizeError> {
-    resolve_weights(settings)?;
+/// Checks that the style image of `settings` decodes and that its CLIP configuration parses.
+fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), StylizeError> {
     if let Some(path) = &settings.style_image {
         load_picture(path, [0.0; 3], &Device::Cpu)
             .map_err(|e| StylizeError::Input(format!("style image: {e}")))?;
@@ -359,58 +457,11 @@ pub fn check_style_inputs(settings: &StyleSettings) -> Result<(), StylizeError> 
     Ok(())
 }
 
-/// The model files a run reads, found by [`resolve_weights`].
-#[derive(Clone, Debug, PartialEq)]
-pub struct WeightFiles {
-    /// CLIP weights (safetensors).
-    pub clip: PathBuf,
-    /// CLIP's `tokenizer.json`.
-    pub tokenizer: PathBuf,
-    /// VGG-19 weights, when the content loss is on.
-    pub vgg: Option<PathBuf>,
-}
-
-/// Finds the CLIP, tokenizer and (when `lambda_content > 0`) VGG-19 files of `settings`:
-/// the explicit path, then the environment variable, then the Hugging Face cache, then a
-/// download when the `download` feature of style-loss is on. A modality calls it before any
-/// long preparation (a fit), so a missing file is reported at once, naming where to put it.
-///
-/// Every file is looked for before an error is returned, so the error lists all the missing
-/// ones at once.
-pub fn resolve_weights(settings: &StyleSettings) -> Result<WeightFiles, StylizeError> {
-    let clip = CLIP_VIT_B_32_WEIGHTS.resolve(settings.clip_weights.as_deref());
-    let tokenizer = CLIP_TOKENIZER.resolve(settings.tokenizer.as_deref());
-    let vgg = if settings.lambda_content > 0.0 {
-        Some(VGG19_WEIGHTS.resolve(settings.vgg_weights.as_deref()))
-    } else {
-        None
-    }
-    .transpose();
-    match (clip, tokenizer, vgg) {
-        (Ok(clip), Ok(tokenizer), Ok(vgg)) => Ok(WeightFiles {
-            clip,
-            tokenizer,
-            vgg,
-        }),
-        (clip, tokenizer, vgg) => {
-            let missing: Vec<String> = [clip.err(), tokenizer.err(), vgg.err()]
-                .into_iter()
-                .flatten()
-                .map(|e| e.to_string())
-                .collect();
-            Err(StylizeError::Input(format!(
-                "{} model file(s) missing:\n- {}",
-                missing.len(),
-                missing.join("\n- ")
-            )))
-        }
-    }
-}
-
 /// The style loss of `settings` (the style image over `background`) and the masks it uses:
 /// `masks` when the background weight is positive, else none.
 fn build_loss(
     settings: &StyleSettings,
+    files: &WeightFiles,
     masks: Option<ViewMasks>,
     background: [f32; 3],
     device: &Device,
@@ -426,7 +477,6 @@ fn build_loss(
         Some(path) => ClipConfig::from_json_file(path)?,
         None => ClipConfig::vit_b_32(),
     };
-    let files = resolve_weights(settings)?;
     let tokenizer = ClipTokenizer::from_file(&files.tokenizer)?;
     let mut clip = ClipModel::load(&clip_config, &files.clip, device)?;
     let direction = match (&style_image, &settings.style_prompt) {
@@ -471,4 +521,57 @@ fn build_loss(
         StyleLoss::new(clip, vgg, direction, weights, patches)?,
         masks,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn prepare_reports_every_problem_at_once() {
+        let dir = tempfile::tempdir().unwrap();
+        let out_file = dir.path().join("taken");
+        std::fs::write(&out_file, b"a file").unwrap();
+        let broken_style = dir.path().join("style.png");
+        std::fs::write(&broken_style, b"not a png").unwrap();
+        let mut settings = StyleSettings::paper_3d();
+        settings.style_prompt = None;
+        settings.style_image = Some(broken_style);
+        settings.clip_weights = Some(dir.path().join("missing-clip.safetensors"));
+        settings.tokenizer = Some(dir.path().join("missing-tokenizer.json"));
+        settings.vgg_weights = Some(dir.path().join("missing-vgg.safetensors"));
+        settings.device = DeviceChoice::Cpu;
+        let err = prepare(&settings, &out_file, RunOptions::default()).unwrap_err();
+        let StylizeError::Several(problems) = &err else {
+            panic!("expected several problems, got {err}");
+        };
+        let text = err.to_string();
+        assert_eq!(problems.len(), 3, "{text}");
+        for part in ["taken", "style image", "missing-clip", "missing-vgg"] {
+            assert!(text.contains(part), "{part} in {text}");
+        }
+    }
+
+    #[test]
+    fn prepare_opens_the_device_when_all_is_well() {
+        let dir = tempfile::tempdir().unwrap();
+        let clip = dir.path().join("clip.safetensors");
+        let tokenizer = dir.path().join("tokenizer.json");
+        let vgg = dir.path().join("vgg.safetensors");
+        for f in [&clip, &tokenizer, &vgg] {
+            std::fs::write(f, b"").unwrap();
+        }
+        let mut settings = StyleSettings::paper_3d();
+        settings.clip_weights = Some(clip.clone());
+        settings.tokenizer = Some(tokenizer);
+        settings.vgg_weights = Some(vgg);
+        settings.style_prompt = Some("fire".into());
+        settings.device = DeviceChoice::Cpu;
+        let out = dir.path().join("out");
+        let run = prepare(&settings, &out, RunOptions::default()).unwrap();
+        assert_eq!(run.out(), out);
+        assert!(matches!(run.backend(), Backend::Cpu));
+        assert_eq!(run.weights.clip, clip);
+        assert!(!out.exists(), "nothing is written before the run");
+    }
 }

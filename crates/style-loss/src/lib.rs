@@ -24,6 +24,7 @@ pub mod resize;
 pub mod style_direction;
 pub mod templates;
 pub mod tensor_file;
+pub mod terms;
 #[cfg(feature = "test-models")]
 pub mod test_models;
 pub mod tokenizer;
@@ -31,6 +32,9 @@ pub mod torch_ties;
 pub mod vgg;
 pub mod weight_resolution;
 
+/// The candle this crate is built on: images and gradients cross as its tensors, so callers
+/// use this one rather than pinning their own.
+pub use candle_core;
 pub use clip::{ClipConfig, ClipModel};
 pub use error::{Result, StyleLossError};
 pub use losses::{

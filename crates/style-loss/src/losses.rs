@@ -7,9 +7,9 @@ use rand::Rng;
 
 use crate::clip::ClipModel;
 use crate::error::{Result, StyleLossError};
-use crate::patches::{warped_patches, PatchAugmentation, PatchSettings};
+use crate::patches::{PatchAugmentation, PatchSettings};
 use crate::style_direction::StyleDirection;
-use crate::torch_ties;
+use crate::terms;
 use crate::vgg::{Vgg19Features, VggFeatures};
 
 /// The weights `lambda` of the four terms. A zero weight skips all work for its term.
@@ -113,11 +113,6 @@ fn as_batch_of_one(image: &Tensor, name: &str) -> Result<Tensor> {
             reason: format!("shape {dims:?}, expected [3, h, w] or [1, 3, h, w]"),
         }),
     }
-}
-
-/// Mean of squared differences.
-fn mse(a: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
-    (a - b)?.sqr()?.mean_all()
 }
 
 fn scalar(t: &Tensor) -> Result<f64> {
@@ -289,51 +284,44 @@ impl StyleLoss {
             name: "cache".into(),
             reason: format!("the view cache has no {what}; build it with this StyleLoss"),
         };
-        let directional = if w.directional > 0.0 {
-            let gt = cache
+        let gt_embedding = || {
+            cache
                 .clip_embedding
                 .as_ref()
-                .ok_or_else(|| missing("CLIP embedding"))?;
-            let embedding = self.clip.encode_images(image)?;
-            Some(
-                self.direction
-                    .directional_loss(&embedding, gt)?
-                    .mean_all()?,
-            )
+                .ok_or_else(|| missing("CLIP embedding"))
+        };
+        let directional = if w.directional > 0.0 {
+            Some(terms::directional(
+                &self.clip,
+                &self.direction,
+                image,
+                gt_embedding()?,
+            )?)
         } else {
             None
         };
         let patch = if w.patch > 0.0 {
-            let gt = cache
-                .clip_embedding
-                .as_ref()
-                .ok_or_else(|| missing("CLIP embedding"))?;
             if patches.is_empty() {
                 return Err(StyleLossError::Input {
                     name: "patches".into(),
                     reason: "the patch weight is positive but no patch was given".into(),
                 });
             }
-            let crops = warped_patches(
+            Some(terms::patch(
+                &self.clip,
+                &self.direction,
                 image,
+                gt_embedding()?,
                 patches,
                 self.patches.patch_size,
-                self.clip.image_size(),
-            )?;
-            let embeddings = self.clip.encode_images(&crops)?;
-            Some(
-                self.direction
-                    .directional_loss(&embeddings, gt)?
-                    .mean_all()?,
-            )
+            )?)
         } else {
             None
         };
         let content = match (w.content > 0.0, &self.vgg) {
             (true, Some(vgg)) => {
                 let gt = cache.vgg.as_ref().ok_or_else(|| missing("VGG features"))?;
-                let f = vgg.forward(image)?;
-                Some((mse(&f.relu4_2, &gt.relu4_2)? + mse(&f.relu5_2, &gt.relu5_2)?)?)
+                Some(terms::content(vgg, image, gt)?)
             }
             _ => None,
         };
@@ -343,9 +331,12 @@ impl StyleLoss {
                 .as_ref()
                 .ok_or_else(|| missing("background mask"))?;
             if target.count > 0.0 {
-                let per_pixel = torch_ties::abs(&(image - &target.gt)?)?.mean_keepdim(1)?;
-                let sum = (per_pixel * &target.mask)?.sum_all()?;
-                Some((sum / target.count)?)
+                Some(terms::background(
+                    image,
+                    &target.gt,
+                    &target.mask,
+                    target.count,
+                )?)
             } else {
                 None
             }

@@ -259,3 +259,31 @@ fn render_equal_to_gt_stays_finite() {
     assert_eq!(out.terms.content, 0.0);
     assert!(common::values(&out.grad).iter().all(|v| v.is_finite()));
 }
+
+// The closures return the crate's error, which is as large as its weight-lookup report.
+#[allow(clippy::result_large_err)]
+#[test]
+fn one_term_alone_matches_without_a_style_loss() {
+    let s = setup();
+    let gt = &s.tensors["gt"];
+    let gt_features = s.vgg.forward(gt).unwrap().detach();
+    let (value, grad) = style_loss::terms::value_and_grad(&s.tensors["render"], |x| {
+        style_loss::terms::content(&s.vgg, x, &gt_features)
+    })
+    .unwrap();
+    let reference = s.json["values"]["content"].as_f64().unwrap();
+    assert!(
+        (value - reference).abs() <= 1e-4 * reference,
+        "{value} vs {reference}"
+    );
+    let err = relative_error(&grad, &s.tensors["grad.content"]);
+    assert!(err < 1e-3, "content gradient relative error {err}");
+    let mask = white_mask(&s).unsqueeze(0).unwrap().unsqueeze(0).unwrap();
+    let count = common::values(&mask.sum_all().unwrap())[0];
+    let (_, grad) = style_loss::terms::value_and_grad(&s.tensors["render"], |x| {
+        style_loss::terms::background(x, gt, &mask, count)
+    })
+    .unwrap();
+    let err = relative_error(&grad, &s.tensors["grad.background"]);
+    assert!(err < 1e-3, "background gradient relative error {err}");
+}

@@ -18,9 +18,9 @@ use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
 use gs_core::ply::read_ply;
-use gs_stylize::cli::{path_value, InterpolateArgs, StyleArgs};
-use gs_stylize::interrupt::INTERRUPTED_EXIT;
+use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
 use gs_stylize::open_device;
+use gs_stylize::writable::{check_output_file, check_output_folder};
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -40,12 +40,15 @@ struct Cli {
 enum Command {
     /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
     ///
-    /// Writes the stylized PLY, before/after pictures, the losses and the resolved
-    /// configuration to `--out`. The configuration
-    /// comes from `--config` (the paper's defaults when absent), then the flags, then every
-    /// `--set field=value` in order. Ctrl-C stops after the current step and writes a
-    /// checkpoint (a second Ctrl-C quits at once); run the same command with `--resume` to
-    /// continue.
+    /// Writes to `--out`: stylized.ply (the stylized scene, in the input's PLY format with its
+    /// extra properties), preview_view000.png (before | after, one per `preview_views` entry),
+    /// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The
+    /// configuration comes from `--config` (the paper's defaults when absent), then the flags,
+    /// then every `--set field=value` in order. The output folder is checked before the scene
+    /// is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
+    /// quits at once); run the same command with `--resume` to continue. A finished run's
+    /// checkpoint does not hold the folder: the same command runs again, and `--resume`
+    /// continues only with more `--steps`.
     Stylize(StylizeArgs),
     /// Render a PLY from the cameras of a dataset or from one camera file.
     ///
@@ -77,10 +80,11 @@ struct StylizeArgs {
     /// The dataset folder (NeRF-synthetic or COLMAP).
     #[arg(long)]
     data: Option<PathBuf>,
-    /// The output folder.
+    /// The output folder (created when absent).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Resolution divisor of the dataset images.
+    /// Resolution divisor of the dataset images (3DGS's -r; default 1, the images as they
+    /// are, or the configuration's `resolution`).
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
     /// The style, model files, device and run controls.
@@ -158,7 +162,8 @@ struct RenderArgs {
     /// "world_to_camera": [[1,0,0,0],[0,1,0,0],[0,0,1,4],[0,0,0,1]]}`
     #[arg(long)]
     camera: Option<PathBuf>,
-    /// The output folder (created when absent; pictures of the same names are replaced).
+    /// The output folder (created when absent; pictures of the same names are replaced;
+    /// checked before any work).
     #[arg(long)]
     out: PathBuf,
     /// The background colour (white by default, as `stylize` renders).
@@ -194,19 +199,20 @@ struct EvalArgs {
     /// CLIP config.json (default: ViT-L/14, the paper's evaluation model).
     #[arg(long)]
     clip_config: Option<PathBuf>,
-    /// CLIP weights, safetensors (default: ViT-L/14 from $CLIPGAUSSIAN_CLIP_L14_WEIGHTS, the
-    /// Hugging Face cache, or a download when built with it).
+    /// CLIP weights, safetensors (default: ViT-L/14 from $CLIPGAUSSIAN_CLIP_L14_WEIGHTS, else
+    /// the Hugging Face cache, else downloaded from the Hugging Face Hub into that cache on
+    /// first use).
     #[arg(long)]
     clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, the Hugging Face cache, or a
-    /// download when built with it).
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face
+    /// cache, else downloaded on first use).
     #[arg(long)]
     tokenizer: Option<PathBuf>,
     /// The colour behind transparent pixels of the pictures (white by default, the background
     /// `stylize` renders over).
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
-    /// Where to write the scores as JSON.
+    /// Where to write the scores as JSON (its folder must exist; checked before any work).
     #[arg(long, default_value = "metrics.json")]
     out: PathBuf,
 }
@@ -227,6 +233,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
     let ply = read_ply(&args.ply)?;
     let cameras = match (&args.data, &args.camera) {
         (Some(data), _) => {
@@ -262,6 +269,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+    check_output_file(&args.out)?;
     let style = match (&args.style_prompt, &args.style_image) {
         (_, Some(image)) => Style::Image(image.clone()),
         (Some(prompt), None) => Style::Prompt(prompt.clone()),
@@ -299,19 +307,5 @@ fn main() -> ExitCode {
         Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
         Command::Eval(args) => eval(args),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            let interrupted = matches!(
-                e.downcast_ref::<StylizeError>(),
-                Some(StylizeError::Interrupted { .. })
-            );
-            if interrupted {
-                ExitCode::from(INTERRUPTED_EXIT)
-            } else {
-                ExitCode::FAILURE
-            }
-        }
-    }
+    exit_code(result, |_| false)
 }

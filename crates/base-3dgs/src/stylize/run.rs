@@ -1,14 +1,15 @@
-//! One 3D stylization run: load the PLY and the dataset and check the preview views, stylize
-//! with [`gs_stylize::stylize`] (which checks the rest before creating the output folder), then
-//! write the stylized PLY, in the input's format and with its extra properties, and the
-//! before/after previews.
+//! One 3D stylization run: check the output folder, load the PLY and the dataset and check the
+//! preview views, stylize with [`gs_stylize::stylize`] (which checks the rest before creating
+//! the output folder), then write the stylized PLY, in the input's format and with its extra
+//! properties, and the before/after previews, and mark the run's checkpoint finished.
 
 use std::path::PathBuf;
 
 use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
 use gs_core::GaussianSet;
+use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::outputs::{write_previews, StepLosses};
-use gs_stylize::{open_device, stylize, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
+use gs_stylize::{prepare, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
 
 use super::StylizeConfig;
 use crate::dataset::nerf_synthetic::{self, Split};
@@ -29,12 +30,14 @@ pub struct RunSummary {
 }
 
 /// Runs the stylization `config` describes (see the module documentation). Bad inputs are
-/// reported before anything is written; a fresh run refuses an output folder that holds a
-/// checkpoint. When [`RunOptions::stop`] is set, the run ends after the current step with a
+/// reported before anything is written, an output folder that cannot be written before the
+/// scene is loaded; a fresh run refuses an output folder that holds the checkpoint of an
+/// unfinished run ([`check_out_folder`]). When [`RunOptions::stop`] is set, the run ends after the current step with a
 /// checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
     config.validate()?;
-    let backend = open_device(config.style.device)?;
+    let prepared = prepare(&config.style, config.out_path(), options.clone())?;
+    let backend = prepared.backend();
     let (ply, format) = read_ply_with_format(config.ply_path()).map_err(ply_error)?;
     let dataset = load_dataset(config)?;
     let count = dataset.views.len();
@@ -62,24 +65,26 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         background: dataset.background,
     };
     let out = config.out_path();
-    let StylizeOutcome { model, losses } =
-        stylize(&config.style, config, job, out, options, &backend)?;
+    let StylizeOutcome { model, losses } = prepared.stylize(config, job)?;
 
     let stylized_ply = out.join(STYLIZED_PLY);
-    let stylized = PlyGaussians {
+    let mut stylized = PlyGaussians {
         gaussians: model,
         extras: ply.extras,
+        comments: ply.comments,
     };
     write_ply(&stylized_ply, &stylized, format).map_err(ply_error)?;
+    let mut base = ply.gaussians;
     write_previews(
         out,
-        &ply.gaussians,
-        &stylized.gaussians,
+        &mut base,
+        &mut stylized.gaussians,
         &dataset.views,
         &config.preview_views,
         dataset.background,
-        &backend,
+        backend,
     )?;
+    mark_finished(out, config.style.steps)?;
     Ok(RunSummary {
         gaussians: stylized.gaussians,
         losses,

@@ -12,19 +12,21 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use base_mirage::fit::{render_picture, FitSettings};
+use base_mirage::background::parse_background;
+use base_mirage::fit::{render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG};
 use base_mirage::mirror::DEFAULT_DISTANCE;
+use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{
-    fit_with_progress, load_model, run, write_model, MirageError, MirageStylizeConfig,
-    SIDE_BY_SIDE_PNG, STYLIZED_PNG,
+    fit_with_progress, run, MirageError, MirageStylizeConfig, SIDE_BY_SIDE_PNG, STYLIZED_PNG,
 };
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::Image;
-use gs_stylize::cli::{path_value, InterpolateArgs, StyleArgs};
-use gs_stylize::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
+use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
 /// Command-line arguments.
@@ -48,17 +50,22 @@ enum Command {
     ///
     /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
     /// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
-    /// picture), side_by_side.png, model.ply (the stylized model), base.ply (the fit),
-    /// losses.json, losses.png and config.json. The configuration comes from --config (the
-    /// paper's defaults when absent), then the flags, then every --set field=value in order.
-    /// Every input is checked before the fit starts. Ctrl-C stops after the current step and
-    /// writes a checkpoint (a second Ctrl-C quits at once); run the same command with --resume
-    /// to continue.
+    /// picture), side_by_side.png (original | stylized), model.ply (the stylized model),
+    /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
+    /// original.png (the embedded default picture,
+    /// when no --picture is given), losses.json, losses.png, config.json and checkpoint/. The
+    /// configuration comes from --config (the paper's defaults when absent), then the flags,
+    /// then every --set field=value in order. Every input is checked before the fit starts; a
+    /// --model fitted to a picture of another aspect ratio is refused. Ctrl-C stops after the
+    /// current step and writes a checkpoint (a second Ctrl-C quits at once); run the same
+    /// command with --resume to continue. A finished run's checkpoint does not hold the
+    /// folder: the same command runs again, and --resume continues only with more --steps.
     Stylize(Box<StylizeArgs>),
     /// Fit a picture with flat Gaussians (no stylization).
     ///
-    /// Writes to --out: model.ply (MiraGe PLY), fitted.png (the front camera's render, the size
-    /// of the picture) and side_by_side.png (picture | fit), and prints the PSNR.
+    /// Writes to --out: model.ply (MiraGe PLY, recording the picture's size), fitted.png (the
+    /// front camera's render, the size of the picture), side_by_side.png (picture | fit) and
+    /// fit_psnr.png (the PSNR of each step, front and mirror camera), and prints the PSNR.
     Fit(FitArgs),
     /// Render a model from the front camera (or the mirror camera) to a PNG.
     Render(RenderArgs),
@@ -67,28 +74,6 @@ enum Command {
     /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
     /// normalized), e.g. between two stylizations of one fit.
     Interpolate(InterpolateArgs),
-}
-
-/// A background colour: `white`, `black` or `R,G,B` with channels in [0, 1].
-fn parse_background(text: &str) -> Result<[f32; 3], String> {
-    match text {
-        "white" => return Ok([1.0; 3]),
-        "black" => return Ok([0.0; 3]),
-        _ => {}
-    }
-    let parts: Vec<&str> = text.split(',').collect();
-    let bad = || format!("{text:?} is not white, black or R,G,B with channels in [0, 1]");
-    if parts.len() != 3 {
-        return Err(bad());
-    }
-    let mut rgb = [0.0f32; 3];
-    for (c, p) in rgb.iter_mut().zip(parts) {
-        *c = p.trim().parse().map_err(|_| bad())?;
-        if !(0.0..=1.0).contains(c) {
-            return Err(bad());
-        }
-    }
-    Ok(rgb)
 }
 
 /// Arguments of `stylize`.
@@ -103,7 +88,7 @@ struct StylizeArgs {
     /// A model of the picture fitted earlier (MiraGe PLY from `fit`); default: fit first.
     #[arg(long)]
     model: Option<PathBuf>,
-    /// The output folder.
+    /// The output folder (created when absent).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Gaussians of the fit.
@@ -198,7 +183,7 @@ struct RenderArgs {
     /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
-    /// The output PNG.
+    /// The output PNG (its folder must exist; a file of that name is replaced).
     #[arg(long)]
     out: PathBuf,
 }
@@ -222,6 +207,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
     let picture = load_picture(&args.picture, args.background)?;
     let settings = FitSettings {
         gaussians: args.gaussians,
@@ -258,7 +244,8 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Fits `picture` and writes model.ply, fitted.png and side_by_side.png into `out`; returns
+/// Fits `picture` and writes model.ply, fitted.png, fit_psnr.png and side_by_side.png into
+/// `out`; returns
 /// the fit's PSNR (dB) and its time (s).
 fn fit_into_folder(
     picture: &Image,
@@ -268,10 +255,13 @@ fn fit_into_folder(
     out: &Path,
 ) -> Result<(f64, f64), Box<dyn Error>> {
     let start = Instant::now();
-    let model = fit_with_progress(picture, settings, options, backend)?;
+    let Fitted {
+        mut model,
+        psnr: log,
+    } = fit_with_progress(picture, settings, options, backend)?;
     let seconds = start.elapsed().as_secs_f64();
     let fitted = render_picture(
-        &model,
+        &mut model,
         picture.width,
         picture.height,
         settings.distance,
@@ -279,18 +269,25 @@ fn fit_into_folder(
         settings.background,
         backend,
     )?;
-    write_model(&out.join("model.ply"), &model)?;
+    let fitted_to = FittedTo {
+        width: picture.width,
+        height: picture.height,
+        distance: settings.distance,
+    };
+    write_model(&out.join("model.ply"), &model, &fitted_to)?;
     fitted.save_png(&out.join("fitted.png"))?;
+    write_psnr_plot(&out.join(FIT_PSNR_PNG), &log)?;
     Image::side_by_side(&[picture, &fitted]).save_png(&out.join(SIDE_BY_SIDE_PNG))?;
     Ok((psnr(&fitted, picture), seconds))
 }
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
-    let model = load_model(&args.model)?;
+    check_output_file(&args.out)?;
+    let mut model = read_model(&args.model)?.model;
     let backend = open_device(args.device)?;
     let image = render_picture(
-        &model,
+        &mut model,
         args.width,
         args.height,
         args.distance,
@@ -316,20 +313,10 @@ fn main() -> ExitCode {
         Command::Render(args) => render(args),
         Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
     };
-    match result {
-        Ok(()) => ExitCode::SUCCESS,
-        Err(e) => {
-            eprintln!("error: {e}");
-            let interrupted = matches!(
-                e.downcast_ref::<MirageError>(),
-                Some(MirageError::Stylize(StylizeError::Interrupted { .. }))
-                    | Some(MirageError::InterruptedFit)
-            );
-            if interrupted {
-                ExitCode::from(INTERRUPTED_EXIT)
-            } else {
-                ExitCode::FAILURE
-            }
-        }
-    }
+    exit_code(result, |e| {
+        matches!(
+            e.downcast_ref::<MirageError>(),
+            Some(MirageError::InterruptedFit)
+        )
+    })
 }

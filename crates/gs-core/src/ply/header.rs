@@ -15,6 +15,8 @@ pub(crate) struct Header {
     pub vertices: usize,
     /// Property names and types, in the order of the file.
     pub properties: Vec<(String, ScalarType)>,
+    /// The text of each `comment` line, in file order.
+    pub comments: Vec<String>,
     /// Offset of the first body byte.
     pub body_start: usize,
     /// Number of header lines (for ascii body line numbers).
@@ -30,13 +32,14 @@ fn header_error(line: usize, text: &str, reason: impl Into<String>) -> PlyErrorK
 }
 
 /// Parses the header at the start of `bytes`. Only one element, `vertex`, with scalar
-/// properties is accepted; `comment` and `obj_info` lines are skipped.
+/// properties is accepted; the text of `comment` lines is kept, `obj_info` lines are skipped.
 pub(crate) fn parse(bytes: &[u8]) -> Result<Header, PlyErrorKind> {
     let mut pos = 0;
     let mut line_no = 0;
     let mut format = None;
     let mut vertices = None;
     let mut properties: Vec<(String, ScalarType)> = Vec::new();
+    let mut comments = Vec::new();
     loop {
         let rest = &bytes[pos..bytes.len().min(MAX_HEADER_BYTES)];
         let Some(len) = rest.iter().position(|&b| b == b'\n') else {
@@ -65,7 +68,14 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Header, PlyErrorKind> {
         }
         match words.as_slice() {
             ["end_header"] => break,
-            ["comment", ..] | ["obj_info", ..] => {}
+            ["comment", ..] => {
+                let rest = text
+                    .trim_start()
+                    .strip_prefix("comment")
+                    .unwrap_or_default();
+                comments.push(rest.strip_prefix([' ', '\t']).unwrap_or(rest).to_string());
+            }
+            ["obj_info", ..] => {}
             ["format", name, "1.0"] => {
                 format = Some(match *name {
                     "binary_little_endian" => PlyFormat::BinaryLittleEndian,
@@ -129,21 +139,25 @@ pub(crate) fn parse(bytes: &[u8]) -> Result<Header, PlyErrorKind> {
         format,
         vertices,
         properties,
+        comments,
         body_start: pos,
         lines: line_no,
     })
 }
 
-/// The header text of a file with `vertices` vertices and `properties`, as INRIA 3DGS writes it.
+/// The header text of a file with `vertices` vertices and `properties`, as INRIA 3DGS writes it,
+/// with a `comment` line for each of `comments` (one line each) after the `format` line.
 pub(crate) fn render(
     format: PlyFormat,
     vertices: usize,
     properties: &[(String, ScalarType)],
+    comments: &[String],
 ) -> String {
-    let mut s = format!(
-        "ply\nformat {} 1.0\nelement vertex {vertices}\n",
-        format.name()
-    );
+    let mut s = format!("ply\nformat {} 1.0\n", format.name());
+    for comment in comments {
+        s.push_str(&format!("comment {comment}\n"));
+    }
+    s.push_str(&format!("element vertex {vertices}\n"));
     for (name, ty) in properties {
         s.push_str(&format!("property {ty} {name}\n"));
     }

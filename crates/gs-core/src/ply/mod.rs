@@ -1,6 +1,10 @@
 //! INRIA 3DGS PLY files: read and write Gaussian sets with the properties of
 //! `gaussian_model.py`'s `save_ply`.
 //!
+//! The header's `comment` lines are kept ([`PlyGaussians::comments`]) and written back; a tool
+//! may record there what the Gaussians alone do not say (e.g. the picture a 2D model was fitted
+//! to).
+//!
 //! One `vertex` element with the properties `x y z nx ny nz f_dc_0..2 f_rest_* opacity
 //! scale_0..2 rot_0..3` in any order, each `float` or `double`:
 //! - the SH degree (0 to 3) follows from the number of `f_rest_*` properties (0, 9, 24, 45);
@@ -69,6 +73,8 @@ pub struct PlyGaussians {
     pub gaussians: GaussianSet,
     /// Other vertex properties in file order, normals included.
     pub extras: Vec<ExtraProperty>,
+    /// The text of the header's `comment` lines, in file order (one line each).
+    pub comments: Vec<String>,
 }
 
 impl PlyGaussians {
@@ -77,6 +83,7 @@ impl PlyGaussians {
         Self {
             gaussians,
             extras: Vec::new(),
+            comments: Vec::new(),
         }
     }
 
@@ -242,7 +249,12 @@ fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
         .zip(extras)
         .map(|((name, ty), values)| ExtraProperty { name, ty, values })
         .collect();
-    Ok((PlyGaussians { gaussians, extras }, header.format))
+    let ply = PlyGaussians {
+        gaussians,
+        extras,
+        comments: header.comments,
+    };
+    Ok((ply, header.format))
 }
 
 /// Checks what [`Layout::for_writing`] relies on: array lengths, extra names and lengths.
@@ -271,6 +283,11 @@ fn validate(ply: &PlyGaussians) -> Result<(), PlyErrorKind> {
             return bad(format!("{} values for {n} Gaussians", e.values.len()));
         }
     }
+    if let Some(c) = ply.comments.iter().find(|c| c.contains(['\n', '\r'])) {
+        return Err(PlyErrorKind::InvalidData(format!(
+            "comment {c:?}: a comment must be one line"
+        )));
+    }
     Ok(())
 }
 
@@ -291,7 +308,12 @@ pub fn write_ply(path: &Path, ply: &PlyGaussians, format: PlyFormat) -> Result<(
         PlyFormat::BinaryBigEndian => binary::write_body(ply, &layout, true),
     }
     .map_err(err)?;
-    let head = header::render(format, ply.gaussians.len(), &layout.properties());
+    let head = header::render(
+        format,
+        ply.gaussians.len(),
+        &layout.properties(),
+        &ply.comments,
+    );
     crate::fs::write_atomic_with(path, |w| {
         w.write_all(head.as_bytes())?;
         w.write_all(&body)

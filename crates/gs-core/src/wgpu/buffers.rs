@@ -136,7 +136,8 @@ pub(crate) fn read<T: bytemuck::Pod>(
 }
 
 /// Gaussian parameters resident on the GPU, one buffer per array of [`GaussianSet`] (same
-/// layout), so that Adam can update each group where it lives.
+/// layout), so that Adam can update each group where it lives. A clone shares the buffers.
+#[derive(Clone)]
 pub struct GpuGaussians {
     len: usize,
     sh_degree: usize,
@@ -174,6 +175,12 @@ impl GpuGaussians {
             sh_degree,
             arrays,
         }
+    }
+
+    /// Replaces array `index` ([`PARAM_NAMES`] order) with `buffer` (a model's per-view
+    /// output of that array, same layout).
+    pub fn replace_array(&mut self, index: usize, buffer: wgpu::Buffer) {
+        self.arrays[index] = buffer;
     }
 
     /// Overwrites the parameters with `gaussians` (same count and degree).

@@ -1,7 +1,8 @@
 //! The GPU device: adapter choice, the adapter's limits and features, compiled kernels, and
 //! dispatch grids that respect the per-dimension workgroup limit.
 
-use std::sync::{Arc, Mutex};
+use std::path::Path;
+use std::sync::{Arc, Mutex, Once};
 
 use super::shaders::{Kernel, KernelId, KernelSource, Kernels};
 
@@ -185,6 +186,32 @@ fn rank(kind: wgpu::DeviceType, choice: AdapterChoice) -> Option<u8> {
     }
 }
 
+/// Keeps Mesa's implicit Vulkan layer `VK_LAYER_MESA_device_select` from printing
+/// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` on every run of a
+/// machine without a desktop session (a server, a container, ssh): when the Vulkan instance is
+/// created and its adapters enumerated, the layer calls libwayland-client's
+/// `wl_display_connect` to find the display's GPU, and libwayland prints that line when
+/// `XDG_RUNTIME_DIR` is unset or not a folder. The layer only reorders the adapters, and
+/// [`GpuContext::with_options`] ranks and chooses the adapter itself, so when there is no
+/// runtime folder (hence no Wayland display to ask) and the user has not set it either way,
+/// the layer is turned off for this process with its own switch, `NODEVICE_SELECT=1`.
+///
+/// This runs once, before the first instance of the process is created; the variable is set
+/// only on platforms where Mesa's Vulkan drivers run.
+fn quiet_mesa_device_select() {
+    static ONCE: Once = Once::new();
+    ONCE.call_once(|| {
+        if cfg!(any(target_os = "macos", target_os = "ios", windows)) {
+            return;
+        }
+        let runtime_dir = std::env::var_os("XDG_RUNTIME_DIR")
+            .is_some_and(|dir| !dir.is_empty() && Path::new(&dir).is_dir());
+        if !runtime_dir && std::env::var_os("NODEVICE_SELECT").is_none() {
+            std::env::set_var("NODEVICE_SELECT", "1");
+        }
+    });
+}
+
 impl GpuContext {
     /// Opens the best adapter `choice` allows, with f32 atomics where the adapter has them.
     pub fn new(choice: AdapterChoice) -> Result<Self, GpuError> {
@@ -193,6 +220,7 @@ impl GpuContext {
 
     /// As [`GpuContext::new`] with explicit options.
     pub fn with_options(choice: AdapterChoice, options: GpuOptions) -> Result<Self, GpuError> {
+        quiet_mesa_device_select();
         let instance = wgpu::Instance::new(wgpu::InstanceDescriptor {
             backends: wgpu::Backends::VULKAN | wgpu::Backends::METAL | wgpu::Backends::DX12,
             ..wgpu::InstanceDescriptor::new_without_display_handle()

@@ -8,8 +8,9 @@
 //! - [`render`] and [`backward`]: projection, SH colour, tile binning, a GPU radix sort by
 //!   depth and then by tile, front-to-back compositing, and the exact backward pass.
 //! - [`GpuAdam`]: Adam whose moments stay on the GPU.
-//! - [`GpuParams`] and [`GpuBaseModel`]: a model's parameters on the GPU and the per-view
-//!   construction of its Gaussians there (the identity for a plain [`crate::GaussianSet`]).
+//! - [`GpuParams`], [`GpuStep`], [`GpuScratch`], [`GpuForward`]: a model's parameters on the
+//!   GPU and what its per-view construction there works with ([`crate::model::BaseModel`]'s
+//!   GPU twins; [`host_forward`] and [`host_backward`] are the provided ones).
 //! - [`train`](fn@train): the training loop of [`crate::train`] with all of the above.
 //! - [`training_bytes`]: the GPU memory a training run needs, reported when an allocation fails.
 //! - [`KernelSource`]: WGSL kernels of other crates (a base model's own construction), with
@@ -37,7 +38,8 @@ pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
 pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions};
 pub use forward::{render, GpuRendered};
 pub use memory::training_bytes;
-pub use model::{GpuBaseModel, GpuParams};
+pub(crate) use model::gaussians_for_view;
+pub use model::{host_backward, host_forward, GpuForward, GpuParams, GpuScratch, GpuStep};
 pub use shaders::{Access, KernelSource};
 pub use train::train;
 pub use wgpu::Buffer;

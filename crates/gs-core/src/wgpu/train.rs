@@ -1,5 +1,5 @@
 //! The training loop on the GPU: [`crate::train::train`]'s loop (the same sampler, objective,
-//! reports, callback and checks) over a model built on the GPU ([`GpuBaseModel`]), with the
+//! reports, callback and checks) over a model built on the GPU ([`BaseModel::gpu_forward`]), with the
 //! parameters, gradients and Adam moments staying there. Per step the image is read back,
 //! dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag).
 
@@ -7,31 +7,32 @@ use std::ops::ControlFlow;
 
 use super::adam::GpuAdam;
 use super::backward::backward;
-use super::buffers::{read, storage, GpuGaussians};
+use super::buffers::{read, storage};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
 use super::memory::training_bytes;
-use super::model::{GpuBaseModel, GpuParams};
+use super::model::{GpuForward, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
 use crate::image::Image;
-use crate::model::View;
+use crate::model::{BaseModel, View};
 use crate::raster::{GradMask, OutputGrads};
 use crate::train::{
-    check_groups, run_steps, Objective, StepBackend, StepEnd, StepReport, TrainConfig, TrainError,
-    ViewSampler,
+    check_groups, run_steps, Objective, StepBackend, StepEnd, StepFailure, StepReport, TrainConfig,
+    TrainError, ViewSampler,
 };
 
 /// The wgpu backend of the training loop.
 struct GpuBackend<'a, M> {
     ctx: &'a GpuContext,
-    model: &'a M,
+    model: &'a mut M,
     params: &'a GpuParams,
+    scratch: GpuScratch,
     adam: &'a mut GpuAdam,
     trained: Vec<bool>,
     mask: GradMask,
 }
 
-impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
+impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
     type Error = GpuError;
 
     fn step_count(&self) -> u64 {
@@ -43,31 +44,22 @@ impl<M: GpuBaseModel> StepBackend for GpuBackend<'_, M> {
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, GpuError> {
+    ) -> Result<StepEnd, StepFailure<GpuError>> {
         let ctx = self.ctx;
-        let gaussians = self.model.gpu_gaussians(ctx, self.params, view)?;
+        let mut gpu = GpuStep {
+            ctx,
+            params: self.params,
+            scratch: &mut self.scratch,
+        };
+        let GpuForward { gaussians, tape } = self.model.gpu_forward(&mut gpu, view)?;
         let run_needs = training_bytes(
             self.params.lens(),
             &self.trained,
             gaussians.len(),
             view.camera.pixel_count() as u64,
         );
-        self.take_step(&gaussians, view, background, evaluate)
-            .map_err(|e| e.with_run_needs(run_needs))
-    }
-}
-
-impl<M: GpuBaseModel> GpuBackend<'_, M> {
-    /// [`StepBackend::step`] on the Gaussians the model built for `view`.
-    fn take_step<'g>(
-        &mut self,
-        gaussians: &GpuGaussians,
-        view: &View,
-        background: [f32; 3],
-        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, GpuError> {
-        let ctx = self.ctx;
-        let rendered = render(ctx, gaussians, &view.camera, background)?;
+        let needs = |e: GpuError| StepFailure::Device(e.with_run_needs(run_needs));
+        let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
         let Some(grad) = evaluate(&rendered.image(ctx)) else {
             return Ok(StepEnd::Abandoned);
         };
@@ -76,17 +68,24 @@ impl<M: GpuBaseModel> GpuBackend<'_, M> {
             alpha: None,
             depth: None,
         };
-        let grads = backward(ctx, gaussians, &rendered, &out, self.mask)?;
+        let grads = backward(ctx, &gaussians, &rendered, &out, self.mask).map_err(needs)?;
+        drop(gaussians);
+        let mut gpu = GpuStep {
+            ctx,
+            params: self.params,
+            scratch: &mut self.scratch,
+        };
         let group_grads = self
             .model
-            .gpu_backward(ctx, self.params, view, grads, &self.trained)?;
-        if !all_finite(ctx, &group_grads, self.params.lens())? {
+            .gpu_backward(&mut gpu, view, tape, grads, &self.trained)?;
+        if !all_finite(ctx, &group_grads, self.params.lens()).map_err(needs)? {
             return Ok(StepEnd::NonFiniteGradient);
         }
         let grad_refs: Vec<Option<&wgpu::Buffer>> =
             group_grads.iter().map(Option::as_ref).collect();
         let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
-        self.adam.step(ctx, &params, &grad_refs)?;
+        self.adam.step(ctx, &params, &grad_refs).map_err(needs)?;
+        self.params.mark_changed();
         Ok(StepEnd::Taken)
     }
 }
@@ -122,7 +121,7 @@ fn all_finite(
 #[allow(clippy::too_many_arguments)]
 pub fn train<M, O, F>(
     ctx: &GpuContext,
-    model: &M,
+    model: &mut M,
     params: &GpuParams,
     views: &[View],
     objective: &mut O,
@@ -132,7 +131,7 @@ pub fn train<M, O, F>(
     on_step: F,
 ) -> Result<(), TrainError<O::Error>>
 where
-    M: GpuBaseModel,
+    M: BaseModel,
     O: Objective,
     F: FnMut(&StepReport) -> ControlFlow<()>,
 {
@@ -147,9 +146,10 @@ where
     let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
     let mut backend = GpuBackend {
         ctx,
+        mask: model.grad_mask(&trained),
         model,
         params,
-        mask: model.grad_mask(&trained),
+        scratch: GpuScratch::default(),
         trained,
         adam,
     };

@@ -1,0 +1,302 @@
+//! A modality with no GPU kernels of its own trains on the cpu and on wgpu to the same result,
+//! through the provided host construction of `BaseModel::gpu_forward` / `gpu_backward`; its
+//! tape reaches the backward of the same step, and its failures stop a run as model errors on
+//! both devices. Needs a GPU adapter (lavapipe in CI).
+#![cfg(feature = "wgpu")]
+
+mod common;
+
+use std::borrow::Cow;
+use std::ops::ControlFlow;
+use std::sync::Arc;
+
+use common::random_scene;
+use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
+use gs_core::backend::{Backend, Trainer};
+use gs_core::gaussians::GaussianGrads;
+use gs_core::image_loss::PhotometricObjective;
+use gs_core::model::{add_identity_grads, BaseModel, Forward, GaussianLrs, ModelError, View};
+use gs_core::raster::GradMask;
+use gs_core::train::{Objective, TrainConfig, TrainError, ViewSampler};
+use gs_core::wgpu::{AdapterChoice, GpuContext};
+use gs_core::{Camera, GaussianSet};
+
+/// Plain Gaussians slid along x by `shift * (1 + time)`: one extra parameter group of one
+/// value, reached through a computation that fails for times outside [0, 1].
+#[derive(Clone, Debug, PartialEq)]
+struct SlidingGaussians {
+    set: GaussianSet,
+    shift: Vec<f32>,
+}
+
+/// The slide factor `1 + time`, kept from the forward for the backward.
+struct SlideTape {
+    factor: f32,
+}
+
+impl BaseModel for SlidingGaussians {
+    type Tape = SlideTape;
+
+    fn group_names(&self) -> Vec<String> {
+        let mut names = self.set.group_names();
+        names.push("shift".into());
+        names
+    }
+
+    fn groups_mut(&mut self) -> Vec<&mut [f32]> {
+        let mut groups = self.set.groups_mut();
+        groups.push(&mut self.shift);
+        groups
+    }
+
+    fn group_lens(&self) -> Vec<usize> {
+        let mut lens = self.set.group_lens();
+        lens.push(1);
+        lens
+    }
+
+    fn grad_mask(&self, trained: &[bool]) -> GradMask {
+        let mut mask = self.set.grad_mask(&trained[..6]);
+        mask.means |= trained[6];
+        mask
+    }
+
+    fn forward(&self, view: &View) -> Result<Forward<'_, SlideTape>, ModelError> {
+        if !(0.0..=1.0).contains(&view.time) {
+            return Err(format!("time {} is outside [0, 1]", view.time).into());
+        }
+        let factor = 1.0 + view.time as f32;
+        let mut set = self.set.clone();
+        for m in set.means.chunks_exact_mut(3) {
+            m[0] += self.shift[0] * factor;
+        }
+        Ok(Forward {
+            gaussians: Cow::Owned(set),
+            tape: SlideTape { factor },
+        })
+    }
+
+    fn backward(
+        &self,
+        _view: &View,
+        tape: SlideTape,
+        grads: &GaussianGrads,
+        trained: &[bool],
+        out: &mut [Vec<f32>],
+    ) -> Result<(), ModelError> {
+        add_identity_grads(grads, &trained[..6], &mut out[..6], None);
+        if trained[6] {
+            let dx: f32 = grads.means.chunks_exact(3).map(|g| g[0]).sum();
+            out[6][0] += dx * tape.factor;
+        }
+        Ok(())
+    }
+}
+
+fn views(times: &[f64]) -> Vec<View> {
+    times
+        .iter()
+        .enumerate()
+        .map(|(i, &time)| {
+            let a = i as f64 / times.len() as f64 * std::f64::consts::TAU;
+            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
+            let camera = Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, 32, 32).unwrap();
+            View { camera, time }
+        })
+        .collect()
+}
+
+fn groups() -> Vec<GroupConfig> {
+    let mut groups = GaussianLrs {
+        means: LrSchedule::Constant(0.002),
+        scales: 0.01,
+        rotations: 0.01,
+        opacities: 0.05,
+        feature: 0.05,
+    }
+    .groups();
+    groups.push(GroupConfig::new("shift", LrSchedule::Constant(0.01)));
+    groups
+}
+
+fn gpu_backend() -> Backend {
+    let ctx = GpuContext::new(AdapterChoice::AllowSoftware)
+        .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter and found none: {e}"));
+    Backend::Gpu(Arc::new(ctx))
+}
+
+/// Trains the model for `steps` on `backend` towards renders of the model slid by 0.3.
+fn train_on(
+    backend: &Backend,
+    times: &[f64],
+    steps: u64,
+) -> (
+    SlidingGaussians,
+    Vec<f32>,
+    Result<(), TrainError<<PhotometricObjective as Objective>::Error>>,
+) {
+    let start = SlidingGaussians {
+        set: random_scene(3, 60, 1),
+        shift: vec![0.0],
+    };
+    let views = views(times);
+    let mut target = start.clone();
+    target.shift[0] = 0.3;
+    let targets = views
+        .iter()
+        .map(|v| {
+            let g = target
+                .forward(&View {
+                    time: 0.5,
+                    ..v.clone()
+                })
+                .unwrap();
+            gs_core::raster::render(&g.gaussians, &v.camera, [0.0; 3]).image
+        })
+        .collect();
+    let mut objective = PhotometricObjective {
+        targets,
+        lambda: 0.2,
+    };
+    let mut trainer = Trainer::new(backend, start, groups(), AdamHyper::default()).unwrap();
+    let mut losses = Vec::new();
+    let result = trainer.train(
+        &views,
+        &mut objective,
+        &mut ViewSampler::new(views.len(), 9),
+        &TrainConfig {
+            steps,
+            background: [0.0; 3],
+        },
+        |r| {
+            losses.push(r.value.loss);
+            ControlFlow::Continue(())
+        },
+    );
+    (trainer.into_model(), losses, result)
+}
+
+#[test]
+fn a_model_without_kernels_trains_alike_on_the_cpu_and_on_wgpu() {
+    let times = [0.0, 0.25, 0.5, 0.75, 1.0, 0.5];
+    let (cpu, cpu_losses, cpu_result) = train_on(&Backend::Cpu, &times, 60);
+    let (gpu, gpu_losses, gpu_result) = train_on(&gpu_backend(), &times, 60);
+    cpu_result.unwrap();
+    gpu_result.unwrap();
+    assert_eq!(cpu_losses.len(), 60);
+    assert!(
+        cpu_losses[59] < 0.7 * cpu_losses[0],
+        "the loss falls: {} -> {}",
+        cpu_losses[0],
+        cpu_losses[59]
+    );
+    assert!(
+        cpu.shift[0] > 0.02,
+        "the shift moved towards 0.3: {}",
+        cpu.shift[0]
+    );
+    for (step, (c, g)) in cpu_losses.iter().zip(&gpu_losses).enumerate() {
+        assert!(
+            (c - g).abs() <= 2e-3 * c.abs(),
+            "step {step}: cpu {c} gpu {g}"
+        );
+    }
+    let close = |what: &str, a: &[f32], b: &[f32]| {
+        let worst = a
+            .iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max);
+        assert!(worst < 2e-3, "{what}: cpu and gpu differ by {worst}");
+    };
+    close("shift", &cpu.shift, &gpu.shift);
+    close("means", &cpu.set.means, &gpu.set.means);
+    close("colours", &cpu.set.sh_dc, &gpu.set.sh_dc);
+}
+
+#[test]
+fn a_failing_forward_stops_the_run_as_a_model_error_on_both_devices() {
+    for backend in [Backend::Cpu, gpu_backend()] {
+        let (_, losses, result) = train_on(&backend, &[0.2, 1.5], 4);
+        match result {
+            Err(TrainError::Model { step, source }) => {
+                assert!(source.to_string().contains("1.5"), "{source}");
+                assert_eq!(losses.len() as u64, step - 1, "{}", backend.describe());
+            }
+            other => panic!(
+                "{}: expected a model error, got {other:?}",
+                backend.describe()
+            ),
+        }
+    }
+}
+
+/// Largest absolute difference, relative to the largest magnitude of `want`.
+fn relative_worst(want: &[f32], got: &[f32]) -> f32 {
+    assert_eq!(want.len(), got.len());
+    let max = want.iter().fold(0.0f32, |m, v| m.max(v.abs())).max(1e-30);
+    want.iter()
+        .zip(got)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f32::max)
+        / max
+}
+
+#[test]
+fn a_model_renders_alike_through_its_forward_on_both_devices() {
+    let mut model = SlidingGaussians {
+        set: random_scene(4, 50, 2),
+        shift: vec![0.2],
+    };
+    let views = views(&[0.0, 0.7]);
+    let gpu = gpu_backend();
+    let mut images = Vec::new();
+    for backend in [Backend::Cpu, gpu] {
+        let mut renderer = backend.model_renderer(&mut model).unwrap();
+        images.push(
+            views
+                .iter()
+                .map(|v| renderer.render(v, [0.1, 0.2, 0.3]).unwrap())
+                .collect::<Vec<_>>(),
+        );
+    }
+    for (cpu, gpu) in images[0].iter().zip(&images[1]) {
+        assert!(relative_worst(&cpu.data, &gpu.data) < 1e-4);
+    }
+    // The two times slide the Gaussians apart: the forward is really used.
+    assert!(relative_worst(&images[0][0].data, &images[0][1].data) > 1e-2);
+    let bad = View {
+        time: -1.0,
+        ..views[0].clone()
+    };
+    let err = Backend::Cpu
+        .model_renderer(&mut model)
+        .unwrap()
+        .render(&bad, [0.0; 3])
+        .unwrap_err();
+    assert!(err.to_string().contains("outside [0, 1]"), "{err}");
+}
+
+#[test]
+fn a_differentiable_render_has_the_same_gradient_on_both_devices() {
+    let set: GaussianSet = random_scene(5, 40, 1);
+    let camera = views(&[0.0])[0].camera.clone();
+    let dl: Vec<f32> = (0..3 * camera.pixel_count())
+        .map(|i| ((i * 7919) % 13) as f32 / 13.0 - 0.5)
+        .collect();
+    let mut grads = Vec::new();
+    for backend in [Backend::Cpu, gpu_backend()] {
+        let renderer = backend.renderer(&set).unwrap();
+        let render = renderer.render_differentiable(&camera, [0.3; 3]).unwrap();
+        assert_eq!(render.image().data.len(), dl.len());
+        grads.push(render.backward(&dl, GradMask::ALL).unwrap());
+    }
+    for (k, name) in gs_core::gaussians::PARAM_NAMES.iter().enumerate() {
+        let (cpu, gpu) = (
+            grads[0].gaussians.arrays()[k],
+            grads[1].gaussians.arrays()[k],
+        );
+        assert!(cpu.iter().any(|v| *v != 0.0), "{name}: a gradient");
+        assert!(relative_worst(cpu, gpu) < 1e-3, "{name}");
+    }
+}

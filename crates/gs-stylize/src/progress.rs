@@ -1,0 +1,190 @@
+//! The progress of a long loop (the stylization, the 2D fit) on stderr: a bar on a terminal;
+//! where stderr is not one (a log file, `nohup`, CI), one plain line every
+//! [`LINE_EVERY_PERCENT`] % of the steps with the step, the percentage, the time elapsed, the
+//! estimated time left and the last loss, so that a redirected run still says how far it is.
+//! The bar is cleared when the loop ends and its last state printed as such a line, so that
+//! whatever is printed next starts on a line of its own.
+
+use std::cell::{Cell, RefCell};
+use std::io::IsTerminal;
+use std::time::{Duration, Instant};
+
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// The plain lines come every this many percent of the steps (and at the last step).
+pub const LINE_EVERY_PERCENT: u64 = 5;
+
+/// How the progress is shown.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ProgressMode {
+    /// Not at all (`--quiet`).
+    Hidden,
+    /// A bar redrawn in place (stderr is a terminal).
+    Bar,
+    /// A plain line every [`LINE_EVERY_PERCENT`] % (stderr is a file or a pipe).
+    Lines,
+}
+
+impl ProgressMode {
+    /// [`ProgressMode::Hidden`] unless `show`, else a bar when stderr is a terminal and plain
+    /// lines when it is not.
+    pub fn for_stderr(show: bool) -> Self {
+        match (show, std::io::stderr().is_terminal()) {
+            (false, _) => Self::Hidden,
+            (true, true) => Self::Bar,
+            (true, false) => Self::Lines,
+        }
+    }
+}
+
+/// The progress of one loop of `total` steps (see the module documentation).
+#[derive(Debug)]
+pub struct Progress {
+    label: String,
+    total: u64,
+    /// Steps already taken when this process started the loop (a resumed run).
+    first: u64,
+    started: Instant,
+    bar: Option<ProgressBar>,
+    mode: ProgressMode,
+    /// The step and message of the last update.
+    last: RefCell<(u64, String)>,
+    /// The last step a line was printed for.
+    printed: Cell<u64>,
+}
+
+impl Progress {
+    /// The progress of a loop of `total` steps of which `done` are already taken, labelled
+    /// `label` (e.g. `fit`), shown as [`ProgressMode::for_stderr`] chooses.
+    pub fn new(show: bool, label: &str, total: u64, done: u64) -> Self {
+        Self::with_mode(ProgressMode::for_stderr(show), label, total, done)
+    }
+
+    /// As [`Progress::new`] with the mode given.
+    pub fn with_mode(mode: ProgressMode, label: &str, total: u64, done: u64) -> Self {
+        let bar = (mode == ProgressMode::Bar).then(|| {
+            let bar = ProgressBar::new(total);
+            bar.set_style(
+                ProgressStyle::with_template(
+                    "{prefix}{bar:30} {pos}/{len} [{elapsed_precise} < {eta_precise}] {msg}",
+                )
+                .expect("a valid template"),
+            );
+            bar.set_prefix(format!("{label} "));
+            bar.set_position(done);
+            bar.reset_eta();
+            bar
+        });
+        Self {
+            label: label.to_string(),
+            total,
+            first: done,
+            started: Instant::now(),
+            bar,
+            mode,
+            last: RefCell::new((done, String::new())),
+            printed: Cell::new(done),
+        }
+    }
+
+    /// Records that `step` steps are taken, the last with `message` (e.g. `loss 0.1234`);
+    /// prints a line when the step crosses the next [`LINE_EVERY_PERCENT`] % or is the last.
+    pub fn update(&self, step: u64, message: &str) {
+        *self.last.borrow_mut() = (step, message.to_string());
+        if let Some(bar) = &self.bar {
+            bar.set_position(step);
+            bar.set_message(message.to_string());
+        } else if self.mode == ProgressMode::Lines
+            && (step >= self.total
+                || bucket(step, self.total) > bucket(self.printed.get(), self.total))
+        {
+            self.print_line();
+        }
+    }
+
+    /// Ends the progress display: clears the bar and prints its last state as a line (in line
+    /// mode, the last state when it was not printed yet). Call it before printing anything
+    /// else, when the loop ends or stops.
+    pub fn finish(&self) {
+        if let Some(bar) = &self.bar {
+            bar.finish_and_clear();
+        }
+        if self.mode != ProgressMode::Hidden && self.printed.get() != self.last.borrow().0 {
+            self.print_line();
+        }
+    }
+
+    /// Prints the line of the last update.
+    fn print_line(&self) {
+        let (step, message) = &*self.last.borrow();
+        eprintln!("{}", self.line(*step, message, self.started.elapsed()));
+        self.printed.set(*step);
+    }
+
+    /// `fit: step 40/800 (5%), 0:01:02 elapsed, about 0:19:38 left, loss 0.1234`, where
+    /// `elapsed` is the time since this process started the loop.
+    pub fn line(&self, step: u64, message: &str, elapsed: Duration) -> String {
+        let percent = step
+            .saturating_mul(100)
+            .checked_div(self.total)
+            .unwrap_or(100);
+        let done_here = step.saturating_sub(self.first);
+        let left = if step >= self.total {
+            "done".to_string()
+        } else if done_here == 0 {
+            "time left unknown".to_string()
+        } else {
+            let per_step = elapsed.as_secs_f64() / done_here as f64;
+            let left = Duration::from_secs_f64(per_step * (self.total - step) as f64);
+            format!("about {} left", clock(left))
+        };
+        let mut line = format!(
+            "{}: step {step}/{} ({percent}%), {} elapsed, {left}",
+            self.label,
+            self.total,
+            clock(elapsed)
+        );
+        if !message.is_empty() {
+            line.push_str(", ");
+            line.push_str(message);
+        }
+        line
+    }
+}
+
+/// Which [`LINE_EVERY_PERCENT`] % slice of `total` steps `step` is in.
+fn bucket(step: u64, total: u64) -> u64 {
+    step.saturating_mul(100 / LINE_EVERY_PERCENT) / total.max(1)
+}
+
+/// `h:mm:ss`.
+fn clock(d: Duration) -> String {
+    let s = d.as_secs();
+    format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn lines_come_every_five_percent_and_estimate_the_time_left() {
+        let p = Progress::with_mode(ProgressMode::Lines, "stylize", 1000, 200);
+        let printed: Vec<u64> = (201..=1000)
+            .filter(|&s| bucket(s, 1000) > bucket(s - 1, 1000) || s == 1000)
+            .collect();
+        assert_eq!(printed.len(), 16);
+        assert_eq!((printed[0], printed[15]), (250, 1000));
+        let line = p.line(250, "loss 0.5000", Duration::from_secs(100));
+        assert_eq!(
+            line,
+            "stylize: step 250/1000 (25%), 0:01:40 elapsed, about 0:25:00 left, loss 0.5000"
+        );
+        assert!(p
+            .line(200, "", Duration::ZERO)
+            .ends_with("time left unknown"));
+        assert!(p
+            .line(1000, "", Duration::from_secs(3725))
+            .contains("1:02:05 elapsed, done"));
+    }
+}
