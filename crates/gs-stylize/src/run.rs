@@ -180,173 +180,162 @@ impl PreparedRun {
         M: BaseModel,
         C: Serialize,
     {
-        run_stylization(self, config, job)
-    }
-}
-
-/// The body of [`PreparedRun::stylize`].
-fn run_stylization<M, C>(
-    run: &PreparedRun,
-    config: &C,
-    job: StylizeJob<M>,
-) -> Result<StylizeOutcome<M>, StylizeError>
-where
-    M: BaseModel,
-    C: Serialize,
-{
-    let PreparedRun {
-        settings,
-        out,
-        options,
-        backend,
-        weights,
-    } = run;
-    let out = out.as_path();
-    check_job(settings, &job)?;
-    let StylizeJob {
-        mut model,
-        groups,
-        views,
-        images,
-        masks,
-        background,
-        ..
-    } = job;
-    let device = Device::Cpu;
-    let (loss, masks) = build_loss(settings, weights, masks, background, &device)?;
-    let mut objective = StyleObjective::new(
-        loss,
-        &images,
-        masks.as_deref(),
-        settings.seed.wrapping_add(PATCH_SEED_OFFSET),
-        &device,
-    )?;
-    let config_json = serde_json::to_value(config).expect("the config serializes");
-    let bad_checkpoint = |message: String| StylizeError::Checkpoint {
-        path: checkpoint::checkpoint_dir(out),
-        message,
-    };
-    let saved = if options.resume {
-        let saved = checkpoint::load(out)?;
-        let changed = changed_fields(&saved.config, &config_json);
-        if !changed.is_empty() {
-            return Err(bad_checkpoint(format!(
-                "saved by a run with different values of {}; resume with the same settings",
-                changed.join(", ")
-            )));
-        }
-        restore_params(&mut model, &saved.params).map_err(bad_checkpoint)?;
-        Some(saved)
-    } else {
-        None
-    };
-    let names = model.group_names();
-    let mut trainer = Trainer::new(backend, model, groups, AdamHyper::default())?;
-    let mut losses = Vec::new();
-    if let Some(saved) = saved {
-        trainer.restore_optimizer(&saved.adam_state)?;
-        if trainer.step_count() != saved.step {
-            return Err(bad_checkpoint(format!(
-                "the optimizer took {} steps, the state says {}",
-                trainer.step_count(),
-                saved.step
-            )));
-        }
-        if saved.step > settings.steps {
-            return Err(bad_checkpoint(format!(
-                "saved at step {}, past the {} steps asked for",
-                saved.step, settings.steps
-            )));
-        }
-        objective.set_rng(saved.rng);
-        losses = saved.losses;
-    }
-
-    if !options.resume {
-        checkpoint::discard_finished(out)?;
-    }
-    std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
-        path: out.to_path_buf(),
-        source,
-    })?;
-    write_json(&out.join(CONFIG_JSON), config)?;
-    let train_config = TrainConfig {
-        steps: settings.steps,
-        background,
-    };
-    let mut sampler = resumed_sampler(views.len(), settings.seed, trainer.step_count());
-    let progress = Progress::new(
-        options.progress,
-        "stylize",
-        settings.steps,
-        trainer.step_count(),
-    );
-    let every = settings.checkpoint_every;
-    let mut saved_at = trainer.step_count();
-    let save = |trainer: &mut Trainer<M>, objective: &StyleObjective, losses: &[StepLosses]| {
-        let params = names
-            .iter()
-            .cloned()
-            .zip(trainer.param_groups())
-            .map(|(name, values)| ParamGroup { name, values })
-            .collect();
-        checkpoint::save(
+        let PreparedRun {
+            settings,
             out,
-            &Checkpoint {
-                step: trainer.step_count(),
-                params,
-                adam_state: trainer.save_optimizer(),
-                rng: objective.rng().clone(),
-                config: config_json.clone(),
-                losses: losses.to_vec(),
-            },
-        )
-    };
-    while trainer.step_count() < settings.steps {
-        trainer.train(
-            &views,
-            &mut objective,
-            &mut sampler,
-            &train_config,
-            |report| {
-                let step = StepLosses::from_report(report);
-                progress.update(report.step, &describe(&step));
-                losses.push(step);
-                if report.step.checked_rem(every) == Some(0) || options.stop.load(Ordering::SeqCst)
-                {
-                    ControlFlow::Break(())
-                } else {
-                    ControlFlow::Continue(())
-                }
-            },
+            options,
+            backend,
+            weights,
+        } = self;
+        let out = out.as_path();
+        check_job(settings, &job)?;
+        let StylizeJob {
+            mut model,
+            groups,
+            views,
+            images,
+            masks,
+            background,
+            ..
+        } = job;
+        let device = Device::Cpu;
+        let (loss, masks) = build_loss(settings, weights, masks, background, &device)?;
+        let mut objective = StyleObjective::new(
+            loss,
+            &images,
+            masks.as_deref(),
+            settings.seed.wrapping_add(PATCH_SEED_OFFSET),
+            &device,
         )?;
-        let stopped = options.stop.load(Ordering::SeqCst) && trainer.step_count() < settings.steps;
-        if stopped || trainer.step_count().checked_rem(every) == Some(0) {
-            save(&mut trainer, &objective, &losses)?;
-            saved_at = trainer.step_count();
+        let config_json = serde_json::to_value(config).expect("the config serializes");
+        let bad_checkpoint = |message: String| StylizeError::Checkpoint {
+            path: checkpoint::checkpoint_dir(out),
+            message,
+        };
+        let saved = if options.resume {
+            let saved = checkpoint::load(out)?;
+            let changed = changed_fields(&saved.config, &config_json);
+            if !changed.is_empty() {
+                return Err(bad_checkpoint(format!(
+                    "saved by a run with different values of {}; resume with the same settings",
+                    changed.join(", ")
+                )));
+            }
+            restore_params(&mut model, &saved.params).map_err(bad_checkpoint)?;
+            Some(saved)
+        } else {
+            None
+        };
+        let names = model.group_names();
+        let mut trainer = Trainer::new(backend, model, groups, AdamHyper::default())?;
+        let mut losses = Vec::new();
+        if let Some(saved) = saved {
+            trainer.restore_optimizer(&saved.adam_state)?;
+            if trainer.step_count() != saved.step {
+                return Err(bad_checkpoint(format!(
+                    "the optimizer took {} steps, the state says {}",
+                    trainer.step_count(),
+                    saved.step
+                )));
+            }
+            if saved.step > settings.steps {
+                return Err(bad_checkpoint(format!(
+                    "saved at step {}, past the {} steps asked for",
+                    saved.step, settings.steps
+                )));
+            }
+            objective.set_rng(saved.rng);
+            losses = saved.losses;
         }
-        if stopped {
-            progress.finish();
-            return Err(StylizeError::Interrupted {
-                step: trainer.step_count(),
-                out: out.to_path_buf(),
-            });
-        }
-    }
-    progress.finish();
-    // The last step's checkpoint, which the modality marks finished; also when checkpoints are
-    // off but this run resumed from one (a Ctrl-C), so that one does not stay behind.
-    let has_checkpoint = every > 0 || checkpoint::checkpoint_dir(out).exists();
-    if has_checkpoint && saved_at != trainer.step_count() {
-        save(&mut trainer, &objective, &losses)?;
-    }
 
-    write_json(&out.join(LOSSES_JSON), &losses)?;
-    write_loss_plot(&out.join(LOSSES_PNG), &losses)?;
-    Ok(StylizeOutcome {
-        model: trainer.into_model(),
-        losses,
-    })
+        if !options.resume {
+            checkpoint::discard_finished(out)?;
+        }
+        std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
+            path: out.to_path_buf(),
+            source,
+        })?;
+        write_json(&out.join(CONFIG_JSON), config)?;
+        let train_config = TrainConfig {
+            steps: settings.steps,
+            background,
+        };
+        let mut sampler = resumed_sampler(views.len(), settings.seed, trainer.step_count());
+        let progress = Progress::new(
+            options.progress,
+            "stylize",
+            settings.steps,
+            trainer.step_count(),
+        );
+        let every = settings.checkpoint_every;
+        let mut saved_at = trainer.step_count();
+        let save = |trainer: &mut Trainer<M>, objective: &StyleObjective, losses: &[StepLosses]| {
+            let params = names
+                .iter()
+                .cloned()
+                .zip(trainer.param_groups())
+                .map(|(name, values)| ParamGroup { name, values })
+                .collect();
+            checkpoint::save(
+                out,
+                &Checkpoint {
+                    step: trainer.step_count(),
+                    params,
+                    adam_state: trainer.save_optimizer(),
+                    rng: objective.rng().clone(),
+                    config: config_json.clone(),
+                    losses: losses.to_vec(),
+                },
+            )
+        };
+        while trainer.step_count() < settings.steps {
+            trainer.train(
+                &views,
+                &mut objective,
+                &mut sampler,
+                &train_config,
+                |report| {
+                    let step = StepLosses::from_report(report);
+                    progress.update(report.step, &describe(&step));
+                    losses.push(step);
+                    if report.step.checked_rem(every) == Some(0)
+                        || options.stop.load(Ordering::SeqCst)
+                    {
+                        ControlFlow::Break(())
+                    } else {
+                        ControlFlow::Continue(())
+                    }
+                },
+            )?;
+            let stopped =
+                options.stop.load(Ordering::SeqCst) && trainer.step_count() < settings.steps;
+            if stopped || trainer.step_count().checked_rem(every) == Some(0) {
+                save(&mut trainer, &objective, &losses)?;
+                saved_at = trainer.step_count();
+            }
+            if stopped {
+                progress.finish();
+                return Err(StylizeError::Interrupted {
+                    step: trainer.step_count(),
+                    out: out.to_path_buf(),
+                });
+            }
+        }
+        progress.finish();
+        // The last step's checkpoint, which the modality marks finished; also when checkpoints are
+        // off but this run resumed from one (a Ctrl-C), so that one does not stay behind.
+        let has_checkpoint = every > 0 || checkpoint::checkpoint_dir(out).exists();
+        if has_checkpoint && saved_at != trainer.step_count() {
+            save(&mut trainer, &objective, &losses)?;
+        }
+
+        write_json(&out.join(LOSSES_JSON), &losses)?;
+        write_loss_plot(&out.join(LOSSES_PNG), &losses)?;
+        Ok(StylizeOutcome {
+            model: trainer.into_model(),
+            losses,
+        })
+    }
 }
 
 /// Checks that the job's lists agree, that its optimizer groups match the model's, and that
