@@ -13,6 +13,24 @@
 //! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
 //! - [`model_file`]: model files: is it a 2D model, which picture was it fitted to.
 //! - [`stylize`](mod@stylize): the 2D stylization run (`clipgaussian-2d stylize`).
+//!
+//! The model renders through gs-core's calls like any other, on the cpu or a GPU:
+//!
+//! ```
+//! use base_mirage::init::initial_gaussians;
+//! use base_mirage::mirror::{mirage_camera, plane_half_size};
+//! use gs_core::backend::DeviceChoice;
+//! use gs_core::model::View;
+//!
+//! let (width, height) = (48, 32);
+//! let (half_width, half_height) = plane_half_size(width, height, 1.0);
+//! let mut model = initial_gaussians(500, 0, half_width, half_height, 7);
+//! let backend = DeviceChoice::Cpu.open()?;
+//! let front = View::still(mirage_camera(width, height, 1.0, false)?);
+//! let picture = backend.model_renderer(&mut model)?.render(&front, [0.0; 3])?;
+//! assert_eq!((picture.width, picture.height), (width, height));
+//! # Ok::<(), Box<dyn std::error::Error>>(())
+//! ```
 
 pub mod background;
 pub mod fit;

@@ -222,7 +222,7 @@ impl Adam {
     }
 
     /// The state (step count and every moment) as bytes, for checkpoints (the format of
-    /// [`encode_state`], shared with the GPU optimizer).
+    /// `encode_state`, shared with the GPU optimizer).
     pub fn save_state(&self) -> Vec<u8> {
         encode_state(
             self.step,

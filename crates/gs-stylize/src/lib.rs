@@ -1,8 +1,9 @@
 //! gs-stylize: the CLIPGaussian stylization run (stage 2) that every modality shares. A base
-//! crate loads its model ([`gs_core::model::BaseModel`]) and views, hands them to [`stylize`],
-//! and writes its own results (a stylized PLY, previews) from the trained model.
+//! crate checks the run with [`prepare`], loads its model ([`gs_core::model::BaseModel`]) and
+//! views, hands them to [`PreparedRun::stylize`], and writes its own results (a stylized PLY,
+//! previews) from the trained model.
 //!
-//! - [`cli`]: the `stylize` flags every binary shares.
+//! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.

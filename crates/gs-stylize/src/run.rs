@@ -49,7 +49,7 @@ pub struct RunOptions {
     pub stop: Arc<AtomicBool>,
 }
 
-/// What a modality hands to [`stylize`]: its loaded model and views. `views`, `images`,
+/// What a modality hands to [`PreparedRun::stylize`]: its loaded model and views. `views`, `images`,
 /// `labels` and `masks` (when given) have one entry per view, in the same order.
 #[derive(Clone, Debug)]
 pub struct StylizeJob<M> {
@@ -407,7 +407,7 @@ type ViewMasks = Vec<Vec<f32>>;
 /// checkpoint of an unfinished run (a finished run's is replaced); a resumed one needs a
 /// checkpoint, and one of a finished run continues only with more `steps` than it took. A
 /// checkpoint that an interrupted save left parked is put back first. A modality calls it
-/// before any long preparation (loading a scene, a fit); [`stylize`] calls it again.
+/// before any long preparation (loading a scene, a fit); [`PreparedRun::stylize`] calls it again.
 pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), StylizeError> {
     check_output_folder(out)?;
     checkpoint::recover_interrupted_save(out)?;

@@ -131,7 +131,10 @@ pub struct StyleLoss {
 
 impl StyleLoss {
     /// Checks that every term with a positive weight has what it needs (VGG for the content
-    /// loss) and that the weights are finite and non-negative.
+    /// loss) and that the weights are finite and non-negative. Models are taken by value: a
+    /// clone of a [`ClipModel`] or [`Vgg19Features`] shares its weights (candle tensors are
+    /// reference-counted), so pass clones to build several losses on one model. For one term
+    /// alone, without the others' models, see [`crate::terms`].
     pub fn new(
         clip: ClipModel,
         vgg: Option<Vgg19Features>,

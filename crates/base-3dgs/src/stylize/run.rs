@@ -1,6 +1,7 @@
-//! One 3D stylization run: check the output folder, load the PLY and the dataset and check the
-//! preview views, stylize with [`gs_stylize::stylize`] (which checks the rest before creating
-//! the output folder), then write the stylized PLY, in the input's format and with its extra
+//! One 3D stylization run: check the run ([`gs_stylize::prepare`]: settings, output folder,
+//! weights, style, device), load the PLY and the dataset and check the preview views, stylize
+//! ([`gs_stylize::PreparedRun::stylize`], which checks the rest before creating the output
+//! folder), then write the stylized PLY, in the input's format and with its extra
 //! properties, and the before/after previews, and mark the run's checkpoint finished.
 
 use std::path::PathBuf;
@@ -30,10 +31,10 @@ pub struct RunSummary {
 }
 
 /// Runs the stylization `config` describes (see the module documentation). Bad inputs are
-/// reported before anything is written, an output folder that cannot be written before the
-/// scene is loaded; a fresh run refuses an output folder that holds the checkpoint of an
-/// unfinished run ([`check_out_folder`]). When [`RunOptions::stop`] is set, the run ends after the current step with a
-/// checkpoint of it and [`StylizeError::Interrupted`].
+/// reported before anything is written, the run's own checks before the scene is loaded; a
+/// fresh run refuses an output folder that holds the checkpoint of an unfinished run
+/// ([`gs_stylize::run::check_out_folder`]). When [`RunOptions::stop`] is set, the run ends
+/// after the current step with a checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
     config.validate()?;
     let prepared = prepare(&config.style, config.out_path(), options.clone())?;
