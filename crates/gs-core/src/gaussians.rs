@@ -91,7 +91,8 @@ impl<T: Real> GaussianSet<T> {
             .find(|&d| 3 * sh_coeff_count(d) == per_gaussian && sh.len() == per_gaussian * len)
             .ok_or_else(|| {
                 format!(
-                    "sh has {} values: {len} Gaussians need (degree + 1)^2 * 3 each, degree 0 to                      {MAX_SH_DEGREE}",
+                    "sh has {} values: {len} Gaussians need (degree + 1)^2 * 3 each, degree 0 to \
+                     {MAX_SH_DEGREE}",
                     sh.len()
                 )
             })?;

@@ -49,8 +49,8 @@ pub struct RunOptions {
     pub stop: Arc<AtomicBool>,
 }
 
-/// What a modality hands to [`PreparedRun::stylize`]: its loaded model and views. `views`, `images`,
-/// `labels` and `masks` (when given) have one entry per view, in the same order.
+/// What a modality hands to [`PreparedRun::stylize`]: its loaded model and views. `views`,
+/// `images`, `labels` and `masks` (when given) have one entry per view, in the same order.
 #[derive(Clone, Debug)]
 pub struct StylizeJob<M> {
     /// The model as loaded (training starts from it, or from the checkpoint when resuming).

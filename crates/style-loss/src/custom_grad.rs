@@ -82,7 +82,8 @@ impl CustomOp2 for InputGradient {
 ///
 /// `value` must have been computed from `input.detach()` (so it carries no graph of its own);
 /// `grad_fn` is the transposed Jacobian of that map at `input` (the adjoint of a linear map, or
-/// a masked one for ReLU and max pooling) and must return a tensor of `input`'s shape. The value is copied once (a fresh contiguous copy is made first if it is a view).
+/// a masked one for ReLU and max pooling) and must return a tensor of `input`'s shape. The value
+/// is copied once (a fresh contiguous copy is made first if it is a view).
 pub(crate) fn attach_input_gradient(
     value: &Tensor,
     input: &Tensor,

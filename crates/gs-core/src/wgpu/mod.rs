@@ -16,9 +16,11 @@
 //! - [`KernelSource`]: WGSL kernels of other crates (a base model's own construction), with
 //!   the same `//#import` of gs-core's shader files.
 //!
-//! Per training step, the only traffic between host and GPU is the rendered image read back,
-//! dL/dimage uploaded, and two `u32`s (the number of tile-Gaussian pairs, which sizes the pair
-//! lists, and whether every gradient is finite).
+//! Per training step of a model with its own GPU construction (plain Gaussians, MiraGe), the
+//! only traffic between host and GPU is the rendered image read back, dL/dimage uploaded, and
+//! two `u32`s (the number of tile-Gaussian pairs, which sizes the pair lists, and whether every
+//! gradient is finite). A model on the provided [`host_forward`] / [`host_backward`] also moves
+//! its parameters (when they changed), its Gaussians and their gradient.
 
 mod adam;
 mod backward;

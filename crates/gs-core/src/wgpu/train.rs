@@ -1,6 +1,6 @@
 //! The training loop on the GPU: [`crate::train::train`]'s loop (the same sampler, objective,
-//! reports, callback and checks) over a model built on the GPU ([`BaseModel::gpu_forward`]), with the
-//! parameters, gradients and Adam moments staying there. Per step the image is read back,
+//! reports, callback and checks) over a model built on the GPU ([`BaseModel::gpu_forward`]),
+//! with the parameters, gradients and Adam moments staying there. Per step the image is read back,
 //! dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag).
 
 use std::ops::ControlFlow;
