@@ -56,7 +56,7 @@ impl FittedTo {
         )
     }
 
-    /// The record in `comment`, if it is one.
+    /// The record in `comment`, if it is one with a size and a distance.
     fn parse(comment: &str) -> Option<Self> {
         let rest = comment.strip_prefix(RECORD_PREFIX)?;
         let mut words = rest.split_whitespace();
@@ -65,11 +65,15 @@ impl FittedTo {
             (Some("distance"), Some(d)) => d.parse().ok()?,
             _ => return None,
         };
-        Some(Self {
+        let record = Self {
             width: w.parse().ok()?,
             height: h.parse().ok()?,
             distance,
-        })
+        };
+        // A hand-edited record of no size or distance says nothing (its aspect would be NaN).
+        let usable =
+            record.width > 0 && record.height > 0 && distance > 0.0 && distance.is_finite();
+        usable.then_some(record)
     }
 }
 
@@ -270,6 +274,12 @@ mod tests {
         };
         assert_eq!(FittedTo::parse(&f.comment()), Some(f));
         assert_eq!(FittedTo::parse("made by hand"), None);
+        for empty in ["0x0", "40x0", "0x30"] {
+            let comment = format!("{RECORD_PREFIX}{empty} distance 1");
+            assert_eq!(FittedTo::parse(&comment), None, "{comment}");
+        }
+        let nowhere = format!("{RECORD_PREFIX}40x30 distance 0");
+        assert_eq!(FittedTo::parse(&nowhere), None);
     }
 
     #[test]

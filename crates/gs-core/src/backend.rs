@@ -239,7 +239,10 @@ impl<M: BaseModel> ModelRenderer<'_, M> {
             } => {
                 let gaussians =
                     crate::wgpu::gaussians_for_view(self.model, ctx, params, scratch, view)
-                        .map_err(RenderError::Model)?;
+                        .map_err(|e| match e.downcast::<GpuError>() {
+                            Ok(gpu) => RenderError::from(*gpu),
+                            Err(e) => RenderError::Model(e),
+                        })?;
                 Ok(crate::wgpu::render(ctx, &gaussians, &view.camera, background)?.image(ctx))
             }
         }
@@ -367,7 +370,8 @@ enum State {
 
 /// A model and its optimizer on one device, trained by [`crate::train::train`] or
 /// [`crate::wgpu::train`]. On a GPU the parameters and moments are uploaded once and read
-/// back only on request ([`Trainer::param_groups`], [`Trainer::save_optimizer`],
+/// back on request (and, for a model on the provided host construction, after each step that
+/// changed them) ([`Trainer::param_groups`], [`Trainer::save_optimizer`],
 /// [`Trainer::into_model`]); optimizer state is in one format on both devices, so a run saved
 /// on one resumes on the other.
 pub struct Trainer<M> {

@@ -115,7 +115,9 @@ pub fn prepare(
     check(settings.validate());
     check(check_out_folder(out, options.resume, settings.steps));
     check(check_style_image_and_clip_config(settings));
-    let weights = resolve_weights(settings)
+    // No download (hundreds of MB) for a run that will not start anyway.
+    let download = problems.is_empty();
+    let weights = resolve_weights(settings, download)
         .map_err(|e| problems.push(e.into()))
         .ok();
     let backend = settings
@@ -389,7 +391,7 @@ pub fn check_patches_fit(
     Ok(())
 }
 
-/// `loss 1.234 (directional 0.5, patch 0.7)`, for the progress bar.
+/// `loss 1.234 (directional 0.5, patch 0.7)`, for the progress display.
 fn describe(step: &StepLosses) -> String {
     let terms: Vec<String> = step
         .terms
@@ -406,8 +408,8 @@ type ViewMasks = Vec<Vec<f32>>;
 /// ([`check_output_folder`]); a fresh run (`resume == false`) refuses a folder that holds the
 /// checkpoint of an unfinished run (a finished run's is replaced); a resumed one needs a
 /// checkpoint, and one of a finished run continues only with more `steps` than it took. A
-/// checkpoint that an interrupted save left parked is put back first. A modality calls it
-/// before any long preparation (loading a scene, a fit); [`PreparedRun::stylize`] calls it again.
+/// checkpoint that an interrupted save left parked is put back first. [`prepare`] calls it,
+/// before any long preparation (loading a scene, a fit).
 pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), StylizeError> {
     check_output_folder(out)?;
     checkpoint::recover_interrupted_save(out)?;

@@ -35,10 +35,24 @@ pub struct MissingWeights(pub Vec<String>);
 /// Finds every file of `requests`, in order; when any is missing, the error lists all the
 /// missing ones.
 pub fn resolve_all(requests: &[WeightRequest]) -> Result<Vec<PathBuf>, MissingWeights> {
+    resolve_all_with(requests, true)
+}
+
+/// [`resolve_all`], downloading a missing file (where the build can) only when `download`.
+fn resolve_all_with(
+    requests: &[WeightRequest],
+    download: bool,
+) -> Result<Vec<PathBuf>, MissingWeights> {
     let mut found = Vec::new();
     let mut missing = Vec::new();
+    let env = |name: &str| std::env::var_os(name);
     for r in requests {
-        match r.hub.resolve(r.explicit) {
+        let result = if download {
+            r.hub.resolve(r.explicit)
+        } else {
+            r.hub.resolve_local_with(r.explicit, &env)
+        };
+        match result {
             Ok(path) => found.push(path),
             Err(e) => missing.push(with_flag(&e, r)),
         }
@@ -86,9 +100,13 @@ pub struct WeightFiles {
 }
 
 /// Finds the CLIP ViT-B/32, tokenizer and (when `lambda_content > 0`) VGG-19 files of
-/// `settings` ([`resolve_all`]). A modality calls it before any long preparation (a fit), so
-/// a missing file is reported at once, naming where to put it.
-pub fn resolve_weights(settings: &StyleSettings) -> Result<WeightFiles, MissingWeights> {
+/// `settings` ([`resolve_all`]), downloading a missing one only when `download` (a run that has
+/// already found another problem looks on this machine only). It runs before any long
+/// preparation (a fit), so a missing file is reported at once, naming where to put it.
+pub fn resolve_weights(
+    settings: &StyleSettings,
+    download: bool,
+) -> Result<WeightFiles, MissingWeights> {
     let mut requests = vec![
         WeightRequest {
             hub: CLIP_VIT_B_32_WEIGHTS,
@@ -112,7 +130,7 @@ pub fn resolve_weights(settings: &StyleSettings) -> Result<WeightFiles, MissingW
             field: Some("vgg_weights"),
         });
     }
-    let mut found = resolve_all(&requests)?.into_iter();
+    let mut found = resolve_all_with(&requests, download)?.into_iter();
     let mut next = || found.next().expect("one path per request");
     Ok(WeightFiles {
         clip: next(),

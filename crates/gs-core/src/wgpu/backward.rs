@@ -41,12 +41,6 @@ impl GpuGradients {
         self.arrays.each_ref().map(Option::as_ref)
     }
 
-    /// The gradient buffers, consumed (for a model's [`crate::model::BaseModel::gpu_backward`],
-    /// which may hand them on as its own groups' gradients).
-    pub fn into_buffers(self) -> [Option<wgpu::Buffer>; 6] {
-        self.arrays
-    }
-
     /// The gradient buffers, consumed, as the gradients of the six groups of a model that
     /// renders its parameters as they are: `None` where `trained[i]` is false.
     pub fn into_trained(self, trained: &[bool]) -> Vec<Option<wgpu::Buffer>> {

@@ -1,7 +1,9 @@
 //! The training loop on the GPU: [`crate::train::train`]'s loop (the same sampler, objective,
 //! reports, callback and checks) over a model built on the GPU ([`BaseModel::gpu_forward`]),
-//! with the parameters, gradients and Adam moments staying there. Per step the image is read back,
-//! dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag).
+//! with the parameters, gradients and Adam moments staying there. Per step the image is read
+//! back, dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag);
+//! a model on the provided host construction also moves its parameters (when they changed),
+//! its Gaussians and their gradient. A GPU failure inside the model is the device's failure.
 
 use std::ops::ControlFlow;
 
@@ -14,7 +16,7 @@ use super::memory::training_bytes;
 use super::model::{GpuForward, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
 use crate::image::Image;
-use crate::model::{BaseModel, View};
+use crate::model::{BaseModel, ModelError, View};
 use crate::raster::{GradMask, OutputGrads};
 use crate::train::{
     check_groups, run_steps, Objective, StepBackend, StepEnd, StepFailure, StepReport, TrainConfig,
@@ -51,13 +53,13 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
             params: self.params,
             scratch: &mut self.scratch,
         };
-        let GpuForward { gaussians, tape } = self.model.gpu_forward(&mut gpu, view)?;
-        let run_needs = training_bytes(
-            self.params.lens(),
-            &self.trained,
-            gaussians.len(),
-            view.camera.pixel_count() as u64,
-        );
+        let pixels = view.camera.pixel_count() as u64;
+        let lens = self.params.lens();
+        let GpuForward { gaussians, tape } = self
+            .model
+            .gpu_forward(&mut gpu, view)
+            .map_err(|e| device_or_model(e, training_bytes(lens, &self.trained, 0, pixels)))?;
+        let run_needs = training_bytes(self.params.lens(), &self.trained, gaussians.len(), pixels);
         let needs = |e: GpuError| StepFailure::Device(e.with_run_needs(run_needs));
         let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
         let Some(grad) = evaluate(&rendered.image(ctx)) else {
@@ -77,7 +79,8 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
         };
         let group_grads = self
             .model
-            .gpu_backward(&mut gpu, view, tape, grads, &self.trained)?;
+            .gpu_backward(&mut gpu, view, tape, grads, &self.trained)
+            .map_err(|e| device_or_model(e, run_needs))?;
         if !all_finite(ctx, &group_grads, self.params.lens()).map_err(needs)? {
             return Ok(StepEnd::NonFiniteGradient);
         }
@@ -87,6 +90,15 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
         self.adam.step(ctx, &params, &grad_refs).map_err(needs)?;
         self.params.mark_changed();
         Ok(StepEnd::Taken)
+    }
+}
+
+/// A model's failure as the device's when it is a [`GpuError`] (an allocation that failed, with
+/// what the run needs), else as the model's own.
+fn device_or_model(e: ModelError, run_needs: u64) -> StepFailure<GpuError> {
+    match e.downcast::<GpuError>() {
+        Ok(gpu) => StepFailure::Device((*gpu).with_run_needs(run_needs)),
+        Err(e) => StepFailure::Model(e),
     }
 }
 
