@@ -2,7 +2,7 @@
 //! image: directional (CLIP), patch (CLIP on warped crops), content (VGG-19) and background
 //! (L1 on background pixels), weighted and summed.
 
-use candle_core::{DType, Tensor, Var};
+use candle_core::{DType, Tensor};
 use rand::Rng;
 
 use crate::clip::ClipModel;
@@ -370,41 +370,36 @@ impl StyleLoss {
         patches: &[PatchAugmentation],
     ) -> Result<StyleLossOutput> {
         let batched = as_batch_of_one(image, "image")?;
-        let var = Var::from_tensor(&batched.detach())?;
-        let terms = self.term_tensors(var.as_tensor(), cache, patches)?;
         let w = &self.weights;
         let weights = [w.directional, w.patch, w.content, w.background];
         let mut values = [0f64; 4];
-        let mut total: Option<Tensor> = None;
-        for ((term, weight), value) in terms.iter().zip(weights).zip(values.iter_mut()) {
-            if let Some(term) = term {
-                *value = scalar(term)?;
-                let weighted = (term * weight)?;
-                total = Some(match total {
-                    Some(t) => (t + weighted)?,
-                    None => weighted,
-                });
+        let (total, grad) = terms::value_and_grad(&batched, |x| {
+            let terms = self.term_tensors(x, cache, patches)?;
+            let mut total: Option<Tensor> = None;
+            for ((term, weight), value) in terms.iter().zip(weights).zip(values.iter_mut()) {
+                if let Some(term) = term {
+                    *value = scalar(term)?;
+                    let weighted = (term * weight)?;
+                    total = Some(match total {
+                        Some(t) => (t + weighted)?,
+                        None => weighted,
+                    });
+                }
             }
-        }
-        let names = ["directional", "patch", "content", "background"];
-        for (name, value) in names.iter().zip(values) {
-            if !value.is_finite() {
-                return Err(StyleLossError::NonFinite {
-                    what: format!("the {name} loss ({value})"),
-                });
+            let names = ["directional", "patch", "content", "background"];
+            for (name, value) in names.iter().zip(values) {
+                if !value.is_finite() {
+                    return Err(StyleLossError::NonFinite {
+                        what: format!("the {name} loss ({value})"),
+                    });
+                }
             }
-        }
-        let (total, grad) = match total {
-            Some(total) => {
-                let grads = total.backward()?;
-                let grad = match grads.get(var.as_tensor()) {
-                    Some(g) => g.clone(),
-                    None => var.as_tensor().zeros_like()?,
-                };
-                (scalar(&total)?, grad)
+            // No term on: a constant 0, whose gradient is zeros.
+            match total {
+                Some(total) => Ok(total),
+                None => Ok(Tensor::zeros((), DType::F32, x.device())?),
             }
-            None => (0.0, var.as_tensor().zeros_like()?),
-        };
+        })?;
         let grad_norm = scalar(&grad.sqr()?.sum_all()?)?;
         if !grad_norm.is_finite() {
             return Err(StyleLossError::NonFinite {
