@@ -134,7 +134,7 @@ impl Taps {
 pub fn gather_taps(source: &candle_core::Tensor, taps: &Taps) -> Result<candle_core::Tensor> {
     let (channels, _) = source.dims2()?;
     let count = taps.index.len();
-    if count % 4 != 0 || taps.weight.len() != count {
+    if !count.is_multiple_of(4) || taps.weight.len() != count {
         return Err(StyleLossError::Input {
             name: "taps".into(),
             reason: format!(

@@ -200,14 +200,14 @@ impl ClipConfig {
         };
         let v = &self.vision;
         let t = &self.text;
-        if v.patch_size == 0 || v.image_size % v.patch_size != 0 {
+        if v.patch_size == 0 || !v.image_size.is_multiple_of(v.patch_size) {
             return Err(bad(
                 "vision_config.image_size",
                 v.image_size,
                 &format!("must be a positive multiple of patch_size {}", v.patch_size),
             ));
         }
-        if v.num_attention_heads == 0 || v.hidden_size % v.num_attention_heads != 0 {
+        if v.num_attention_heads == 0 || !v.hidden_size.is_multiple_of(v.num_attention_heads) {
             return Err(bad(
                 "vision_config.hidden_size",
                 v.hidden_size,
@@ -217,7 +217,7 @@ impl ClipConfig {
                 ),
             ));
         }
-        if t.num_attention_heads == 0 || t.hidden_size % t.num_attention_heads != 0 {
+        if t.num_attention_heads == 0 || !t.hidden_size.is_multiple_of(t.num_attention_heads) {
             return Err(bad(
                 "text_config.hidden_size",
                 t.hidden_size,
