@@ -2,7 +2,8 @@
 //! ViT-B/32-sized CLIP and full VGG-19 with random weights, one 800x800 render, 64 patches of
 //! 128, VGG at 800x800.
 //!
-//! Run: `cargo run -p style-loss --example style_loss_timing [-- <repeats>]` (the dev profile
+//! Run: `cargo run -p style-loss --example style_loss_timing [-- <repeats> [<term>]]`, where
+//! `<term>` (directional, patch, content, background, all) times that one only (the dev profile
 //! builds candle at opt-level 3, where the time is spent; `--release` also works). Add
 //! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU.
 
@@ -28,6 +29,7 @@ fn seconds_since(start: Instant) -> f64 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let repeats: usize = std::env::args().nth(1).map_or(Ok(1), |s| s.parse())?;
+    let only_term = std::env::args().nth(2);
     let device = device()?;
     let (height, width) = (800, 800);
     let start = Instant::now();
@@ -77,6 +79,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("| term | cache_view (s) | loss + gradient (s) |");
     println!("|---|---|---|");
     for (name, weights) in configurations {
+        if only_term
+            .as_deref()
+            .is_some_and(|term| !name.starts_with(term))
+        {
+            continue;
+        }
         let loss = StyleLoss::new(
             clip.clone(),
             Some(vgg.clone()),

@@ -10,6 +10,7 @@
 //! lies between the image and a loss has a backward pass that is tested against PyTorch.
 
 pub mod clip;
+mod conv3x3;
 mod custom_grad;
 pub mod error;
 pub mod image_layout;
@@ -30,6 +31,7 @@ pub mod test_models;
 pub mod tokenizer;
 pub mod torch_ties;
 pub mod vgg;
+mod vgg_channels_last;
 pub mod weight_resolution;
 
 /// The candle this crate is built on: images and gradients cross as its tensors, so callers

@@ -11,6 +11,7 @@ use crate::custom_grad::attach_input_gradient;
 use crate::error::{Result, StyleLossError};
 use crate::tensor_file::NamedTensors;
 use crate::torch_ties::max_pool_2x2;
+use crate::vgg_channels_last::{self, ConvReluChannelsLast, Scratch};
 
 /// ImageNet per-channel mean (RGB, for values in [0, 1]).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -95,11 +96,20 @@ impl VggFeatures {
     }
 }
 
+/// How the layers run: channels-last kernels of this crate on the CPU (f32), candle's
+/// channels-first ops elsewhere.
+#[derive(Clone, Debug)]
+enum Layers {
+    /// The convolutions of each block, channels-first (any device).
+    ChannelsFirst(Vec<Vec<Conv3x3Relu>>),
+    /// The convolutions of each block, channels-last on the CPU, and their shared buffer.
+    ChannelsLast(Vec<Vec<ConvReluChannelsLast>>, Scratch),
+}
+
 /// VGG-19's convolutional layers up to conv5_2.
 #[derive(Clone, Debug)]
 pub struct Vgg19Features {
-    /// The convolutions, grouped by block.
-    blocks: Vec<Vec<Conv3x3Relu>>,
+    layers: Layers,
 }
 
 impl Vgg19Features {
@@ -109,11 +119,19 @@ impl Vgg19Features {
         Self::from_tensors(&NamedTensors::load_safetensors(path, device)?, widths)
     }
 
-    /// Builds the layers from tensors named as in torchvision's `vgg19().features`.
+    /// Builds the layers from tensors named as in torchvision's `vgg19().features`. f32 weights
+    /// on the CPU run channels-last (three matrix products per convolution); others run
+    /// through candle's convolution on their device.
     pub fn from_tensors(w: &NamedTensors, widths: Vgg19Widths) -> Result<Self> {
+        Self::build(w, widths, true)
+    }
+
+    /// As [`Self::from_tensors`]; `channels_last` false keeps candle's channels-first ops
+    /// also on the CPU (the oracle of the channels-last kernels in tests).
+    fn build(w: &NamedTensors, widths: Vgg19Widths, channels_last: bool) -> Result<Self> {
         let mut index = 0;
         let mut in_channels = 3;
-        let mut blocks = Vec::new();
+        let mut weights = Vec::new();
         for (&convs, &width) in BLOCK_CONVS.iter().zip(&widths.0) {
             if width == 0 {
                 return Err(StyleLossError::Config {
@@ -129,14 +147,40 @@ impl Vgg19Features {
                     &[width, in_channels, 3, 3],
                 )?;
                 let bias = w.get(&format!("features.{index}.bias"), &[width])?;
-                block.push(Conv3x3Relu::new(weight, bias)?);
+                block.push((weight, bias));
                 in_channels = width;
                 index += 2; // conv, relu
             }
             index += 1; // max pool
-            blocks.push(block);
+            weights.push(block);
         }
-        Ok(Self { blocks })
+        let first = &weights[0][0].0;
+        let layers =
+            if channels_last && first.device().is_cpu() && first.dtype() == candle_core::DType::F32
+            {
+                let blocks = weights
+                    .iter()
+                    .map(|block| {
+                        block
+                            .iter()
+                            .map(|(w, b)| ConvReluChannelsLast::new(w, b))
+                            .collect::<candle_core::Result<Vec<_>>>()
+                    })
+                    .collect::<candle_core::Result<Vec<_>>>()?;
+                Layers::ChannelsLast(blocks, Scratch::default())
+            } else {
+                let blocks = weights
+                    .into_iter()
+                    .map(|block| {
+                        block
+                            .into_iter()
+                            .map(|(w, b)| Conv3x3Relu::new(w, b))
+                            .collect::<candle_core::Result<Vec<_>>>()
+                    })
+                    .collect::<candle_core::Result<Vec<_>>>()?;
+                Layers::ChannelsFirst(blocks)
+            };
+        Ok(Self { layers })
     }
 
     /// Features of images `[n, 3, h, w]` in [0, 1] (ImageNet normalization is applied here);
@@ -152,35 +196,155 @@ impl Vgg19Features {
                 ),
             });
         }
-        let mut x = normalize_channels(images, IMAGENET_MEAN, IMAGENET_STD)?;
-        let mut relu4_2 = None;
-        for (b, block) in self.blocks.iter().enumerate() {
-            if b > 0 {
-                x = max_pool_2x2(&x)?;
+        let x = normalize_channels(images, IMAGENET_MEAN, IMAGENET_STD)?;
+        let (relu4_2, relu5_2) = match &self.layers {
+            Layers::ChannelsFirst(blocks) => {
+                run_blocks(blocks, x, max_pool_2x2, |conv, x| conv.forward(x))?
             }
-            for (c, conv) in block.iter().enumerate() {
-                x = conv.forward(&x)?;
-                if b == 3 && c == 1 {
-                    relu4_2 = Some(x.clone());
-                }
+            Layers::ChannelsLast(blocks, scratch) => {
+                let (relu4_2, relu5_2) = run_blocks(
+                    blocks,
+                    x.permute((0, 2, 3, 1))?,
+                    vgg_channels_last::max_pool_2x2,
+                    |conv, x| conv.forward(x, scratch),
+                )?;
+                let first = |t: Tensor| t.permute((0, 3, 1, 2))?.contiguous();
+                (first(relu4_2)?, first(relu5_2)?)
+            }
+        };
+        Ok(VggFeatures { relu4_2, relu5_2 })
+    }
+}
+
+/// Runs the blocks (a pool before each but the first) on `x`; returns the outputs of conv4_2
+/// and of the last convolution.
+fn run_blocks<C>(
+    blocks: &[Vec<C>],
+    mut x: Tensor,
+    pool: impl Fn(&Tensor) -> candle_core::Result<Tensor>,
+    conv: impl Fn(&C, &Tensor) -> candle_core::Result<Tensor>,
+) -> Result<(Tensor, Tensor)> {
+    let mut relu4_2 = None;
+    for (b, block) in blocks.iter().enumerate() {
+        if b > 0 {
+            x = pool(&x)?;
+        }
+        for (c, layer) in block.iter().enumerate() {
+            x = conv(layer, &x)?;
+            if b == 3 && c == 1 {
+                relu4_2 = Some(x.clone());
             }
         }
-        let relu4_2 = relu4_2.ok_or_else(|| StyleLossError::Input {
-            name: "vgg".into(),
-            reason: "block 4 has no second convolution".into(),
-        })?;
-        Ok(VggFeatures {
-            relu4_2,
-            relu5_2: x,
-        })
     }
+    let relu4_2 = relu4_2.ok_or_else(|| StyleLossError::Input {
+        name: "vgg".into(),
+        reason: "block 4 has no second convolution".into(),
+    })?;
+    Ok((relu4_2, x))
 }
 
 #[cfg(test)]
 mod tests {
+    use std::collections::HashMap;
+
     use candle_core::{DType, Device, Tensor, Var};
 
     use super::*;
+
+    /// Fixed random weights of a small VGG-19, named as torchvision's.
+    fn small_vgg_tensors(widths: Vgg19Widths) -> NamedTensors {
+        let random = NamedTensors::random(&Device::Cpu);
+        let mut map = HashMap::new();
+        let (mut index, mut in_channels) = (0, 3);
+        for (&convs, &width) in BLOCK_CONVS.iter().zip(&widths.0) {
+            for _ in 0..convs {
+                for (name, shape) in [
+                    ("weight", vec![width, in_channels, 3, 3]),
+                    ("bias", vec![width]),
+                ] {
+                    let key = format!("features.{index}.{name}");
+                    map.insert(key.clone(), random.get(&key, &shape).unwrap());
+                }
+                in_channels = width;
+                index += 2;
+            }
+            index += 1;
+        }
+        NamedTensors::from_map("small vgg", map)
+    }
+
+    /// Features and `d sum(features * probes) / d images` of `vgg`.
+    fn features_and_gradient(
+        vgg: &Vgg19Features,
+        images: &Tensor,
+        probes: &[Tensor; 2],
+    ) -> (Vec<Tensor>, Tensor) {
+        let x = Var::from_tensor(images).unwrap();
+        let f = vgg.forward(x.as_tensor()).unwrap();
+        let loss = ((&f.relu4_2 * &probes[0]).unwrap().sum_all().unwrap()
+            + (&f.relu5_2 * &probes[1]).unwrap().sum_all().unwrap())
+        .unwrap();
+        let grad = loss.backward().unwrap().get(x.as_tensor()).unwrap().clone();
+        (vec![f.relu4_2, f.relu5_2], grad)
+    }
+
+    fn relative_error(a: &Tensor, b: &Tensor) -> f32 {
+        let diff = (a - b)
+            .unwrap()
+            .sqr()
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        let norm = b
+            .sqr()
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap();
+        (diff / norm.max(1e-30)).sqrt()
+    }
+
+    #[test]
+    fn channels_last_matches_candles_convolution() {
+        let widths = Vgg19Widths([5, 8, 6, 7, 9]);
+        let tensors = small_vgg_tensors(widths);
+        let fast = Vgg19Features::build(&tensors, widths, true).unwrap();
+        let oracle = Vgg19Features::build(&tensors, widths, false).unwrap();
+        assert!(matches!(fast.layers, Layers::ChannelsLast(..)));
+        assert!(matches!(oracle.layers, Layers::ChannelsFirst(..)));
+        let device = Device::Cpu;
+        // Odd sizes (a dropped row and column at each pool), two images, and a flat image
+        // (ties in every pooling window).
+        for (n, h, w, flat) in [(2, 37, 45, false), (1, 16, 16, false), (1, 33, 19, true)] {
+            let images = if flat {
+                Tensor::full(0.5f32, (n, 3, h, w), &device).unwrap()
+            } else {
+                Tensor::rand(0f32, 1f32, (n, 3, h, w), &device).unwrap()
+            };
+            let probes = [
+                Tensor::rand(-1f32, 1f32, (n, 7, h / 8, w / 8), &device).unwrap(),
+                Tensor::rand(-1f32, 1f32, (n, 9, h / 16, w / 16), &device).unwrap(),
+            ];
+            let (f_fast, g_fast) = features_and_gradient(&fast, &images, &probes);
+            let (f_ref, g_ref) = features_and_gradient(&oracle, &images, &probes);
+            for (a, b) in f_fast.iter().zip(&f_ref) {
+                assert_eq!(a.dims(), b.dims());
+                assert!(
+                    relative_error(a, b) < 1e-5,
+                    "{n}x{h}x{w}: features {}",
+                    relative_error(a, b)
+                );
+            }
+            assert!(
+                relative_error(&g_fast, &g_ref) < 1e-4,
+                "{n}x{h}x{w}: gradient {}",
+                relative_error(&g_fast, &g_ref)
+            );
+        }
+    }
 
     /// One output channel `x0 - x1` at the centre tap: a pre-activation of exactly 0 where the
     /// two input channels are equal, positive where `x0 > x1`.
