@@ -13,6 +13,7 @@ pub mod clip;
 mod conv3x3;
 mod custom_grad;
 pub mod error;
+mod fused_cpu;
 pub mod image_layout;
 pub mod losses;
 pub mod metrics;

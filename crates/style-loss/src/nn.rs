@@ -9,6 +9,7 @@ use candle_core::{Tensor, D};
 use serde::Deserialize;
 
 use crate::custom_grad::attach_input_gradient;
+use crate::fused_cpu::{self, LayerNormOp, QuickGeluOp, SoftmaxOp};
 
 /// Floor of the norm in [`l2_normalize`], as in `torch.nn.functional.normalize`.
 pub const NORMALIZE_EPS: f64 = 1e-12;
@@ -71,8 +72,21 @@ impl LayerNorm {
         Self { gamma, beta, eps }
     }
 
-    /// Normalizes the last dimension of `x`.
+    /// Normalizes the last dimension of `x`: one fused pass each way for f32 on the CPU,
+    /// candle ops elsewhere.
     pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        if fused_cpu::applies(x) {
+            return x.contiguous()?.apply_op1(LayerNormOp {
+                gamma: self.gamma.to_vec1()?,
+                beta: self.beta.to_vec1()?,
+                eps: self.eps as f32,
+            });
+        }
+        self.forward_with_ops(x)
+    }
+
+    /// [`Self::forward`] composed from candle ops with a backward (any device).
+    pub(crate) fn forward_with_ops(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         let mean = x.mean_keepdim(D::Minus1)?;
         let centered = x.broadcast_sub(&mean)?;
         let var = centered.sqr()?.mean_keepdim(D::Minus1)?;
@@ -81,9 +95,19 @@ impl LayerNorm {
     }
 }
 
-/// Softmax over the last dimension, built from ops with a backward. The row maximum is
-/// subtracted for stability and detached (softmax does not depend on it).
+/// Softmax over the last dimension: one fused pass each way for f32 on the CPU, candle ops
+/// elsewhere.
 pub(crate) fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
+    if fused_cpu::applies(x) {
+        let len = x.dim(D::Minus1)?;
+        return x.contiguous()?.apply_op1(SoftmaxOp { len });
+    }
+    softmax_last_dim_with_ops(x)
+}
+
+/// [`softmax_last_dim`] built from ops with a backward. The row maximum is subtracted for
+/// stability and detached (softmax does not depend on it).
+pub(crate) fn softmax_last_dim_with_ops(x: &Tensor) -> candle_core::Result<Tensor> {
     let max = x.max_keepdim(D::Minus1)?.detach();
     let e = x.broadcast_sub(&max)?.exp()?;
     e.broadcast_div(&e.sum_keepdim(D::Minus1)?)
@@ -112,12 +136,137 @@ pub enum Activation {
 }
 
 impl Activation {
-    /// Applies the activation element-wise.
+    /// Applies the activation element-wise (quick-GELU fused for f32 on the CPU).
     pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        if *self == Activation::QuickGelu && fused_cpu::applies(x) {
+            return x.contiguous()?.apply_op1(QuickGeluOp);
+        }
+        self.forward_with_ops(x)
+    }
+
+    /// [`Self::forward`] composed from candle ops with a backward (any device).
+    pub(crate) fn forward_with_ops(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         match self {
             // sigmoid(z) = (1 + tanh(z / 2)) / 2: no overflow, tanh has a backward.
             Activation::QuickGelu => x.mul(&(x * (1.702 / 2.0))?.tanh()?.affine(0.5, 0.5)?),
             Activation::Gelu => x.gelu_erf(),
         }
+    }
+}
+
+#[cfg(test)]
+mod fused_tests {
+    use candle_core::{Device, Tensor, Var};
+
+    use super::*;
+
+    /// `f(x)` and `d sum(f(x) * probe) / dx`.
+    fn value_and_grad(
+        x: &Tensor,
+        probe: &Tensor,
+        f: impl Fn(&Tensor) -> Tensor,
+    ) -> (Tensor, Tensor) {
+        let var = Var::from_tensor(x).unwrap();
+        let y = f(var.as_tensor());
+        let grads = (&y * probe).unwrap().sum_all().unwrap().backward().unwrap();
+        (y, grads.get(var.as_tensor()).unwrap().clone())
+    }
+
+    fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
+        (a - b)
+            .unwrap()
+            .abs()
+            .unwrap()
+            .max_all()
+            .unwrap()
+            .to_scalar::<f32>()
+            .unwrap()
+    }
+
+    /// The fused CPU kernel against the candle ops, value and gradient, on rows of `len`
+    /// values drawn in `[-range, range]` (a strided view as input, as the encoder passes).
+    fn check(
+        len: usize,
+        range: f32,
+        fused: impl Fn(&Tensor) -> Tensor,
+        ops: impl Fn(&Tensor) -> Tensor,
+    ) {
+        let device = Device::Cpu;
+        let x = Tensor::rand(-range, range, (len, 6, 5), &device)
+            .unwrap()
+            .transpose(0, 2)
+            .unwrap();
+        let probe = Tensor::rand(-1f32, 1f32, (5, 6, len), &device).unwrap();
+        let (y_fused, g_fused) = value_and_grad(&x, &probe, &fused);
+        let (y_ops, g_ops) = value_and_grad(&x, &probe, &ops);
+        let scale = |t: &Tensor| {
+            t.abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+                .max(1.0)
+        };
+        assert!(
+            max_abs_diff(&y_fused, &y_ops) <= 2e-6 * scale(&y_ops),
+            "value"
+        );
+        assert!(
+            max_abs_diff(&g_fused, &g_ops) <= 2e-5 * scale(&g_ops),
+            "gradient {}",
+            max_abs_diff(&g_fused, &g_ops)
+        );
+    }
+
+    #[test]
+    fn fused_layer_norm_matches_the_composed_one() {
+        let device = Device::Cpu;
+        for (len, range) in [(1, 1.0), (7, 1.0), (768, 30.0)] {
+            let norm = LayerNorm::new(
+                Tensor::rand(0.5f32, 1.5, len, &device).unwrap(),
+                Tensor::rand(-0.5f32, 0.5, len, &device).unwrap(),
+                1e-5,
+            );
+            check(
+                len,
+                range,
+                |x| norm.forward(x).unwrap(),
+                |x| norm.forward_with_ops(x).unwrap(),
+            );
+        }
+    }
+
+    #[test]
+    fn fused_quick_gelu_matches_the_composed_one_far_out() {
+        // Large |x|: exp overflows in a naive sigmoid.
+        for range in [3.0, 200.0] {
+            check(
+                9,
+                range,
+                |x| Activation::QuickGelu.forward(x).unwrap(),
+                |x| Activation::QuickGelu.forward_with_ops(x).unwrap(),
+            );
+        }
+    }
+
+    #[test]
+    fn fused_softmax_matches_the_composed_one() {
+        for (len, range) in [(1, 1.0), (50, 4.0), (77, 80.0)] {
+            check(
+                len,
+                range,
+                |x| softmax_last_dim(x).unwrap(),
+                |x| softmax_last_dim_with_ops(x).unwrap(),
+            );
+        }
+        // A causal mask: -inf logits get probability 0 and no gradient.
+        let device = Device::Cpu;
+        let mask = Tensor::new(&[[0f32, f32::NEG_INFINITY], [0.0, 0.0]], &device).unwrap();
+        let x = (Tensor::rand(-1f32, 1f32, (2, 2), &device).unwrap() + &mask).unwrap();
+        let probe = Tensor::rand(-1f32, 1f32, (2, 2), &device).unwrap();
+        let (y, g) = value_and_grad(&x, &probe, |x| softmax_last_dim(x).unwrap());
+        assert_eq!(y.to_vec2::<f32>().unwrap()[0], [1.0, 0.0]);
+        assert_eq!(g.to_vec2::<f32>().unwrap()[0], [0.0, 0.0]);
     }
 }
