@@ -48,6 +48,7 @@ fn scene(n: usize) -> GaussianSet {
 }
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
+    style_loss::memory::keep_freed_memory();
     let n: usize = std::env::args().nth(1).map_or(Ok(300_000), |s| s.parse())?;
     let device = Device::Cpu;
     let mut model = scene(n);

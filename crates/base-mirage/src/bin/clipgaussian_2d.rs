@@ -306,6 +306,8 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 }
 
 fn main() -> ExitCode {
+    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
+    style_loss::memory::keep_freed_memory();
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
