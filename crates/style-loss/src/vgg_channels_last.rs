@@ -9,7 +9,6 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::conv3x3::{conv3x3, Epilogue, ImageShape, PackedKernel};
-use crate::custom_grad::attach_input_gradient;
 
 /// The padded-image buffer the convolutions of one network share (forward and backward run
 /// one at a time; a clone of the network shares it).
@@ -39,28 +38,22 @@ impl ConvReluChannelsLast {
     /// convolution of the upstream gradient where the output is not `<= 0` (PyTorch's ReLU:
     /// 0 at an exact 0).
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
-        let value = x.detach().contiguous()?.apply_op1_no_bwd(&ConvOp {
+        x.contiguous()?.apply_op1(ConvOp {
             kernel: self.kernel.clone(),
             epilogue_bias: Some(self.bias.clone()),
+            adjoint: Some(self.adjoint.clone()),
             scratch: scratch.clone(),
-        })?;
-        let output = value.clone();
-        let adjoint = ConvOp {
-            kernel: self.adjoint.clone(),
-            epilogue_bias: None,
-            scratch: scratch.clone(),
-        };
-        attach_input_gradient(&value, x, move |g| {
-            g.contiguous()?.apply_op2_no_bwd(&output, &adjoint)
         })
     }
 }
 
-/// The convolution as a candle op: `apply_op1` convolves, `apply_op2(gate)` convolves the
-/// input gated by the second operand.
+/// The convolution as a candle op: `apply_op1` convolves (its backward is the `adjoint`
+/// convolution of the gradient gated by the output), `apply_op2(gate)` convolves the input
+/// gated by the second operand.
 struct ConvOp {
     kernel: Arc<PackedKernel>,
     epilogue_bias: Option<Arc<Vec<f32>>>,
+    adjoint: Option<Arc<PackedKernel>>,
     scratch: Scratch,
 }
 
@@ -117,6 +110,24 @@ impl CustomOp1 for ConvOp {
     fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
         self.run((s, l), None)
     }
+
+    fn bwd(
+        &self,
+        _x: &Tensor,
+        output: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
+        let Some(adjoint) = &self.adjoint else {
+            candle_core::bail!("conv3x3: this convolution has no adjoint")
+        };
+        let adjoint = ConvOp {
+            kernel: adjoint.clone(),
+            epilogue_bias: None,
+            adjoint: None,
+            scratch: self.scratch.clone(),
+        };
+        Ok(Some(grad.contiguous()?.apply_op2_no_bwd(output, &adjoint)?))
+    }
 }
 
 impl CustomOp2 for ConvOp {
@@ -148,15 +159,11 @@ fn contiguous_slice<'a>(
 /// floor mode). Each window's value and gradient are those of its first element that is
 /// greater than all before it or NaN, in row-major order, as PyTorch's `max_pool2d`.
 pub(crate) fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
-    let input = x.detach().contiguous()?;
-    let value = input.apply_op1_no_bwd(&MaxPool)?;
-    attach_input_gradient(&value, x, move |g| {
-        input.apply_op2_no_bwd(&g.contiguous()?, &MaxPool)
-    })
+    x.contiguous()?.apply_op1(MaxPool)
 }
 
-/// The pool as a candle op: `apply_op1` pools, `apply_op2(gradient)` routes the gradient of
-/// the pooled output back to the input's shape.
+/// The pool as a candle op: `apply_op1` pools (its backward routes the gradient),
+/// `apply_op2(gradient)` routes the gradient of the pooled output back to the input's shape.
 struct MaxPool;
 
 /// Offset of the chosen element of the window whose top-left element is at `top` (row length
@@ -196,6 +203,15 @@ impl CustomOp1 for MaxPool {
                 }
             });
         Ok((CpuStorage::F32(out), Shape::from((n, h2, w2, c))))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        _pooled: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
+        Ok(Some(x.apply_op2_no_bwd(&grad.contiguous()?, &MaxPool)?))
     }
 }
 
