@@ -3,22 +3,12 @@
 //! these keeps four to eight full-size temporaries alive until the backward pass; fused, only
 //! the input (and for softmax the output) is kept, and each direction is one pass over memory.
 
+use std::sync::Arc;
+
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
-/// Whether `x` can take the fused kernels: f32 on the CPU.
-pub(crate) fn applies(x: &Tensor) -> bool {
-    x.device().is_cpu() && x.dtype() == candle_core::DType::F32
-}
-
-/// The elements of a contiguous f32 tensor (bails on a strided layout).
-fn elements<'a>(storage: &'a CpuStorage, layout: &Layout) -> candle_core::Result<&'a [f32]> {
-    if !layout.is_contiguous() {
-        candle_core::bail!("fused kernel: strided input {layout:?}")
-    }
-    let start = layout.start_offset();
-    Ok(&storage.as_slice::<f32>()?[start..start + layout.shape().elem_count()])
-}
+use crate::cpu_elements::{elements, same_shape_elements};
 
 /// Applies `row_fn` to consecutive rows of `len` elements of `inputs` (equal lengths) and the
 /// matching rows of the output, in parallel blocks of whole rows; a last partial row is passed
@@ -59,12 +49,14 @@ fn moments(x: &[f32], eps: f32) -> (f32, f32) {
     (mean, 1.0 / (var + eps).sqrt())
 }
 
-/// Layer norm over the last dimension with affine `gamma`, `beta`, as PyTorch's `layer_norm`.
+/// Layer norm over the last dimension with affine `gamma`, `beta`, as PyTorch's `layer_norm`
+/// (a clone shares the parameters).
+#[derive(Clone, Debug)]
 pub(crate) struct LayerNormOp {
     /// Scale, one per feature.
-    pub gamma: Vec<f32>,
+    pub gamma: Arc<[f32]>,
     /// Shift, one per feature.
-    pub beta: Vec<f32>,
+    pub beta: Arc<[f32]>,
     /// Added to the variance.
     pub eps: f32,
 }
@@ -79,7 +71,12 @@ impl CustomOp1 for LayerNormOp {
         let x = elements(s, l)?;
         let out = map_rows(self.gamma.len(), [x], |rows, y| {
             let (mean, rstd) = moments(rows[0], self.eps);
-            for (((y, &x), &g), &b) in y.iter_mut().zip(rows[0]).zip(&self.gamma).zip(&self.beta) {
+            for (((y, &x), &g), &b) in y
+                .iter_mut()
+                .zip(rows[0])
+                .zip(self.gamma.iter())
+                .zip(self.beta.iter())
+            {
                 *y = (x - mean) * rstd * g + b;
             }
         });
@@ -111,24 +108,21 @@ impl CustomOp2 for LayerNormOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, g) = (elements(s1, l1)?, elements(s2, l2)?);
-        if x.len() != g.len() {
-            candle_core::bail!("layer-norm backward: {l1:?} vs {l2:?}")
-        }
+        let (x, g) = same_shape_elements("layer-norm backward", (s1, l1), (s2, l2))?;
         check_rows("layer-norm backward", l1, self.gamma.len())?;
         let n = self.gamma.len();
         let out = map_rows(n, [x, g], |rows, dx| {
             let (x, g) = (rows[0], rows[1]);
             let (mean, rstd) = moments(x, self.eps);
             let (mut mean_dy, mut mean_dy_xhat) = (0f32, 0f32);
-            for ((&x, &g), &gamma) in x.iter().zip(g).zip(&self.gamma) {
+            for ((&x, &g), &gamma) in x.iter().zip(g).zip(self.gamma.iter()) {
                 let dy = g * gamma;
                 mean_dy += dy;
                 mean_dy_xhat += dy * (x - mean) * rstd;
             }
             mean_dy /= n as f32;
             mean_dy_xhat /= n as f32;
-            for (((dx, &x), &g), &gamma) in dx.iter_mut().zip(x).zip(g).zip(&self.gamma) {
+            for (((dx, &x), &g), &gamma) in dx.iter_mut().zip(x).zip(g).zip(self.gamma.iter()) {
                 let xhat = (x - mean) * rstd;
                 *dx = rstd * (g * gamma - mean_dy - xhat * mean_dy_xhat);
             }
@@ -191,10 +185,7 @@ impl CustomOp2 for QuickGeluOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (x, g) = (elements(s1, l1)?, elements(s2, l2)?);
-        if x.len() != g.len() {
-            candle_core::bail!("quick-gelu backward: {l1:?} vs {l2:?}")
-        }
+        let (x, g) = same_shape_elements("quick-gelu backward", (s1, l1), (s2, l2))?;
         let out = map_rows(4096, [x, g], |rows, dx| {
             for ((dx, &x), &g) in dx.iter_mut().zip(rows[0]).zip(rows[1]) {
                 let s = sigmoid(QUICK_GELU_SLOPE * x);
@@ -256,10 +247,7 @@ impl CustomOp2 for SoftmaxOp {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (y, g) = (elements(s1, l1)?, elements(s2, l2)?);
-        if y.len() != g.len() {
-            candle_core::bail!("softmax backward: {l1:?} vs {l2:?}")
-        }
+        let (y, g) = same_shape_elements("softmax backward", (s1, l1), (s2, l2))?;
         check_rows("softmax backward", l1, self.len)?;
         let out = map_rows(self.len, [y, g], |rows, dx| {
             let (y, g) = (rows[0], rows[1]);

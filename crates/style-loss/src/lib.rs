@@ -11,6 +11,7 @@
 
 pub mod clip;
 mod conv3x3;
+mod cpu_elements;
 mod custom_grad;
 pub mod error;
 mod fused_cpu;

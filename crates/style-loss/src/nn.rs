@@ -8,8 +8,9 @@
 use candle_core::{Tensor, D};
 use serde::Deserialize;
 
+use crate::cpu_elements::is_cpu_f32;
 use crate::custom_grad::attach_input_gradient;
-use crate::fused_cpu::{self, LayerNormOp, QuickGeluOp, SoftmaxOp};
+use crate::fused_cpu::{LayerNormOp, QuickGeluOp, SoftmaxOp};
 
 /// Floor of the norm in [`l2_normalize`], as in `torch.nn.functional.normalize`.
 pub const NORMALIZE_EPS: f64 = 1e-12;
@@ -64,25 +65,37 @@ pub(crate) struct LayerNorm {
     gamma: Tensor,
     beta: Tensor,
     eps: f64,
+    /// The fused CPU kernel with the parameters read out once, when they are f32 on the CPU.
+    fused: Option<LayerNormOp>,
 }
 
 impl LayerNorm {
     /// `gamma` and `beta` are `[features]`.
-    pub(crate) fn new(gamma: Tensor, beta: Tensor, eps: f64) -> Self {
-        Self { gamma, beta, eps }
+    pub(crate) fn new(gamma: Tensor, beta: Tensor, eps: f64) -> candle_core::Result<Self> {
+        let fused = if is_cpu_f32(&gamma) && is_cpu_f32(&beta) {
+            Some(LayerNormOp {
+                gamma: gamma.to_vec1::<f32>()?.into(),
+                beta: beta.to_vec1::<f32>()?.into(),
+                eps: eps as f32,
+            })
+        } else {
+            None
+        };
+        Ok(Self {
+            gamma,
+            beta,
+            eps,
+            fused,
+        })
     }
 
     /// Normalizes the last dimension of `x`: one fused pass each way for f32 on the CPU,
     /// candle ops elsewhere.
     pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        if fused_cpu::applies(x) {
-            return x.contiguous()?.apply_op1(LayerNormOp {
-                gamma: self.gamma.to_vec1()?,
-                beta: self.beta.to_vec1()?,
-                eps: self.eps as f32,
-            });
+        match &self.fused {
+            Some(op) if is_cpu_f32(x) => x.contiguous()?.apply_op1(op.clone()),
+            _ => self.forward_with_ops(x),
         }
-        self.forward_with_ops(x)
     }
 
     /// [`Self::forward`] composed from candle ops with a backward (any device).
@@ -98,7 +111,7 @@ impl LayerNorm {
 /// Softmax over the last dimension: one fused pass each way for f32 on the CPU, candle ops
 /// elsewhere.
 pub(crate) fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
-    if fused_cpu::applies(x) {
+    if is_cpu_f32(x) {
         let len = x.dim(D::Minus1)?;
         return x.contiguous()?.apply_op1(SoftmaxOp { len });
     }
@@ -138,7 +151,7 @@ pub enum Activation {
 impl Activation {
     /// Applies the activation element-wise (quick-GELU fused for f32 on the CPU).
     pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
-        if *self == Activation::QuickGelu && fused_cpu::applies(x) {
+        if *self == Activation::QuickGelu && is_cpu_f32(x) {
             return x.contiguous()?.apply_op1(QuickGeluOp);
         }
         self.forward_with_ops(x)
@@ -227,7 +240,8 @@ mod fused_tests {
                 Tensor::rand(0.5f32, 1.5, len, &device).unwrap(),
                 Tensor::rand(-0.5f32, 0.5, len, &device).unwrap(),
                 1e-5,
-            );
+            )
+            .unwrap();
             check(
                 len,
                 range,

@@ -3,13 +3,17 @@
 //!
 //! - 2x2 max pooling gives a window's gradient to its first maximum in row-major order
 //!   (PyTorch's `max_pool2d`); candle's `max` gives it to every element equal to the maximum.
+//!   One CPU kernel serves channels-last tensors and, viewed as `[n c, h, w, 1]`, channels-first
+//!   ones.
 //! - `|x|` has gradient `sign(x)`, 0 at `x = 0` (PyTorch's `abs`); candle's gives 1.
 //!
 //! The ReLU after each VGG convolution (gradient 0 at 0, PyTorch's `threshold_backward`) is
-//! fused into the convolution's backward in the `vgg` module.
+//! fused into the convolution's backward in the `vgg` and `vgg_channels_last` modules.
 
-use candle_core::{CpuStorage, CustomOp2, DType, Layout, Shape, Tensor};
+use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
+use rayon::prelude::*;
 
+use crate::cpu_elements::{elements, is_cpu_f32};
 use crate::custom_grad::attach_input_gradient;
 
 /// 2x2 max pool, stride 2, dropping a last odd row or column (PyTorch's floor mode). The
@@ -24,7 +28,7 @@ pub fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
         .reshape((n, c, h / 2, w / 2))?;
     let input = x.detach();
     attach_input_gradient(&value, x, move |g| {
-        if input.device().is_cpu() && input.dtype() == DType::F32 {
+        if is_cpu_f32(&input) {
             route_to_first_maximum(&input, g)
         } else {
             route_with_tensor_ops(&input, g)
@@ -90,19 +94,97 @@ fn first_maximum_mask(windows: &Tensor, pooled: &Tensor) -> candle_core::Result<
 
 /// The gradient of a 2x2 max pool of `x` (`[n, c, h, w]`, f32 on the cpu) given `g`, the
 /// gradient of its output (`[n, c, h / 2, w / 2]`): each window's value goes to the element
-/// PyTorch's `max_pool2d` picks, the first one greater than all before it or NaN, in
-/// row-major order; the rest, and a dropped last odd row or column, get 0.
+/// PyTorch's `max_pool2d` picks ([`first_maximum`]); the rest, and a dropped last odd row or
+/// column, get 0.
 pub fn route_to_first_maximum(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
-    x.contiguous()?
-        .apply_op2_no_bwd(&g.contiguous()?, &FirstMaximumRoute)
+    let (n, c, h, w) = x.dims4()?;
+    let (h2, w2) = (h / 2, w / 2);
+    if g.dims() != [n, c, h2, w2] {
+        candle_core::bail!(
+            "max-pool backward: input {:?}, gradient {:?}",
+            x.dims(),
+            g.dims()
+        )
+    }
+    // In memory, channels-first `[n, c, h, w]` is channels-last `[n c, h, w, 1]`.
+    let x = x.contiguous()?.reshape((n * c, h, w, 1))?;
+    let g = g.contiguous()?.reshape((n * c, h2, w2, 1))?;
+    x.apply_op2_no_bwd(&g, &MaxPoolChannelsLast)?
+        .reshape((n, c, h, w))
 }
 
-/// See [`route_to_first_maximum`].
-struct FirstMaximumRoute;
+/// The element of `window` (indices into `x`, in row-major window order) that PyTorch's
+/// `max_pool2d` picks: scanning from a maximum of `-inf`, an element is taken when it is greater
+/// than the maximum so far or NaN (so the last NaN wins; an all `-inf` window gives its first).
+fn first_maximum(x: &[f32], window: [usize; 4]) -> usize {
+    let mut best = window[0];
+    let mut max = f32::NEG_INFINITY;
+    for k in window {
+        if x[k] > max || x[k].is_nan() {
+            max = x[k];
+            best = k;
+        }
+    }
+    best
+}
 
-impl CustomOp2 for FirstMaximumRoute {
+/// 2x2 max pool, stride 2, of `x` `[n, h, w, c]`, dropping a last odd row or column (PyTorch's
+/// floor mode). Each window's value and gradient are those of its first element that is
+/// greater than all before it or NaN, in row-major order, as PyTorch's `max_pool2d`.
+pub(crate) fn max_pool_2x2_channels_last(x: &Tensor) -> candle_core::Result<Tensor> {
+    x.contiguous()?.apply_op1(MaxPoolChannelsLast)
+}
+
+/// The indices of the 2x2 window whose top-left element is at `top` (row length `row`,
+/// `c` channels), in row-major order.
+fn window(top: usize, row: usize, c: usize) -> [usize; 4] {
+    [top, top + c, top + row, top + row + c]
+}
+
+/// The pool as a candle op: `apply_op1` pools (its backward routes the gradient),
+/// `apply_op2(gradient)` routes the gradient of the pooled output back to the input's shape.
+struct MaxPoolChannelsLast;
+
+impl CustomOp1 for MaxPoolChannelsLast {
     fn name(&self) -> &'static str {
-        "max-pool-2x2-backward"
+        "max-pool-2x2-channels-last"
+    }
+
+    fn cpu_fwd(&self, s: &CpuStorage, l: &Layout) -> candle_core::Result<(CpuStorage, Shape)> {
+        let (n, h, w, c) = l.shape().dims4()?;
+        let x = elements(s, l)?;
+        let (h2, w2) = (h / 2, w / 2);
+        let mut out = vec![0f32; n * h2 * w2 * c];
+        out.par_chunks_mut(w2 * c.max(1))
+            .enumerate()
+            .for_each(|(r, out_row)| {
+                let (image, i) = (r / h2, r % h2);
+                for j in 0..w2 {
+                    for ch in 0..c {
+                        let top = ((image * h + 2 * i) * w + 2 * j) * c + ch;
+                        out_row[j * c + ch] = x[first_maximum(x, window(top, w * c, c))];
+                    }
+                }
+            });
+        Ok((CpuStorage::F32(out), Shape::from((n, h2, w2, c))))
+    }
+
+    fn bwd(
+        &self,
+        x: &Tensor,
+        _pooled: &Tensor,
+        grad: &Tensor,
+    ) -> candle_core::Result<Option<Tensor>> {
+        Ok(Some(x.apply_op2_no_bwd(
+            &grad.contiguous()?,
+            &MaxPoolChannelsLast,
+        )?))
+    }
+}
+
+impl CustomOp2 for MaxPoolChannelsLast {
+    fn name(&self) -> &'static str {
+        "max-pool-2x2-channels-last-backward"
     }
 
     fn cpu_fwd(
@@ -112,31 +194,35 @@ impl CustomOp2 for FirstMaximumRoute {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        let (n, c, h, w) = l1.shape().dims4()?;
+        let (n, h, w, c) = l1.shape().dims4()?;
         let (h2, w2) = (h / 2, w / 2);
-        if l2.shape().dims() != [n, c, h2, w2] || !l1.is_contiguous() || !l2.is_contiguous() {
+        if l2.shape().dims() != [n, h2, w2, c] {
             candle_core::bail!("max-pool backward: input {l1:?}, gradient {l2:?}")
         }
-        let x = &s1.as_slice::<f32>()?[l1.start_offset()..];
-        let g = &s2.as_slice::<f32>()?[l2.start_offset()..];
-        let mut out = vec![0f32; n * c * h * w];
-        for plane in 0..n * c {
-            let (xp, op) = (plane * h * w, plane * h * w);
-            for i in 0..h2 {
-                for j in 0..w2 {
-                    let top = xp + 2 * i * w + 2 * j;
-                    let mut best = top;
-                    let mut max = f32::NEG_INFINITY;
-                    for k in [top, top + 1, top + w, top + w + 1] {
-                        if x[k] > max || x[k].is_nan() {
-                            max = x[k];
-                            best = k;
+        let x = elements(s1, l1)?;
+        let g = elements(s2, l2)?;
+        let mut out = vec![0f32; n * h * w * c];
+        let image_len = (h * w * c).max(1);
+        let pair_len = (2 * w * c).max(1);
+        out.par_chunks_mut(image_len)
+            .enumerate()
+            .for_each(|(image, image_out)| {
+                // Each task owns one window row (two input rows); an odd last row stays 0.
+                image_out
+                    .par_chunks_mut(pair_len)
+                    .take(h2)
+                    .enumerate()
+                    .for_each(|(i, rows)| {
+                        let base = (image * h + 2 * i) * w * c;
+                        for j in 0..w2 {
+                            for ch in 0..c {
+                                let top = base + 2 * j * c + ch;
+                                let best = first_maximum(x, window(top, w * c, c));
+                                rows[best - base] = g[((image * h2 + i) * w2 + j) * c + ch];
+                            }
                         }
-                    }
-                    out[op + (best - xp)] = g[plane * h2 * w2 + i * w2 + j];
-                }
-            }
-        }
+                    });
+            });
         Ok((CpuStorage::F32(out), l1.shape().clone()))
     }
 }
@@ -233,5 +319,98 @@ mod tests {
         assert_eq!(g, [-1.0, 0.0, 1.0, 0.0]);
         let v = abs(&Tensor::from_slice(&x, 4, &Device::Cpu).unwrap()).unwrap();
         assert_eq!(v.to_vec1::<f32>().unwrap(), [2.0, 0.0, 3.0, 0.0]);
+    }
+}
+
+#[cfg(test)]
+mod channels_last_tests {
+    use candle_core::{Device, Tensor, Var};
+
+    use super::*;
+
+    /// `d sum(pool(x) * probe) / dx` and `pool(x)`, channels-last, for `x` `[n, h, w, c]`.
+    fn pool_and_gradient(x: &Tensor, probe: &Tensor) -> (Tensor, Tensor) {
+        let var = Var::from_tensor(x).unwrap();
+        let y = max_pool_2x2_channels_last(var.as_tensor()).unwrap();
+        let grads = (&y * probe).unwrap().sum_all().unwrap().backward().unwrap();
+        (y, grads.get(var.as_tensor()).unwrap().clone())
+    }
+
+    #[test]
+    fn pooling_matches_the_channels_first_pytorch_rule() {
+        let device = Device::Cpu;
+        for (n, h, w, c) in [(2, 6, 8, 3), (1, 7, 5, 4), (3, 2, 3, 1)] {
+            // Values from {0, 1, 2} with NaNs and -inf mixed in: ties in most windows.
+            let x: Vec<f32> = (0..n * h * w * c)
+                .map(|i| match (i * 7 + i / 5) % 11 {
+                    9 => f32::NAN,
+                    10 => f32::NEG_INFINITY,
+                    k => (k % 3) as f32,
+                })
+                .collect();
+            let x = Tensor::from_vec(x, (n, h, w, c), &device).unwrap();
+            let probe = Tensor::rand(-1f32, 1f32, (n, h / 2, w / 2, c), &device).unwrap();
+            let (pooled, grad) = pool_and_gradient(&x, &probe);
+            let first = |t: &Tensor| t.permute((0, 3, 1, 2)).unwrap().contiguous().unwrap();
+            let expected_grad = route_to_first_maximum(&first(&x), &first(&probe)).unwrap();
+            let grad = first(&grad)
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            assert_eq!(
+                grad,
+                expected_grad
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1::<f32>()
+                    .unwrap()
+            );
+            // Each value is the element its window's gradient went to (NaN where that is NaN).
+            let ones =
+                Tensor::ones((n, c, h / 2, w / 2), candle_core::DType::F32, &device).unwrap();
+            let routed = route_to_first_maximum(&first(&x), &ones).unwrap();
+            let routed = routed.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let x_first = first(&x).flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let (h2, w2) = (h / 2, w / 2);
+            let mut chosen = Vec::new();
+            for plane in 0..n * c {
+                for i in 0..h2 {
+                    for j in 0..w2 {
+                        let top = plane * h * w + 2 * i * w + 2 * j;
+                        let taken: Vec<usize> = [top, top + 1, top + w, top + w + 1]
+                            .into_iter()
+                            .filter(|&k| routed[k] == 1.0)
+                            .collect();
+                        assert_eq!(taken.len(), 1);
+                        chosen.push(x_first[taken[0]]);
+                    }
+                }
+            }
+            let pooled = first(&pooled)
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap();
+            assert_eq!(pooled.len(), chosen.len());
+            for (p, e) in pooled.iter().zip(&chosen) {
+                assert!(p == e || p.is_nan() && e.is_nan(), "{p} vs {e}");
+            }
+        }
+    }
+
+    #[test]
+    fn an_all_negative_infinite_window_routes_to_its_first_element() {
+        let x = Tensor::full(f32::NEG_INFINITY, (1, 2, 2, 1), &Device::Cpu).unwrap();
+        let probe = Tensor::ones((1, 1, 1, 1), candle_core::DType::F32, &Device::Cpu).unwrap();
+        let (pooled, grad) = pool_and_gradient(&x, &probe);
+        assert_eq!(
+            pooled.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+            [f32::NEG_INFINITY]
+        );
+        assert_eq!(
+            grad.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+            [1.0, 0.0, 0.0, 0.0]
+        );
     }
 }

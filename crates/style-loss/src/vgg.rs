@@ -7,11 +7,12 @@ use std::path::Path;
 use candle_core::{Device, Tensor};
 
 use crate::clip::normalize_channels;
+use crate::cpu_elements::is_cpu_f32;
 use crate::custom_grad::attach_input_gradient;
 use crate::error::{Result, StyleLossError};
 use crate::tensor_file::NamedTensors;
-use crate::torch_ties::max_pool_2x2;
-use crate::vgg_channels_last::{self, ConvReluChannelsLast, Scratch};
+use crate::torch_ties::{max_pool_2x2, max_pool_2x2_channels_last};
+use crate::vgg_channels_last::{ConvReluChannelsLast, Scratch};
 
 /// ImageNet per-channel mean (RGB, for values in [0, 1]).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -154,32 +155,16 @@ impl Vgg19Features {
             index += 1; // max pool
             weights.push(block);
         }
-        let first = &weights[0][0].0;
-        let layers =
-            if channels_last && first.device().is_cpu() && first.dtype() == candle_core::DType::F32
-            {
-                let blocks = weights
-                    .iter()
-                    .map(|block| {
-                        block
-                            .iter()
-                            .map(|(w, b)| ConvReluChannelsLast::new(w, b))
-                            .collect::<candle_core::Result<Vec<_>>>()
-                    })
-                    .collect::<candle_core::Result<Vec<_>>>()?;
-                Layers::ChannelsLast(blocks, Scratch::default())
-            } else {
-                let blocks = weights
-                    .into_iter()
-                    .map(|block| {
-                        block
-                            .into_iter()
-                            .map(|(w, b)| Conv3x3Relu::new(w, b))
-                            .collect::<candle_core::Result<Vec<_>>>()
-                    })
-                    .collect::<candle_core::Result<Vec<_>>>()?;
-                Layers::ChannelsFirst(blocks)
-            };
+        let layers = if channels_last && is_cpu_f32(&weights[0][0].0) {
+            Layers::ChannelsLast(
+                map_layers(&weights, ConvReluChannelsLast::new)?,
+                Scratch::default(),
+            )
+        } else {
+            Layers::ChannelsFirst(map_layers(&weights, |w, b| {
+                Conv3x3Relu::new(w.clone(), b.clone())
+            })?)
+        };
         Ok(Self { layers })
     }
 
@@ -205,7 +190,7 @@ impl Vgg19Features {
                 let (relu4_2, relu5_2) = run_blocks(
                     blocks,
                     x.permute((0, 2, 3, 1))?,
-                    vgg_channels_last::max_pool_2x2,
+                    max_pool_2x2_channels_last,
                     |conv, x| conv.forward(x, scratch),
                 )?;
                 let first = |t: Tensor| t.permute((0, 3, 1, 2))?.contiguous();
@@ -214,6 +199,17 @@ impl Vgg19Features {
         };
         Ok(VggFeatures { relu4_2, relu5_2 })
     }
+}
+
+/// `layer(weight, bias)` of every convolution, grouped by block as `weights`.
+fn map_layers<L>(
+    weights: &[Vec<(Tensor, Tensor)>],
+    layer: impl Fn(&Tensor, &Tensor) -> candle_core::Result<L>,
+) -> candle_core::Result<Vec<Vec<L>>> {
+    weights
+        .iter()
+        .map(|block| block.iter().map(|(w, b)| layer(w, b)).collect())
+        .collect()
 }
 
 /// Runs the blocks (a pool before each but the first) on `x`; returns the outputs of conv4_2

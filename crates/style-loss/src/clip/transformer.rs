@@ -45,7 +45,7 @@ pub(crate) fn load_layer_norm(
         w.get(&format!("{prefix}.weight"), &[features])?,
         w.get(&format!("{prefix}.bias"), &[features])?,
         eps,
-    ))
+    )?)
 }
 
 /// Multi-head self-attention.
