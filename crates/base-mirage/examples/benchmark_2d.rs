@@ -24,7 +24,7 @@ use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_stylize::StyleSettings;
 use style_loss::test_models::random_full_size_loss;
-use style_loss::{PatchSettings, StyleObjective};
+use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 
 /// Side of the benchmark picture, pixels.
 const BENCHMARK_SIDE: u32 = 512;
@@ -91,6 +91,7 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
             num_patches: patches,
             ..PatchSettings::default()
         },
+        ClipPrecision::F32,
         &device,
     )?;
     let start = Instant::now();

@@ -10,6 +10,7 @@
 //! lies between the image and a loss has a backward pass that is tested against PyTorch.
 
 pub mod clip;
+pub mod compute_device;
 mod conv3x3;
 mod cpu_elements;
 mod custom_grad;
@@ -40,7 +41,7 @@ pub mod weight_resolution;
 /// The candle this crate is built on: images and gradients cross as its tensors, so callers
 /// use this one rather than pinning their own.
 pub use candle_core;
-pub use clip::{ClipConfig, ClipModel};
+pub use clip::{ClipConfig, ClipModel, ClipPrecision};
 pub use error::{Result, StyleLossError};
 pub use losses::{
     background_mask_from_color, LossTerms, LossWeights, StyleLoss, StyleLossOutput, ViewCache,

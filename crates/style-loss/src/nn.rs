@@ -5,7 +5,7 @@
 //! their input gradient by hand (see the `custom_grad` module) so that no weight gradient is ever
 //! computed.
 
-use candle_core::{Tensor, D};
+use candle_core::{DType, Tensor, D};
 use serde::Deserialize;
 
 use crate::cpu_elements::is_cpu_f32;
@@ -90,8 +90,12 @@ impl LayerNorm {
     }
 
     /// Normalizes the last dimension of `x`: one fused pass each way for f32 on the CPU,
-    /// candle ops elsewhere.
+    /// candle ops elsewhere. Other float types are normalized in f32 and converted back (the
+    /// parameters stay f32), as OpenAI's fp16 CLIP does.
     pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        if x.dtype() != DType::F32 {
+            return self.forward(&x.to_dtype(DType::F32)?)?.to_dtype(x.dtype());
+        }
         match &self.fused {
             Some(op) if is_cpu_f32(x) => x.contiguous()?.apply_op1(op.clone()),
             _ => self.forward_with_ops(x),
@@ -109,8 +113,11 @@ impl LayerNorm {
 }
 
 /// Softmax over the last dimension: one fused pass each way for f32 on the CPU, candle ops
-/// elsewhere.
+/// elsewhere. Other float types are computed in f32 and converted back.
 pub(crate) fn softmax_last_dim(x: &Tensor) -> candle_core::Result<Tensor> {
+    if x.dtype() != DType::F32 {
+        return softmax_last_dim(&x.to_dtype(DType::F32)?)?.to_dtype(x.dtype());
+    }
     if is_cpu_f32(x) {
         let len = x.dim(D::Minus1)?;
         return x.contiguous()?.apply_op1(SoftmaxOp { len });

@@ -16,8 +16,8 @@ use candle_core::{Device, Tensor};
 
 use crate::vgg::Vgg19Widths;
 use crate::{
-    ClipConfig, ClipModel, LossWeights, NamedTensors, PatchSettings, StyleDirection, StyleLoss,
-    Vgg19Features,
+    ClipConfig, ClipModel, ClipPrecision, LossWeights, NamedTensors, PatchSettings, StyleDirection,
+    StyleLoss, Vgg19Features,
 };
 
 /// Token count of CLIP's real vocabulary (and of the committed tokenizer).
@@ -85,12 +85,18 @@ pub fn write_tiny_models(dir: &Path) -> TinyModelFiles {
 }
 
 /// A style loss with the paper's weights, `patches`, and ViT-B/32- and VGG-19-sized random
-/// weights (a random style direction), for timing a stylization step without real weights.
-pub fn random_full_size_loss(patches: PatchSettings, device: &Device) -> crate::Result<StyleLoss> {
-    let clip = ClipModel::from_tensors(
+/// weights (a random style direction, CLIP in `precision`), for timing a stylization step
+/// without real weights.
+pub fn random_full_size_loss(
+    patches: PatchSettings,
+    precision: ClipPrecision,
+    device: &Device,
+) -> crate::Result<StyleLoss> {
+    let clip = ClipModel::from_tensors_with_precision(
         &ClipConfig::vit_b_32(),
         &NamedTensors::random(device),
         device,
+        precision,
     )?;
     let vgg = Vgg19Features::from_tensors(&NamedTensors::random(device), Vgg19Widths::default())?;
     let style = Tensor::rand(-1f32, 1f32, clip.config().projection_dim, device)?;

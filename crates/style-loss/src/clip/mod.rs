@@ -4,6 +4,7 @@
 //! CLIP cuts the graph in its fused layer norm and softmax).
 
 mod config;
+mod precision;
 mod preprocess;
 mod text;
 mod transformer;
@@ -11,9 +12,10 @@ mod vision;
 
 use std::path::Path;
 
-use candle_core::{Device, Tensor};
+use candle_core::{DType, Device, Tensor};
 
 pub use config::{ClipConfig, ClipTextConfig, ClipVisionConfig};
+pub use precision::ClipPrecision;
 pub(crate) use preprocess::normalize_channels;
 pub use preprocess::{clip_preprocess, CLIP_MEAN, CLIP_STD};
 
@@ -33,48 +35,79 @@ pub struct ClipModel {
     /// `None` once dropped with [`ClipModel::drop_text_tower`].
     text: Option<(TextTower, Linear)>,
     device: Device,
+    precision: ClipPrecision,
 }
 
 impl ClipModel {
     /// Loads a `transformers` `CLIPModel` safetensors file (the layout of
-    /// `openai/clip-vit-base-patch32` and `openai/clip-vit-large-patch14`).
+    /// `openai/clip-vit-base-patch32` and `openai/clip-vit-large-patch14`) in f32.
     pub fn load(config: &ClipConfig, weights: &Path, device: &Device) -> Result<Self> {
-        Self::from_tensors(
+        Self::load_with_precision(config, weights, device, ClipPrecision::F32)
+    }
+
+    /// [`ClipModel::load`], running in `precision`.
+    pub fn load_with_precision(
+        config: &ClipConfig,
+        weights: &Path,
+        device: &Device,
+        precision: ClipPrecision,
+    ) -> Result<Self> {
+        Self::from_tensors_with_precision(
             config,
             &NamedTensors::load_safetensors(weights, device)?,
             device,
+            precision,
         )
     }
 
-    /// Builds the model from tensors named as in a `transformers` `CLIPModel` checkpoint.
+    /// Builds the model in f32 from tensors named as in a `transformers` `CLIPModel` checkpoint.
     pub fn from_tensors(config: &ClipConfig, w: &NamedTensors, device: &Device) -> Result<Self> {
+        Self::from_tensors_with_precision(config, w, device, ClipPrecision::F32)
+    }
+
+    /// [`ClipModel::from_tensors`], running in `precision`.
+    pub fn from_tensors_with_precision(
+        config: &ClipConfig,
+        w: &NamedTensors,
+        device: &Device,
+        precision: ClipPrecision,
+    ) -> Result<Self> {
         config.validate()?;
-        let text = TextTower::load(w, &config.text)?;
+        let dtype = precision.dtype();
+        let text = TextTower::load(w, &config.text, dtype)?;
         let text_projection = load_linear(
             w,
             "text_projection",
             config.projection_dim,
             config.text.hidden_size,
             false,
+            dtype,
         )?;
         Ok(Self {
-            vision: VisionTower::load(w, &config.vision)?,
+            vision: VisionTower::load(w, &config.vision, dtype)?,
             visual_projection: load_linear(
                 w,
                 "visual_projection",
                 config.projection_dim,
                 config.vision.hidden_size,
                 false,
+                dtype,
             )?,
             text: Some((text, text_projection)),
             config: config.clone(),
             device: device.clone(),
+            precision,
         })
     }
 
     /// The configuration.
     pub fn config(&self) -> &ClipConfig {
         &self.config
+    }
+
+    /// The format the model runs in.
+    pub fn precision(&self) -> ClipPrecision {
+        self.precision
     }
 
     /// The device the weights live on.
@@ -92,11 +125,14 @@ impl ClipModel {
         self.text = None;
     }
 
-    /// Projected, unnormalized embeddings `[n, projection_dim]` of CLIP-normalized pixels
-    /// `[n, 3, image_size, image_size]`.
+    /// Projected, unnormalized f32 embeddings `[n, projection_dim]` of CLIP-normalized pixels
+    /// `[n, 3, image_size, image_size]` (converted to the model's precision on the way in).
     pub fn encode_pixels(&self, pixels: &Tensor) -> Result<Tensor> {
         let pooled = self.vision.forward(pixels)?;
-        Ok(self.visual_projection.forward(&pooled)?)
+        Ok(self
+            .visual_projection
+            .forward(&pooled)?
+            .to_dtype(DType::F32)?)
     }
 
     /// L2-normalized embeddings `[n, projection_dim]` of images `[n, 3, h, w]` in [0, 1]
@@ -106,7 +142,7 @@ impl ClipModel {
         Ok(l2_normalize(&self.encode_pixels(&pixels)?)?)
     }
 
-    /// Projected, unnormalized text embeddings `[rows, projection_dim]` of token id rows (as
+    /// Projected, unnormalized f32 text embeddings `[rows, projection_dim]` of token id rows (as
     /// the tokenizer gives them: start token, text, end token, padding).
     pub fn encode_token_ids(&self, ids: &[Vec<u32>]) -> Result<Tensor> {
         let (tower, projection) = self.text.as_ref().ok_or_else(|| StyleLossError::Input {
@@ -114,6 +150,6 @@ impl ClipModel {
             reason: "the text tower was dropped".into(),
         })?;
         let pooled = tower.forward(ids, &self.device)?;
-        Ok(projection.forward(&pooled)?)
+        Ok(projection.forward(&pooled)?.to_dtype(DType::F32)?)
     }
 }

@@ -1,6 +1,6 @@
 //! CLIP's text tower (Hugging Face `CLIPTextTransformer`) up to the pooled end-of-text token.
 
-use candle_core::{Device, Tensor};
+use candle_core::{DType, Device, Tensor};
 
 use super::config::ClipTextConfig;
 use super::transformer::{load_layer_norm, Encoder, EncoderShape};
@@ -22,18 +22,22 @@ pub(crate) struct TextTower {
 }
 
 impl TextTower {
-    /// Loads `text_model.*`.
-    pub(crate) fn load(w: &NamedTensors, config: &ClipTextConfig) -> Result<Self> {
+    /// Loads `text_model.*`, the matrices and embeddings converted to `dtype`.
+    pub(crate) fn load(w: &NamedTensors, config: &ClipTextConfig, dtype: DType) -> Result<Self> {
         let h = config.hidden_size;
         Ok(Self {
-            token_embedding: w.get(
-                "text_model.embeddings.token_embedding.weight",
-                &[config.vocab_size, h],
-            )?,
-            position_embedding: w.get(
-                "text_model.embeddings.position_embedding.weight",
-                &[config.max_position_embeddings, h],
-            )?,
+            token_embedding: w
+                .get(
+                    "text_model.embeddings.token_embedding.weight",
+                    &[config.vocab_size, h],
+                )?
+                .to_dtype(dtype)?,
+            position_embedding: w
+                .get(
+                    "text_model.embeddings.position_embedding.weight",
+                    &[config.max_position_embeddings, h],
+                )?
+                .to_dtype(dtype)?,
             encoder: Encoder::load(
                 w,
                 "text_model.encoder",
@@ -44,6 +48,7 @@ impl TextTower {
                     heads: config.num_attention_heads,
                     activation: config.hidden_act,
                     layer_norm_eps: config.layer_norm_eps,
+                    dtype,
                 },
             )?,
             final_layer_norm: load_layer_norm(

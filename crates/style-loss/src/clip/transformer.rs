@@ -1,6 +1,6 @@
 //! The pre-norm transformer encoder shared by CLIP's two towers (Hugging Face `CLIPEncoder`).
 
-use candle_core::Tensor;
+use candle_core::{DType, Tensor};
 
 use crate::error::Result;
 use crate::nn::{softmax_last_dim, Activation, LayerNorm, Linear};
@@ -15,19 +15,28 @@ pub(crate) struct EncoderShape {
     pub heads: usize,
     pub activation: Activation,
     pub layer_norm_eps: f64,
+    /// The format of the weight matrices and activations (layer norms and softmax compute in
+    /// f32 whatever it is).
+    pub dtype: DType,
 }
 
-/// Loads `{prefix}.weight` `[out, in]` and `{prefix}.bias` `[out]`.
+/// Loads `{prefix}.weight` `[out, in]` and `{prefix}.bias` `[out]`, converted to `dtype`.
 pub(crate) fn load_linear(
     w: &NamedTensors,
     prefix: &str,
     out_features: usize,
     in_features: usize,
     bias: bool,
+    dtype: DType,
 ) -> Result<Linear> {
-    let weight = w.get(&format!("{prefix}.weight"), &[out_features, in_features])?;
+    let weight = w
+        .get(&format!("{prefix}.weight"), &[out_features, in_features])?
+        .to_dtype(dtype)?;
     let bias = if bias {
-        Some(w.get(&format!("{prefix}.bias"), &[out_features])?)
+        Some(
+            w.get(&format!("{prefix}.bias"), &[out_features])?
+                .to_dtype(dtype)?,
+        )
     } else {
         None
     };
@@ -61,7 +70,7 @@ struct Attention {
 
 impl Attention {
     /// `x` is `[batch, tokens, hidden]`; `mask`, if any, is added to the `[tokens, tokens]`
-    /// attention logits (0 or -inf).
+    /// attention logits (0 or -inf, any float type).
     fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
         let (batch, tokens, hidden) = x.dims3()?;
         let split = |t: Tensor| -> candle_core::Result<Tensor> {
@@ -75,7 +84,7 @@ impl Attention {
         let v = split(self.v.forward(x)?)?;
         let mut logits = q.matmul(&k.t()?.contiguous()?)?;
         if let Some(mask) = mask {
-            logits = logits.broadcast_add(mask)?;
+            logits = logits.broadcast_add(&mask.to_dtype(logits.dtype())?)?;
         }
         let context = softmax_last_dim(&logits)?.matmul(&v)?;
         let context = context.transpose(1, 2)?.reshape((batch, tokens, hidden))?;
@@ -112,23 +121,37 @@ pub(crate) struct Encoder {
 impl Encoder {
     /// Loads `{prefix}.layers.0 ..` with the Hugging Face CLIP names.
     pub(crate) fn load(w: &NamedTensors, prefix: &str, shape: EncoderShape) -> Result<Self> {
-        let h = shape.hidden;
+        let (h, dtype) = (shape.hidden, shape.dtype);
         let layers = (0..shape.layers)
             .map(|i| {
                 let p = format!("{prefix}.layers.{i}");
                 Ok(EncoderLayer {
                     ln1: load_layer_norm(w, &format!("{p}.layer_norm1"), h, shape.layer_norm_eps)?,
                     attention: Attention {
-                        q: load_linear(w, &format!("{p}.self_attn.q_proj"), h, h, true)?,
-                        k: load_linear(w, &format!("{p}.self_attn.k_proj"), h, h, true)?,
-                        v: load_linear(w, &format!("{p}.self_attn.v_proj"), h, h, true)?,
-                        out: load_linear(w, &format!("{p}.self_attn.out_proj"), h, h, true)?,
+                        q: load_linear(w, &format!("{p}.self_attn.q_proj"), h, h, true, dtype)?,
+                        k: load_linear(w, &format!("{p}.self_attn.k_proj"), h, h, true, dtype)?,
+                        v: load_linear(w, &format!("{p}.self_attn.v_proj"), h, h, true, dtype)?,
+                        out: load_linear(w, &format!("{p}.self_attn.out_proj"), h, h, true, dtype)?,
                         heads: shape.heads,
                         head_dim: h / shape.heads,
                     },
                     ln2: load_layer_norm(w, &format!("{p}.layer_norm2"), h, shape.layer_norm_eps)?,
-                    fc1: load_linear(w, &format!("{p}.mlp.fc1"), shape.intermediate, h, true)?,
-                    fc2: load_linear(w, &format!("{p}.mlp.fc2"), h, shape.intermediate, true)?,
+                    fc1: load_linear(
+                        w,
+                        &format!("{p}.mlp.fc1"),
+                        shape.intermediate,
+                        h,
+                        true,
+                        dtype,
+                    )?,
+                    fc2: load_linear(
+                        w,
+                        &format!("{p}.mlp.fc2"),
+                        h,
+                        shape.intermediate,
+                        true,
+                        dtype,
+                    )?,
                     activation: shape.activation,
                 })
             })

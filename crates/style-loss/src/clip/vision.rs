@@ -1,7 +1,7 @@
 //! CLIP's vision tower (Hugging Face `CLIPVisionTransformer`) up to the pooled, layer-normed
 //! class token.
 
-use candle_core::Tensor;
+use candle_core::{DType, Tensor};
 
 use super::config::ClipVisionConfig;
 use super::transformer::{load_layer_norm, Encoder, EncoderShape};
@@ -23,8 +23,8 @@ pub(crate) struct VisionTower {
 }
 
 impl VisionTower {
-    /// Loads `vision_model.*`.
-    pub(crate) fn load(w: &NamedTensors, config: &ClipVisionConfig) -> Result<Self> {
+    /// Loads `vision_model.*`, the matrices and embeddings converted to `dtype`.
+    pub(crate) fn load(w: &NamedTensors, config: &ClipVisionConfig, dtype: DType) -> Result<Self> {
         let h = config.hidden_size;
         let p = config.patch_size;
         let c = config.num_channels;
@@ -35,12 +35,16 @@ impl VisionTower {
             &[h, c, p, p],
         )?;
         Ok(Self {
-            patch_embedding: Linear::new(conv.reshape((h, c * p * p))?, None)?,
-            class_embedding: w.get("vision_model.embeddings.class_embedding", &[h])?,
-            position_embedding: w.get(
-                "vision_model.embeddings.position_embedding.weight",
-                &[positions, h],
-            )?,
+            patch_embedding: Linear::new(conv.reshape((h, c * p * p))?.to_dtype(dtype)?, None)?,
+            class_embedding: w
+                .get("vision_model.embeddings.class_embedding", &[h])?
+                .to_dtype(dtype)?,
+            position_embedding: w
+                .get(
+                    "vision_model.embeddings.position_embedding.weight",
+                    &[positions, h],
+                )?
+                .to_dtype(dtype)?,
             pre_layernorm: load_layer_norm(w, "vision_model.pre_layrnorm", h, eps)?,
             encoder: Encoder::load(
                 w,
@@ -52,6 +56,7 @@ impl VisionTower {
                     heads: config.num_attention_heads,
                     activation: config.hidden_act,
                     layer_norm_eps: eps,
+                    dtype,
                 },
             )?,
             post_layernorm: load_layer_norm(w, "vision_model.post_layernorm", h, eps)?,
@@ -59,7 +64,8 @@ impl VisionTower {
         })
     }
 
-    /// Pooled output `[batch, hidden]` of normalized pixels `[batch, 3, size, size]`.
+    /// Pooled output `[batch, hidden]` of normalized pixels `[batch, 3, size, size]`, in the
+    /// tower's format (the pixels are converted to it).
     pub(crate) fn forward(&self, pixels: &Tensor) -> Result<Tensor> {
         let (batch, channels, height, width) = pixels.dims4()?;
         let size = self.config.image_size;
@@ -79,6 +85,7 @@ impl VisionTower {
         // [b, c, g, p, g, p] -> [b, g, g, c, p, p]: each row is one patch in (c, y, x) order,
         // the order of the flattened convolution kernel.
         let patches = pixels
+            .to_dtype(self.class_embedding.dtype())?
             .reshape(vec![batch, channels, g, p, g, p])?
             .permute(vec![0, 2, 4, 1, 3, 5])?
             .reshape((batch * g * g, channels * p * p))?;
