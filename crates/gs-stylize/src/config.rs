@@ -14,6 +14,7 @@ use gs_core::model::GaussianLrs;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
+use style_loss::ClipPrecision;
 
 use crate::StylizeError;
 
@@ -32,8 +33,10 @@ pub struct StyleSettings {
     pub steps: u64,
     /// Seed of the view order and of the patch sampling.
     pub seed: u64,
-    /// Where the Gaussians are trained: `cpu`, `gpu` or `auto` (a real GPU when there is one,
-    /// else the cpu). A run may resume on another device.
+    /// Where the run computes: `cpu`, `gpu` or `auto` (a GPU for both when there is one, else
+    /// the cpu). The rasterizer and Adam run on wgpu's GPU, the style loss on candle's CUDA or
+    /// Metal device when the build has that feature (else on the cpu, and the run says so). A
+    /// run may resume on another device.
     #[serde(with = "device_name")]
     pub device: DeviceChoice,
     /// Weight of the directional CLIP loss.
@@ -76,6 +79,9 @@ pub struct StyleSettings {
     pub vgg_weights: Option<PathBuf>,
     /// Channel widths of the VGG-19 blocks (smaller only for test models).
     pub vgg_widths: [usize; 5],
+    /// The format CLIP runs in: `f32`, or `f16` / `bf16` as the authors' fp16 CLIP (faster on
+    /// a GPU; its error against f32 is in docs/benchmarks.md). VGG always runs in f32.
+    pub clip_precision: ClipPrecision,
 }
 
 impl StyleSettings {
@@ -110,6 +116,7 @@ impl StyleSettings {
             tokenizer: None,
             vgg_weights: None,
             vgg_widths: [64, 128, 256, 512, 512],
+            clip_precision: ClipPrecision::F32,
         }
     }
 

@@ -30,7 +30,9 @@ pub mod writable;
 use std::path::PathBuf;
 
 pub use config::{resolve_config, Override, StyleSettings};
-pub use run::{open_device, prepare, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
+pub use run::{
+    open_device, open_loss_device, prepare, PreparedRun, RunOptions, StylizeJob, StylizeOutcome,
+};
 
 /// Why a stylization could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
@@ -57,6 +59,9 @@ pub enum StylizeError {
     /// The compute device asked for is missing or failed.
     #[error("{0}")]
     Device(#[from] gs_core::backend::DeviceError),
+    /// The style loss's GPU (candle's CUDA or Metal device) is missing or failed.
+    #[error("{0}")]
+    LossDevice(String),
     /// Rendering a model failed.
     #[error("render: {0}")]
     Render(#[from] gs_core::backend::RenderError),

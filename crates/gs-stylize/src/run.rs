@@ -18,6 +18,7 @@ use gs_core::model::{BaseModel, View};
 use gs_core::train::{resumed_sampler, TrainConfig};
 use gs_core::Image;
 use serde::Serialize;
+use style_loss::compute_device;
 use style_loss::{
     ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection, StyleLoss,
     StyleObjective, Vgg19Features, Vgg19Widths,
@@ -93,13 +94,15 @@ pub struct PreparedRun {
     out: PathBuf,
     options: RunOptions,
     backend: Backend,
+    loss_device: Device,
     weights: WeightFiles,
 }
 
 /// Checks everything a stylization with `settings` into `out` needs before any long work: the
 /// settings, the output folder ([`check_out_folder`]), the model files ([`resolve_weights`]),
-/// the style image, the CLIP configuration, and the device, which it opens and names in one
-/// line (`device: ...`). Every problem found is reported at once
+/// the style image, the CLIP configuration, and the devices, which it opens and names in one
+/// line (`device: <rasterizer's>; style loss: <candle's>`, see [`open_loss_device`]). Every
+/// problem found is reported at once
 /// ([`StylizeError::Several`] when there are more than one).
 pub fn prepare(
     settings: &StyleSettings,
@@ -125,14 +128,22 @@ pub fn prepare(
         .open()
         .map_err(|e| problems.push(e.into()))
         .ok();
-    match (weights, backend) {
-        (Some(weights), Some(backend)) if problems.is_empty() => {
-            println!("device: {}", backend.describe());
+    let loss_device = open_loss_device(settings.device)
+        .map_err(|e| problems.push(e))
+        .ok();
+    match (weights, backend, loss_device) {
+        (Some(weights), Some(backend), Some((loss_device, note))) if problems.is_empty() => {
+            println!(
+                "device: {}; style loss: {}{note}",
+                backend.describe(),
+                compute_device::describe(&loss_device)
+            );
             Ok(PreparedRun {
                 settings: settings.clone(),
                 out: out.to_path_buf(),
                 options,
                 backend,
+                loss_device,
                 weights,
             })
         }
@@ -145,6 +156,11 @@ impl PreparedRun {
     /// The device the run trains on (a modality fits and renders there too).
     pub fn backend(&self) -> &Backend {
         &self.backend
+    }
+
+    /// The candle device the style loss runs on.
+    pub fn loss_device(&self) -> &Device {
+        &self.loss_device
     }
 
     /// The output folder.
@@ -187,6 +203,7 @@ impl PreparedRun {
             out,
             options,
             backend,
+            loss_device: device,
             weights,
         } = self;
         let out = out.as_path();
@@ -200,14 +217,13 @@ impl PreparedRun {
             background,
             ..
         } = job;
-        let device = Device::Cpu;
-        let (loss, masks) = build_loss(settings, weights, masks, background, &device)?;
+        let (loss, masks) = build_loss(settings, weights, masks, background, device)?;
         let mut objective = StyleObjective::new(
             loss,
             &images,
             masks.as_deref(),
             settings.seed.wrapping_add(PATCH_SEED_OFFSET),
-            &device,
+            device,
         )?;
         let config_json = serde_json::to_value(config).expect("the config serializes");
         let bad_checkpoint = |message: String| StylizeError::Checkpoint {
@@ -436,6 +452,27 @@ pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), Styl
     }
 }
 
+/// The candle device of the style loss for `choice`, and a note for the device line: `cpu`
+/// the cpu; `auto` a GPU when this build has one (the `cuda` or `metal` feature) and it opens,
+/// else the cpu; `gpu` that GPU, an error when the build has one that does not open, and the
+/// cpu with a note saying why when the build has none (the rasterizer still runs on wgpu).
+pub fn open_loss_device(choice: DeviceChoice) -> Result<(Device, String), StylizeError> {
+    let cpu = |note: &str| (Device::Cpu, note.to_string());
+    match (choice, compute_device::open_gpu()) {
+        (DeviceChoice::Cpu, _) => Ok(cpu("")),
+        (DeviceChoice::Auto | DeviceChoice::Gpu, Ok(Some(gpu))) => Ok((gpu, String::new())),
+        (DeviceChoice::Auto, Ok(None)) => Ok(cpu("")),
+        (DeviceChoice::Auto, Err(why)) => Ok(cpu(&format!(" ({why})"))),
+        (DeviceChoice::Gpu, Ok(None)) => Ok(cpu(
+            " (this build has neither the cuda nor the metal feature: scripts/build_cuda.sh \
+             builds one with cuda)",
+        )),
+        (DeviceChoice::Gpu, Err(why)) => Err(StylizeError::LossDevice(format!(
+            "--device gpu: the style loss: {why}; use --device auto or cpu to run it on the cpu"
+        ))),
+    }
+}
+
 /// Checks that the style image of `settings` decodes and that its CLIP configuration parses.
 fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), StylizeError> {
     if let Some(path) = &settings.style_image {
@@ -469,7 +506,8 @@ fn build_loss(
         None => ClipConfig::vit_b_32(),
     };
     let tokenizer = ClipTokenizer::from_file(&files.tokenizer)?;
-    let mut clip = ClipModel::load(&clip_config, &files.clip, device)?;
+    let mut clip =
+        ClipModel::load_with_precision(&clip_config, &files.clip, device, settings.clip_precision)?;
     let direction = match (&style_image, &settings.style_prompt) {
         (Some(image), _) => {
             StyleDirection::from_image(&clip, &tokenizer, image, &settings.source_prompt)?
