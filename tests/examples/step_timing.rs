@@ -1,22 +1,29 @@
-//! Times one CLIPGaussian 3D stylization step on this machine, split into render, style loss
-//! (CLIP full image + patches, VGG, background) with its image gradient, rasterizer backward and
-//! Adam: 300k Gaussians of SH degree 3 at 800x800, ViT-B/32-sized CLIP and VGG-19 with random
-//! weights, the paper's 64 patches of 128.
+//! Times CLIPGaussian 3D stylization steps on this machine, split into render, style loss
+//! (CLIP full image + patches, VGG, background) with its image gradient, and rasterizer backward
+//! with Adam: Gaussians of SH degree 3 on a sphere, ViT-B/32-sized CLIP and VGG-19 with random
+//! weights, the paper's 64 patches of 128, through the same `Trainer` and device choice as a
+//! stylization run. Prints the mean of the timed steps (after one untimed warm-up step) and the
+//! projected time of a 5000-step run.
 //!
-//! Run: `cargo run --release -p integration-tests --example step_timing [-- <gaussians>]`.
+//! Run: `cargo run --release -p integration-tests --example step_timing -- [<gaussians>
+//! [<device> [<steps> [<clip precision> [<width>x<height>]]]]]`, defaults 300000, cpu, 3,
+//! f32, 800x800; `<device>` is cpu, gpu or auto as `--device`; build with `--features cuda`
+//! (scripts/build_cuda.sh) for the style loss on CUDA.
 
 use std::ops::ControlFlow;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use candle_core::Device;
-use gs_core::adam::{Adam, AdamHyper};
-use gs_core::model::{BaseModel, GaussianLrs, View};
+use gs_core::adam::AdamHyper;
+use gs_core::backend::{DeviceChoice, Trainer};
+use gs_core::model::{GaussianLrs, View};
 use gs_core::raster::render;
-use gs_core::train::{train, TrainConfig, ViewSampler};
+use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
 use rand::{Rng, SeedableRng};
+use style_loss::compute_device;
 use style_loss::test_models::random_full_size_loss;
-use style_loss::{PatchSettings, StyleObjective};
+use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 
 /// `n` Gaussians on a unit sphere's surface, sized to their spacing and mostly opaque.
 fn scene(n: usize) -> GaussianSet {
@@ -47,16 +54,58 @@ fn scene(n: usize) -> GaussianSet {
     g
 }
 
+/// The command line: gaussians, device, timed steps, CLIP precision, image size.
+struct Args {
+    gaussians: usize,
+    device: DeviceChoice,
+    steps: u64,
+    precision: ClipPrecision,
+    size: (u32, u32),
+}
+
+fn parse_args() -> Result<Args, Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let arg = |i: usize| args.get(i).map(String::as_str);
+    let size = match arg(4) {
+        Some(s) => {
+            let (w, h) = s
+                .split_once('x')
+                .ok_or(format!("size {s:?} is not <w>x<h>"))?;
+            (w.parse()?, h.parse()?)
+        }
+        None => (800, 800),
+    };
+    Ok(Args {
+        gaussians: arg(0).map_or(Ok(300_000), str::parse)?,
+        device: arg(1).map_or(Ok(DeviceChoice::Cpu), str::parse)?,
+        steps: arg(2).map_or(Ok(3), str::parse)?,
+        precision: arg(3).map_or(Ok(ClipPrecision::F32), str::parse)?,
+        size,
+    })
+}
+
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
-    let n: usize = std::env::args().nth(1).map_or(Ok(300_000), |s| s.parse())?;
-    let device = Device::Cpu;
-    let mut model = scene(n);
+    let args = parse_args()?;
+    let n = args.gaussians;
+    let (width, height) = args.size;
+    let backend = args.device.open()?;
+    let loss_device = match args.device {
+        DeviceChoice::Cpu => Device::Cpu,
+        _ => compute_device::open_gpu()?.unwrap_or(Device::Cpu),
+    };
+    println!(
+        "device: {}; style loss: {} ({})",
+        backend.describe(),
+        compute_device::describe(&loss_device),
+        args.precision
+    );
+    let model = scene(n);
     let views: Vec<View> = (0..4)
         .map(|k| {
             let a = k as f64 * std::f64::consts::FRAC_PI_2;
             let eye = [3.2 * a.cos(), -0.8, 3.2 * a.sin()];
-            Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.7, 800, 800).map(View::still)
+            Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.7, width, height).map(View::still)
         })
         .collect::<Result<_, _>>()?;
     let targets: Vec<Image> = views
@@ -65,66 +114,64 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .collect();
 
     let start = Instant::now();
-    let loss = random_full_size_loss(PatchSettings::default(), &device)?;
+    let loss = random_full_size_loss(PatchSettings::default(), args.precision, &loss_device)?;
     println!("random weights: {:.1} s", start.elapsed().as_secs_f64());
     let start = Instant::now();
-    let mut objective = StyleObjective::new(loss, &targets[..1], None, 0, &device)?;
+    let mut objective = StyleObjective::new(loss, &targets, None, 0, &loss_device)?;
     println!(
-        "per-view cache (GT CLIP embedding + VGG features), once per view: {:.1} s",
+        "per-view cache (GT CLIP embedding + VGG features) of {} views: {:.1} s",
+        targets.len(),
         start.elapsed().as_secs_f64()
     );
 
-    let mut adam = Adam::new(
-        GaussianLrs::stylization(3.5, 0.01).groups(),
-        &model.group_lens(),
-        AdamHyper::default(),
-    );
-    let config = TrainConfig {
-        steps: 1,
-        background: [1.0; 3],
-    };
-    let mut report = None;
-    train(
-        &mut model,
-        &views[..1],
+    let groups = GaussianLrs::stylization(3.5, 0.01).groups();
+    let mut trainer = Trainer::new(&backend, model, groups, AdamHyper::default())?;
+    let mut sampler = ViewSampler::new(views.len(), 0);
+    let mut phases = [Duration::ZERO; 3];
+    let mut terms = Vec::new();
+    let warm_up = Instant::now();
+    let mut timed = None;
+    trainer.train(
+        &views,
         &mut objective,
-        &mut adam,
-        &mut ViewSampler::new(1, 0),
-        &config,
+        &mut sampler,
+        &TrainConfig {
+            steps: 1 + args.steps,
+            background: [1.0; 3],
+        },
         |r| {
-            report = Some(r.clone());
+            if r.step == 1 {
+                println!("warm-up step: {:.2} s", warm_up.elapsed().as_secs_f64());
+                timed = Some(Instant::now());
+            } else {
+                phases[0] += r.render_time;
+                phases[1] += r.objective_time;
+                phases[2] += r.backward_time;
+                terms.clone_from(&r.value.terms);
+            }
             ControlFlow::Continue(())
         },
     )?;
-    let r = report.expect("one step ran");
-
-    // Adam alone on the same parameter count, for the split of the backward phase.
-    let grads: Vec<Vec<f32>> = model.group_lens().iter().map(|&l| vec![1e-3; l]).collect();
-    let grad_refs: Vec<&[f32]> = grads.iter().map(|g| g.as_slice()).collect();
-    let start = Instant::now();
-    adam.step(&mut model.groups_mut(), &grad_refs);
-    let adam_secs = start.elapsed().as_secs_f64();
-
-    let backward = r.backward_time.as_secs_f64();
+    let wall = timed.map_or(0.0, |t| t.elapsed().as_secs_f64()) / args.steps.max(1) as f64;
+    let mean = |d: Duration| d.as_secs_f64() / args.steps.max(1) as f64;
+    println!(
+        "mean of {} steps, {n} Gaussians, {width}x{height}:",
+        args.steps
+    );
     println!("| phase | seconds |");
     println!("|---|---|");
+    println!("| render (forward) | {:.4} |", mean(phases[0]));
     println!(
-        "| render (forward, {n} Gaussians, 800x800) | {:.3} |",
-        r.render_time.as_secs_f64()
+        "| style loss + dL/dimage (1 CLIP pass, 64 patch passes, VGG-19) | {:.4} |",
+        mean(phases[1])
     );
+    println!("| rasterizer backward + Adam | {:.4} |", mean(phases[2]));
+    println!("| whole step (wall) | {wall:.4} |");
+    println!("projected 5000-step run: {:.1} min", wall * 5000.0 / 60.0);
     println!(
-        "| style loss + dL/dimage (1 CLIP pass, 64 patch passes, VGG-19) | {:.1} |",
-        r.objective_time.as_secs_f64()
+        "parameters: {}",
+        trainer.param_groups().iter().map(Vec::len).sum::<usize>()
     );
-    println!(
-        "| rasterizer backward | {:.3} |",
-        (backward - adam_secs).max(0.0)
-    );
-    println!(
-        "| Adam ({} parameters) | {:.3} |",
-        model.group_lens().iter().sum::<usize>(),
-        adam_secs
-    );
-    println!("terms: {:?}", r.value.terms);
+    println!("terms: {terms:?}");
     Ok(())
 }

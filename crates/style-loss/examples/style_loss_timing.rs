@@ -5,14 +5,15 @@
 //! Run: `cargo run -p style-loss --example style_loss_timing [-- <repeats> [<term>]]`, where
 //! `<term>` (directional, patch, content, background, all) times that one only (the dev profile
 //! builds candle at opt-level 3, where the time is spent; `--release` also works). Add
-//! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU.
+//! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU,
+//! and `STYLE_LOSS_PRECISION=f16|bf16` for CLIP in half precision.
 
 use std::time::Instant;
 
 use candle_core::{Device, Tensor};
 use style_loss::{
-    background_mask_from_color, style_rng, ClipConfig, ClipModel, LossWeights, NamedTensors,
-    PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
+    background_mask_from_color, style_rng, ClipConfig, ClipModel, ClipPrecision, LossWeights,
+    NamedTensors, PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
 };
 
 fn device() -> candle_core::Result<Device> {
@@ -34,10 +35,15 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let device = device()?;
     let (height, width) = (800, 800);
     let start = Instant::now();
-    let clip = ClipModel::from_tensors(
+    let precision: ClipPrecision = std::env::var("STYLE_LOSS_PRECISION")
+        .as_deref()
+        .unwrap_or("f32")
+        .parse()?;
+    let clip = ClipModel::from_tensors_with_precision(
         &ClipConfig::vit_b_32(),
         &NamedTensors::random(&device),
         &device,
+        precision,
     )?;
     let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
     println!("random weights: {:.2} s", seconds_since(start));
@@ -76,7 +82,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("background", only(0.0, 0.0, 0.0, paper.background)),
         ("all four terms", paper),
     ];
-    println!("device: {device:?}, image {height}x{width}, 64 patches of 128, repeats {repeats}");
+    println!("device: {device:?}, CLIP {precision}, image {height}x{width}, 64 patches of 128, repeats {repeats}");
     println!("| term | cache_view (s) | loss + gradient (s) |");
     println!("|---|---|---|");
     for (name, weights) in configurations {
