@@ -23,7 +23,7 @@ use gs_stylize::StylizeError;
 
 use crate::flat::FlatGaussians;
 use crate::init::initial_gaussians;
-use crate::mirror::{extent, mirage_camera, mirror_views, mirrored, plane_half_size};
+use crate::mirror::{extent, mirror_views, mirrored, plane_camera, plane_half_size};
 
 /// How to fit a picture. The learning rates are MiraGe's (3DGS's) defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -272,7 +272,7 @@ pub fn render_picture(
     background: [f32; 3],
     backend: &Backend,
 ) -> Result<Image, FitError> {
-    let view = View::still(mirage_camera(width, height, distance, mirrored)?);
+    let view = View::still(plane_camera(width, height, distance, mirrored)?);
     Ok(backend.model_renderer(model)?.render(&view, background)?)
 }
 

@@ -4,7 +4,8 @@
 //! picture itself from `(0, -d, 0)` and its horizontal mirror from `(0, +d, 0)` (MiraGe's
 //! "mirror" camera setting).
 //!
-//! - [`mirror`]: the camera pair, the mirrored target and the scene extent.
+//! - [`mirror`]: the camera pair, the mirrored target and the scene extent (gs-core's
+//!   [`gs_core::mirror_pair`], which VeGaS shares).
 //! - [`flat`]: the flat Gaussians as a [`gs_core::model::BaseModel`] (one scale held at 1e-8,
 //!   the other two clamped to `[1e-8, 1]`).
 //! - [`init`]: MiraGe's random initialisation on the picture plane.
@@ -18,7 +19,7 @@
 //!
 //! ```
 //! use base_mirage::init::initial_gaussians;
-//! use base_mirage::mirror::{mirage_camera, plane_half_size};
+//! use base_mirage::mirror::{plane_camera, plane_half_size};
 //! use gs_core::backend::DeviceChoice;
 //! use gs_core::model::View;
 //!
@@ -26,7 +27,7 @@
 //! let (half_width, half_height) = plane_half_size(width, height, 1.0);
 //! let mut model = initial_gaussians(500, 0, half_width, half_height, 7);
 //! let backend = DeviceChoice::Cpu.open()?;
-//! let front = View::still(mirage_camera(width, height, 1.0, false)?);
+//! let front = View::still(plane_camera(width, height, 1.0, false)?);
 //! let picture = backend.model_renderer(&mut model)?.render(&front, [0.0; 3])?;
 //! assert_eq!((picture.width, picture.height), (width, height));
 //! # Ok::<(), Box<dyn std::error::Error>>(())
@@ -36,7 +37,7 @@ pub mod background;
 pub mod fit;
 pub mod flat;
 pub mod init;
-pub mod mirror;
+pub use gs_core::mirror_pair as mirror;
 pub mod model_file;
 pub mod picture;
 pub mod stylize;

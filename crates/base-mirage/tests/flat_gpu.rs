@@ -4,7 +4,7 @@
 //! groups. Needs a GPU adapter (lavapipe in CI).
 
 use base_mirage::flat::{FlatGaussians, FLAT_SCALE};
-use base_mirage::mirror::{mirage_camera, plane_half_size};
+use base_mirage::mirror::{plane_camera, plane_half_size};
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::{backward, render, OutputGrads};
@@ -69,7 +69,7 @@ fn assert_close(what: &str, want: &[f32], got: &[f32]) {
 fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
     let ctx = context(GpuOptions::default());
     let mut model = model(30);
-    let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
+    let view = View::still(plane_camera(W, H, 1.0, false).unwrap());
     let bg = [0.1, 0.2, 0.3];
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
     let mut scratch = GpuScratch::default();
@@ -138,7 +138,7 @@ fn the_construction_runs_in_chunks_past_the_binding_limit() {
         ..GpuOptions::default()
     });
     let mut model = model(1000);
-    let view = View::still(mirage_camera(W, H, 1.0, false).unwrap());
+    let view = View::still(plane_camera(W, H, 1.0, false).unwrap());
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
     let mut scratch = GpuScratch::default();
     let mut step = GpuStep {

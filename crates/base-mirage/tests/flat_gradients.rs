@@ -3,7 +3,7 @@
 //! including in-plane scales clamped at either bound and the held flat axis.
 
 use base_mirage::flat::{add_scale_grads, renderable, FLAT_SCALE};
-use base_mirage::mirror::{mirage_camera, plane_half_size};
+use base_mirage::mirror::{plane_camera, plane_half_size};
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
 use gs_core::{Camera, GaussianSet};
 use rand::{Rng, SeedableRng};
@@ -57,7 +57,7 @@ fn loss(params: &GaussianSet<f64>, camera: &Camera, w: &[f64]) -> f64 {
 
 #[test]
 fn flat_gaussian_gradients_match_central_differences() {
-    let camera = mirage_camera(W, H, 1.0, false).unwrap();
+    let camera = plane_camera(W, H, 1.0, false).unwrap();
     let params = scene();
     let w = weights();
     let shown = renderable(&params);

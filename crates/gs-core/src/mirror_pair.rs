@@ -1,18 +1,19 @@
-//! MiraGe's mirror camera pair: the picture seen from `(0, -d, 0)` looking along `+y` (image
-//! right = world `+x`, image up = world `+z`) and its horizontal mirror seen from `(0, +d, 0)`
-//! looking along `-y`. Both have MiraGe's horizontal field of view and the same focal length
+//! The mirror camera pair of Gaussians on the plane `y = 0` (MiraGe's pictures, VeGaS's video
+//! frames): the picture seen from `(0, -d, 0)` looking along `+y` (image right = world `+x`,
+//! image up = world `+z`) and its horizontal mirror seen from `(0, +d, 0)` looking along `-y`.
+//! Both have MiraGe's horizontal field of view (VeGaS uses the same) and the same focal length
 //! along both axes, so the vertical field of view follows from the aspect ratio.
 
-use gs_core::model::View;
-use gs_core::{Camera, GsError, Image};
+use crate::model::View;
+use crate::{Camera, GsError, Image};
 
-/// MiraGe's horizontal field of view, radians (`camera_angle_x` of its 2D reader).
+/// The horizontal field of view, radians (`camera_angle_x` of MiraGe's and VeGaS's readers).
 pub const FOV_X: f64 = 0.6911112070083618;
 
-/// MiraGe's default camera distance `d`, world units.
+/// The default camera distance `d` (MiraGe's and VeGaS's `--distance`), world units.
 pub const DEFAULT_DISTANCE: f64 = 1.0;
 
-/// The NeRF/Blender camera-to-world matrix MiraGe builds for a camera at signed distance
+/// The NeRF/Blender camera-to-world matrix MiraGe and VeGaS build for a camera at signed distance
 /// `signed` (negative: the front camera at `(0, signed, 0)`; positive: the mirror camera).
 fn camera_to_world(signed: f64) -> [[f64; 4]; 4] {
     let s = signed.signum();
@@ -26,7 +27,7 @@ fn camera_to_world(signed: f64) -> [[f64; 4]; 4] {
 
 /// The camera that sees the picture (`mirrored == false`) or its mirror image, for a picture
 /// of `width x height` pixels at distance `distance` (> 0) from the plane.
-pub fn mirage_camera(
+pub fn plane_camera(
     width: u32,
     height: u32,
     distance: f64,
@@ -44,8 +45,8 @@ pub fn mirage_camera(
 /// The two training views, `[picture, mirror]`.
 pub fn mirror_views(width: u32, height: u32, distance: f64) -> Result<[View; 2], GsError> {
     Ok([
-        View::still(mirage_camera(width, height, distance, false)?),
-        View::still(mirage_camera(width, height, distance, true)?),
+        View::still(plane_camera(width, height, distance, false)?),
+        View::still(plane_camera(width, height, distance, true)?),
     ])
 }
 
@@ -76,7 +77,7 @@ pub fn extent(distance: f64) -> f64 {
 /// Half the width and half the height (world units) of the picture on the plane `y = 0` as
 /// the front camera frames it: `top = d tan(fov_y / 2)`, `right = top * width / height`.
 pub fn plane_half_size(width: u32, height: u32, distance: f64) -> (f64, f64) {
-    let focal = gs_core::camera::fov_to_focal(FOV_X, width);
+    let focal = crate::camera::fov_to_focal(FOV_X, width);
     let top = distance * 0.5 * height as f64 / focal;
     (top * width as f64 / height as f64, top)
 }
@@ -87,7 +88,7 @@ mod tests {
 
     #[test]
     fn front_camera_sees_world_x_to_the_right_and_z_up() {
-        let cam = mirage_camera(64, 32, 1.0, false).unwrap();
+        let cam = plane_camera(64, 32, 1.0, false).unwrap();
         let centre = cam.project([0.0, 0.0, 0.0]).unwrap().0;
         assert!((centre[0] - 32.0).abs() < 1e-9 && (centre[1] - 16.0).abs() < 1e-9);
         let right = cam.project([0.1, 0.0, 0.0]).unwrap().0;
@@ -99,8 +100,8 @@ mod tests {
     #[test]
     fn mirror_camera_sees_the_plane_flipped_left_to_right() {
         let (front, back) = (
-            mirage_camera(64, 32, 1.0, false).unwrap(),
-            mirage_camera(64, 32, 1.0, true).unwrap(),
+            plane_camera(64, 32, 1.0, false).unwrap(),
+            plane_camera(64, 32, 1.0, true).unwrap(),
         );
         for p in [[0.13, 0.0, 0.05], [-0.2, 0.0, -0.07]] {
             let (a, da) = front.project(p).unwrap();
@@ -115,7 +116,7 @@ mod tests {
     fn the_plane_rectangle_fills_the_front_view() {
         let (w, h) = (80, 50);
         let (right, top) = plane_half_size(w, h, 2.0);
-        let cam = mirage_camera(w, h, 2.0, false).unwrap();
+        let cam = plane_camera(w, h, 2.0, false).unwrap();
         let corner = cam.project([right, 0.0, top]).unwrap().0;
         assert!((corner[0] - 80.0).abs() < 1e-9 && corner[1].abs() < 1e-9);
     }
@@ -123,7 +124,7 @@ mod tests {
     #[test]
     fn a_distance_that_is_not_positive_is_refused() {
         for d in [0.0, -1.0, f64::NAN] {
-            assert!(mirage_camera(8, 8, d, false).is_err());
+            assert!(plane_camera(8, 8, d, false).is_err());
         }
     }
 
