@@ -1,0 +1,219 @@
+//! VeGaS's model of a video behind [`BaseModel`]: folded Gaussians ([`FoldedParams`]) and the
+//! global time function ([`crate::time`]), each frame rendered as the 3D Gaussians of
+//! [`build_frame`] at that frame's learned time.
+//!
+//! A view names its frame by its time: frame `f` of `F` is the view time `f / (F - 1)`
+//! ([`view_time`]); the model renders it at the learned time `t_f`, so the time logits are
+//! trained through every frame.
+
+use std::borrow::Cow;
+
+use gs_core::gaussians::GaussianGrads;
+use gs_core::model::{BaseModel, Forward, ModelError, View};
+use gs_core::raster::GradMask;
+
+use crate::frame::{add_frame_grads, build_frame, FoldedParams, FrameTape, POLY_LEN};
+use crate::time::{add_time_grads, frame_time};
+
+/// The parameter groups, in order (VeGaS's names where it has them).
+pub const GROUP_NAMES: [&str; 9] = [
+    "xyz", "scaling", "rotation", "m", "sigma", "w", "opacity", "f_dc", "time",
+];
+
+/// Group indices in [`GROUP_NAMES`].
+mod group {
+    pub const XYZ: usize = 0;
+    pub const SCALING: usize = 1;
+    pub const ROTATION: usize = 2;
+    pub const M: usize = 3;
+    pub const SIGMA: usize = 4;
+    pub const W: usize = 5;
+    pub const OPACITY: usize = 6;
+    pub const F_DC: usize = 7;
+    pub const TIME: usize = 8;
+}
+
+/// The view time that names frame `frame` of `frames` (`0` for a single frame).
+pub fn view_time(frame: usize, frames: usize) -> f64 {
+    if frames <= 1 {
+        0.0
+    } else {
+        frame as f64 / (frames - 1) as f64
+    }
+}
+
+/// The frame of `frames` that the view time `time` names, or an error when it names none.
+pub fn frame_of(time: f64, frames: usize) -> Result<usize, String> {
+    let scaled = time * frames.saturating_sub(1) as f64;
+    let frame = scaled.round();
+    if !(0.0..=1.0).contains(&time) || (scaled - frame).abs() > 1e-6 {
+        return Err(format!(
+            "view time {time} names no frame of {frames} (frame f is time f / {})",
+            frames.saturating_sub(1).max(1)
+        ));
+    }
+    Ok(frame as usize)
+}
+
+/// A video's VeGaS model: folded Gaussians and the time logits of its `F` frames.
+#[derive(Clone, Debug, PartialEq)]
+pub struct FoldedGaussians {
+    params: FoldedParams,
+    time_logits: Vec<f32>,
+}
+
+impl FoldedGaussians {
+    /// The model of `params` for a video of `time_logits.len() + 1` frames; an error names the
+    /// first array whose length does not fit the Gaussian count.
+    pub fn new(params: FoldedParams, time_logits: Vec<f32>) -> Result<Self, String> {
+        let n = params.len();
+        let lens = [
+            ("xyz", params.xyz.len(), 3 * n),
+            ("log_scales", params.log_scales.len(), 2 * n),
+            ("rotation", params.rotation.len(), n),
+            ("sigma", params.sigma.len(), n),
+            ("w", params.w.len(), POLY_LEN * n),
+            ("opacity_logits", params.opacity_logits.len(), n),
+            ("sh_dc", params.sh_dc.len(), 3 * n),
+        ];
+        if let Some((name, len, want)) = lens.into_iter().find(|(_, len, want)| len != want) {
+            return Err(format!(
+                "{name} has {len} values; {n} Gaussians need {want}"
+            ));
+        }
+        Ok(Self {
+            params,
+            time_logits,
+        })
+    }
+
+    /// The folded Gaussians.
+    pub fn params(&self) -> &FoldedParams {
+        &self.params
+    }
+
+    /// The time logits (`F - 1` values).
+    pub fn time_logits(&self) -> &[f32] {
+        &self.time_logits
+    }
+
+    /// The number of frames `F`.
+    pub fn frames(&self) -> usize {
+        self.time_logits.len() + 1
+    }
+
+    /// The learned time of frame `frame`.
+    pub fn time_of(&self, frame: usize) -> f32 {
+        frame_time(&self.time_logits, frame)
+    }
+
+    /// The frame a view shows.
+    fn frame(&self, view: &View) -> Result<usize, ModelError> {
+        Ok(frame_of(view.time, self.frames())?)
+    }
+}
+
+impl BaseModel for FoldedGaussians {
+    type Tape = FrameTape;
+
+    fn group_names(&self) -> Vec<String> {
+        GROUP_NAMES.iter().map(|s| s.to_string()).collect()
+    }
+
+    fn groups_mut(&mut self) -> Vec<&mut [f32]> {
+        let p = &mut self.params;
+        vec![
+            &mut p.xyz,
+            &mut p.log_scales,
+            &mut p.rotation,
+            &mut p.m,
+            &mut p.sigma,
+            &mut p.w,
+            &mut p.opacity_logits,
+            &mut p.sh_dc,
+            &mut self.time_logits,
+        ]
+    }
+
+    fn group_lens(&self) -> Vec<usize> {
+        let p = &self.params;
+        vec![
+            p.xyz.len(),
+            p.log_scales.len(),
+            p.rotation.len(),
+            p.m.len(),
+            p.sigma.len(),
+            p.w.len(),
+            p.opacity_logits.len(),
+            p.sh_dc.len(),
+            self.time_logits.len(),
+        ]
+    }
+
+    fn grad_mask(&self, trained: &[bool]) -> GradMask {
+        let any = |groups: &[usize]| groups.iter().any(|&g| trained.get(g) == Some(&true));
+        use group::*;
+        GradMask {
+            means: any(&[XYZ, M, W, TIME]),
+            scales: any(&[SCALING, M, SIGMA, TIME]),
+            rotations: any(&[ROTATION]),
+            opacities: any(&[OPACITY]),
+            sh_dc: any(&[F_DC]),
+            sh_rest: false,
+        }
+    }
+
+    fn forward(&self, view: &View) -> Result<Forward<'_, FrameTape>, ModelError> {
+        let t = self.time_of(self.frame(view)?);
+        let (gaussians, tape) = build_frame(&self.params, t);
+        Ok(Forward {
+            gaussians: Cow::Owned(gaussians),
+            tape,
+        })
+    }
+
+    fn backward(
+        &self,
+        view: &View,
+        tape: FrameTape,
+        grads: &GaussianGrads,
+        trained: &[bool],
+        out: &mut [Vec<f32>],
+    ) -> Result<(), ModelError> {
+        let frame = self.frame(view)?;
+        let t = self.time_of(frame);
+        let p = &self.params;
+        let mut acc = FoldedParams {
+            xyz: vec![0.0; p.xyz.len()],
+            log_scales: vec![0.0; p.log_scales.len()],
+            rotation: vec![0.0; p.len()],
+            m: vec![0.0; p.len()],
+            sigma: vec![0.0; p.len()],
+            w: vec![0.0; p.w.len()],
+            opacity_logits: vec![0.0; p.len()],
+            sh_dc: vec![0.0; p.sh_dc.len()],
+        };
+        let grad_t = add_frame_grads(p, t, &tape, grads, &mut acc);
+        let sources: [&[f32]; 8] = [
+            &acc.xyz,
+            &acc.log_scales,
+            &acc.rotation,
+            &acc.m,
+            &acc.sigma,
+            &acc.w,
+            &acc.opacity_logits,
+            &acc.sh_dc,
+        ];
+        for ((src, dst), &t) in sources.iter().zip(out.iter_mut()).zip(trained) {
+            if t {
+                for (d, s) in dst.iter_mut().zip(src.iter()) {
+                    *d += *s;
+                }
+            }
+        }
+        if trained[group::TIME] {
+            add_time_grads(&self.time_logits, frame, grad_t, &mut out[group::TIME]);
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,17 @@
+//! base-vegas: the VeGaS base model of CLIPGaussian for videos.
+//!
+//! A video is held as folded Gaussians on the plane `y = 0`: each has a plane position,
+//! in-plane scales and rotation, and a temporal centre, width and motion polynomial, and
+//! becomes, at each frame's learned time, a flat 3D Gaussian that moves, shrinks and fades out
+//! away from its temporal centre. Each frame is seen from `(0, -d, 0)` and, mirrored, from
+//! `(0, +d, 0)`, as MiraGe sees a picture.
+//!
+//! - [`frame`]: one frame's Gaussians from the folded ones, and its backward.
+//! - [`time`]: the learned time function mapping frames to times.
+//! - [`folded`]: the model behind [`gs_core::model::BaseModel`].
+//! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
+
+pub mod folded;
+pub mod frame;
+pub mod time;
+pub mod video_input;

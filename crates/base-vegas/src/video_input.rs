@@ -1,0 +1,268 @@
+//! The video a user gives: a folder of numbered frames (PNG or JPEG, as DAVIS ships them,
+//! sorted naturally so that `9.png` comes before `10.png`), or a video file (mp4, webm, mov,
+//! mkv, avi) decoded by the `ffmpeg` program. Frames keep their own resolution; transparent
+//! pixels are composited over the background, as VeGaS reads its frames.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use gs_core::{GsError, Image};
+use rayon::prelude::*;
+
+/// Frame rate given to a folder of frames when none is asked for, frames per second.
+pub const DEFAULT_FOLDER_FPS: f64 = 24.0;
+
+/// File extensions read as frames (compared without case).
+pub const FRAME_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// File extensions read as video files through `ffmpeg` (compared without case).
+pub const VIDEO_EXTENSIONS: [&str; 5] = ["mp4", "webm", "mov", "mkv", "avi"];
+
+/// The frames of a video, all of one size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Video {
+    /// The frames in order, linear RGB in `[0, 1]`.
+    pub frames: Vec<Image>,
+    /// Where each frame came from (its file, or `<video file> frame <k>`), for messages.
+    pub labels: Vec<String>,
+    /// Frames per second (the file's, or the one given for a folder).
+    pub fps: f64,
+}
+
+impl Video {
+    /// Width and height of every frame, pixels.
+    pub fn size(&self) -> (u32, u32) {
+        (self.frames[0].width, self.frames[0].height)
+    }
+}
+
+/// Why a video cannot be read.
+#[derive(Debug, thiserror::Error)]
+pub enum VideoInputError {
+    /// Nothing at the path.
+    #[error("video {}: no such file or folder", .0.display())]
+    Missing(PathBuf),
+    /// A file that is neither a frame folder nor a video of a known kind.
+    #[error("video {}: not a folder of frames nor a video file ({})", .0.display(), VIDEO_EXTENSIONS.join(", "))]
+    UnknownKind(PathBuf),
+    /// A folder without frames.
+    #[error("video {}: the folder holds no PNG or JPEG frames", .0.display())]
+    Empty(PathBuf),
+    /// A single frame: VeGaS needs at least two to learn times.
+    #[error("video {}: it has a single frame; a video needs at least 2 (use clipgaussian-2d for a picture)", .0.display())]
+    SingleFrame(PathBuf),
+    /// A frame that cannot be read or decoded.
+    #[error("frame {label}: {source}")]
+    Unreadable {
+        /// The frame.
+        label: String,
+        /// Why.
+        source: GsError,
+    },
+    /// A frame whose size differs from the first one's.
+    #[error("frame {label} is {}x{}, but the first frame ({first}) is {}x{}; every frame must have the same size", .size.0, .size.1, .first_size.0, .first_size.1)]
+    SizeMismatch {
+        /// The frame.
+        label: String,
+        /// Its size.
+        size: (u32, u32),
+        /// The first frame.
+        first: String,
+        /// The first frame's size.
+        first_size: (u32, u32),
+    },
+    /// A video file, and no `ffmpeg` program to decode it.
+    #[error("video {}: reading a video file needs the ffmpeg program, which is not on PATH; install ffmpeg, or give a folder of numbered PNG or JPEG frames instead", .0.display())]
+    NoFfmpeg(PathBuf),
+    /// `ffmpeg` or `ffprobe` failed on the file.
+    #[error("video {}: {program} failed: {message}", path.display())]
+    Decoder {
+        /// The video file.
+        path: PathBuf,
+        /// `ffmpeg` or `ffprobe`.
+        program: &'static str,
+        /// What it said.
+        message: String,
+    },
+    /// A folder or temporary file that could not be read or made.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The path.
+        path: PathBuf,
+        /// Why.
+        source: std::io::Error,
+    },
+}
+
+/// Reads the video at `path` (a frame folder, or a video file through `ffmpeg`); transparent
+/// pixels go over `background`. A folder's frames play at `folder_fps`.
+pub fn load_video(
+    path: &Path,
+    background: [f32; 3],
+    folder_fps: f64,
+) -> Result<Video, VideoInputError> {
+    if path.is_dir() {
+        let files = frame_files(path)?;
+        let video = decode_frames(&files, background, folder_fps, |f| f.display().to_string())?;
+        return check_count(video, path);
+    }
+    if !path.exists() {
+        return Err(VideoInputError::Missing(path.to_path_buf()));
+    }
+    if !has_extension(path, &VIDEO_EXTENSIONS) {
+        return Err(VideoInputError::UnknownKind(path.to_path_buf()));
+    }
+    let fps = probe_fps(path)?;
+    let dir = tempfile::tempdir().map_err(|source| VideoInputError::Io {
+        path: std::env::temp_dir(),
+        source,
+    })?;
+    run_tool(
+        path,
+        "ffmpeg",
+        Command::new("ffmpeg")
+            .args(["-nostdin", "-v", "error", "-i"])
+            .arg(path)
+            .args(["-vsync", "passthrough", "-pix_fmt", "rgb24"])
+            .arg(dir.path().join("%06d.png")),
+    )?;
+    let files = frame_files(dir.path())?;
+    let video = decode_frames(&files, background, fps, |f| {
+        let stem = f
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        format!("{} frame {}", path.display(), stem.trim_start_matches('0'))
+    })?;
+    check_count(video, path)
+}
+
+/// The frame files of `dir` in natural order; an error when there are none.
+pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, VideoInputError> {
+    let io = |source| VideoInputError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let mut files = Vec::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let path = entry.map_err(io)?.path();
+        if path.is_file() && has_extension(&path, &FRAME_EXTENSIONS) {
+            files.push(path);
+        }
+    }
+    if files.is_empty() {
+        return Err(VideoInputError::Empty(dir.to_path_buf()));
+    }
+    files.sort_by(|a, b| {
+        let name = |p: &PathBuf| p.file_name().map(|n| n.to_string_lossy().into_owned());
+        natord::compare(&name(a).unwrap_or_default(), &name(b).unwrap_or_default())
+    });
+    Ok(files)
+}
+
+/// Decodes `files` in parallel, checking that every frame has the first one's size.
+fn decode_frames(
+    files: &[PathBuf],
+    background: [f32; 3],
+    fps: f64,
+    label: impl Fn(&Path) -> String + Sync,
+) -> Result<Video, VideoInputError> {
+    let labels: Vec<String> = files.iter().map(|f| label(f)).collect();
+    let frames = files
+        .par_iter()
+        .zip(&labels)
+        .map(|(f, l)| {
+            Image::load(f, background).map_err(|source| VideoInputError::Unreadable {
+                label: l.clone(),
+                source,
+            })
+        })
+        .collect::<Result<Vec<Image>, _>>()?;
+    let first_size = (frames[0].width, frames[0].height);
+    if let Some((k, frame)) = frames
+        .iter()
+        .enumerate()
+        .find(|(_, f)| (f.width, f.height) != first_size)
+    {
+        return Err(VideoInputError::SizeMismatch {
+            label: labels[k].clone(),
+            size: (frame.width, frame.height),
+            first: labels[0].clone(),
+            first_size,
+        });
+    }
+    Ok(Video {
+        frames,
+        labels,
+        fps,
+    })
+}
+
+/// `video` when it has at least two frames.
+fn check_count(video: Video, path: &Path) -> Result<Video, VideoInputError> {
+    if video.frames.len() < 2 {
+        return Err(VideoInputError::SingleFrame(path.to_path_buf()));
+    }
+    Ok(video)
+}
+
+/// The frame rate of the first video stream of `path`, by `ffprobe`.
+fn probe_fps(path: &Path) -> Result<f64, VideoInputError> {
+    let out = run_tool(
+        path,
+        "ffprobe",
+        Command::new("ffprobe")
+            .args(["-v", "error", "-select_streams", "v:0"])
+            .args(["-show_entries", "stream=avg_frame_rate", "-of", "csv=p=0"])
+            .arg(path),
+    )?;
+    let text = out.trim();
+    let rate = match text.split_once('/') {
+        Some((n, d)) => n
+            .parse::<f64>()
+            .ok()
+            .zip(d.parse::<f64>().ok())
+            .map(|(n, d)| n / d),
+        None => text.parse::<f64>().ok(),
+    };
+    match rate {
+        Some(r) if r.is_finite() && r > 0.0 => Ok(r),
+        _ => Err(VideoInputError::Decoder {
+            path: path.to_path_buf(),
+            program: "ffprobe",
+            message: format!("no frame rate in its answer {text:?}"),
+        }),
+    }
+}
+
+/// Runs `command` (the program `program`) on the video `path`: its standard output, or an
+/// error naming the program (missing, or failed with its message).
+fn run_tool(
+    path: &Path,
+    program: &'static str,
+    command: &mut Command,
+) -> Result<String, VideoInputError> {
+    let out = command.output().map_err(|e| match e.kind() {
+        std::io::ErrorKind::NotFound => VideoInputError::NoFfmpeg(path.to_path_buf()),
+        _ => VideoInputError::Decoder {
+            path: path.to_path_buf(),
+            program,
+            message: e.to_string(),
+        },
+    })?;
+    if !out.status.success() {
+        return Err(VideoInputError::Decoder {
+            path: path.to_path_buf(),
+            program,
+            message: String::from_utf8_lossy(&out.stderr).trim().to_string(),
+        });
+    }
+    Ok(String::from_utf8_lossy(&out.stdout).into_owned())
+}
+
+/// Whether the extension of `path` is one of `extensions`, ignoring case.
+fn has_extension(path: &Path, extensions: &[&str]) -> bool {
+    path.extension()
+        .and_then(|e| e.to_str())
+        .is_some_and(|e| extensions.iter().any(|x| x.eq_ignore_ascii_case(e)))
+}

@@ -1,0 +1,111 @@
+//! Reading a video: frame folders in natural order, and every bad input answered with an
+//! error that names the file.
+
+use std::path::Path;
+
+use base_vegas::video_input::{load_video, VideoInputError, DEFAULT_FOLDER_FPS};
+use gs_core::Image;
+
+/// A `w x h` frame whose red channel is `value / 255`.
+fn write_frame(path: &Path, w: u32, h: u32, value: u8) {
+    let mut img = Image::filled(w, h, [value as f32 / 255.0, 0.5, 0.25]);
+    img.data[0] = 1.0;
+    img.save_png(path).unwrap();
+}
+
+#[test]
+fn a_folder_of_frames_is_read_in_natural_order() {
+    let dir = tempfile::tempdir().unwrap();
+    for (name, value) in [("10.png", 10), ("9.png", 9), ("00001.png", 1), ("2.PNG", 2)] {
+        write_frame(&dir.path().join(name), 20, 12, value);
+    }
+    std::fs::write(dir.path().join("notes.txt"), "not a frame").unwrap();
+    let video = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS).unwrap();
+    assert_eq!(video.frames.len(), 4);
+    assert_eq!(video.size(), (20, 12));
+    assert_eq!(video.fps, DEFAULT_FOLDER_FPS);
+    let reds: Vec<u8> = video
+        .frames
+        .iter()
+        .map(|f| (f.data[3] * 255.0).round() as u8)
+        .collect();
+    assert_eq!(reds, vec![1, 2, 9, 10]);
+    assert!(video.labels[3].ends_with("10.png"), "{:?}", video.labels);
+}
+
+fn error_of(path: &Path) -> String {
+    let e = load_video(path, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap_err();
+    e.to_string()
+}
+
+#[test]
+fn bad_folders_are_answered_with_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let e = error_of(&empty);
+    assert!(
+        e.contains("empty") && e.contains("no PNG or JPEG frames"),
+        "{e}"
+    );
+
+    let single = dir.path().join("single");
+    std::fs::create_dir(&single).unwrap();
+    write_frame(&single.join("0.png"), 16, 16, 3);
+    let e = error_of(&single);
+    assert!(
+        e.contains("single frame") && e.contains("at least 2"),
+        "{e}"
+    );
+
+    let sizes = dir.path().join("sizes");
+    std::fs::create_dir(&sizes).unwrap();
+    write_frame(&sizes.join("0.png"), 16, 16, 3);
+    write_frame(&sizes.join("1.png"), 16, 16, 3);
+    write_frame(&sizes.join("2.png"), 18, 16, 3);
+    let e = error_of(&sizes);
+    assert!(
+        e.contains("2.png is 18x16") && e.contains("0.png) is 16x16"),
+        "{e}"
+    );
+
+    let broken = dir.path().join("broken");
+    std::fs::create_dir(&broken).unwrap();
+    write_frame(&broken.join("0.png"), 16, 16, 3);
+    std::fs::write(broken.join("1.jpg"), b"not a jpeg").unwrap();
+    let e = error_of(&broken);
+    assert!(e.starts_with("frame ") && e.contains("1.jpg"), "{e}");
+
+    let e = error_of(&dir.path().join("nowhere"));
+    assert!(e.contains("nowhere") && e.contains("no such file"), "{e}");
+
+    let text = dir.path().join("clip.txt");
+    std::fs::write(&text, "x").unwrap();
+    let e = error_of(&text);
+    assert!(e.contains("clip.txt") && e.contains("mp4"), "{e}");
+}
+
+/// A video file goes through ffmpeg: without it, the error names the program and the frames
+/// alternative; with it, a file it cannot decode is its error, naming the file.
+#[test]
+fn a_video_file_needs_ffmpeg_and_says_so() {
+    let dir = tempfile::tempdir().unwrap();
+    let clip = dir.path().join("clip.mp4");
+    std::fs::write(&clip, b"not really an mp4").unwrap();
+    let e = load_video(&clip, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap_err();
+    let has_ffmpeg = std::process::Command::new("ffprobe")
+        .arg("-version")
+        .output()
+        .is_ok();
+    if has_ffmpeg {
+        assert!(matches!(e, VideoInputError::Decoder { .. }), "{e}");
+    } else {
+        assert!(matches!(e, VideoInputError::NoFfmpeg(_)), "{e}");
+        let text = e.to_string();
+        assert!(
+            text.contains("ffmpeg") && text.contains("folder of numbered"),
+            "{text}"
+        );
+    }
+    assert!(e.to_string().contains("clip.mp4"), "{e}");
+}
