@@ -3,6 +3,7 @@
 //! - [`GaussianSet`]: structure-of-arrays Gaussian parameters (count fixed after construction).
 //! - [`Camera`]: pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
 //! - [`mirror_pair`]: the two cameras of Gaussians on a plane (MiraGe pictures, VeGaS frames).
+//! - [`plane_neighbours`]: nearest-neighbour distances of points on a plane (initial scales).
 //! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
 //! - [`adam`]: Adam with parameter groups, learning-rate schedules and saved state.
 //! - [`fs`]: files written through a temporary name, fsynced and renamed, never half written.
@@ -55,6 +56,7 @@ pub mod interpolate;
 pub mod mat;
 pub mod mirror_pair;
 pub mod model;
+pub mod plane_neighbours;
 pub mod ply;
 pub mod raster;
 pub mod real;
