@@ -8,10 +8,14 @@
 //!
 //! - [`frame`]: one frame's Gaussians from the folded ones, and its backward.
 //! - [`time`]: the learned time function mapping frames to times.
+//! - [`init`]: VeGaS's random initialisation on the plane.
+//! - [`fit`]: fitting a video with L1 + D-SSIM over its frames and their mirrors.
 //! - [`folded`]: the model behind [`gs_core::model::BaseModel`].
 //! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
 
+pub mod fit;
 pub mod folded;
 pub mod frame;
+pub mod init;
 pub mod time;
 pub mod video_input;
