@@ -11,11 +11,13 @@
 //! - [`init`]: VeGaS's random initialisation on the plane.
 //! - [`fit`]: fitting a video with L1 + D-SSIM over its frames and their mirrors.
 //! - [`folded`]: the model behind [`gs_core::model::BaseModel`].
+//! - [`model_file`]: VeGaS's model PLY (time element included), read and written.
 //! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
 
 pub mod fit;
 pub mod folded;
 pub mod frame;
 pub mod init;
+pub mod model_file;
 pub mod time;
 pub mod video_input;

@@ -1,0 +1,255 @@
+//! VeGaS model files: the PLY its `save_ply` writes (read with `ply-rs-bw`), so a model trained
+//! by the authors' code loads, and ours loads in theirs.
+//!
+//! Element `vertex`, every property `float`: `x y z nx ny nz f_dc_0..2 opacity scale_0..2 rot_0
+//! m_0 sigma_0 w1_0..w1_13` (VeGaS writes no `f_rest` at SH degree 0; `scale_1` is unused and
+//! written as the flat scale's log; `rot_0` is the rotation logit, `sigma_0` the log width);
+//! then element `time` with one row `time_func_0..time_func_{F-2}` (the raw time logits).
+//! Reading takes properties by name in any order and `float` or `double`; a missing one, a
+//! motion polynomial of another degree, a non-finite value or a missing `time` element is an
+//! error naming the file.
+//!
+//! Ours also records the video in a header comment, `clipgaussian-video frames WxH fps R`,
+//! which VeGaS ignores.
+
+use std::io::BufReader;
+use std::path::{Path, PathBuf};
+
+use ply_rs_bw::parser::Parser;
+use ply_rs_bw::ply::{
+    Addable, DefaultElement, ElementDef, Encoding, Ply, Property, PropertyDef, PropertyType,
+    ScalarType,
+};
+use ply_rs_bw::writer::Writer;
+
+use crate::folded::FoldedGaussians;
+use crate::frame::{FoldedParams, FLAT_SCALE, POLY_LEN};
+
+/// The start of the header comment that records the video.
+const RECORD_PREFIX: &str = "clipgaussian-video frames";
+
+/// The video a model was fitted to.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VideoRecord {
+    /// Frame width, pixels.
+    pub width: u32,
+    /// Frame height, pixels.
+    pub height: u32,
+    /// Frames per second.
+    pub fps: f64,
+}
+
+/// Why a model file cannot be read or written.
+#[derive(Debug, thiserror::Error)]
+#[error("model {}: {message}", path.display())]
+pub struct ModelFileError {
+    /// The file.
+    pub path: PathBuf,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// The vertex properties, in VeGaS's order.
+fn vertex_properties() -> Vec<String> {
+    let mut names: Vec<String> = [
+        "x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2",
+    ]
+    .iter()
+    .map(|s| s.to_string())
+    .collect();
+    names.extend(
+        [
+            "opacity", "scale_0", "scale_1", "scale_2", "rot_0", "m_0", "sigma_0",
+        ]
+        .iter()
+        .map(|s| s.to_string()),
+    );
+    names.extend((0..POLY_LEN).map(|k| format!("w1_{k}")));
+    names
+}
+
+/// Writes `model` (and the video it holds, when given) to `path` as VeGaS's PLY, through a
+/// temporary name.
+pub fn write_model(
+    path: &Path,
+    model: &FoldedGaussians,
+    video: Option<VideoRecord>,
+) -> Result<(), ModelFileError> {
+    let fail = |message: String| ModelFileError {
+        path: path.to_path_buf(),
+        message,
+    };
+    let p = model.params();
+    let mut ply = Ply::<DefaultElement>::new();
+    ply.header.encoding = Encoding::BinaryLittleEndian;
+    if let Some(v) = video {
+        ply.header.comments.push(format!(
+            "{RECORD_PREFIX} {}x{} fps {}",
+            v.width, v.height, v.fps
+        ));
+    }
+    let float = PropertyType::Scalar(ScalarType::Float);
+    let mut vertex = ElementDef::new("vertex".into());
+    for name in vertex_properties() {
+        vertex.properties.add(PropertyDef::new(name, float.clone()));
+    }
+    ply.header.elements.add(vertex);
+    let mut time = ElementDef::new("time".into());
+    for k in 0..model.time_logits().len() {
+        time.properties
+            .add(PropertyDef::new(format!("time_func_{k}"), float.clone()));
+    }
+    ply.header.elements.add(time);
+    let names = vertex_properties();
+    let rows: Vec<DefaultElement> = (0..p.len())
+        .map(|i| {
+            let mut values = vec![
+                p.xyz[3 * i],
+                p.xyz[3 * i + 1],
+                p.xyz[3 * i + 2],
+                0.0,
+                0.0,
+                0.0,
+            ];
+            values.extend_from_slice(&p.sh_dc[3 * i..3 * i + 3]);
+            values.extend([
+                p.opacity_logits[i],
+                p.log_scales[2 * i],
+                FLAT_SCALE.ln() as f32,
+                p.log_scales[2 * i + 1],
+                p.rotation[i],
+                p.m[i],
+                p.sigma[i],
+            ]);
+            values.extend_from_slice(&p.w[POLY_LEN * i..POLY_LEN * (i + 1)]);
+            let mut row = DefaultElement::new();
+            for (name, v) in names.iter().zip(values) {
+                row.insert(name.clone(), Property::Float(v));
+            }
+            row
+        })
+        .collect();
+    ply.payload.insert("vertex".into(), rows);
+    let mut time_row = DefaultElement::new();
+    for (k, &v) in model.time_logits().iter().enumerate() {
+        time_row.insert(format!("time_func_{k}"), Property::Float(v));
+    }
+    ply.payload.insert("time".into(), vec![time_row]);
+    let mut bytes = Vec::new();
+    Writer::new()
+        .write_ply(&mut bytes, &mut ply)
+        .map_err(|e| fail(format!("cannot encode: {e}")))?;
+    gs_core::fs::write_atomic(path, &bytes).map_err(|e| fail(e.to_string()))
+}
+
+/// Reads a VeGaS model and, when the file records it, its video.
+pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>), ModelFileError> {
+    let fail = |message: String| ModelFileError {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+    let ply = Parser::<DefaultElement>::new()
+        .read_ply(&mut BufReader::new(file))
+        .map_err(|e| fail(format!("not a readable PLY file: {e}")))?;
+    let vertices = ply
+        .payload
+        .get("vertex")
+        .ok_or_else(|| fail("no `vertex` element".into()))?;
+    let value = |row: &DefaultElement, name: &str, index: usize| -> Result<f32, ModelFileError> {
+        let v = match row.get(name) {
+            Some(Property::Float(v)) => *v,
+            Some(Property::Double(v)) => *v as f32,
+            Some(other) => {
+                return Err(fail(format!(
+                    "property {name} is {other:?}, not float or double"
+                )))
+            }
+            None => {
+                return Err(fail(format!(
+                    "no property {name}: not a VeGaS model (VeGaS writes x, y, z, f_dc_*, \
+                     opacity, scale_*, rot_0, m_0, sigma_0, w1_0..w1_{})",
+                    POLY_LEN - 1
+                )))
+            }
+        };
+        if !v.is_finite() {
+            return Err(fail(format!("{name} of vertex {index} is {v}")));
+        }
+        Ok(v)
+    };
+    if let Some(first) = vertices.first() {
+        let degree = first.keys().filter(|k| k.starts_with("w1_")).count();
+        if degree != 0 && degree != POLY_LEN {
+            return Err(fail(format!(
+                "{degree} w1_* properties: a motion polynomial of degree {}, but this build \
+                 reads degree {} ({POLY_LEN} values)",
+                degree / 2,
+                POLY_LEN / 2
+            )));
+        }
+    }
+    let n = vertices.len();
+    let mut p = FoldedParams {
+        xyz: Vec::with_capacity(3 * n),
+        log_scales: Vec::with_capacity(2 * n),
+        rotation: Vec::with_capacity(n),
+        m: Vec::with_capacity(n),
+        sigma: Vec::with_capacity(n),
+        w: Vec::with_capacity(POLY_LEN * n),
+        opacity_logits: Vec::with_capacity(n),
+        sh_dc: Vec::with_capacity(3 * n),
+    };
+    for (i, row) in vertices.iter().enumerate() {
+        for name in ["x", "y", "z"] {
+            p.xyz.push(value(row, name, i)?);
+        }
+        for name in ["scale_0", "scale_2"] {
+            p.log_scales.push(value(row, name, i)?);
+        }
+        p.rotation.push(value(row, "rot_0", i)?);
+        p.m.push(value(row, "m_0", i)?);
+        p.sigma.push(value(row, "sigma_0", i)?);
+        for k in 0..POLY_LEN {
+            p.w.push(value(row, &format!("w1_{k}"), i)?);
+        }
+        p.opacity_logits.push(value(row, "opacity", i)?);
+        for c in 0..3 {
+            p.sh_dc.push(value(row, &format!("f_dc_{c}"), i)?);
+        }
+    }
+    let time_rows = ply
+        .payload
+        .get("time")
+        .ok_or_else(|| fail("no `time` element (VeGaS saves the time logits there)".into()))?;
+    let time_row = match time_rows.as_slice() {
+        [row] => row,
+        rows => {
+            return Err(fail(format!(
+                "the `time` element has {} rows, not 1",
+                rows.len()
+            )))
+        }
+    };
+    let logits = (0..time_row.len())
+        .map(|k| value(time_row, &format!("time_func_{k}"), 0))
+        .collect::<Result<Vec<f32>, _>>()?;
+    let record = ply.header.comments.iter().find_map(|c| parse_record(c));
+    let model = FoldedGaussians::new(p, logits).map_err(fail)?;
+    Ok((model, record))
+}
+
+/// The video of a `clipgaussian-video frames WxH fps R` comment.
+fn parse_record(comment: &str) -> Option<VideoRecord> {
+    let rest = comment.strip_prefix(RECORD_PREFIX)?.trim();
+    let mut parts = rest.split_whitespace();
+    let (w, h) = parts.next()?.split_once('x')?;
+    if parts.next()? != "fps" {
+        return None;
+    }
+    Some(VideoRecord {
+        width: w.parse().ok()?,
+        height: h.parse().ok()?,
+        fps: parts.next()?.parse().ok()?,
+    })
+}
