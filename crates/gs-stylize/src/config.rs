@@ -130,6 +130,17 @@ impl StyleSettings {
         }
     }
 
+    /// The paper's video (VeGaS) settings (method.md), no style yet: lambdas 5 / 90 / 0.5 / 0,
+    /// feature_lr 0.02 (colours only: a modality freezes every other group).
+    pub fn paper_video() -> Self {
+        Self {
+            lambda_content: 0.5,
+            lambda_background: 0.0,
+            feature_lr: 0.02,
+            ..Self::paper_3d()
+        }
+    }
+
     /// Checks what deserializing cannot: exactly one style, non-empty prompts, at least one
     /// step, finite non-negative weights, finite positive rates, patches when the patch loss is
     /// on, a distortion in `[0, 1]`. Errors name the field.

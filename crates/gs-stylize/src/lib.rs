@@ -6,6 +6,7 @@
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
+//! - [`evaluation`]: the paper's CLIP metrics of renders against ground truths (`eval`).
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
 //! - [`interrupt`]: Ctrl-C as a request to stop after the current step.
@@ -18,6 +19,7 @@
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod evaluation;
 pub mod interrupt;
 pub mod outputs;
 pub mod picture;
