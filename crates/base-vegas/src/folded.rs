@@ -217,3 +217,80 @@ impl BaseModel for FoldedGaussians {
         Ok(())
     }
 }
+
+/// `(1 - t) a + t b` for every parameter of two models of the same Gaussians and frames (e.g.
+/// two stylizations of one fit; logits, logs and polynomials are blended as stored), or an
+/// error naming what differs.
+pub fn interpolate(
+    a: &FoldedGaussians,
+    b: &FoldedGaussians,
+    t: f32,
+) -> Result<FoldedGaussians, String> {
+    if !t.is_finite() {
+        return Err(format!("the interpolation parameter t = {t} is not finite"));
+    }
+    if a.params.len() != b.params.len() {
+        return Err(format!(
+            "{} Gaussians against {}",
+            a.params.len(),
+            b.params.len()
+        ));
+    }
+    if a.frames() != b.frames() {
+        return Err(format!("{} frames against {}", a.frames(), b.frames()));
+    }
+    let mut out = a.clone();
+    let mut b = b.clone();
+    for (x, y) in out.groups_mut().into_iter().zip(b.groups_mut()) {
+        for (v, w) in x.iter_mut().zip(y.iter()) {
+            *v = (1.0 - t) * *v + t * w;
+        }
+    }
+    Ok(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::init::initial_model;
+
+    #[test]
+    fn view_times_name_frames_and_nothing_else() {
+        for frames in [2, 5, 24] {
+            for f in 0..frames {
+                assert_eq!(frame_of(view_time(f, frames), frames), Ok(f));
+            }
+        }
+        assert!(frame_of(0.3, 5)
+            .unwrap_err()
+            .contains("names no frame of 5"));
+        assert!(frame_of(1.5, 5).is_err() && frame_of(-0.25, 5).is_err());
+        assert!(frame_of(f64::NAN, 5).is_err());
+    }
+
+    #[test]
+    fn interpolation_blends_every_parameter_and_refuses_other_shapes() {
+        let a = initial_model(20, 4, 0.5, 0.5, 1);
+        let b = initial_model(20, 4, 0.5, 0.5, 2);
+        assert_eq!(interpolate(&a, &b, 0.0).unwrap(), a);
+        assert_eq!(interpolate(&a, &b, 1.0).unwrap(), b);
+        let half = interpolate(&a, &b, 0.5).unwrap();
+        assert_eq!(
+            half.params().m[3],
+            0.5 * (a.params().m[3] + b.params().m[3])
+        );
+        let e = interpolate(&a, &initial_model(21, 4, 0.5, 0.5, 2), 0.5).unwrap_err();
+        assert!(e.contains("20 Gaussians against 21"), "{e}");
+        let e = interpolate(&a, &initial_model(20, 5, 0.5, 0.5, 2), 0.5).unwrap_err();
+        assert!(e.contains("4 frames against 5"), "{e}");
+        assert!(interpolate(&a, &b, f32::NAN).is_err());
+    }
+
+    #[test]
+    fn a_model_with_arrays_of_the_wrong_length_is_refused() {
+        let mut p = initial_model(5, 3, 0.5, 0.5, 1).params().clone();
+        p.w.pop();
+        let e = FoldedGaussians::new(p, vec![1.0; 2]).unwrap_err();
+        assert!(e.contains("w has 69 values; 5 Gaussians need 70"), "{e}");
+    }
+}

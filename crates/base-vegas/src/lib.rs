@@ -12,12 +12,18 @@
 //! - [`fit`]: fitting a video with L1 + D-SSIM over its frames and their mirrors.
 //! - [`folded`]: the model behind [`gs_core::model::BaseModel`].
 //! - [`model_file`]: VeGaS's model PLY (time element included), read and written.
+//! - [`stylize`](mod@stylize): the video stylization run (`clipgaussian-video stylize`).
+//! - [`temporal`]: temporal consistency (frame-gap RMSE) for `eval`.
 //! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
+//! - [`video_output`]: the stylized frames, the animated preview and the mp4.
 
 pub mod fit;
 pub mod folded;
 pub mod frame;
 pub mod init;
 pub mod model_file;
+pub mod stylize;
+pub mod temporal;
 pub mod time;
 pub mod video_input;
+pub mod video_output;

@@ -1,0 +1,441 @@
+//! `clipgaussian-video`: CLIPGaussian on videos, held as VeGaS folded Gaussians.
+//!
+//! - `stylize`: fits a video (or takes a fitted model) and stylizes it with a text or picture
+//!   style. Ctrl-C stops after the current step and writes a checkpoint to resume from.
+//! - `fit`: fits a video and writes its model.
+//! - `render`: renders every frame of a model.
+//! - `interpolate`: blends two models of the same Gaussians.
+//! - `eval`: the paper's CLIP metrics and temporal consistency of stylized frames.
+
+use std::error::Error;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use base_vegas::fit::{mean_psnr, render_frames, FitSettings};
+use base_vegas::folded::interpolate;
+use base_vegas::model_file::{read_model, write_model, VideoRecord};
+use base_vegas::stylize::{fit_with_progress, run, VideoError, VideoStylizeConfig, MODEL_PLY};
+use base_vegas::temporal::temporal_consistency;
+use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
+use base_vegas::video_output::{
+    write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
+};
+use clap::{Args, Parser, Subcommand};
+use gs_core::backend::DeviceChoice;
+use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_stylize::cli::{exit_code, path_value, StyleArgs};
+use gs_stylize::evaluation::{check_prompts, resolve_clip, score, ClipFiles, Style};
+use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::writable::{check_output_file, check_output_folder};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use serde::Serialize;
+use style_loss::image_layout::hwc_to_tensor;
+
+/// Command-line arguments.
+#[derive(Parser, Debug)]
+#[command(
+    name = "clipgaussian-video",
+    version,
+    about = "CLIPGaussian on videos (VeGaS folded Gaussians): stylize, fit, render, interpolate, eval"
+)]
+struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Stylize a video with a text or picture style.
+    ///
+    /// Fits the video first unless --model gives a fitted one, then stylizes its colours with
+    /// the paper's video settings (configs/video.json; configs/video-light.json is the light
+    /// variant). Writes to --out: frames/00000.png ... (the stylized frames, the size of the
+    /// video), preview.gif (original | stylized, animated), stylized.mp4 (when ffmpeg is
+    /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
+    /// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
+    /// --config (the paper's defaults when absent), then the flags, then every --set
+    /// field=value in order. Ctrl-C stops after the current step and writes a checkpoint; run
+    /// the same command with --resume to continue.
+    Stylize(Box<StylizeArgs>),
+    /// Fit a video with VeGaS folded Gaussians (no stylization).
+    ///
+    /// Writes to --out: model.ply (VeGaS PLY, recording the frame size and rate), frames/ (the
+    /// fitted frames), preview.gif (original | fit) and prints the mean PSNR over the frames.
+    Fit(FitArgs),
+    /// Render every frame of a model to a folder (frames/ and, with ffmpeg, stylized.mp4).
+    Render(RenderArgs),
+    /// Interpolate two models of the same Gaussians and frames parameter by parameter.
+    ///
+    /// Writes `(1 - t) A + t B` of every stored value, e.g. between two stylizations of one fit.
+    Interpolate(InterpolateArgs),
+    /// Score stylized frames against the original video: CLIP-S, CLIP-SIM, CLIP-CONS and
+    /// CLIP-F over consecutive frames (CLIP ViT-L/14, x100), and temporal consistency: the RMSE
+    /// between frames 1 and 7 apart (short and long range, values in [0, 1]) of the stylized
+    /// and of the original video. The paper warps frames along the optical flow before the
+    /// RMSE; these are unwarped (see docs), to be compared with the original's.
+    Eval(EvalArgs),
+}
+
+/// Arguments of `stylize`.
+#[derive(Args, Debug)]
+struct StylizeArgs {
+    /// JSON configuration (configs/video.json is the paper's).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The video: a folder of numbered PNG or JPEG frames (sorted naturally), or an mp4, webm,
+    /// mov, mkv or avi file (read through ffmpeg).
+    #[arg(long)]
+    video: Option<PathBuf>,
+    /// A model of the video fitted earlier (VeGaS PLY from `fit`); default: fit first.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The output folder (created when absent).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Frame rate of a frames folder, frames per second (a video file has its own).
+    #[arg(long)]
+    fps: Option<f64>,
+    /// Folded Gaussians of the fit.
+    #[arg(long)]
+    gaussians: Option<usize>,
+    /// Steps of the fit.
+    #[arg(long)]
+    fit_steps: Option<u64>,
+    /// The style, model files, device and run controls; `--resume` also reuses
+    /// `<out>/base.ply`.
+    #[command(flatten)]
+    style: StyleArgs,
+}
+
+/// Arguments of `fit`.
+#[derive(Args, Debug)]
+struct FitArgs {
+    /// The video: a frames folder or a video file (through ffmpeg).
+    #[arg(long)]
+    video: PathBuf,
+    /// The output folder (created after the fit; files of the same names are replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Number of folded Gaussians.
+    #[arg(long, default_value_t = FitSettings::default().gaussians)]
+    gaussians: usize,
+    /// Optimizer steps (one frame or mirror frame each).
+    #[arg(long, default_value_t = FitSettings::default().steps)]
+    steps: u64,
+    /// Seed of the initial Gaussians and the view order.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Frame rate of a frames folder, frames per second.
+    #[arg(long, default_value_t = DEFAULT_FOLDER_FPS)]
+    fps: f64,
+    /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// Arguments of `render`.
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// The model, VeGaS PLY.
+    #[arg(long)]
+    model: PathBuf,
+    /// Frame width, pixels (default: the recorded one).
+    #[arg(long)]
+    width: Option<u32>,
+    /// Frame height, pixels (default: the recorded one).
+    #[arg(long)]
+    height: Option<u32>,
+    /// Frame rate of the mp4 (default: the recorded one, else 24).
+    #[arg(long)]
+    fps: Option<f64>,
+    /// Where to render: cpu, gpu, or auto.
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// The output folder (frames/ and stylized.mp4 in it).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `interpolate`.
+#[derive(Args, Debug)]
+struct InterpolateArgs {
+    /// The first model (t = 0).
+    #[arg(long)]
+    a: PathBuf,
+    /// The second model (t = 1), of the same Gaussians and frames.
+    #[arg(long)]
+    b: PathBuf,
+    /// The interpolation parameter; values outside [0, 1] extrapolate.
+    #[arg(long, allow_negative_numbers = true)]
+    t: f32,
+    /// The output model.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `eval`.
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// The stylized frames (a folder, e.g. `<stylize out>/frames`, or a video file).
+    #[arg(long)]
+    renders: PathBuf,
+    /// The original video (a frames folder or a video file) with as many frames.
+    #[arg(long)]
+    video: PathBuf,
+    /// The style prompt (exactly one of --style-prompt and --style-image).
+    #[arg(long)]
+    style_prompt: Option<String>,
+    /// The style picture.
+    #[arg(long)]
+    style_image: Option<PathBuf>,
+    /// The neutral prompt of CLIP-SIM (the training source prompt).
+    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
+    source_prompt: String,
+    /// CLIP config.json (default ViT-L/14).
+    #[arg(long)]
+    clip_config: Option<PathBuf>,
+    /// CLIP weights (default ViT-L/14 from the Hugging Face cache).
+    #[arg(long)]
+    clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json.
+    #[arg(long)]
+    tokenizer: Option<PathBuf>,
+    /// Where to write the scores as JSON (printed too).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// Runs `stylize`.
+fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let overrides: Vec<Override> = args.style.overrides(vec![
+        ("video", path_value(&args.video)),
+        ("model", path_value(&args.model)),
+        ("out", path_value(&args.out)),
+        ("fps", args.fps.map(Into::into)),
+        ("fit_gaussians", args.gaussians.map(Into::into)),
+        ("fit_steps", args.fit_steps.map(Into::into)),
+    ])?;
+    let config: VideoStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
+    let summary = run(&config, &args.style.run_options()?)?;
+    let out = config.out.as_deref().expect("run checked out");
+    let (w, h) = (summary.frames[0].width, summary.frames[0].height);
+    println!(
+        "wrote {} frames ({w}x{h}) to {}, {}{} and {} ({} Gaussians)",
+        summary.frames.len(),
+        out.join(FRAMES_DIR).display(),
+        out.join(PREVIEW_GIF).display(),
+        if summary.wrote_mp4 {
+            format!(", {}", out.join(STYLIZED_MP4).display())
+        } else {
+            " (no mp4: ffmpeg is not installed)".into()
+        },
+        out.join(MODEL_PLY).display(),
+        summary.model.params().len()
+    );
+    Ok(())
+}
+
+/// Runs `fit`.
+fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
+    let settings = FitSettings {
+        gaussians: args.gaussians,
+        steps: args.steps,
+        seed: args.seed,
+        ..FitSettings::default()
+    };
+    let video = load_video(&args.video, settings.background, args.fps)?;
+    let options = RunOptions {
+        resume: false,
+        progress: !args.quiet,
+        stop: stop_on_ctrl_c()?,
+    };
+    let backend = open_device(args.device)?;
+    let start = Instant::now();
+    let mut model = fit_with_progress(&video, &settings, &options, &backend)?;
+    let seconds = start.elapsed().as_secs_f64();
+    let (w, h) = video.size();
+    let fitted = render_frames(
+        &mut model,
+        w,
+        h,
+        settings.distance,
+        settings.background,
+        &backend,
+    )?;
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let record = VideoRecord {
+        width: w,
+        height: h,
+        fps: video.fps,
+    };
+    write_model(&args.out.join(MODEL_PLY), &model, Some(record))?;
+    write_frames(&args.out.join(FRAMES_DIR), &fitted)?;
+    write_preview_gif(
+        &args.out.join(PREVIEW_GIF),
+        &video.frames,
+        &fitted,
+        video.fps,
+    )?;
+    println!(
+        "fitted {} ({} frames of {w}x{h}) with {} Gaussians in {seconds:.1} s: mean PSNR {:.2} dB; wrote {}",
+        args.video.display(),
+        video.frames.len(),
+        settings.gaussians,
+        mean_psnr(&fitted, &video.frames),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Runs `render`.
+fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
+    let (mut model, record) = read_model(&args.model)?;
+    let size = match (args.width, args.height, record) {
+        (Some(w), Some(h), _) => (w, h),
+        (None, None, Some(r)) => (r.width, r.height),
+        _ => {
+            return Err(format!(
+                "{} records no frame size: give both --width and --height",
+                args.model.display()
+            )
+            .into())
+        }
+    };
+    let fps = args
+        .fps
+        .or(record.map(|r| r.fps))
+        .unwrap_or(DEFAULT_FOLDER_FPS);
+    let backend = open_device(args.device)?;
+    let frames = render_frames(
+        &mut model,
+        size.0,
+        size.1,
+        DEFAULT_DISTANCE,
+        [0.0; 3],
+        &backend,
+    )?;
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    let dir = args.out.join(FRAMES_DIR);
+    write_frames(&dir, &frames)?;
+    let mp4 = write_mp4(&dir, fps, &args.out.join(STYLIZED_MP4))?;
+    println!(
+        "wrote {} frames ({}x{}) to {}{}",
+        frames.len(),
+        size.0,
+        size.1,
+        dir.display(),
+        if mp4 {
+            " and stylized.mp4"
+        } else {
+            " (no mp4: ffmpeg is not installed)"
+        }
+    );
+    Ok(())
+}
+
+/// Runs `interpolate`.
+fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    check_output_file(&args.out)?;
+    let (a, record) = read_model(&args.a)?;
+    let (b, _) = read_model(&args.b)?;
+    let blended = interpolate(&a, &b, args.t)
+        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    write_model(&args.out, &blended, record)?;
+    println!("wrote {} (t = {})", args.out.display(), args.t);
+    Ok(())
+}
+
+/// The scores `eval` prints and writes.
+#[derive(Serialize)]
+struct VideoMetrics {
+    #[serde(flatten)]
+    clip: gs_stylize::evaluation::Metrics,
+    #[serde(flatten)]
+    temporal: base_vegas::temporal::TemporalConsistency,
+}
+
+/// Runs `eval`.
+fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(out) = &args.out {
+        check_output_file(out)?;
+    }
+    let style = match (&args.style_prompt, &args.style_image) {
+        (Some(p), None) => Style::Prompt(p.clone()),
+        (None, Some(i)) => Style::Image(i.clone()),
+        _ => return Err("give exactly one of --style-prompt and --style-image".into()),
+    };
+    check_prompts(&style, &args.source_prompt)?;
+    let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS)?;
+    let video = load_video(&args.video, [0.0; 3], DEFAULT_FOLDER_FPS)?;
+    if renders.frames.len() != video.frames.len() {
+        return Err(format!(
+            "{} holds {} frames, {} holds {}",
+            args.renders.display(),
+            renders.frames.len(),
+            args.video.display(),
+            video.frames.len()
+        )
+        .into());
+    }
+    let clip = resolve_clip(&ClipFiles {
+        config: args.clip_config.clone(),
+        weights: args.clip_weights.clone(),
+        tokenizer: args.tokenizer.clone(),
+    })?;
+    let temporal = temporal_consistency(&renders.frames, &video.frames);
+    let tensors = |frames: &[gs_core::Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
+        frames
+            .iter()
+            .map(|f| {
+                let (h, w) = (f.height as usize, f.width as usize);
+                Ok(hwc_to_tensor(&f.data, h, w, &candle_core::Device::Cpu)?)
+            })
+            .collect()
+    };
+    let (rendered, truths) = (tensors(&renders.frames)?, tensors(&video.frames)?);
+    let metrics = VideoMetrics {
+        clip: score(
+            &clip,
+            &rendered,
+            &truths,
+            &style,
+            &args.source_prompt,
+            [0.0; 3],
+        )?,
+        temporal,
+    };
+    let text = serde_json::to_string_pretty(&metrics)?;
+    println!("{text}");
+    if let Some(out) = &args.out {
+        gs_core::fs::write_atomic(out, (text + "\n").as_bytes())
+            .map_err(|e| format!("{}: {e}", out.display()))?;
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
+    style_loss::memory::keep_freed_memory();
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Stylize(args) => stylize(args),
+        Command::Fit(args) => fit(args),
+        Command::Render(args) => render(args),
+        Command::Interpolate(args) => interpolate_models(args),
+        Command::Eval(args) => eval(args),
+    };
+    exit_code(result, |e| {
+        matches!(
+            e.downcast_ref::<VideoError>(),
+            Some(VideoError::InterruptedFit)
+        )
+    })
+}

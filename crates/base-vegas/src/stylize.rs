@@ -1,0 +1,320 @@
+//! Video stylization (CLIPGaussian on VeGaS): a video, fitted first unless a fitted model is
+//! given, is stylized over all its frames and their mirrors, one view per step in shuffled
+//! order, with the paper's video settings (`configs/video.json`): colours only (SH DC at
+//! `feature_lr`; positions, shapes, motion, opacity and the time function frozen, as the
+//! authors' video script), and the result is rendered at the video's resolution, frame count
+//! and frame rate.
+//!
+//! Every input (configuration, output folder and checkpoint, video, model file against the
+//! video, patch size, style image, CLIP configuration, weight files) is checked before the fit.
+//! Outputs in `out`:
+//! - `frames/00000.png ...`: the stylized frames, the size of the original;
+//! - `preview.gif`: original and stylized side by side, animated;
+//! - `stylized.mp4`: the stylized video (when `ffmpeg` is installed);
+//! - `model.ply`: the stylized model (VeGaS PLY), to stylize again or interpolate;
+//! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
+//! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
+
+use std::ops::ControlFlow;
+use std::path::{Path, PathBuf};
+use std::sync::atomic::Ordering;
+
+use gs_core::adam::{GroupConfig, LrSchedule};
+use gs_core::backend::Backend;
+use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_core::Image;
+use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::progress::Progress;
+use gs_stylize::run::check_patches_fit;
+use gs_stylize::{prepare, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use serde::{Deserialize, Serialize};
+
+use crate::fit::{fit, render_frames, training_targets, training_views, FitError, FitSettings};
+use crate::folded::{FoldedGaussians, GROUP_NAMES};
+use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
+use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
+use crate::video_output::{
+    write_frames, write_mp4, write_preview_gif, VideoOutputError, FRAMES_DIR, PREVIEW_GIF,
+    STYLIZED_MP4,
+};
+
+/// The stylized model.
+pub const MODEL_PLY: &str = "model.ply";
+/// The model fitted by this run.
+pub const BASE_PLY: &str = "base.ply";
+
+/// Everything a video stylization needs (a flat JSON object: `configs/video.json`). The
+/// defaults are the paper's video settings: lambdas 5 / 90 / 0.5 / 0, feature_lr 0.02, 5000
+/// steps, 64 patches of 128 x 128.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct VideoStylizeConfig {
+    /// The video: a folder of numbered PNG or JPEG frames, or a video file (through ffmpeg).
+    pub video: Option<PathBuf>,
+    /// A model of the video fitted earlier (VeGaS PLY); none: fit one first.
+    pub model: Option<PathBuf>,
+    /// The output folder.
+    pub out: Option<PathBuf>,
+    /// Frame rate of a folder of frames (a video file has its own), frames per second.
+    pub fps: f64,
+    /// Colour behind transparent pixels and behind the Gaussians, RGB in `[0, 1]` (VeGaS: black).
+    pub background: [f32; 3],
+    /// Distance of the cameras from the plane, world units (VeGaS: 1).
+    pub distance: f64,
+    /// Folded Gaussians of the fit (when no model is given).
+    pub fit_gaussians: usize,
+    /// Steps of the fit (when no model is given).
+    pub fit_steps: u64,
+    /// The style, the losses, the learning rates and the model files.
+    #[serde(flatten)]
+    pub style: StyleSettings,
+}
+
+impl Default for VideoStylizeConfig {
+    fn default() -> Self {
+        let fit = FitSettings::default();
+        Self {
+            video: None,
+            model: None,
+            out: None,
+            fps: DEFAULT_FOLDER_FPS,
+            background: fit.background,
+            distance: DEFAULT_DISTANCE,
+            fit_gaussians: fit.gaussians,
+            fit_steps: fit.steps,
+            style: StyleSettings::paper_video(),
+        }
+    }
+}
+
+impl VideoStylizeConfig {
+    /// The fit this configuration asks for.
+    pub fn fit_settings(&self) -> FitSettings {
+        FitSettings {
+            gaussians: self.fit_gaussians,
+            steps: self.fit_steps,
+            seed: self.style.seed,
+            distance: self.distance,
+            background: self.background,
+            ..FitSettings::default()
+        }
+    }
+}
+
+/// The optimizer groups of a video stylization: SH DC at `feature_lr`, every other group
+/// frozen (the paper's "colours only").
+pub fn stylize_groups(feature_lr: f64) -> Vec<GroupConfig> {
+    GROUP_NAMES
+        .iter()
+        .map(|&name| {
+            if name == "f_dc" {
+                GroupConfig::new(name, LrSchedule::Constant(feature_lr))
+            } else {
+                GroupConfig::frozen(name)
+            }
+        })
+        .collect()
+}
+
+/// Why a video run could not run; each names the file or field at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum VideoError {
+    /// A configuration value out of its range.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// The video.
+    #[error("{0}")]
+    Input(#[from] VideoInputError),
+    /// A model file.
+    #[error("{0}")]
+    Model(#[from] ModelFileError),
+    /// A model that does not fit the video.
+    #[error("model {}: {reason}", path.display())]
+    ModelMismatch {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The fit.
+    #[error("{0}")]
+    Fit(#[from] FitError),
+    /// The stylization.
+    #[error("{0}")]
+    Stylize(#[from] StylizeError),
+    /// An output file.
+    #[error("{0}")]
+    Output(#[from] VideoOutputError),
+    /// Ctrl-C during the fit: nothing was written.
+    #[error("interrupted while fitting the video; nothing was written")]
+    InterruptedFit,
+}
+
+/// What a finished run produced.
+#[derive(Clone, Debug)]
+pub struct VideoSummary {
+    /// The stylized model.
+    pub model: FoldedGaussians,
+    /// The stylized frames, the size of the original.
+    pub frames: Vec<Image>,
+    /// Whether `stylized.mp4` was written (ffmpeg installed).
+    pub wrote_mp4: bool,
+}
+
+/// Reads the model at `path` and checks it against a video of `frames` frames of `size`.
+pub fn model_of_video(
+    path: &Path,
+    frames: usize,
+    size: (u32, u32),
+) -> Result<FoldedGaussians, VideoError> {
+    let (model, record) = read_model(path)?;
+    let mismatch = |reason: String| VideoError::ModelMismatch {
+        path: path.to_path_buf(),
+        reason,
+    };
+    if model.frames() != frames {
+        return Err(mismatch(format!(
+            "it holds {} frames, the video {frames}",
+            model.frames()
+        )));
+    }
+    if let Some(r) = record {
+        let (w, h) = size;
+        if (r.width as u64 * h as u64) != (r.height as u64 * w as u64) {
+            return Err(mismatch(format!(
+                "it was fitted to {}x{} frames, the video's are {w}x{h} (another aspect ratio)",
+                r.width, r.height
+            )));
+        }
+    }
+    Ok(model)
+}
+
+/// Runs the video stylization `config` describes (see the module documentation).
+pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSummary, VideoError> {
+    let out = config
+        .out
+        .as_deref()
+        .ok_or_else(|| VideoError::Config("out: is required".into()))?;
+    let video_path = config.video.as_deref().ok_or_else(|| {
+        VideoError::Config("video: is required (a frames folder or a video file)".into())
+    })?;
+    if !(config.fps.is_finite() && config.fps > 0.0) {
+        return Err(VideoError::Config(format!(
+            "fps: {} must be positive",
+            config.fps
+        )));
+    }
+    let prepared = prepare(&config.style, out, options.clone())?;
+    let backend = prepared.backend();
+    let video = load_video(video_path, config.background, config.fps)?;
+    check_patches_fit(&config.style, &video.frames[..1], &video.labels[..1])?;
+    let (w, h) = video.size();
+    let record = VideoRecord {
+        width: w,
+        height: h,
+        fps: video.fps,
+    };
+    let frames = video.frames.len();
+    let base_ply = out.join(BASE_PLY);
+    let model = match &config.model {
+        Some(path) => model_of_video(path, frames, (w, h))?,
+        None if options.resume && base_ply.exists() => model_of_video(&base_ply, frames, (w, h))?,
+        None => {
+            let model = fit_with_progress(&video, &config.fit_settings(), options, backend)?;
+            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
+                path: out.to_path_buf(),
+                source,
+            })?;
+            write_model(&base_ply, &model, Some(record))?;
+            model
+        }
+    };
+    let views = training_views(w, h, frames, config.distance).map_err(StylizeError::from)?;
+    let labels = video
+        .labels
+        .iter()
+        .flat_map(|l| [l.clone(), format!("{l}, mirrored")])
+        .collect();
+    let job = StylizeJob {
+        groups: stylize_groups(config.style.feature_lr),
+        model,
+        views,
+        images: training_targets(&video.frames),
+        labels,
+        masks: None,
+        background: config.background,
+    };
+    let mut outcome = prepared.stylize(config, job)?;
+    let stylized = render_frames(
+        &mut outcome.model,
+        w,
+        h,
+        config.distance,
+        config.background,
+        backend,
+    )?;
+    write_model(&out.join(MODEL_PLY), &outcome.model, Some(record))?;
+    let frames_dir = out.join(FRAMES_DIR);
+    write_frames(&frames_dir, &stylized)?;
+    write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
+    let wrote_mp4 = write_mp4(&frames_dir, video.fps, &out.join(STYLIZED_MP4))?;
+    mark_finished(out, config.style.steps)?;
+    Ok(VideoSummary {
+        model: outcome.model,
+        frames: stylized,
+        wrote_mp4,
+    })
+}
+
+/// Fits `video` on `backend`, showing the progress when `options.progress`; the stop flag ends
+/// the fit with [`VideoError::InterruptedFit`].
+pub fn fit_with_progress(
+    video: &Video,
+    settings: &FitSettings,
+    options: &RunOptions,
+    backend: &Backend,
+) -> Result<FoldedGaussians, VideoError> {
+    let progress = Progress::new(options.progress, "fit", settings.steps, 0);
+    let fitted = fit(&video.frames, settings, backend, |report| {
+        progress.update(report.step, &format!("loss {:.4}", report.value.loss));
+        if options.stop.load(Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    progress.finish();
+    let fitted = fitted?;
+    if options.stop.load(Ordering::SeqCst) {
+        return Err(VideoError::InterruptedFit);
+    }
+    Ok(fitted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn only_the_colours_are_trained() {
+        let groups = stylize_groups(0.02);
+        let trained: Vec<&str> = groups
+            .iter()
+            .filter(|g| !g.frozen)
+            .map(|g| g.name.as_str())
+            .collect();
+        assert_eq!(trained, ["f_dc"]);
+        assert_eq!(groups.len(), GROUP_NAMES.len());
+        let config = VideoStylizeConfig::default();
+        assert_eq!(
+            (
+                config.style.lambda_directional,
+                config.style.lambda_patch,
+                config.style.lambda_content
+            ),
+            (5.0, 90.0, 0.5)
+        );
+        assert_eq!((config.style.feature_lr, config.style.steps), (0.02, 5000));
+    }
+}

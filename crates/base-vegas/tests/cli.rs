@@ -1,0 +1,310 @@
+//! `clipgaussian-video` from file to file with the tiny random-weight CLIP and VGG: fit a
+//! generated clip, stylize it (with the fitted model, and with the fit inside the run), keep
+//! the frame count, frame size and Gaussian count, interpolate, render, eval the temporal
+//! consistency part; refuse bad inputs with a clear error and nothing written.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use base_vegas::model_file::read_model;
+use style_loss::test_models::{write_tiny_models, TinyModelFiles};
+
+const W: u32 = 40;
+const H: u32 = 32;
+const FRAMES: usize = 6;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_clipgaussian-video"))
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("run clipgaussian-video");
+    assert!(
+        out.status.success(),
+        "{:?} failed:\n{}",
+        cmd,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn fails(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run clipgaussian-video");
+    assert!(!out.status.success(), "{cmd:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A frames folder: a square moving across a gradient, numbered 1..=FRAMES without padding.
+fn write_clip(dir: &Path) -> PathBuf {
+    let frames = dir.join("clip");
+    std::fs::create_dir(&frames).unwrap();
+    for f in 0..FRAMES {
+        let img = image::RgbImage::from_fn(W, H, |x, y| {
+            let inside = (x as usize).abs_diff(8 + 4 * f) < 5 && y.abs_diff(16) < 5;
+            if inside {
+                image::Rgb([230, 40, 30])
+            } else {
+                image::Rgb([(x * 6) as u8, (y * 7) as u8, 120])
+            }
+        });
+        img.save(frames.join(format!("{}.png", f + 1))).unwrap();
+    }
+    frames
+}
+
+fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
+    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
+        .args(["--clip-config", s(&models.clip_config)])
+        .args(["--clip-weights", s(&models.clip_weights)])
+        .args(["--tokenizer", s(&models.tokenizer)])
+        .args(["--vgg-weights", s(&models.vgg_weights)])
+        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
+        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
+        .args(["--set", "checkpoint_every=3", "--device", "cpu"])
+        .args(["--style-prompt", "a red fire"]);
+}
+
+fn frame_sizes(dir: &Path) -> Vec<(u32, u32)> {
+    let mut names: Vec<PathBuf> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .collect();
+    names.sort();
+    names
+        .iter()
+        .map(|p| image::image_dimensions(p).unwrap())
+        .collect()
+}
+
+#[test]
+fn fit_stylize_interpolate_render_from_file_to_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let clip = write_clip(dir.path());
+    let fitted = dir.path().join("fitted");
+    let out = run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--video",
+            s(&clip),
+            "--out",
+            s(&fitted),
+        ])
+        .args(["--gaussians", "300", "--steps", "60"]));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("mean PSNR") && text.contains("6 frames of 40x32"),
+        "{text}"
+    );
+    assert_eq!(frame_sizes(&fitted.join("frames")), vec![(W, H); FRAMES]);
+    assert!(fitted.join("preview.gif").is_file());
+
+    let styled = dir.path().join("styled");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 4);
+    let out = run(cmd
+        .args(["--video", s(&clip), "--model", s(&fitted.join("model.ply"))])
+        .args(["--out", s(&styled)]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("wrote 6 frames (40x32)"), "{stdout}");
+    assert!(
+        stdout.lines().all(|l| !l.to_lowercase().contains("error")),
+        "{stdout}"
+    );
+    assert_eq!(frame_sizes(&styled.join("frames")), vec![(W, H); FRAMES]);
+    for name in [
+        "preview.gif",
+        "model.ply",
+        "losses.json",
+        "losses.png",
+        "config.json",
+    ] {
+        assert!(styled.join(name).is_file(), "{name}");
+    }
+    let (base, _) = read_model(&fitted.join("model.ply")).unwrap();
+    let (stylized, record) = read_model(&styled.join("model.ply")).unwrap();
+    assert_eq!(
+        stylized.params().len(),
+        base.params().len(),
+        "the Gaussian count is kept"
+    );
+    assert_eq!(stylized.frames(), FRAMES);
+    assert_eq!(record.map(|r| (r.width, r.height)), Some((W, H)));
+    // Colours only: everything but the SH DC is the fit's.
+    assert_eq!(stylized.params().xyz, base.params().xyz);
+    assert_eq!(stylized.params().m, base.params().m);
+    assert_eq!(stylized.time_logits(), base.time_logits());
+    assert_ne!(stylized.params().sh_dc, base.params().sh_dc);
+
+    let mix = dir.path().join("mix.ply");
+    run(bin()
+        .args(["interpolate", "--a", s(&fitted.join("model.ply"))])
+        .args([
+            "--b",
+            s(&styled.join("model.ply")),
+            "--t",
+            "0.5",
+            "--out",
+            s(&mix),
+        ]));
+    let (mixed, _) = read_model(&mix).unwrap();
+    let (a, b) = (base.params().sh_dc[0], stylized.params().sh_dc[0]);
+    assert!((mixed.params().sh_dc[0] - 0.5 * (a + b)).abs() < 1e-6);
+
+    let rendered = dir.path().join("rendered");
+    run(bin().args([
+        "render",
+        "--device",
+        "cpu",
+        "--model",
+        s(&mix),
+        "--out",
+        s(&rendered),
+    ]));
+    assert_eq!(frame_sizes(&rendered.join("frames")), vec![(W, H); FRAMES]);
+
+    // The fit inside the run, then a resume that continues it to 6 steps.
+    let inside = dir.path().join("inside");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 3);
+    run(cmd.args(["--video", s(&clip), "--out", s(&inside)]).args([
+        "--gaussians",
+        "200",
+        "--fit-steps",
+        "20",
+    ]));
+    assert!(inside.join("base.ply").is_file());
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 6);
+    run(cmd
+        .args(["--video", s(&clip), "--out", s(&inside), "--resume"])
+        .args(["--gaussians", "200", "--fit-steps", "20"]));
+    let losses: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(inside.join("losses.json")).unwrap())
+            .unwrap();
+    assert_eq!(losses.as_array().unwrap().len(), 6);
+}
+
+#[test]
+fn bad_inputs_are_refused_with_clear_errors_and_nothing_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let clip = write_clip(dir.path());
+    let out = dir.path().join("out");
+    let refused = |extra: &[&str]| {
+        let mut cmd = bin();
+        stylize_args(&mut cmd, &models, 2);
+        let err = fails(cmd.args(["--out", s(&out)]).args(extra));
+        assert!(!out.exists(), "nothing written for {extra:?}: {err}");
+        assert!(err.starts_with("error: "), "{err}");
+        err
+    };
+    let empty = dir.path().join("empty");
+    std::fs::create_dir(&empty).unwrap();
+    let e = refused(&["--video", s(&empty)]);
+    assert!(
+        e.contains("empty") && e.contains("no PNG or JPEG frames"),
+        "{e}"
+    );
+    let e = refused(&["--video", s(&dir.path().join("missing"))]);
+    assert!(e.contains("missing") && e.contains("no such file"), "{e}");
+    let e = refused(&["--video", s(&clip), "--set", "patch_size=64"]);
+    assert!(e.contains("patch_size 64") && e.contains("1.png"), "{e}");
+    let e = refused(&["--video", s(&clip), "--set", "bogus=1"]);
+    assert!(e.contains("bogus"), "{e}");
+    let e = refused(&[]);
+    assert!(e.contains("video: is required"), "{e}");
+
+    // A model of another video (3 frames) is refused before any training.
+    let other = dir.path().join("other");
+    std::fs::create_dir(&other).unwrap();
+    for f in 0..3 {
+        image::RgbImage::from_pixel(W, H, image::Rgb([10, 20, 30 * f]))
+            .save(other.join(format!("{f}.png")))
+            .unwrap();
+    }
+    let other_fit = dir.path().join("other_fit");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--video",
+            s(&other),
+            "--out",
+            s(&other_fit),
+        ])
+        .args(["--gaussians", "50", "--steps", "5"]));
+    let e = refused(&[
+        "--video",
+        s(&clip),
+        "--model",
+        s(&other_fit.join("model.ply")),
+    ]);
+    assert!(e.contains("holds 3 frames, the video 6"), "{e}");
+
+    // A clip whose frames differ in size.
+    let mixed = dir.path().join("mixed");
+    std::fs::create_dir(&mixed).unwrap();
+    image::RgbImage::new(W, H)
+        .save(mixed.join("0.png"))
+        .unwrap();
+    image::RgbImage::new(W + 2, H)
+        .save(mixed.join("1.png"))
+        .unwrap();
+    let e = fails(bin().args(["fit", "--quiet", "--video", s(&mixed), "--out", s(&out)]));
+    assert!(e.contains("1.png is 42x32"), "{e}");
+    assert!(!out.exists());
+}
+
+#[test]
+fn help_explains_every_subcommand_and_option() {
+    let out = run(bin().arg("--help"));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for sub in ["stylize", "fit", "render", "interpolate", "eval"] {
+        assert!(text.contains(sub), "{sub} in --help");
+    }
+    let out = run(bin().args(["eval", "--help"]));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("--renders") && text.contains("unwarped"),
+        "{text}"
+    );
+}
+
+#[test]
+fn the_configuration_files_hold_the_paper_defaults() {
+    use base_vegas::stylize::VideoStylizeConfig;
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs");
+    let paper: VideoStylizeConfig =
+        gs_stylize::resolve_config(Some(&root.join("video.json")), &[]).unwrap();
+    assert_eq!(paper, VideoStylizeConfig::default());
+    let s = &paper.style;
+    assert_eq!(
+        (
+            s.lambda_directional,
+            s.lambda_patch,
+            s.lambda_content,
+            s.lambda_background
+        ),
+        (5.0, 90.0, 0.5, 0.0)
+    );
+    assert_eq!(
+        (s.feature_lr, s.steps, s.num_patches, s.patch_size),
+        (0.02, 5000, 64, 128)
+    );
+    let light: VideoStylizeConfig =
+        gs_stylize::resolve_config(Some(&root.join("video-light.json")), &[]).unwrap();
+    let mut expected = paper.clone();
+    expected.style.feature_lr = 0.002;
+    expected.style.lambda_patch = 45.0;
+    assert_eq!(light, expected);
+}
