@@ -14,7 +14,7 @@ use std::path::Path;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, DeviceError, RenderError, Trainer};
-use gs_core::image_loss::{psnr, PhotometricObjective};
+use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::model::{GaussianLrs, View};
 use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig, TrainError, ViewSampler};
 use gs_core::{GsError, Image};
@@ -96,36 +96,21 @@ pub fn fit_groups(extent: f64) -> Vec<GroupConfig> {
     .groups()
 }
 
-/// Checks the settings against the picture.
+/// Checks the settings.
 fn check(settings: &FitSettings) -> Result<(), FitError> {
-    let bad = |field: &str, why: String| Err(FitError::Settings(format!("{field}: {why}")));
-    if settings.gaussians == 0 {
-        return bad("gaussians", "must be at least 1".into());
-    }
-    if settings.steps == 0 {
-        return bad("steps", "must be at least 1".into());
-    }
+    check_fit_settings(
+        settings.gaussians,
+        settings.steps,
+        settings.lambda_dssim,
+        settings.background,
+    )
+    .map_err(FitError::Settings)?;
     if settings.sh_degree > gs_core::gaussians::MAX_SH_DEGREE {
-        return bad(
-            "sh_degree",
-            format!(
-                "{} is above the supported {}",
-                settings.sh_degree,
-                gs_core::gaussians::MAX_SH_DEGREE
-            ),
-        );
-    }
-    if !(settings.lambda_dssim.is_finite() && (0.0..=1.0).contains(&settings.lambda_dssim)) {
-        return bad(
-            "lambda_dssim",
-            format!("{} must be in [0, 1]", settings.lambda_dssim),
-        );
-    }
-    if settings.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return bad(
-            "background",
-            format!("{:?} must have channels in [0, 1]", settings.background),
-        );
+        return Err(FitError::Settings(format!(
+            "sh_degree: {} is above the supported {}",
+            settings.sh_degree,
+            gs_core::gaussians::MAX_SH_DEGREE
+        )));
     }
     Ok(())
 }

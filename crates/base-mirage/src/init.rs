@@ -8,7 +8,7 @@
 //! - the quaternion `(1, 1, 1, 1)` (normalized when used: a 120° turn about `(1, 1, 1)` that
 //!   lays the flat axis along `y`, so the discs face both cameras).
 
-use gs_core::plane_neighbours::mean_nearest_dist2;
+use gs_core::plane_neighbours::random_points_with_log_scales;
 use gs_core::GaussianSet;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -17,9 +17,6 @@ use crate::flat::{FlatGaussians, FLAT_SCALE};
 
 /// Initial opacity of every Gaussian.
 pub const INITIAL_OPACITY: f64 = 0.1;
-
-/// Lower bound of the mean squared neighbour distance, world units squared.
-const MIN_DIST2: f64 = 1e-7;
 
 /// `count` Gaussians of SH degree `sh_degree` on the rectangle `[-half_width, half_width] x
 /// [-half_height, half_height]` of the plane `y = 0` (x across, z up), drawn from `seed`.
@@ -31,20 +28,12 @@ pub fn initial_gaussians(
     seed: u64,
 ) -> FlatGaussians {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let points: Vec<[f64; 2]> = (0..count)
-        .map(|_| {
-            [
-                rng.random_range(-half_width..=half_width),
-                rng.random_range(-half_height..=half_height),
-            ]
-        })
-        .collect();
+    let points = random_points_with_log_scales(count, half_width, half_height, &mut rng);
     let mut set = GaussianSet::zeros(count, sh_degree);
     let logit = (INITIAL_OPACITY / (1.0 - INITIAL_OPACITY)).ln() as f32;
-    let dist2 = mean_nearest_dist2(&points, 3);
-    for (i, p) in points.iter().enumerate() {
+    for (i, (p, log_scale)) in points.iter().enumerate() {
         set.means[3 * i..3 * i + 3].copy_from_slice(&[p[0] as f32, 0.0, p[1] as f32]);
-        let log_scale = (0.5 * dist2[i].max(MIN_DIST2).ln()) as f32;
+        let log_scale = *log_scale as f32;
         set.log_scales[3 * i..3 * i + 3].copy_from_slice(&[
             FLAT_SCALE.ln() as f32,
             log_scale,

@@ -15,14 +15,12 @@
 //! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize; marked
 //!   finished once the rest is written).
 
-use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
 
 use gs_core::backend::Backend;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
-use gs_stylize::progress::Progress;
+use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{prepare, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
@@ -288,26 +286,19 @@ fn create_out(out: &Path) -> Result<(), MirageError> {
     })
 }
 
-/// Fits `picture` on `backend`, showing the progress when `options.progress` ([`Progress`]);
-/// the stop flag ends the fit with [`MirageError::InterruptedFit`].
+/// Fits `picture` on `backend`, showing the progress when `options.progress`
+/// ([`with_progress`]); the stop flag ends the fit with [`MirageError::InterruptedFit`].
 pub fn fit_with_progress(
     picture: &Image,
     settings: &FitSettings,
     options: &RunOptions,
     backend: &Backend,
 ) -> Result<Fitted, MirageError> {
-    let progress = Progress::new(options.progress, "fit", settings.steps, 0);
-    let fitted = fit_logged(picture, settings, backend, |report| {
-        progress.update(report.step, &format!("loss {:.4}", report.value.loss));
-        if options.stop.load(Ordering::SeqCst) {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
+    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
+        fit_logged(picture, settings, backend, on_step)
     });
-    progress.finish();
     let fitted = fitted?;
-    if options.stop.load(Ordering::SeqCst) {
+    if stopped {
         return Err(MirageError::InterruptedFit);
     }
     Ok(fitted)

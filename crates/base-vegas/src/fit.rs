@@ -10,7 +10,7 @@ use std::ops::ControlFlow;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, DeviceError, RenderError, Trainer};
-use gs_core::image_loss::{psnr, PhotometricObjective};
+use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::mirror_pair::{extent, mirrored, plane_camera, plane_half_size, DEFAULT_DISTANCE};
 use gs_core::model::View;
 use gs_core::train::{StepReport, TrainConfig, TrainError, ViewSampler};
@@ -123,32 +123,20 @@ pub fn training_targets(frames: &[Image]) -> Vec<Image> {
         .collect()
 }
 
-/// Checks the settings.
+/// Checks the settings and that there are at least two frames.
 fn check(settings: &FitSettings, frames: &[Image]) -> Result<(), FitError> {
-    let bad = |field: &str, why: String| Err(FitError::Settings(format!("{field}: {why}")));
-    if settings.gaussians == 0 {
-        return bad("gaussians", "must be at least 1".into());
-    }
-    if settings.steps == 0 {
-        return bad("steps", "must be at least 1".into());
-    }
-    if !(settings.lambda_dssim.is_finite() && (0.0..=1.0).contains(&settings.lambda_dssim)) {
-        return bad(
-            "lambda_dssim",
-            format!("{} must be in [0, 1]", settings.lambda_dssim),
-        );
-    }
-    if settings.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return bad(
-            "background",
-            format!("{:?} must have channels in [0, 1]", settings.background),
-        );
-    }
+    check_fit_settings(
+        settings.gaussians,
+        settings.steps,
+        settings.lambda_dssim,
+        settings.background,
+    )
+    .map_err(FitError::Settings)?;
     if frames.len() < 2 {
-        return bad(
-            "frames",
-            format!("{} frames; a video needs at least 2", frames.len()),
-        );
+        return Err(FitError::Settings(format!(
+            "frames: {} frames; a video needs at least 2",
+            frames.len()
+        )));
     }
     Ok(())
 }

@@ -183,16 +183,7 @@ impl BaseModel for FoldedGaussians {
         let frame = self.frame(view)?;
         let t = self.time_of(frame);
         let p = &self.params;
-        let mut acc = FoldedParams {
-            xyz: vec![0.0; p.xyz.len()],
-            log_scales: vec![0.0; p.log_scales.len()],
-            rotation: vec![0.0; p.len()],
-            m: vec![0.0; p.len()],
-            sigma: vec![0.0; p.len()],
-            w: vec![0.0; p.w.len()],
-            opacity_logits: vec![0.0; p.len()],
-            sh_dc: vec![0.0; p.sh_dc.len()],
-        };
+        let mut acc = FoldedParams::zeros(p.len());
         let grad_t = add_frame_grads(p, t, &tape, grads, &mut acc);
         let sources: [&[f32]; 8] = [
             &acc.xyz,

@@ -64,6 +64,35 @@ pub struct FrameTape {
 }
 
 impl<T: Real> FoldedParams<T> {
+    /// `n` Gaussians with every parameter 0.
+    pub fn zeros(n: usize) -> Self {
+        let zero = T::from_f64(0.0);
+        Self {
+            xyz: vec![zero; 3 * n],
+            log_scales: vec![zero; 2 * n],
+            rotation: vec![zero; n],
+            m: vec![zero; n],
+            sigma: vec![zero; n],
+            w: vec![zero; POLY_LEN * n],
+            opacity_logits: vec![zero; n],
+            sh_dc: vec![zero; 3 * n],
+        }
+    }
+
+    /// No Gaussians, with room for `n` in every array.
+    pub fn with_capacity(n: usize) -> Self {
+        Self {
+            xyz: Vec::with_capacity(3 * n),
+            log_scales: Vec::with_capacity(2 * n),
+            rotation: Vec::with_capacity(n),
+            m: Vec::with_capacity(n),
+            sigma: Vec::with_capacity(n),
+            w: Vec::with_capacity(POLY_LEN * n),
+            opacity_logits: Vec::with_capacity(n),
+            sh_dc: Vec::with_capacity(3 * n),
+        }
+    }
+
     /// The number of Gaussians.
     pub fn len(&self) -> usize {
         self.m.len()

@@ -3,13 +3,13 @@
 //! frames, with
 //! - colours near black as VeGaS draws them: SH DC `u / 255`, `u` uniform in `[0, 1)`;
 //! - opacity 0.1;
-//! - in-plane scales `sqrt(mean squared distance to the 3 nearest other points)` (clamped
-//!   below at 1e-7 squared, as `distCUDA2`);
+//! - in-plane scales `sqrt(mean squared distance to the 3 nearest other points)` (the squared
+//!   distance clamped below at 1e-7, as `distCUDA2`);
 //! - rotation and temporal centre `logit(u)`, log width `ln(0.99 u + 0.01)`, motion polynomial
 //!   uniform in `[-1, 1]`;
 //! - equal time logits (ones): uniform frame times.
 
-use gs_core::plane_neighbours::mean_nearest_dist2;
+use gs_core::plane_neighbours::random_points_with_log_scales;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -18,9 +18,6 @@ use crate::frame::{FoldedParams, POLY_LEN};
 
 /// Initial opacity of every Gaussian.
 pub const INITIAL_OPACITY: f64 = 0.1;
-
-/// Lower bound of the mean squared neighbour distance, world units squared.
-const MIN_DIST2: f64 = 1e-7;
 
 /// `logit(u)` for `u` uniform in `(0, 1)`, kept a millionth away from both ends so that it is
 /// finite.
@@ -40,30 +37,13 @@ pub fn initial_model(
     seed: u64,
 ) -> FoldedGaussians {
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
-    let points: Vec<[f64; 2]> = (0..count)
-        .map(|_| {
-            [
-                rng.random_range(-half_width..=half_width),
-                rng.random_range(-half_height..=half_height),
-            ]
-        })
-        .collect();
-    let dist2 = mean_nearest_dist2(&points, 3);
+    let points = random_points_with_log_scales(count, half_width, half_height, &mut rng);
     let opacity = (INITIAL_OPACITY / (1.0 - INITIAL_OPACITY)).ln() as f32;
-    let mut p = FoldedParams {
-        xyz: Vec::with_capacity(3 * count),
-        log_scales: Vec::with_capacity(2 * count),
-        rotation: Vec::with_capacity(count),
-        m: Vec::with_capacity(count),
-        sigma: Vec::with_capacity(count),
-        w: Vec::with_capacity(POLY_LEN * count),
-        opacity_logits: vec![opacity; count],
-        sh_dc: Vec::with_capacity(3 * count),
-    };
-    for (point, d2) in points.iter().zip(&dist2) {
+    let mut p = FoldedParams::with_capacity(count);
+    for (point, log_scale) in points {
         p.xyz.extend([point[0] as f32, 0.0, point[1] as f32]);
-        let log_scale = (0.5 * d2.max(MIN_DIST2).ln()) as f32;
-        p.log_scales.extend([log_scale, log_scale]);
+        p.log_scales.extend([log_scale as f32; 2]);
+        p.opacity_logits.push(opacity);
         p.rotation.push(random_logit(&mut rng));
         p.m.push(random_logit(&mut rng));
         p.sigma

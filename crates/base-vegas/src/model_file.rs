@@ -189,17 +189,7 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
             )));
         }
     }
-    let n = vertices.len();
-    let mut p = FoldedParams {
-        xyz: Vec::with_capacity(3 * n),
-        log_scales: Vec::with_capacity(2 * n),
-        rotation: Vec::with_capacity(n),
-        m: Vec::with_capacity(n),
-        sigma: Vec::with_capacity(n),
-        w: Vec::with_capacity(POLY_LEN * n),
-        opacity_logits: Vec::with_capacity(n),
-        sh_dc: Vec::with_capacity(3 * n),
-    };
+    let mut p = FoldedParams::with_capacity(vertices.len());
     for (i, row) in vertices.iter().enumerate() {
         for name in ["x", "y", "z"] {
             p.xyz.push(value(row, name, i)?);

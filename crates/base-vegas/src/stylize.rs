@@ -15,16 +15,14 @@
 //! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
 //! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
 
-use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
-use std::sync::atomic::Ordering;
 
 use gs_core::adam::{GroupConfig, LrSchedule};
 use gs_core::backend::Backend;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
-use gs_stylize::progress::Progress;
+use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{prepare, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
@@ -267,26 +265,19 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
     })
 }
 
-/// Fits `video` on `backend`, showing the progress when `options.progress`; the stop flag ends
-/// the fit with [`VideoError::InterruptedFit`].
+/// Fits `video` on `backend`, showing the progress when `options.progress`
+/// ([`with_progress`]); the stop flag ends the fit with [`VideoError::InterruptedFit`].
 pub fn fit_with_progress(
     video: &Video,
     settings: &FitSettings,
     options: &RunOptions,
     backend: &Backend,
 ) -> Result<FoldedGaussians, VideoError> {
-    let progress = Progress::new(options.progress, "fit", settings.steps, 0);
-    let fitted = fit(&video.frames, settings, backend, |report| {
-        progress.update(report.step, &format!("loss {:.4}", report.value.loss));
-        if options.stop.load(Ordering::SeqCst) {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
+    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
+        fit(&video.frames, settings, backend, on_step)
     });
-    progress.finish();
     let fitted = fitted?;
-    if options.stop.load(Ordering::SeqCst) {
+    if stopped {
         return Err(VideoError::InterruptedFit);
     }
     Ok(fitted)

@@ -308,3 +308,51 @@ fn the_configuration_files_hold_the_paper_defaults() {
     expected.style.lambda_patch = 45.0;
     assert_eq!(light, expected);
 }
+
+#[test]
+fn eval_scores_stylized_frames_against_the_video() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let clip = write_clip(dir.path());
+    let metrics = dir.path().join("metrics.json");
+    let eval = |renders: &Path| {
+        let mut cmd = bin();
+        cmd.args(["eval", "--renders", s(renders), "--video", s(&clip)])
+            .args(["--style-prompt", "a red fire"])
+            .args(["--clip-config", s(&models.clip_config)])
+            .args(["--clip-weights", s(&models.clip_weights)])
+            .args(["--tokenizer", s(&models.tokenizer)])
+            .args(["--out", s(&metrics)]);
+        cmd
+    };
+    // The video against itself: CLIP-F is 100, and the temporal numbers are the original's.
+    run(&mut eval(&clip));
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
+    assert_eq!(m["views"], FRAMES);
+    assert!((m["clip_f"].as_f64().unwrap() - 100.0).abs() < 1e-3, "{m}");
+    assert_eq!(m["short_range_rmse"], m["original_short_range_rmse"]);
+    assert!(
+        m["short_range_rmse"].as_f64().unwrap() > 0.0,
+        "the square moves"
+    );
+    assert!(
+        m["long_range_rmse"].is_null(),
+        "6 frames have no pair 7 apart"
+    );
+    for key in ["clip_s", "clip_sim", "clip_cons"] {
+        assert!(m[key].as_f64().unwrap().is_finite(), "{key}: {m}");
+    }
+    // Fewer stylized frames than the video's: refused.
+    let short = dir.path().join("short");
+    std::fs::create_dir(&short).unwrap();
+    for f in 1..=3 {
+        std::fs::copy(
+            clip.join(format!("{f}.png")),
+            short.join(format!("{f}.png")),
+        )
+        .unwrap();
+    }
+    let e = fails(&mut eval(&short));
+    assert!(e.contains("holds 3 frames") && e.contains("holds 6"), "{e}");
+}

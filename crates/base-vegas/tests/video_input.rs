@@ -109,3 +109,34 @@ fn a_video_file_needs_ffmpeg_and_says_so() {
     }
     assert!(e.to_string().contains("clip.mp4"), "{e}");
 }
+
+/// Where ffmpeg is installed: frames written as an mp4 (`video_output::write_mp4`) read back
+/// through ffmpeg with their count, size and frame rate. Where it is not, the mp4 is not
+/// written and says so (`Ok(false)`).
+#[test]
+fn frames_round_trip_through_an_mp4_when_ffmpeg_is_installed() {
+    use base_vegas::video_output::{write_frames, write_mp4};
+    let dir = tempfile::tempdir().unwrap();
+    let frames: Vec<Image> = (0..5)
+        .map(|k| Image::filled(34, 20, [0.1 + 0.15 * k as f32, 0.5, 0.3]))
+        .collect();
+    let folder = dir.path().join("frames");
+    write_frames(&folder, &frames).unwrap();
+    let mp4 = dir.path().join("clip.mp4");
+    let written = write_mp4(&folder, 12.0, &mp4).unwrap();
+    let has_ffmpeg = std::process::Command::new("ffmpeg")
+        .arg("-version")
+        .output()
+        .is_ok();
+    assert_eq!(written, has_ffmpeg);
+    if written {
+        let video = load_video(&mp4, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap();
+        assert_eq!(video.frames.len(), 5);
+        assert_eq!(video.size(), (34, 20));
+        assert!((video.fps - 12.0).abs() < 1e-9, "fps {}", video.fps);
+        let red = (video.frames[4].data[0] * 255.0).round();
+        assert!((red - (0.7f32 * 255.0).round()).abs() <= 6.0, "red {red}");
+    } else {
+        assert!(!mp4.exists());
+    }
+}

@@ -188,6 +188,32 @@ pub struct PhotometricObjective {
     pub lambda: f32,
 }
 
+/// Checks the settings every photometric fit shares (MiraGe's, VeGaS's): at least one Gaussian
+/// and one step, a D-SSIM weight in `[0, 1]`, background channels in `[0, 1]`; the error starts
+/// with the field (`gaussians: must be at least 1`).
+pub fn check_fit_settings(
+    gaussians: usize,
+    steps: u64,
+    lambda_dssim: f32,
+    background: [f32; 3],
+) -> Result<(), String> {
+    if gaussians == 0 {
+        return Err("gaussians: must be at least 1".into());
+    }
+    if steps == 0 {
+        return Err("steps: must be at least 1".into());
+    }
+    if !(lambda_dssim.is_finite() && (0.0..=1.0).contains(&lambda_dssim)) {
+        return Err(format!("lambda_dssim: {lambda_dssim} must be in [0, 1]"));
+    }
+    if background.iter().any(|c| !(0.0..=1.0).contains(c)) {
+        return Err(format!(
+            "background: {background:?} must have channels in [0, 1]"
+        ));
+    }
+    Ok(())
+}
+
 impl Objective for PhotometricObjective {
     type Error = GsError;
 

@@ -2,7 +2,37 @@
 //! nearest others, as 3DGS's `distCUDA2` gives it for the initial scales (MiraGe's and VeGaS's
 //! random points on the picture plane), found on a uniform grid.
 
+use rand::Rng;
 use rayon::prelude::*;
+
+/// Lower bound of the mean squared neighbour distance, world units squared (`distCUDA2`'s).
+pub const MIN_DIST2: f64 = 1e-7;
+
+/// `count` points drawn from `rng` uniformly on the rectangle `[-half_width, half_width] x
+/// [-half_height, half_height]`, and each one's initial log-scale
+/// `ln sqrt(max(mean squared distance to its 3 nearest others, MIN_DIST2))`, as MiraGe and VeGaS
+/// initialise the Gaussians of a picture plane.
+pub fn random_points_with_log_scales<R: Rng>(
+    count: usize,
+    half_width: f64,
+    half_height: f64,
+    rng: &mut R,
+) -> Vec<([f64; 2], f64)> {
+    let points: Vec<[f64; 2]> = (0..count)
+        .map(|_| {
+            [
+                rng.random_range(-half_width..=half_width),
+                rng.random_range(-half_height..=half_height),
+            ]
+        })
+        .collect();
+    let dist2 = mean_nearest_dist2(&points, 3);
+    points
+        .into_iter()
+        .zip(dist2)
+        .map(|(p, d2)| (p, 0.5 * d2.max(MIN_DIST2).ln()))
+        .collect()
+}
 
 /// For every point, the mean squared distance to its `k` nearest other points (fewer when
 /// there are fewer other points; infinity when there are none), found on a uniform grid.

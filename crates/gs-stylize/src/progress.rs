@@ -7,9 +7,15 @@
 
 use std::cell::{Cell, RefCell};
 use std::io::IsTerminal;
+use std::ops::ControlFlow;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
+use gs_core::train::StepReport;
+
 use indicatif::{ProgressBar, ProgressStyle};
+
+use crate::RunOptions;
 
 /// The plain lines come every this many percent of the steps (and at the last step).
 pub const LINE_EVERY_PERCENT: u64 = 5;
@@ -161,6 +167,29 @@ fn bucket(step: u64, total: u64) -> u64 {
 fn clock(d: Duration) -> String {
     let s = d.as_secs();
     format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
+}
+
+/// Runs `work`, a training loop of `steps` steps (a fit), with its progress shown as `label`
+/// when `options.progress`: `work` gets the per-step callback, which shows the step's loss and
+/// asks the loop to stop once `options.stop` is set (Ctrl-C). Returns `work`'s result and
+/// whether it was stopped.
+pub fn with_progress<T>(
+    label: &str,
+    steps: u64,
+    options: &RunOptions,
+    work: impl FnOnce(&mut dyn FnMut(&StepReport) -> ControlFlow<()>) -> T,
+) -> (T, bool) {
+    let progress = Progress::new(options.progress, label, steps, 0);
+    let result = work(&mut |report: &StepReport| {
+        progress.update(report.step, &format!("loss {:.4}", report.value.loss));
+        if options.stop.load(Ordering::SeqCst) {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    });
+    progress.finish();
+    (result, options.stop.load(Ordering::SeqCst))
 }
 
 #[cfg(test)]
