@@ -13,10 +13,11 @@ use std::ops::ControlFlow;
 use std::path::Path;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, DeviceError, RenderError, Trainer};
+use gs_core::backend::{Backend, Trainer};
+pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::model::{GaussianLrs, View};
-use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig, TrainError, ViewSampler};
+use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig, ViewSampler};
 use gs_core::{GsError, Image};
 use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_stylize::StylizeError;
@@ -56,26 +57,6 @@ impl Default for FitSettings {
             background: [0.0; 3],
         }
     }
-}
-
-/// Why a fit could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum FitError {
-    /// A setting out of its range.
-    #[error("{0}")]
-    Settings(String),
-    /// A camera that could not be built.
-    #[error("{0}")]
-    Camera(#[from] GsError),
-    /// Training stopped with an error.
-    #[error("fitting: {0}")]
-    Train(#[from] TrainError<GsError>),
-    /// The device could not hold the model.
-    #[error("fitting: {0}")]
-    Device(#[from] DeviceError),
-    /// The model could not be rendered.
-    #[error("rendering: {0}")]
-    Render(#[from] RenderError),
 }
 
 /// MiraGe's Adam groups for a scene of extent `extent`: means `1.6e-4 extent -> 1.6e-6 extent`

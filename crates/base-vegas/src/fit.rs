@@ -9,11 +9,12 @@
 use std::ops::ControlFlow;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, DeviceError, RenderError, Trainer};
+use gs_core::backend::{Backend, Trainer};
+pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::mirror_pair::{extent, mirrored, plane_camera, plane_half_size, DEFAULT_DISTANCE};
 use gs_core::model::View;
-use gs_core::train::{StepReport, TrainConfig, TrainError, ViewSampler};
+use gs_core::train::{StepReport, TrainConfig, ViewSampler};
 use gs_core::{GsError, Image};
 
 use crate::folded::{view_time, FoldedGaussians, GROUP_NAMES};
@@ -47,26 +48,6 @@ impl Default for FitSettings {
             background: [0.0; 3],
         }
     }
-}
-
-/// Why a fit could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum FitError {
-    /// A setting out of its range.
-    #[error("{0}")]
-    Settings(String),
-    /// A camera that could not be built.
-    #[error("{0}")]
-    Camera(#[from] GsError),
-    /// Training stopped with an error.
-    #[error("fitting: {0}")]
-    Train(#[from] TrainError<GsError>),
-    /// The device could not hold the model.
-    #[error("fitting: {0}")]
-    Device(#[from] DeviceError),
-    /// The model could not be rendered.
-    #[error("rendering: {0}")]
-    Render(#[from] RenderError),
 }
 
 /// VeGaS's Adam groups (in [`GROUP_NAMES`] order) for a scene of extent `extent`: xyz

@@ -99,16 +99,20 @@ fn white_mask(s: &Setup) -> Tensor {
     background_mask_from_color(&s.tensors["gt"], [1.0, 1.0, 1.0]).unwrap()
 }
 
+/// The fixture's training step with its weights, white background mask and patches.
+fn paper_step(s: &Setup) -> style_loss::StyleLossOutput {
+    let loss = style_loss(s, s.weights);
+    let cache = loss
+        .cache_view(&s.tensors["gt"], Some(&white_mask(s)))
+        .unwrap();
+    loss.loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
+        .unwrap()
+}
+
 #[test]
 fn total_loss_terms_and_gradient_match() {
     let s = setup();
-    let loss = style_loss(&s, s.weights);
-    let cache = loss
-        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
-        .unwrap();
-    let out = loss
-        .loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
-        .unwrap();
+    let out = paper_step(&s);
     let v = &s.json["values"];
     let close = |ours: f64, key: &str| {
         let reference = v[key].as_f64().unwrap();
@@ -306,13 +310,7 @@ fn reduced_precision_clip_stays_within_its_recorded_error() {
         (ClipPrecision::Bf16, 4e-2, 1e-1),
     ] {
         let s = setup_in(precision);
-        let loss = style_loss(&s, s.weights);
-        let cache = loss
-            .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
-            .unwrap();
-        let out = loss
-            .loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
-            .unwrap();
+        let out = paper_step(&s);
         let v = &s.json["values"];
         let error = |ours: f64, key: &str| {
             let reference = v[key].as_f64().unwrap();
