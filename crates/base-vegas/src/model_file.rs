@@ -9,8 +9,8 @@
 //! motion polynomial of another degree, a non-finite value or a missing `time` element is an
 //! error naming the file.
 //!
-//! Ours also records the video in a header comment, `clipgaussian-video frames WxH fps R`,
-//! which VeGaS ignores.
+//! Ours also records the video and the camera distance in a header comment,
+//! `clipgaussian-video frames WxH fps R distance D`, which VeGaS ignores.
 
 use std::io::BufReader;
 use std::path::{Path, PathBuf};
@@ -37,6 +37,8 @@ pub struct VideoRecord {
     pub height: u32,
     /// Frames per second.
     pub fps: f64,
+    /// Distance of the cameras from the plane, world units.
+    pub distance: f64,
 }
 
 /// Why a model file cannot be read or written.
@@ -84,8 +86,8 @@ pub fn write_model(
     ply.header.encoding = Encoding::BinaryLittleEndian;
     if let Some(v) = video {
         ply.header.comments.push(format!(
-            "{RECORD_PREFIX} {}x{} fps {}",
-            v.width, v.height, v.fps
+            "{RECORD_PREFIX} {}x{} fps {} distance {}",
+            v.width, v.height, v.fps, v.distance
         ));
     }
     let float = PropertyType::Scalar(ScalarType::Float);
@@ -156,7 +158,8 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
         .payload
         .get("vertex")
         .ok_or_else(|| fail("no `vertex` element".into()))?;
-    let value = |row: &DefaultElement, name: &str, index: usize| -> Result<f32, ModelFileError> {
+    // `place` says where the value is (`vertex 3`, `the time element`) in errors.
+    let value = |row: &DefaultElement, name: &str, place: &str| -> Result<f32, ModelFileError> {
         let v = match row.get(name) {
             Some(Property::Float(v)) => *v,
             Some(Property::Double(v)) => *v as f32,
@@ -174,7 +177,7 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
             }
         };
         if !v.is_finite() {
-            return Err(fail(format!("{name} of vertex {index} is {v}")));
+            return Err(fail(format!("{name} of {place} is {v}")));
         }
         Ok(v)
     };
@@ -191,6 +194,7 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
     }
     let mut p = FoldedParams::with_capacity(vertices.len());
     for (i, row) in vertices.iter().enumerate() {
+        let i = &format!("vertex {i}");
         for name in ["x", "y", "z"] {
             p.xyz.push(value(row, name, i)?);
         }
@@ -222,24 +226,33 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
         }
     };
     let logits = (0..time_row.len())
-        .map(|k| value(time_row, &format!("time_func_{k}"), 0))
+        .map(|k| value(time_row, &format!("time_func_{k}"), "the time element"))
         .collect::<Result<Vec<f32>, _>>()?;
     let record = ply.header.comments.iter().find_map(|c| parse_record(c));
     let model = FoldedGaussians::new(p, logits).map_err(fail)?;
     Ok((model, record))
 }
 
-/// The video of a `clipgaussian-video frames WxH fps R` comment.
+/// The video of a `clipgaussian-video frames WxH fps R distance D` comment; none when the
+/// comment is another or holds a size, rate or distance that is not positive.
 fn parse_record(comment: &str) -> Option<VideoRecord> {
     let rest = comment.strip_prefix(RECORD_PREFIX)?.trim();
     let mut parts = rest.split_whitespace();
     let (w, h) = parts.next()?.split_once('x')?;
-    if parts.next()? != "fps" {
-        return None;
-    }
-    Some(VideoRecord {
-        width: w.parse().ok()?,
-        height: h.parse().ok()?,
-        fps: parts.next()?.parse().ok()?,
-    })
+    let mut number = |key: &str| -> Option<f64> {
+        (parts.next()? == key).then_some(())?;
+        parts
+            .next()?
+            .parse()
+            .ok()
+            .filter(|v: &f64| v.is_finite() && *v > 0.0)
+    };
+    let (fps, distance) = (number("fps")?, number("distance")?);
+    let record = VideoRecord {
+        width: w.parse().ok().filter(|&w| w > 0)?,
+        height: h.parse().ok().filter(|&h| h > 0)?,
+        fps,
+        distance,
+    };
+    Some(record)
 }

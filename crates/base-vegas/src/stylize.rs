@@ -159,11 +159,13 @@ pub struct VideoSummary {
     pub wrote_mp4: bool,
 }
 
-/// Reads the model at `path` and checks it against a video of `frames` frames of `size`.
+/// Reads the model at `path` and checks it against a video of `frames` frames of `size` seen
+/// from `distance` (a model that records its video must match its aspect ratio and distance).
 pub fn model_of_video(
     path: &Path,
     frames: usize,
     size: (u32, u32),
+    distance: f64,
 ) -> Result<FoldedGaussians, VideoError> {
     let (model, record) = read_model(path)?;
     let mismatch = |reason: String| VideoError::ModelMismatch {
@@ -182,6 +184,12 @@ pub fn model_of_video(
             return Err(mismatch(format!(
                 "it was fitted to {}x{} frames, the video's are {w}x{h} (another aspect ratio)",
                 r.width, r.height
+            )));
+        }
+        if (r.distance - distance).abs() > 1e-9 * distance.abs().max(1.0) {
+            return Err(mismatch(format!(
+                "it was fitted with the cameras at distance {}, this run has distance {distance}",
+                r.distance
             )));
         }
     }
@@ -212,12 +220,27 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
         width: w,
         height: h,
         fps: video.fps,
+        distance: config.distance,
     };
     let frames = video.frames.len();
     let base_ply = out.join(BASE_PLY);
     let model = match &config.model {
-        Some(path) => model_of_video(path, frames, (w, h))?,
-        None if options.resume && base_ply.exists() => model_of_video(&base_ply, frames, (w, h))?,
+        Some(path) => model_of_video(path, frames, (w, h), config.distance)?,
+        None if options.resume && base_ply.exists() => {
+            let model = model_of_video(&base_ply, frames, (w, h), config.distance)?;
+            if model.params().len() != config.fit_gaussians {
+                return Err(VideoError::ModelMismatch {
+                    path: base_ply,
+                    reason: format!(
+                        "this run's fit holds {} Gaussians, but fit_gaussians is {}; resume \
+                         with the same settings",
+                        model.params().len(),
+                        config.fit_gaussians
+                    ),
+                });
+            }
+            model
+        }
         None => {
             let model = fit_with_progress(&video, &config.fit_settings(), options, backend)?;
             std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
@@ -256,7 +279,14 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
     let frames_dir = out.join(FRAMES_DIR);
     write_frames(&frames_dir, &stylized)?;
     write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
-    let wrote_mp4 = write_mp4(&frames_dir, video.fps, &out.join(STYLIZED_MP4))?;
+    // The frames and the model are the results; a failed mp4 is reported, not fatal.
+    let wrote_mp4 = match write_mp4(&frames_dir, video.fps, &out.join(STYLIZED_MP4)) {
+        Ok(wrote) => wrote,
+        Err(e) => {
+            eprintln!("warning: {e}; the frames are in {}", frames_dir.display());
+            false
+        }
+    };
     mark_finished(out, config.style.steps)?;
     Ok(VideoSummary {
         model: outcome.model,

@@ -206,33 +206,41 @@ fn check_count(video: Video, path: &Path) -> Result<Video, VideoInputError> {
     Ok(video)
 }
 
-/// The frame rate of the first video stream of `path`, by `ffprobe`.
+/// The frame rate of the first video stream of `path`, by `ffprobe`: its average rate, or its
+/// base rate where a container reports no average (`0/0`).
 fn probe_fps(path: &Path) -> Result<f64, VideoInputError> {
     let out = run_tool(
         path,
         "ffprobe",
         Command::new("ffprobe")
             .args(["-v", "error", "-select_streams", "v:0"])
-            .args(["-show_entries", "stream=avg_frame_rate", "-of", "csv=p=0"])
+            .args([
+                "-show_entries",
+                "stream=avg_frame_rate,r_frame_rate",
+                "-of",
+                "csv=p=0",
+            ])
             .arg(path),
     )?;
     let text = out.trim();
-    let rate = match text.split_once('/') {
-        Some((n, d)) => n
-            .parse::<f64>()
-            .ok()
-            .zip(d.parse::<f64>().ok())
-            .map(|(n, d)| n / d),
-        None => text.parse::<f64>().ok(),
+    let rate = |field: &str| -> Option<f64> {
+        let r = match field.trim().split_once('/') {
+            Some((n, d)) => n.parse::<f64>().ok()? / d.parse::<f64>().ok()?,
+            None => field.trim().parse::<f64>().ok()?,
+        };
+        (r.is_finite() && r > 0.0).then_some(r)
     };
-    match rate {
-        Some(r) if r.is_finite() && r > 0.0 => Ok(r),
-        _ => Err(VideoInputError::Decoder {
+    // ffprobe prints the fields in its own order (r_frame_rate first); prefer the average.
+    let fields: Vec<&str> = text.lines().next().unwrap_or("").split(',').collect();
+    let (base, average) = (fields.first().copied(), fields.get(1).copied());
+    average
+        .and_then(rate)
+        .or_else(|| base.and_then(rate))
+        .ok_or_else(|| VideoInputError::Decoder {
             path: path.to_path_buf(),
             program: "ffprobe",
             message: format!("no frame rate in its answer {text:?}"),
-        }),
-    }
+        })
 }
 
 /// Runs `command` (the program `program`) on the video `path`: its standard output, or an

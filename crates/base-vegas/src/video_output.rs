@@ -97,7 +97,8 @@ pub fn write_preview_gif(
 
 /// Encodes the frames of `frames_dir` (as [`write_frames`] names them) at `fps` into the mp4
 /// `path` (H.264, even-sized, `yuv420p` for any player) with `ffmpeg`: `Ok(false)` when
-/// `ffmpeg` is not installed, an error with its message when it fails.
+/// `ffmpeg` is not installed (an older file at `path` is then removed, so that it cannot be
+/// taken for this video's), an error with its message when it fails.
 pub fn write_mp4(frames_dir: &Path, fps: f64, path: &Path) -> Result<bool, VideoOutputError> {
     let tmp = gs_core::fs::temporary_path(path).with_extension("tmp.mp4");
     let out = Command::new("ffmpeg")
@@ -115,7 +116,12 @@ pub fn write_mp4(frames_dir: &Path, fps: f64, path: &Path) -> Result<bool, Video
         .output();
     let out = match out {
         Ok(out) => out,
-        Err(e) if e.kind() == std::io::ErrorKind::NotFound => return Ok(false),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => {
+            if path.exists() {
+                std::fs::remove_file(path).map_err(|e| error(path, e))?;
+            }
+            return Ok(false);
+        }
         Err(e) => return Err(error(path, format!("ffmpeg: {e}"))),
     };
     if !out.status.success() {

@@ -356,3 +356,67 @@ fn eval_scores_stylized_frames_against_the_video() {
     let e = fails(&mut eval(&short));
     assert!(e.contains("holds 3 frames") && e.contains("holds 6"), "{e}");
 }
+
+#[test]
+fn render_follows_the_record_and_refuses_what_does_not_fit_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let clip = write_clip(dir.path());
+    let fitted = dir.path().join("fitted");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--video",
+            s(&clip),
+            "--out",
+            s(&fitted),
+        ])
+        .args(["--gaussians", "100", "--steps", "5"]));
+    let model = fitted.join("model.ply");
+    let out = dir.path().join("r");
+    let render = |extra: &[&str]| {
+        let mut cmd = bin();
+        cmd.args([
+            "render",
+            "--device",
+            "cpu",
+            "--model",
+            s(&model),
+            "--out",
+            s(&out),
+        ])
+        .args(extra);
+        cmd
+    };
+    let e = fails(&mut render(&["--width", "40"]));
+    assert!(e.contains("both --width and --height"), "{e}");
+    let e = fails(&mut render(&["--width", "40", "--height", "40"]));
+    assert!(e.contains("aspect ratio") && e.contains("40x32"), "{e}");
+    let e = fails(&mut render(&["--background", "2,0,0"]));
+    assert!(e.contains("channels in [0, 1]"), "{e}");
+    assert!(!out.exists(), "nothing written");
+    run(&mut render(&[
+        "--width",
+        "80",
+        "--height",
+        "64",
+        "--background",
+        "1,1,1",
+    ]));
+    assert_eq!(frame_sizes(&out.join("frames")), vec![(80, 64); FRAMES]);
+    let e = fails(
+        bin()
+            .args([
+                "fit",
+                "--quiet",
+                "--video",
+                s(&clip),
+                "--out",
+                s(&dir.path().join("f")),
+            ])
+            .args(["--fps", "0"]),
+    );
+    assert!(e.contains("--fps 0 must be positive"), "{e}");
+}

@@ -64,6 +64,7 @@ fn our_model_files_read_back_exactly() {
         width: 96,
         height: 64,
         fps: 29.97,
+        distance: 1.5,
     };
     write_model(&path, &model, Some(record)).unwrap();
     let (back, back_record) = read_model(&path).unwrap();

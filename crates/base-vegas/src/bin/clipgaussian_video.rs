@@ -154,6 +154,12 @@ struct RenderArgs {
     /// Frame rate of the mp4 (default: the recorded one, else 24).
     #[arg(long)]
     fps: Option<f64>,
+    /// Distance of the camera from the plane (default: the recorded one, else 1).
+    #[arg(long)]
+    distance: Option<f64>,
+    /// The background colour as R,G,B in [0, 1] (the run's; VeGaS: black).
+    #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
+    background: [f32; 3],
     /// Where to render: cpu, gpu, or auto.
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -211,6 +217,19 @@ struct EvalArgs {
     out: Option<PathBuf>,
 }
 
+/// `R,G,B` with channels in `[0, 1]`.
+fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
+    let channels: Vec<f32> = text
+        .split(',')
+        .map(|c| c.trim().parse::<f32>())
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("{text:?} is not R,G,B: {e}"))?;
+    match channels[..] {
+        [r, g, b] if channels.iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
+        _ => Err(format!("{text:?} is not R,G,B with channels in [0, 1]")),
+    }
+}
+
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     let overrides: Vec<Override> = args.style.overrides(vec![
@@ -250,6 +269,9 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         seed: args.seed,
         ..FitSettings::default()
     };
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        return Err(format!("--fps {} must be positive", args.fps).into());
+    }
     let video = load_video(&args.video, settings.background, args.fps)?;
     let options = RunOptions {
         resume: false,
@@ -274,6 +296,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         width: w,
         height: h,
         fps: video.fps,
+        distance: settings.distance,
     };
     write_model(&args.out.join(MODEL_PLY), &model, Some(record))?;
     write_frames(&args.out.join(FRAMES_DIR), &fitted)?;
@@ -299,27 +322,48 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     check_output_folder(&args.out)?;
     let (mut model, record) = read_model(&args.model)?;
     let size = match (args.width, args.height, record) {
-        (Some(w), Some(h), _) => (w, h),
-        (None, None, Some(r)) => (r.width, r.height),
-        _ => {
+        (Some(w), Some(h), Some(r))
+            if u64::from(w) * u64::from(r.height) != u64::from(h) * u64::from(r.width) =>
+        {
             return Err(format!(
-                "{} records no frame size: give both --width and --height",
+                "{}x{} is not the aspect ratio of the {}x{} frames {} was fitted to",
+                w,
+                h,
+                r.width,
+                r.height,
                 args.model.display()
             )
             .into())
         }
+        (Some(w), Some(h), _) => (w, h),
+        (None, None, Some(r)) => (r.width, r.height),
+        (None, None, None) => {
+            return Err(format!(
+                "{} records no frame size: give --width and --height",
+                args.model.display()
+            )
+            .into())
+        }
+        _ => return Err("give both --width and --height, or neither".into()),
     };
     let fps = args
         .fps
         .or(record.map(|r| r.fps))
         .unwrap_or(DEFAULT_FOLDER_FPS);
+    if !(fps.is_finite() && fps > 0.0) {
+        return Err(format!("--fps {fps} must be positive").into());
+    }
+    let distance = args
+        .distance
+        .or(record.map(|r| r.distance))
+        .unwrap_or(DEFAULT_DISTANCE);
     let backend = open_device(args.device)?;
     let frames = render_frames(
         &mut model,
         size.0,
         size.1,
-        DEFAULT_DISTANCE,
-        [0.0; 3],
+        distance,
+        args.background,
         &backend,
     )?;
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
