@@ -13,7 +13,6 @@
 use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
-use candle_core::Device;
 use gs_core::adam::AdamHyper;
 use gs_core::backend::{DeviceChoice, Trainer};
 use gs_core::model::{GaussianLrs, View};
@@ -90,12 +89,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let n = args.gaussians;
     let (width, height) = args.size;
     let backend = args.device.open()?;
-    let loss_device = match args.device {
-        DeviceChoice::Cpu => Device::Cpu,
-        _ => compute_device::open_gpu()?.unwrap_or(Device::Cpu),
-    };
+    let (loss_device, note) = compute_device::open_for(args.device)?;
     println!(
-        "device: {}; style loss: {} ({})",
+        "device: {}; style loss: {}{note} ({})",
         backend.describe(),
         compute_device::describe(&loss_device),
         args.precision

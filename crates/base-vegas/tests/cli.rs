@@ -56,6 +56,27 @@ fn write_clip(dir: &Path) -> PathBuf {
     frames
 }
 
+/// `fit` of `video` into `out` on the cpu with `gaussians` and `steps`.
+fn fit_video(video: &Path, out: &Path, gaussians: usize, steps: u64) -> Output {
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--device",
+            "cpu",
+            "--video",
+            s(video),
+            "--out",
+            s(out),
+        ])
+        .args([
+            "--gaussians",
+            &gaussians.to_string(),
+            "--steps",
+            &steps.to_string(),
+        ]))
+}
+
 fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
     cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
         .args(["--clip-config", s(&models.clip_config)])
@@ -86,18 +107,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     let models = write_tiny_models(dir.path());
     let clip = write_clip(dir.path());
     let fitted = dir.path().join("fitted");
-    let out = run(bin()
-        .args([
-            "fit",
-            "--quiet",
-            "--device",
-            "cpu",
-            "--video",
-            s(&clip),
-            "--out",
-            s(&fitted),
-        ])
-        .args(["--gaussians", "300", "--steps", "60"]));
+    let out = fit_video(&clip, &fitted, 300, 60);
     let text = String::from_utf8_lossy(&out.stdout);
     assert!(
         text.contains("mean PSNR") && text.contains("6 frames of 40x32"),
@@ -231,18 +241,7 @@ fn bad_inputs_are_refused_with_clear_errors_and_nothing_written() {
             .unwrap();
     }
     let other_fit = dir.path().join("other_fit");
-    run(bin()
-        .args([
-            "fit",
-            "--quiet",
-            "--device",
-            "cpu",
-            "--video",
-            s(&other),
-            "--out",
-            s(&other_fit),
-        ])
-        .args(["--gaussians", "50", "--steps", "5"]));
+    fit_video(&other, &other_fit, 50, 5);
     let e = refused(&[
         "--video",
         s(&clip),
@@ -362,18 +361,7 @@ fn render_follows_the_record_and_refuses_what_does_not_fit_it() {
     let dir = tempfile::tempdir().unwrap();
     let clip = write_clip(dir.path());
     let fitted = dir.path().join("fitted");
-    run(bin()
-        .args([
-            "fit",
-            "--quiet",
-            "--device",
-            "cpu",
-            "--video",
-            s(&clip),
-            "--out",
-            s(&fitted),
-        ])
-        .args(["--gaussians", "100", "--steps", "5"]));
+    fit_video(&clip, &fitted, 100, 5);
     let model = fitted.join("model.ply");
     let out = dir.path().join("r");
     let render = |extra: &[&str]| {

@@ -101,7 +101,7 @@ pub struct PreparedRun {
 /// Checks everything a stylization with `settings` into `out` needs before any long work: the
 /// settings, the output folder ([`check_out_folder`]), the model files ([`resolve_weights`]),
 /// the style image, the CLIP configuration, and the devices, which it opens and names in one
-/// line (`device: <rasterizer's>; style loss: <candle's>`, see [`open_loss_device`]). Every
+/// line (`device: <rasterizer's>; style loss: <candle's>`, see [`compute_device::open_for`]). Every
 /// problem found is reported at once
 /// ([`StylizeError::Several`] when there are more than one).
 pub fn prepare(
@@ -128,8 +128,8 @@ pub fn prepare(
         .open()
         .map_err(|e| problems.push(e.into()))
         .ok();
-    let loss_device = open_loss_device(settings.device)
-        .map_err(|e| problems.push(e))
+    let loss_device = compute_device::open_for(settings.device)
+        .map_err(|e| problems.push(StylizeError::LossDevice(e)))
         .ok();
     match (weights, backend, loss_device) {
         (Some(weights), Some(backend), Some((loss_device, note))) if problems.is_empty() => {
@@ -449,27 +449,6 @@ pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), Styl
             ),
         }),
         _ => Ok(()),
-    }
-}
-
-/// The candle device of the style loss for `choice`, and a note for the device line: `cpu`
-/// the cpu; `auto` a GPU when this build has one (the `cuda` or `metal` feature) and it opens,
-/// else the cpu; `gpu` that GPU, an error when the build has one that does not open, and the
-/// cpu with a note saying why when the build has none (the rasterizer still runs on wgpu).
-pub fn open_loss_device(choice: DeviceChoice) -> Result<(Device, String), StylizeError> {
-    let cpu = |note: &str| (Device::Cpu, note.to_string());
-    match (choice, compute_device::open_gpu()) {
-        (DeviceChoice::Cpu, _) => Ok(cpu("")),
-        (DeviceChoice::Auto | DeviceChoice::Gpu, Ok(Some(gpu))) => Ok((gpu, String::new())),
-        (DeviceChoice::Auto, Ok(None)) => Ok(cpu("")),
-        (DeviceChoice::Auto, Err(why)) => Ok(cpu(&format!(" ({why})"))),
-        (DeviceChoice::Gpu, Ok(None)) => Ok(cpu(
-            " (this build has neither the cuda nor the metal feature: scripts/build_cuda.sh \
-             builds one with cuda)",
-        )),
-        (DeviceChoice::Gpu, Err(why)) => Err(StylizeError::LossDevice(format!(
-            "--device gpu: the style loss: {why}; use --device auto or cpu to run it on the cpu"
-        ))),
     }
 }
 

@@ -3,6 +3,7 @@
 //! this device and the rasterizer's, once each per step ([`crate::StyleObjective`]).
 
 use candle_core::Device;
+use gs_core::backend::DeviceChoice;
 
 /// A GPU for the style loss: `Ok(None)` when this build has neither the `cuda` nor the `metal`
 /// feature, an error when it has one and the device does not open (no driver, no GPU).
@@ -29,6 +30,30 @@ fn open_built_gpu() -> Result<Option<Device>, String> {
     Ok(None)
 }
 
+/// The device of the style loss for `choice`, and a note for the run's device line: `cpu` the
+/// cpu (no GPU is opened); `auto` a GPU when this build has one (the `cuda` or `metal` feature)
+/// and it opens, else the cpu; `gpu` that GPU, an error when the build has one that does not
+/// open, and the cpu with a note saying why when the build has none (the rasterizer still runs
+/// on wgpu).
+pub fn open_for(choice: DeviceChoice) -> Result<(Device, String), String> {
+    if choice == DeviceChoice::Cpu {
+        return Ok((Device::Cpu, String::new()));
+    }
+    let cpu = |note: &str| (Device::Cpu, note.to_string());
+    match (choice, open_gpu()) {
+        (_, Ok(Some(gpu))) => Ok((gpu, String::new())),
+        (DeviceChoice::Gpu, Ok(None)) => Ok(cpu(
+            " (this build has neither the cuda nor the metal feature: scripts/build_cuda.sh \
+             builds one with cuda)",
+        )),
+        (DeviceChoice::Gpu, Err(why)) => Err(format!(
+            "--device gpu: the style loss: {why}; use --device auto or cpu to run it on the cpu"
+        )),
+        (_, Ok(None)) => Ok(cpu("")),
+        (_, Err(why)) => Ok(cpu(&format!(" ({why})"))),
+    }
+}
+
 /// Whether this build can run the style loss on a GPU (the `cuda` or `metal` feature).
 pub const fn built_with_gpu() -> bool {
     cfg!(any(feature = "cuda", feature = "metal"))
@@ -50,8 +75,17 @@ mod tests {
     #[test]
     fn a_build_without_gpu_features_has_no_gpu_and_says_cpu() {
         assert_eq!(describe(&Device::Cpu), "cpu");
+        let (device, note) = open_for(DeviceChoice::Cpu).unwrap();
+        assert!(device.is_cpu() && note.is_empty());
         if !built_with_gpu() {
             assert!(matches!(open_gpu(), Ok(None)));
+            let (device, note) = open_for(DeviceChoice::Gpu).unwrap();
+            assert!(
+                device.is_cpu() && note.contains("neither the cuda nor the metal"),
+                "{note}"
+            );
+            let (device, note) = open_for(DeviceChoice::Auto).unwrap();
+            assert!(device.is_cpu() && note.is_empty());
         }
     }
 }

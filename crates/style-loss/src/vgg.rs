@@ -285,22 +285,15 @@ mod tests {
     }
 
     fn relative_error(a: &Tensor, b: &Tensor) -> f32 {
-        let diff = (a - b)
-            .unwrap()
-            .sqr()
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
-        let norm = b
-            .sqr()
-            .unwrap()
-            .sum_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap();
-        (diff / norm.max(1e-30)).sqrt()
+        let sum_sq = |t: &Tensor| {
+            t.sqr()
+                .unwrap()
+                .sum_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
+        (sum_sq(&(a - b).unwrap()) / sum_sq(b).max(1e-30)).sqrt()
     }
 
     #[test]
