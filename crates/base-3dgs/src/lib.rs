@@ -6,7 +6,8 @@
 //! - [`render_views`]: renders from a dataset's cameras or a camera file (`clipgaussian-3d render`).
 //! - [`evaluation`]: the CLIP metrics of a folder of renders (`clipgaussian-3d eval`).
 
-pub mod dataset;
+/// The datasets live in gs-core (D-MiSo reads the same NeRF-synthetic layout, with times).
+pub use gs_core::dataset;
 pub mod evaluation;
 pub mod render_views;
 pub mod stylize;

@@ -22,7 +22,7 @@ use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
-use gs_stylize::{prepare, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use gs_stylize::{prepare, Batches, RunOptions, StyleSettings, StylizeError, StylizeJob};
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
@@ -243,6 +243,7 @@ pub fn run(
         labels: vec![label.clone(), format!("{label}, mirrored")],
         masks: None,
         background: config.background,
+        batches: Batches::ONE,
     };
     let mut outcome = prepared.stylize(config, job)?;
     let stylized = render_picture(

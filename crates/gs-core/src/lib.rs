@@ -2,6 +2,8 @@
 //!
 //! - [`GaussianSet`]: structure-of-arrays Gaussian parameters (count fixed after construction).
 //! - [`Camera`]: pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
+//! - [`dataset`]: posed ground-truth images: NeRF-synthetic (and D-NeRF, with a time per frame)
+//!   and COLMAP scenes, with background masks and the scene extent.
 //! - [`mirror_pair`]: the two cameras of Gaussians on a plane (MiraGe pictures, VeGaS frames).
 //! - [`plane_neighbours`]: nearest-neighbour distances of points on a plane (initial scales).
 //! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
@@ -48,6 +50,7 @@
 pub mod adam;
 pub mod backend;
 pub mod camera;
+pub mod dataset;
 pub mod fs;
 pub mod gaussians;
 pub mod image;

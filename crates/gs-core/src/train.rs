@@ -13,27 +13,62 @@ use crate::image::Image;
 use crate::model::{BaseModel, Forward, ModelError, View};
 use crate::raster::{self, GradMask, OutputGrads};
 
-/// Shuffle-without-replacement over view indices: every view once per epoch, in a fresh
-/// random order each epoch. Deterministic for a seed.
+/// How a [`ViewSampler`] groups views into the batches of steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BatchOrder {
+    /// Each batch is the next views of a shuffle-without-replacement stream (every view once
+    /// per epoch, a fresh random order each epoch).
+    Shuffled,
+    /// Each batch is a window of consecutive views in the dataset's order (D-MiSo and
+    /// CLIPGaussian's 4D batches: neighbouring cameras and times); the windows start at
+    /// `0, B, 2B, ...` (the last one wraps around to the first views) and are visited once per
+    /// epoch in a fresh random order.
+    Consecutive,
+}
+
+/// Draws the views of each training step: batches of `batch` view indices in a
+/// [`BatchOrder`]. Deterministic for a seed.
 #[derive(Clone, Debug)]
 pub struct ViewSampler {
     rng: ChaCha8Rng,
     count: usize,
+    batch: usize,
+    order: BatchOrder,
     pending: Vec<usize>,
 }
 
 impl ViewSampler {
-    /// A sampler over `count` views (at least one).
+    /// A sampler of one view per step, shuffled without replacement over `count` views.
     ///
     /// # Panics
     /// If `count` is 0.
     pub fn new(count: usize, seed: u64) -> Self {
+        Self::batches(count, 1, BatchOrder::Shuffled, seed)
+    }
+
+    /// A sampler of `batch` views per step over `count` views, in `order`.
+    ///
+    /// # Panics
+    /// If `count` or `batch` is 0.
+    pub fn batches(count: usize, batch: usize, order: BatchOrder, seed: u64) -> Self {
         assert!(count > 0, "a view sampler needs at least one view");
+        assert!(batch > 0, "a batch holds at least one view");
         Self {
             rng: ChaCha8Rng::seed_from_u64(seed),
             count,
+            batch,
+            order,
             pending: Vec::new(),
         }
+    }
+
+    /// The same sampler after `steps` batches were drawn, so that a resumed run sees the view
+    /// order of an uninterrupted one.
+    pub fn advanced(mut self, steps: u64) -> Self {
+        for _ in 0..steps {
+            self.next_batch();
+        }
+        self
     }
 
     /// Number of views it draws from.
@@ -41,13 +76,35 @@ impl ViewSampler {
         self.count
     }
 
-    /// The next view index; refills and reshuffles when the epoch is used up.
+    /// Views per step.
+    pub fn batch_size(&self) -> usize {
+        self.batch
+    }
+
+    /// The next single index of the underlying stream (a view when shuffled, a window's first
+    /// view when consecutive); refills and reshuffles when the epoch is used up.
     pub fn next_view(&mut self) -> usize {
         if self.pending.is_empty() {
-            self.pending = (0..self.count).collect();
+            self.pending = match self.order {
+                BatchOrder::Shuffled => (0..self.count).collect(),
+                BatchOrder::Consecutive => (0..self.count).step_by(self.batch).collect(),
+            };
             self.pending.shuffle(&mut self.rng);
         }
         self.pending.pop().expect("refilled above")
+    }
+
+    /// The views of the next step.
+    pub fn next_batch(&mut self) -> Vec<usize> {
+        match self.order {
+            BatchOrder::Shuffled => (0..self.batch).map(|_| self.next_view()).collect(),
+            BatchOrder::Consecutive => {
+                let start = self.next_view();
+                (start..start + self.batch)
+                    .map(|i| i % self.count)
+                    .collect()
+            }
+        }
     }
 }
 
@@ -62,6 +119,45 @@ pub struct ObjectiveValue {
     pub grad: Vec<f32>,
 }
 
+/// The loss of one step: its objective's values, averaged over the step's views.
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepValue {
+    /// The total loss.
+    pub loss: f32,
+    /// Named terms of the loss (already weighted), for logs.
+    pub terms: Vec<(String, f32)>,
+}
+
+impl StepValue {
+    /// The mean of the losses and of each named term of `values` (the terms of the first
+    /// value, in its order; a term another value lacks counts as 0 there).
+    fn mean(values: &[ObjectiveValue]) -> Self {
+        let n = values.len().max(1) as f32;
+        let Some(first) = values.first() else {
+            return Self {
+                loss: 0.0,
+                terms: Vec::new(),
+            };
+        };
+        let terms = first
+            .terms
+            .iter()
+            .map(|(name, _)| {
+                let sum: f32 = values
+                    .iter()
+                    .filter_map(|v| v.terms.iter().find(|(n, _)| n == name))
+                    .map(|(_, x)| x)
+                    .sum();
+                (name.clone(), sum / n)
+            })
+            .collect();
+        Self {
+            loss: values.iter().map(|v| v.loss).sum::<f32>() / n,
+            terms,
+        }
+    }
+}
+
 /// A loss on rendered images: given the view index and the render, the loss and its gradient.
 pub trait Objective {
     /// Error type of the objective.
@@ -73,7 +169,9 @@ pub trait Objective {
 /// Settings of a training run.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TrainConfig {
-    /// Total number of steps; the run stops when the optimizer has taken this many.
+    /// Total number of steps; the run stops when the optimizer has taken this many. A step
+    /// renders the views of one batch of the sampler ([`ViewSampler::next_batch`]) and
+    /// averages their losses.
     pub steps: u64,
     /// Background colour renders are composited over.
     pub background: [f32; 3],
@@ -86,15 +184,17 @@ pub struct StepReport {
     pub step: u64,
     /// Total steps of the run.
     pub steps: u64,
-    /// Index of the view used.
+    /// Index of the (first) view used.
     pub view: usize,
-    /// The objective's value.
-    pub value: ObjectiveValue,
-    /// Time spent rendering (forward).
+    /// Indices of the step's views, in the order they were rendered.
+    pub batch: Vec<usize>,
+    /// The objective's value, averaged over the step's views.
+    pub value: StepValue,
+    /// Time spent rendering (forward), over the step's views.
     pub render_time: Duration,
-    /// Time spent in the objective.
+    /// Time spent in the objective, over the step's views.
     pub objective_time: Duration,
-    /// Time spent in the backward passes and the optimizer step.
+    /// Time spent in the backward passes and the optimizer step, over the step's views.
     pub backward_time: Duration,
 }
 
@@ -145,8 +245,6 @@ pub enum TrainError<E: std::error::Error + 'static> {
 pub(crate) enum StepEnd {
     /// The optimizer stepped.
     Taken,
-    /// The objective gave no gradient; nothing changed.
-    Abandoned,
     /// A parameter gradient was not finite; nothing changed.
     NonFiniteGradient,
 }
@@ -167,7 +265,8 @@ impl<E> From<ModelError> for StepFailure<E> {
 }
 
 /// Where the parameters and the optimizer live, and how one step is computed there: the cpu
-/// backend below, the wgpu one in `crate::wgpu`. [`run_steps`] is the loop both share.
+/// backend below, the wgpu one in `crate::wgpu`. [`run_steps`] is the loop both share. A step
+/// is one [`StepBackend::accumulate`] per view of its batch, then [`StepBackend::apply`].
 pub(crate) trait StepBackend {
     /// A failure of the device.
     type Error: std::error::Error + Send + Sync + 'static;
@@ -175,15 +274,24 @@ pub(crate) trait StepBackend {
     /// Steps the optimizer has taken.
     fn step_count(&self) -> u64;
 
-    /// Renders `view` over `background`, hands the image to `evaluate` and, when that returns
-    /// dL/dimage, back-propagates it and steps the optimizer unless a parameter gradient is
-    /// not finite.
-    fn step<'g>(
+    /// Starts a step of `views` views (the cpu keeps a zeroed sum; nothing to do).
+    fn begin(&mut self, _views: usize) -> Result<(), StepFailure<Self::Error>> {
+        Ok(())
+    }
+
+    /// Renders `view` over `background` and hands the image to `evaluate`; when that returns
+    /// dL/dimage, back-propagates it and adds the parameters' gradient to the step's sum.
+    /// Returns false (and adds nothing) when `evaluate` returned no gradient.
+    fn accumulate<'g>(
         &mut self,
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, StepFailure<Self::Error>>;
+    ) -> Result<bool, StepFailure<Self::Error>>;
+
+    /// Steps the optimizer with the summed gradient unless a value of it is not finite, and
+    /// clears the sum.
+    fn apply(&mut self) -> Result<StepEnd, StepFailure<Self::Error>>;
 }
 
 /// The training loop of every backend: see [`train`].
@@ -207,69 +315,101 @@ where
             views.len()
         )));
     }
+    let device_failure = |step, e| match e {
+        StepFailure::Device(e) => TrainError::Device {
+            step,
+            source: Box::new(e),
+        },
+        StepFailure::Model(source) => TrainError::Model { step, source },
+    };
     while backend.step_count() < config.steps {
         let step = backend.step_count() + 1;
-        let view_index = sampler.next_view();
-        let non_finite = |what| TrainError::NonFinite {
-            step,
-            view: view_index,
-            what,
-        };
-        let mut value = None;
-        let mut failure = None;
-        let t0 = Instant::now();
-        let (mut t1, mut t2) = (t0, t0);
-        let (value_slot, failure_slot) = (&mut value, &mut failure);
-        let (t1_slot, t2_slot) = (&mut t1, &mut t2);
-        let objective = &mut *objective;
-        let end = backend
-            .step(&views[view_index], config.background, move |image| {
-                *t1_slot = Instant::now();
-                let result = objective.evaluate(view_index, image);
-                *t2_slot = Instant::now();
-                let checked = match result {
-                    Err(source) => Err(TrainError::Objective { step, source }),
-                    Ok(v) if !v.loss.is_finite() => Err(non_finite("loss")),
-                    Ok(v) if !v.grad.iter().all(|g| g.is_finite()) => Err(non_finite("dL/dimage")),
-                    Ok(v) => Ok(v),
-                };
-                match checked {
-                    Ok(v) => {
-                        let value: &ObjectiveValue = value_slot.insert(v);
-                        Some(value.grad.as_slice())
+        let batch = sampler.next_batch();
+        // The batch's losses are averaged: each view's dL/dimage is scaled by 1/B (exactly 1
+        // for one view), so the summed parameter gradient is the mean's.
+        let scale = 1.0 / batch.len() as f32;
+        let (mut render_time, mut objective_time, mut backward_time) = Default::default();
+        let mut values = Vec::with_capacity(batch.len());
+        backend
+            .begin(batch.len())
+            .map_err(|e| device_failure(step, e))?;
+        for &view_index in &batch {
+            let non_finite = |what| TrainError::NonFinite {
+                step,
+                view: view_index,
+                what,
+            };
+            let mut value = None;
+            let mut failure = None;
+            let t0 = Instant::now();
+            let (mut t1, mut t2) = (t0, t0);
+            let (value_slot, failure_slot) = (&mut value, &mut failure);
+            let (t1_slot, t2_slot) = (&mut t1, &mut t2);
+            let objective = &mut *objective;
+            let evaluated = backend
+                .accumulate(&views[view_index], config.background, move |image| {
+                    *t1_slot = Instant::now();
+                    let result = objective.evaluate(view_index, image);
+                    *t2_slot = Instant::now();
+                    let checked = match result {
+                        Err(source) => Err(TrainError::Objective { step, source }),
+                        Ok(v) if !v.loss.is_finite() => Err(non_finite("loss")),
+                        Ok(v) if !v.grad.iter().all(|g| g.is_finite()) => {
+                            Err(non_finite("dL/dimage"))
+                        }
+                        Ok(mut v) => {
+                            if scale != 1.0 {
+                                v.grad.iter_mut().for_each(|g| *g *= scale);
+                            }
+                            Ok(v)
+                        }
+                    };
+                    match checked {
+                        Ok(v) => {
+                            let value: &ObjectiveValue = value_slot.insert(v);
+                            Some(value.grad.as_slice())
+                        }
+                        Err(e) => {
+                            *failure_slot = Some(e);
+                            None
+                        }
                     }
-                    Err(e) => {
-                        *failure_slot = Some(e);
-                        None
-                    }
-                }
-            })
-            .map_err(|e| match e {
-                StepFailure::Device(e) => TrainError::Device {
-                    step,
-                    source: Box::new(e),
-                },
-                StepFailure::Model(source) => TrainError::Model { step, source },
-            })?;
-        let t3 = Instant::now();
-        match (end, value, failure) {
-            (_, _, Some(e)) => return Err(e),
-            (StepEnd::NonFiniteGradient, ..) => return Err(non_finite("parameter gradient")),
-            (StepEnd::Taken, Some(value), None) => {
-                let report = StepReport {
-                    step,
-                    steps: config.steps,
-                    view: view_index,
-                    value,
-                    render_time: t1 - t0,
-                    objective_time: t2 - t1,
-                    backward_time: t3 - t2,
-                };
-                if on_step(&report).is_break() {
-                    break;
-                }
+                })
+                .map_err(|e| device_failure(step, e))?;
+            let t3 = Instant::now();
+            if let Some(e) = failure {
+                return Err(e);
             }
-            (end, ..) => unreachable!("a step ended {end:?} without a value or a failure"),
+            let value = value.filter(|_| evaluated).unwrap_or_else(|| {
+                unreachable!("a view was evaluated without a value or a failure")
+            });
+            values.push(value);
+            render_time += t1 - t0;
+            objective_time += t2 - t1;
+            backward_time += t3 - t2;
+        }
+        let t3 = Instant::now();
+        let end = backend.apply().map_err(|e| device_failure(step, e))?;
+        backward_time += t3.elapsed();
+        if end == StepEnd::NonFiniteGradient {
+            return Err(TrainError::NonFinite {
+                step,
+                view: batch[0],
+                what: "parameter gradient",
+            });
+        }
+        let report = StepReport {
+            step,
+            steps: config.steps,
+            view: batch[0],
+            batch,
+            value: StepValue::mean(&values),
+            render_time,
+            objective_time,
+            backward_time,
+        };
+        if on_step(&report).is_break() {
+            break;
         }
     }
     Ok(())
@@ -281,7 +421,8 @@ struct CpuBackend<'a, M> {
     adam: &'a mut Adam,
     trained: Vec<bool>,
     mask: GradMask,
-    lens: Vec<usize>,
+    /// The step's summed gradient of every group (empty for frozen groups).
+    sum: Vec<Vec<f32>>,
 }
 
 impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
@@ -291,16 +432,16 @@ impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
         self.adam.step_count()
     }
 
-    fn step<'g>(
+    fn accumulate<'g>(
         &mut self,
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, StepFailure<Self::Error>> {
+    ) -> Result<bool, StepFailure<Self::Error>> {
         let Forward { gaussians, tape } = self.model.forward(view)?;
         let rendered = raster::render(gaussians.as_ref(), &view.camera, background);
         let Some(grad) = evaluate(&rendered.image) else {
-            return Ok(StepEnd::Abandoned);
+            return Ok(false);
         };
         let grads = raster::backward(
             gaussians.as_ref(),
@@ -313,26 +454,24 @@ impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
             },
             self.mask,
         );
-        let mut group_grads: Vec<Vec<f32>> = self
-            .lens
-            .iter()
-            .zip(&self.trained)
-            .map(|(&n, &t)| if t { vec![0.0; n] } else { Vec::new() })
-            .collect();
         drop(gaussians);
-        self.model.backward(
-            view,
-            tape,
-            &grads.gaussians,
-            &self.trained,
-            &mut group_grads,
-        )?;
-        if !group_grads.iter().flatten().all(|g| g.is_finite()) {
-            return Ok(StepEnd::NonFiniteGradient);
+        self.model
+            .backward(view, tape, &grads.gaussians, &self.trained, &mut self.sum)?;
+        Ok(true)
+    }
+
+    fn apply(&mut self) -> Result<StepEnd, StepFailure<Self::Error>> {
+        let finite = self.sum.iter().flatten().all(|g| g.is_finite());
+        if finite {
+            let grad_refs: Vec<&[f32]> = self.sum.iter().map(|g| g.as_slice()).collect();
+            self.adam.step(&mut self.model.groups_mut(), &grad_refs);
         }
-        let grad_refs: Vec<&[f32]> = group_grads.iter().map(|g| g.as_slice()).collect();
-        self.adam.step(&mut self.model.groups_mut(), &grad_refs);
-        Ok(StepEnd::Taken)
+        self.sum.iter_mut().for_each(|g| g.fill(0.0));
+        Ok(if finite {
+            StepEnd::Taken
+        } else {
+            StepEnd::NonFiniteGradient
+        })
     }
 }
 
@@ -373,9 +512,15 @@ where
 {
     check_groups(adam.groups().len(), &model.group_names())?;
     let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
+    let sum = model
+        .group_lens()
+        .iter()
+        .zip(&trained)
+        .map(|(&n, &t)| if t { vec![0.0; n] } else { Vec::new() })
+        .collect();
     let mut backend = CpuBackend {
         mask: model.grad_mask(&trained),
-        lens: model.group_lens(),
+        sum,
         trained,
         model,
         adam,
@@ -386,11 +531,7 @@ where
 /// A sampler in the state it has after `steps_done` draws, so a resumed run sees the same view
 /// order as an uninterrupted one.
 pub fn resumed_sampler(count: usize, seed: u64, steps_done: u64) -> ViewSampler {
-    let mut s = ViewSampler::new(count, seed);
-    for _ in 0..steps_done {
-        s.next_view();
-    }
-    s
+    ViewSampler::new(count, seed).advanced(steps_done)
 }
 
 #[cfg(test)]
@@ -490,6 +631,128 @@ mod tests {
             e.contains("5 parameter groups") && e.contains("sh_rest"),
             "{e}"
         );
+    }
+
+    /// An objective with a fixed gradient per view (`0.01 (1 + view)`), the loss its view.
+    struct PerViewGradient;
+
+    impl Objective for PerViewGradient {
+        type Error = std::io::Error;
+        fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error> {
+            Ok(ObjectiveValue {
+                loss: view as f32,
+                terms: vec![("view".into(), 2.0 * view as f32)],
+                grad: image
+                    .data
+                    .iter()
+                    .enumerate()
+                    .map(|(i, _)| 0.01 * (1.0 + view as f32) * if i % 3 == 0 { 1.0 } else { -0.5 })
+                    .collect(),
+            })
+        }
+    }
+
+    #[test]
+    fn a_batch_step_is_one_adam_step_on_the_mean_gradient_of_its_views() {
+        let views: Vec<View> = (0..5)
+            .map(|i| {
+                let a = i as f64;
+                let eye = [3.0 * a.cos(), -0.5, 3.0 * a.sin()];
+                View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, 16, 16).unwrap())
+            })
+            .collect();
+        let mut model = GaussianSet::zeros(6, 1);
+        for (i, m) in model.means.chunks_mut(3).enumerate() {
+            m.copy_from_slice(&[0.2 * i as f32 - 0.5, 0.1 * (i % 2) as f32, 0.05 * i as f32]);
+        }
+        model.log_scales.fill(-1.5);
+        model.opacity_logits.fill(1.0);
+        let groups: Vec<GroupConfig> = PARAM_NAMES
+            .iter()
+            .map(|n| GroupConfig::new(*n, LrSchedule::Constant(0.01)))
+            .collect();
+        let sampler = ViewSampler::batches(5, 3, BatchOrder::Consecutive, 4);
+        let config = TrainConfig {
+            steps: 3,
+            background: [0.0; 3],
+        };
+        let mut trained = model.clone();
+        let mut adam = Adam::new(groups.clone(), &model.group_lens(), AdamHyper::default());
+        let mut reports = Vec::new();
+        train(
+            &mut trained,
+            &views,
+            &mut PerViewGradient,
+            &mut adam,
+            &mut sampler.clone(),
+            &config,
+            |r| {
+                reports.push(r.clone());
+                ControlFlow::Continue(())
+            },
+        )
+        .unwrap();
+
+        let mut by_hand = model.clone();
+        let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
+        let mut sampler = sampler;
+        for report in &reports {
+            let batch = sampler.next_batch();
+            assert_eq!(report.batch, batch);
+            assert_eq!(batch.len(), 3);
+            assert!(
+                batch.windows(2).all(|w| w[1] == (w[0] + 1) % 5),
+                "{batch:?}"
+            );
+            let mean = batch.iter().sum::<usize>() as f32 / 3.0;
+            assert_eq!(report.value.loss, mean);
+            assert_eq!(report.value.terms, vec![("view".to_string(), 2.0 * mean)]);
+            let mut sum: Vec<Vec<f32>> =
+                by_hand.group_lens().iter().map(|&n| vec![0.0; n]).collect();
+            for &v in &batch {
+                let rendered = raster::render(&by_hand, &views[v].camera, [0.0; 3]);
+                let mut grad = PerViewGradient.evaluate(v, &rendered.image).unwrap().grad;
+                grad.iter_mut().for_each(|g| *g *= 1.0 / 3.0);
+                let out = OutputGrads {
+                    rgb: &grad,
+                    alpha: None,
+                    depth: None,
+                };
+                let grads =
+                    raster::backward(&by_hand, &views[v].camera, &rendered, &out, GradMask::ALL);
+                crate::model::add_identity_grads(&grads.gaussians, &[true; 6], &mut sum, None);
+            }
+            let refs: Vec<&[f32]> = sum.iter().map(|g| g.as_slice()).collect();
+            adam.step(&mut by_hand.groups_mut(), &refs);
+        }
+        assert_eq!(reports.len(), 3);
+        assert_eq!(trained, by_hand);
+        assert_ne!(trained, model);
+    }
+
+    #[test]
+    fn consecutive_batches_cover_every_view_each_epoch_and_wrap_around() {
+        let mut s = ViewSampler::batches(7, 3, BatchOrder::Consecutive, 1);
+        let mut starts: Vec<usize> = (0..3).map(|_| s.next_batch()[0]).collect();
+        starts.sort_unstable();
+        assert_eq!(starts, vec![0, 3, 6]);
+        let mut seen: Vec<usize> = (0..3).flat_map(|_| s.next_batch()).collect();
+        seen.sort_unstable();
+        assert_eq!(
+            seen,
+            vec![0, 0, 1, 1, 2, 3, 4, 5, 6],
+            "the window at 6 wraps to 0, 1"
+        );
+        let mut shuffled = ViewSampler::batches(4, 2, BatchOrder::Shuffled, 2);
+        let mut epoch: Vec<usize> = (0..2).flat_map(|_| shuffled.next_batch()).collect();
+        epoch.sort_unstable();
+        assert_eq!(epoch, vec![0, 1, 2, 3]);
+        let resumed = ViewSampler::batches(7, 3, BatchOrder::Consecutive, 1).advanced(4);
+        let mut full = ViewSampler::batches(7, 3, BatchOrder::Consecutive, 1);
+        for _ in 0..4 {
+            full.next_batch();
+        }
+        assert_eq!(resumed.clone().next_batch(), full.next_batch());
     }
 
     #[test]

@@ -17,7 +17,7 @@ use gs_core::gaussians::GaussianGrads;
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{add_identity_grads, BaseModel, Forward, GaussianLrs, ModelError, View};
 use gs_core::raster::GradMask;
-use gs_core::train::{Objective, TrainConfig, TrainError, ViewSampler};
+use gs_core::train::{BatchOrder, Objective, TrainConfig, TrainError, ViewSampler};
 use gs_core::wgpu::{AdapterChoice, GpuContext};
 use gs_core::{Camera, GaussianSet};
 
@@ -125,11 +125,26 @@ fn gpu_backend() -> Backend {
     Backend::Gpu(Arc::new(ctx))
 }
 
-/// Trains the model for `steps` on `backend` towards renders of the model slid by 0.3.
+/// Trains the model for `steps` on `backend` towards renders of the model slid by 0.3, one
+/// shuffled view per step.
 fn train_on(
     backend: &Backend,
     times: &[f64],
     steps: u64,
+) -> (
+    SlidingGaussians,
+    Vec<f32>,
+    Result<(), TrainError<<PhotometricObjective as Objective>::Error>>,
+) {
+    train_in_batches(backend, times, steps, ViewSampler::new(times.len(), 9))
+}
+
+/// [`train_on`] with the views of `sampler`.
+fn train_in_batches(
+    backend: &Backend,
+    times: &[f64],
+    steps: u64,
+    mut sampler: ViewSampler,
 ) -> (
     SlidingGaussians,
     Vec<f32>,
@@ -163,7 +178,7 @@ fn train_on(
     let result = trainer.train(
         &views,
         &mut objective,
-        &mut ViewSampler::new(views.len(), 9),
+        &mut sampler,
         &TrainConfig {
             steps,
             background: [0.0; 3],
@@ -212,6 +227,39 @@ fn a_model_without_kernels_trains_alike_on_the_cpu_and_on_wgpu() {
     close("shift", &cpu.shift, &gpu.shift);
     close("means", &cpu.set.means, &gpu.set.means);
     close("colours", &cpu.set.sh_dc, &gpu.set.sh_dc);
+}
+
+#[test]
+fn batches_of_views_train_alike_on_the_cpu_and_on_wgpu() {
+    let times = [0.0, 0.25, 0.5, 0.75, 1.0];
+    let sampler = ViewSampler::batches(times.len(), 3, BatchOrder::Consecutive, 2);
+    let (cpu, cpu_losses, cpu_result) =
+        train_in_batches(&Backend::Cpu, &times, 12, sampler.clone());
+    let (gpu, gpu_losses, gpu_result) = train_in_batches(&gpu_backend(), &times, 12, sampler);
+    cpu_result.unwrap();
+    gpu_result.unwrap();
+    assert_eq!(cpu_losses.len(), 12);
+    for (step, (c, g)) in cpu_losses.iter().zip(&gpu_losses).enumerate() {
+        assert!(
+            (c - g).abs() <= 2e-3 * c.abs(),
+            "step {step}: cpu {c} gpu {g}"
+        );
+    }
+    let worst = |a: &[f32], b: &[f32]| {
+        a.iter()
+            .zip(b)
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0, f32::max)
+    };
+    assert!(worst(&cpu.shift, &gpu.shift) < 2e-3);
+    assert!(worst(&cpu.set.means, &gpu.set.means) < 2e-3);
+    assert!(worst(&cpu.set.sh_dc, &gpu.set.sh_dc) < 2e-3);
+    let (single, _, result) = train_on(&Backend::Cpu, &times, 12);
+    result.unwrap();
+    assert!(
+        worst(&single.set.sh_dc, &cpu.set.sh_dc) > 1e-4,
+        "batches of three differ from single views"
+    );
 }
 
 #[test]

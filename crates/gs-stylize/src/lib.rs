@@ -32,7 +32,7 @@ pub mod writable;
 use std::path::PathBuf;
 
 pub use config::{resolve_config, Override, StyleSettings};
-pub use run::{open_device, prepare, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
+pub use run::{open_device, prepare, Batches, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
 
 /// Why a stylization could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]

@@ -15,7 +15,7 @@ use candle_core::Device;
 use gs_core::adam::{AdamHyper, GroupConfig};
 use gs_core::backend::{Backend, DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
-use gs_core::train::{resumed_sampler, TrainConfig};
+use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
 use gs_core::Image;
 use serde::Serialize;
 use style_loss::compute_device;
@@ -69,6 +69,26 @@ pub struct StylizeJob<M> {
     pub masks: Option<Vec<Vec<f32>>>,
     /// The colour renders are composited over, also behind transparent style-image pixels.
     pub background: [f32; 3],
+    /// Views per step (their losses averaged) and how they are grouped; one shuffled view per
+    /// step is [`Batches::ONE`].
+    pub batches: Batches,
+}
+
+/// The views of each step of a stylization.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Batches {
+    /// Views per step, at least 1.
+    pub size: usize,
+    /// How they are grouped.
+    pub order: BatchOrder,
+}
+
+impl Batches {
+    /// One view per step, shuffled without replacement (3D, 2D, video).
+    pub const ONE: Self = Self {
+        size: 1,
+        order: BatchOrder::Shuffled,
+    };
 }
 
 /// What a finished run produced.
@@ -215,6 +235,7 @@ impl PreparedRun {
             images,
             masks,
             background,
+            batches,
             ..
         } = job;
         let (loss, masks) = build_loss(settings, weights, masks, background, device)?;
@@ -278,7 +299,9 @@ impl PreparedRun {
             steps: settings.steps,
             background,
         };
-        let mut sampler = resumed_sampler(views.len(), settings.seed, trainer.step_count());
+        let mut sampler =
+            ViewSampler::batches(views.len(), batches.size, batches.order, settings.seed)
+                .advanced(trainer.step_count());
         let progress = Progress::new(
             options.progress,
             "stylize",
@@ -365,6 +388,12 @@ fn check_job<M: BaseModel>(
     let count = job.views.len();
     if count == 0 {
         return Err(StylizeError::Input("there is no view to train on".into()));
+    }
+    if job.batches.size == 0 || job.batches.size > count {
+        return Err(StylizeError::Input(format!(
+            "a batch of {} views for {count} views; it must be 1 to {count}",
+            job.batches.size
+        )));
     }
     let mut lists = vec![("images", job.images.len()), ("labels", job.labels.len())];
     if let Some(masks) = &job.masks {

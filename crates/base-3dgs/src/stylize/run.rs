@@ -10,7 +10,7 @@ use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::outputs::{write_previews, StepLosses};
-use gs_stylize::{prepare, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
+use gs_stylize::{prepare, Batches, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
 
 use super::StylizeConfig;
 use crate::dataset::nerf_synthetic::{self, Split};
@@ -64,6 +64,7 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
             .collect(),
         masks,
         background: dataset.background,
+        batches: Batches::ONE,
     };
     let out = config.out_path();
     let StylizeOutcome { model, losses } = prepared.stylize(config, job)?;

@@ -87,6 +87,10 @@ const FILES: &[(&str, &str)] = &[
         "check_finite.wgsl",
         include_str!("../../../../shaders/check_finite.wgsl"),
     ),
+    (
+        "add_into.wgsl",
+        include_str!("../../../../shaders/add_into.wgsl"),
+    ),
 ];
 
 const IMPORT: &str = "//#import ";
@@ -178,10 +182,11 @@ pub(crate) enum KernelId {
     ProjectBackward,
     AdamStep,
     CheckFinite,
+    AddInto,
 }
 
 impl KernelId {
-    const ALL: [KernelId; 13] = [
+    const ALL: [KernelId; 14] = [
         KernelId::ProjectForward,
         KernelId::BinCounts,
         KernelId::BinTiles,
@@ -195,6 +200,7 @@ impl KernelId {
         KernelId::ProjectBackward,
         KernelId::AdamStep,
         KernelId::CheckFinite,
+        KernelId::AddInto,
     ];
 
     /// True for per-item kernels, run in chunks with a `Chunk` uniform (shaders/chunk.wgsl).
@@ -205,6 +211,7 @@ impl KernelId {
                 | KernelId::ProjectBackward
                 | KernelId::AdamStep
                 | KernelId::CheckFinite
+                | KernelId::AddInto
         )
     }
 
@@ -233,6 +240,7 @@ impl KernelId {
             ),
             KernelId::AdamStep => ("adam_step.wgsl", &[U, W, R, W, W]),
             KernelId::CheckFinite => ("check_finite.wgsl", &[R, W]),
+            KernelId::AddInto => ("add_into.wgsl", &[R, W]),
         }
     }
 }

@@ -9,7 +9,7 @@ use std::ops::ControlFlow;
 
 use super::adam::GpuAdam;
 use super::backward::backward;
-use super::buffers::{read, storage};
+use super::buffers::{read, storage, zeroed_f32};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
 use super::memory::training_bytes;
@@ -32,6 +32,15 @@ struct GpuBackend<'a, M> {
     adam: &'a mut GpuAdam,
     trained: Vec<bool>,
     mask: GradMask,
+    /// The gradient of a one-view step: that view's buffers, as the model handed them.
+    single: Option<Vec<Option<wgpu::Buffer>>>,
+    /// The summed gradient of a step of several views, every trained group's (`None` for
+    /// frozen ones); kept from step to step and cleared at each step's start. A model's
+    /// gradient buffers may be its own scratch, rewritten by the next view's backward, so
+    /// they are added here rather than kept.
+    sum: Option<Vec<Option<wgpu::Buffer>>>,
+    /// Views in the current step.
+    views: usize,
 }
 
 impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
@@ -41,12 +50,43 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
         self.adam.step_count()
     }
 
-    fn step<'g>(
+    fn begin(&mut self, views: usize) -> Result<(), StepFailure<GpuError>> {
+        self.views = views;
+        self.single = None;
+        if views > 1 {
+            match &self.sum {
+                Some(sum) => {
+                    let mut encoder = self.ctx.encoder();
+                    for buffer in sum.iter().flatten() {
+                        encoder.clear_buffer(buffer, 0, None);
+                    }
+                    self.ctx.submit(encoder);
+                }
+                None => {
+                    let sum = self
+                        .params
+                        .lens()
+                        .iter()
+                        .zip(&self.trained)
+                        .map(|(&n, &t)| {
+                            t.then(|| zeroed_f32(self.ctx, "summed gradient", n))
+                                .transpose()
+                        })
+                        .collect::<Result<_, _>>()
+                        .map_err(StepFailure::Device)?;
+                    self.sum = Some(sum);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn accumulate<'g>(
         &mut self,
         view: &View,
         background: [f32; 3],
         evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<StepEnd, StepFailure<GpuError>> {
+    ) -> Result<bool, StepFailure<GpuError>> {
         let ctx = self.ctx;
         let mut gpu = GpuStep {
             ctx,
@@ -63,7 +103,7 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
         let needs = |e: GpuError| StepFailure::Device(e.with_run_needs(run_needs));
         let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
         let Some(grad) = evaluate(&rendered.image(ctx)) else {
-            return Ok(StepEnd::Abandoned);
+            return Ok(false);
         };
         let out = OutputGrads {
             rgb: grad,
@@ -81,16 +121,58 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
             .model
             .gpu_backward(&mut gpu, view, tape, grads, &self.trained)
             .map_err(|e| device_or_model(e, run_needs))?;
-        if !all_finite(ctx, &group_grads, self.params.lens()).map_err(needs)? {
+        match (&self.sum, self.views) {
+            (Some(sum), 2..) => {
+                add_into(ctx, &group_grads, sum, self.params.lens()).map_err(needs)?
+            }
+            _ => self.single = Some(group_grads),
+        }
+        Ok(true)
+    }
+
+    fn apply(&mut self) -> Result<StepEnd, StepFailure<GpuError>> {
+        let ctx = self.ctx;
+        let single = self.single.take();
+        let sum = match (&single, &self.sum) {
+            (Some(single), _) => single,
+            (None, Some(sum)) => sum,
+            (None, None) => unreachable!("a step is applied after at least one view"),
+        };
+        if !all_finite(ctx, sum, self.params.lens()).map_err(StepFailure::Device)? {
             return Ok(StepEnd::NonFiniteGradient);
         }
-        let grad_refs: Vec<Option<&wgpu::Buffer>> =
-            group_grads.iter().map(Option::as_ref).collect();
+        let grad_refs: Vec<Option<&wgpu::Buffer>> = sum.iter().map(Option::as_ref).collect();
         let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
-        self.adam.step(ctx, &params, &grad_refs).map_err(needs)?;
+        self.adam
+            .step(ctx, &params, &grad_refs)
+            .map_err(StepFailure::Device)?;
         self.params.mark_changed();
         Ok(StepEnd::Taken)
     }
+}
+
+/// Adds every gradient of `grads` (`lens[i]` values of group `i`) to the same group of `sum`.
+fn add_into(
+    ctx: &GpuContext,
+    grads: &[Option<wgpu::Buffer>],
+    sum: &[Option<wgpu::Buffer>],
+    lens: &[usize],
+) -> Result<(), GpuError> {
+    let mut encoder = ctx.encoder();
+    for ((g, s), &n) in grads.iter().zip(sum).zip(lens) {
+        let (Some(g), Some(s)) = (g.as_ref(), s.as_ref()) else {
+            continue;
+        };
+        let n = u32::try_from(n).expect("at most u32::MAX values a group");
+        ctx.dispatch_items(
+            &mut encoder,
+            KernelId::AddInto,
+            &[Binding::PerItem(g, 4), Binding::PerItem(s, 4)],
+            n,
+        )?;
+    }
+    ctx.submit(encoder);
+    Ok(())
 }
 
 /// A model's failure as the device's when it is a [`GpuError`] (an allocation that failed, with
@@ -164,6 +246,9 @@ where
         scratch: GpuScratch::default(),
         trained,
         adam,
+        single: None,
+        sum: None,
+        views: 0,
     };
     run_steps(&mut backend, views, objective, sampler, config, on_step)
 }

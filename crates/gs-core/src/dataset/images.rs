@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use gs_core::Image;
+use crate::Image;
 use image::imageops::FilterType;
 
 use super::DatasetError;

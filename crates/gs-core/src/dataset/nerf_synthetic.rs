@@ -2,11 +2,13 @@
 //! (horizontal field of view, radians) and frames of `file_path` and `transform_matrix`
 //! (camera-to-world, OpenGL axes). Images are RGBA PNGs; alpha is composited over the chosen
 //! background and gives the background mask.
+//!
+//! D-NeRF scenes are the same layout with a `time` in `[0, 1]` per frame ([`load_with_times`]).
 
 use std::path::{Path, PathBuf};
 
-use gs_core::model::View;
-use gs_core::Camera;
+use crate::model::View;
+use crate::Camera;
 use rayon::prelude::*;
 use serde::Deserialize;
 
@@ -49,6 +51,8 @@ struct Transforms {
 struct Frame {
     file_path: String,
     transform_matrix: [[f64; 4]; 4],
+    /// D-NeRF's normalized time of the frame.
+    time: Option<f64>,
 }
 
 /// The image file of a frame: `file_path` relative to the scene folder, with ".png" appended
@@ -68,7 +72,28 @@ fn image_path(root: &Path, file_path: &str) -> PathBuf {
 /// Loads one split of the NeRF-synthetic scene in `root`. Every image must have the size given by
 /// the json's `w`/`h` when present, else the size of the first frame's image. Images load in
 /// parallel. The extent is that of this split's cameras (3DGS uses the training split's).
+/// Frame times, when present, are ignored: the views are at time 0.
 pub fn load(root: &Path, split: Split, options: &LoadOptions) -> Result<Dataset, DatasetError> {
+    load_split(root, split, options, false)
+}
+
+/// Loads one split of the D-NeRF scene in `root` as [`load`] does, each view at its frame's
+/// `time`, which every frame must have, finite and in `[0, 1]` (D-MiSo would take a missing
+/// time as 0; here it is an error naming the frame).
+pub fn load_with_times(
+    root: &Path,
+    split: Split,
+    options: &LoadOptions,
+) -> Result<Dataset, DatasetError> {
+    load_split(root, split, options, true)
+}
+
+fn load_split(
+    root: &Path,
+    split: Split,
+    options: &LoadOptions,
+    with_times: bool,
+) -> Result<Dataset, DatasetError> {
     check_options(options)?;
     let json_path = root.join(split.file_name());
     let text = std::fs::read_to_string(&json_path).map_err(|source| {
@@ -102,6 +127,27 @@ pub fn load(root: &Path, split: Split, options: &LoadOptions) -> Result<Dataset,
     let Some(first) = transforms.frames.first() else {
         return Err(format_error("no frames".into()));
     };
+    let mut times = vec![0.0; transforms.frames.len()];
+    if with_times {
+        for (i, (frame, time)) in transforms.frames.iter().zip(&mut times).enumerate() {
+            *time = match frame.time {
+                None => {
+                    return Err(format_error(format!(
+                        "frame {i} ({}) has no \"time\"; a D-NeRF scene gives every frame a \
+                         time in [0, 1]",
+                        frame.file_path
+                    )))
+                }
+                Some(t) if !(0.0..=1.0).contains(&t) => {
+                    return Err(format_error(format!(
+                        "frame {i} ({}) has time {t}; times must lie in [0, 1]",
+                        frame.file_path
+                    )))
+                }
+                Some(t) => t,
+            };
+        }
+    }
     let size = match (transforms.w, transforms.h) {
         (Some(w), Some(h)) => (w, h),
         _ => images::dimensions(&image_path(root, &first.file_path))?,
@@ -128,7 +174,15 @@ pub fn load(root: &Path, split: Split, options: &LoadOptions) -> Result<Dataset,
                 Some((camera.width, camera.height)),
                 background,
             )?;
-            Ok((View::still(camera), image, mask, path))
+            Ok((
+                View {
+                    camera,
+                    time: times[i],
+                },
+                image,
+                mask,
+                path,
+            ))
         })
         // Gathered in order first, so the error reported is that of the first failing frame.
         .collect::<Vec<Result<_, DatasetError>>>()

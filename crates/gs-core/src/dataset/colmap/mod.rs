@@ -10,8 +10,8 @@ mod text;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use gs_core::model::View;
-use gs_core::Camera;
+use crate::model::View;
+use crate::Camera;
 use rayon::prelude::*;
 
 use super::images::{self, ExpectedSize};

@@ -7,8 +7,8 @@ pub mod nerf_synthetic;
 
 use std::path::{Path, PathBuf};
 
-use gs_core::model::View;
-use gs_core::{GsError, Image};
+use crate::model::View;
+use crate::{GsError, Image};
 
 pub use images::{BackgroundMask, ALPHA_BACKGROUND_BELOW};
 
@@ -66,7 +66,7 @@ pub struct LoadOptions {
     pub background: Background,
     /// Resolution divisor, 3DGS's `-r`: 1 keeps the images as they are; `f > 1` divides the
     /// width and height by `f` (rounded) and the intrinsics with them (see
-    /// [`gs_core::Camera::downscaled`]). COLMAP scenes use `images_<f>/` when it exists.
+    /// [`crate::Camera::downscaled`]). COLMAP scenes use `images_<f>/` when it exists.
     pub downscale: u32,
 }
 
