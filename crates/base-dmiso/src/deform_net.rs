@@ -1,0 +1,257 @@
+//! D-MiSo's deformation network (D-NeRF's `DeformNetwork` for synthetic scenes), run in candle
+//! on its device with an explicit backward.
+//!
+//! Input per core: the triangle encoding (63 values, [`crate::encoding::triangle_encoding`],
+//! of the canonical vertices, detached) and the time embedding `timenet(PE(t))` with
+//! `timenet = Linear(13, W) - ReLU - Linear(W, 30)`; `x0 = [h1, t_emb]` (93 values). The trunk
+//! is 8 `Linear` layers of width `W`, each followed by a ReLU; after layer 4 the input is
+//! concatenated again (`[x0, h]`, so layer 5 takes `93 + W`). Four heads without activation:
+//! `dv1 (3), dv2 (3), dv3 (3), rot (4)`, concatenated as the 13 outputs of a core.
+//!
+//! The weights are one flat `f32` parameter group in the order of the PyTorch `state_dict`
+//! ([`NetShape::tensors`]), copied to the device at each call. The backward follows PyTorch's
+//! ReLU convention: no gradient where the pre-activation is exactly 0.
+
+use candle_core::{DType, Device, Tensor};
+
+use crate::encoding::{TIME_ENCODING, VERTEX_ENCODING};
+
+/// Trunk depth of D-NeRF's network.
+pub const DEPTH: usize = 8;
+
+/// The trunk layer after which the input is concatenated again (`D / 2`).
+pub const SKIP: usize = DEPTH / 2;
+
+/// Width of the time embedding.
+pub const TIME_EMBEDDING: usize = 30;
+
+/// Outputs per core: `dv1, dv2, dv3, rot`.
+pub const OUTPUTS: usize = 13;
+
+/// Width of the network input `[h1, t_emb]`.
+pub const INPUT: usize = VERTEX_ENCODING + TIME_EMBEDDING;
+
+/// Names of the output heads in the `state_dict`, in output order, with their widths.
+pub const HEADS: [(&str, usize); 4] = [
+    ("gaussian_warp", 3),
+    ("gaussian_v2", 3),
+    ("gaussian_v3", 3),
+    ("gaussian_rot", 4),
+];
+
+/// The network's size: its width `W` (D-MiSo's `deform_width`, 256 by default).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct NetShape {
+    /// Width of the trunk and of the time network's hidden layer.
+    pub width: usize,
+}
+
+impl NetShape {
+    /// D-MiSo's default width, 256.
+    pub const DEFAULT: Self = Self { width: 256 };
+
+    /// Every tensor of the network in `state_dict` order: name and shape (`[out, in]` for
+    /// weights, `[out]` for biases).
+    pub fn tensors(&self) -> Vec<(String, Vec<usize>)> {
+        let w = self.width;
+        let mut out = Vec::new();
+        let mut linear = |name: String, inputs: usize, outputs: usize| {
+            out.push((format!("{name}.weight"), vec![outputs, inputs]));
+            out.push((format!("{name}.bias"), vec![outputs]));
+        };
+        linear("timenet.0".into(), TIME_ENCODING, w);
+        linear("timenet.2".into(), w, TIME_EMBEDDING);
+        for i in 0..DEPTH {
+            let inputs = match i {
+                0 => INPUT,
+                i if i == SKIP + 1 => w + INPUT,
+                _ => w,
+            };
+            linear(format!("linear.{i}"), inputs, w);
+        }
+        for (name, n) in HEADS {
+            linear(name.to_string(), w, n);
+        }
+        out
+    }
+
+    /// Values in the flat parameter group.
+    pub fn len(&self) -> usize {
+        self.tensors()
+            .iter()
+            .map(|(_, s)| s.iter().product::<usize>())
+            .sum()
+    }
+
+    /// Always false: a network has weights.
+    pub fn is_empty(&self) -> bool {
+        false
+    }
+}
+
+/// The network's weights on a device, one tensor per `state_dict` entry.
+struct Weights {
+    tensors: Vec<Tensor>,
+}
+
+impl Weights {
+    fn load(shape: &NetShape, flat: &[f32], device: &Device) -> candle_core::Result<Self> {
+        let mut offset = 0;
+        let mut tensors = Vec::new();
+        for (_, dims) in shape.tensors() {
+            let n: usize = dims.iter().product();
+            tensors.push(Tensor::from_slice(
+                &flat[offset..offset + n],
+                dims.as_slice(),
+                device,
+            )?);
+            offset += n;
+        }
+        Ok(Self { tensors })
+    }
+
+    /// Weight and bias of linear layer `index` in [`NetShape::tensors`] order (timenet.0 is 0,
+    /// timenet.2 is 1, linear.i is 2 + i, the heads follow).
+    fn layer(&self, index: usize) -> (&Tensor, &Tensor) {
+        (&self.tensors[2 * index], &self.tensors[2 * index + 1])
+    }
+}
+
+/// Index of trunk layer `i` among the linear layers.
+const fn trunk(i: usize) -> usize {
+    2 + i
+}
+
+/// Index of head `k` among the linear layers.
+const fn head(k: usize) -> usize {
+    2 + DEPTH + k
+}
+
+/// What the backward needs of one forward: the inputs of every layer and the
+/// pre-activations of the ReLUs.
+pub struct NetTape {
+    weights: Weights,
+    time: Tensor,
+    time_hidden: Tensor,
+    x0: Tensor,
+    trunk_inputs: Vec<Tensor>,
+    trunk_pre: Vec<Tensor>,
+    last: Tensor,
+}
+
+/// `x W^T + b`.
+fn linear(x: &Tensor, w: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
+    x.matmul(&w.t()?)?.broadcast_add(b)
+}
+
+/// The network's outputs `[G, 13]` for `encodings` (`[G, 63]`, row-major) at the time
+/// encoding `time` (13 values), and the tape of the call.
+pub fn forward(
+    shape: &NetShape,
+    weights: &[f32],
+    encodings: &[f32],
+    time: &[f32; TIME_ENCODING],
+    device: &Device,
+) -> candle_core::Result<(Vec<f32>, NetTape)> {
+    let cores = encodings.len() / VERTEX_ENCODING;
+    let weights = Weights::load(shape, weights, device)?;
+    let h1 = Tensor::from_slice(encodings, (cores, VERTEX_ENCODING), device)?;
+    let time = Tensor::from_slice(time.as_slice(), (1, TIME_ENCODING), device)?;
+    let (w, b) = weights.layer(0);
+    let time_hidden = linear(&time, w, b)?;
+    let (w, b) = weights.layer(1);
+    let t_emb = linear(&time_hidden.relu()?, w, b)?;
+    let x0 = Tensor::cat(&[&h1, &t_emb.broadcast_as((cores, TIME_EMBEDDING))?], 1)?;
+    let mut h = x0.clone();
+    let mut trunk_inputs = Vec::with_capacity(DEPTH);
+    let mut trunk_pre = Vec::with_capacity(DEPTH);
+    for i in 0..DEPTH {
+        let (w, b) = weights.layer(trunk(i));
+        let z = linear(&h, w, b)?;
+        trunk_inputs.push(h);
+        h = z.relu()?;
+        trunk_pre.push(z);
+        if i == SKIP {
+            h = Tensor::cat(&[&x0, &h], 1)?;
+        }
+    }
+    let heads = (0..HEADS.len())
+        .map(|k| {
+            let (w, b) = weights.layer(head(k));
+            linear(&h, w, b)
+        })
+        .collect::<candle_core::Result<Vec<_>>>()?;
+    let out = Tensor::cat(&heads, 1)?;
+    let values = out.flatten_all()?.to_vec1::<f32>()?;
+    Ok((
+        values,
+        NetTape {
+            weights,
+            time,
+            time_hidden,
+            x0,
+            trunk_inputs,
+            trunk_pre,
+            last: h,
+        },
+    ))
+}
+
+/// `g` where `z > 0`, else 0 (PyTorch's `threshold_backward`: no gradient at 0).
+fn relu_backward(g: &Tensor, z: &Tensor) -> candle_core::Result<Tensor> {
+    g.mul(&z.gt(0.0)?.to_dtype(DType::F32)?)
+}
+
+/// The gradient of every weight (flat, [`NetShape::tensors`] order), given the gradient
+/// `grad_out` (`[G, 13]`) of a loss with respect to the outputs of the forward of `tape`.
+pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>> {
+    let device = tape.x0.device().clone();
+    let cores = tape.x0.dim(0)?;
+    let g_out = Tensor::from_slice(grad_out, (cores, OUTPUTS), &device)?;
+    let layers = 2 + DEPTH + HEADS.len();
+    let mut grads: Vec<Option<(Tensor, Tensor)>> = (0..layers).map(|_| None).collect();
+    // The heads.
+    let mut g_h: Option<Tensor> = None;
+    let mut start = 0;
+    for (k, (_, n)) in HEADS.iter().enumerate() {
+        let g = g_out.narrow(1, start, *n)?;
+        start += n;
+        let (w, _) = tape.weights.layer(head(k));
+        grads[head(k)] = Some((g.t()?.matmul(&tape.last)?, g.sum(0)?));
+        let g_in = g.matmul(w)?;
+        g_h = Some(match g_h {
+            Some(s) => s.add(&g_in)?,
+            None => g_in,
+        });
+    }
+    let mut g_h = g_h.expect("four heads");
+    let mut g_x0: Option<Tensor> = None;
+    for i in (0..DEPTH).rev() {
+        if i == SKIP {
+            g_x0 = Some(g_h.narrow(1, 0, INPUT)?);
+            let width = g_h.dim(1)? - INPUT;
+            g_h = g_h.narrow(1, INPUT, width)?;
+        }
+        let g_z = relu_backward(&g_h, &tape.trunk_pre[i])?;
+        let (w, _) = tape.weights.layer(trunk(i));
+        grads[trunk(i)] = Some((g_z.t()?.matmul(&tape.trunk_inputs[i])?, g_z.sum(0)?));
+        g_h = g_z.matmul(w)?;
+    }
+    let g_x0 = g_h.add(&g_x0.expect("the skip layer"))?;
+    // The time embedding is broadcast to every core: its gradient is the sum over cores.
+    let g_t_emb = g_x0
+        .narrow(1, VERTEX_ENCODING, TIME_EMBEDDING)?
+        .sum_keepdim(0)?;
+    let hidden = tape.time_hidden.relu()?;
+    let (w, _) = tape.weights.layer(1);
+    grads[1] = Some((g_t_emb.t()?.matmul(&hidden)?, g_t_emb.sum(0)?));
+    let g_hidden = relu_backward(&g_t_emb.matmul(w)?, &tape.time_hidden)?;
+    grads[0] = Some((g_hidden.t()?.matmul(&tape.time)?, g_hidden.sum(0)?));
+    let mut flat = Vec::new();
+    for g in grads {
+        let (gw, gb) = g.expect("every layer has a gradient");
+        flat.extend(gw.flatten_all()?.to_vec1::<f32>()?);
+        flat.extend(gb.flatten_all()?.to_vec1::<f32>()?);
+    }
+    Ok(flat)
+}

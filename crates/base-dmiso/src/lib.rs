@@ -1,0 +1,17 @@
+//! base-dmiso: the D-MiSo base model of CLIPGaussian for dynamic scenes (D-NeRF datasets).
+//!
+//! - [`encoding`]: the positional encodings of vertices and time.
+//! - [`deform_net`]: the deformation network in candle, with its backward.
+//! - [`core_frame`]: a core triangle deformed at a time and its frame, with the backward.
+//! - [`sub_gaussian`]: one sub-Gaussian in its core's frame, with the backward.
+//! - [`model_file`]: our model file and the folder the authors' code saves.
+//! - [`model`]: [`Dmiso`] behind gs-core's `BaseModel`: sub-Gaussians of every core.
+
+pub mod core_frame;
+pub mod deform_net;
+pub mod encoding;
+pub mod model;
+pub mod model_file;
+pub mod sub_gaussian;
+
+pub use model::{Dmiso, DmisoParams, GROUP_NAMES};

@@ -1,0 +1,443 @@
+//! D-MiSo models on disk: our own single file (`model.safetensors`: every tensor under the
+//! name D-MiSo gives it, and the sizes in the metadata), and the folder the authors' code saves
+//! (read only, [`read_authors`]).
+//!
+//! Tensor names and shapes, `G` cores of `K` sub-Gaussians: `pseudomesh [G, 3, 3]`,
+//! `alpha [G, K, 3]`, `attached_scale [G K, 3]`, `attached_rotation [G K, 4]`,
+//! `attached_opacity [G K, 1]`, `attached_features_dc [G K, 1, 3]`,
+//! `attached_features_rest [G K, 15, 3]` (coefficient-major, channel last), the deformation
+//! network's `state_dict` (`deform.<name>` in our file) and the time-rotation layer
+//! (`time_net.weight [4, 17]`, `time_net.bias [4]`).
+
+use std::collections::HashMap;
+use std::path::{Path, PathBuf};
+
+use candle_core::{Device, Tensor};
+
+use crate::deform_net::NetShape;
+use crate::model::{group, Dmiso, DmisoParams};
+use crate::sub_gaussian::TIME_NET_INPUT;
+
+/// The `format` metadata of our model files.
+pub const FORMAT: &str = "clipgaussian-dmiso";
+
+/// Why a model file could not be read or written. Each names the file.
+#[derive(Debug, thiserror::Error)]
+pub enum ModelFileError {
+    /// A file that could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A file that is not what it should be (truncated, foreign, of other shapes).
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
+    /// A tensor file that candle could not read (a truncated or foreign `.pth`).
+    #[error("{}: not a readable PyTorch checkpoint ({source})", path.display())]
+    Checkpoint {
+        /// The file.
+        path: PathBuf,
+        /// candle's error.
+        source: candle_core::Error,
+    },
+}
+
+/// Every tensor of a model: name, shape, group and the range of the group it fills.
+fn layout(cores: usize, subs: usize, net: &NetShape) -> Vec<(String, Vec<usize>, usize, usize)> {
+    let n = cores * subs;
+    let mut out = vec![
+        (
+            "pseudomesh".to_string(),
+            vec![cores, 3, 3],
+            group::PSEUDOMESH,
+            0,
+        ),
+        ("alpha".into(), vec![cores, subs, 3], group::ALPHA, 0),
+        ("attached_scale".into(), vec![n, 3], group::SCALE, 0),
+        ("attached_rotation".into(), vec![n, 4], group::ROTATION, 0),
+        ("attached_opacity".into(), vec![n, 1], group::OPACITY, 0),
+        ("attached_features_dc".into(), vec![n, 1, 3], group::DC, 0),
+        (
+            "attached_features_rest".into(),
+            vec![n, 15, 3],
+            group::REST,
+            0,
+        ),
+    ];
+    let mut offset = 0;
+    for (name, shape) in net.tensors() {
+        let len: usize = shape.iter().product();
+        out.push((format!("deform.{name}"), shape, group::DEFORM, offset));
+        offset += len;
+    }
+    out.push((
+        "time_net.weight".into(),
+        vec![4, TIME_NET_INPUT],
+        group::TIME_NET,
+        0,
+    ));
+    out.push((
+        "time_net.bias".into(),
+        vec![4],
+        group::TIME_NET,
+        4 * TIME_NET_INPUT,
+    ));
+    out
+}
+
+/// Writes `model` to `path` (`model.safetensors`), through a temporary name.
+pub fn save(model: &Dmiso, path: &Path) -> Result<(), ModelFileError> {
+    let params = model.params();
+    let data: Vec<(String, Vec<usize>, Vec<u8>)> =
+        layout(model.cores(), model.subs_per_core(), &model.net())
+            .into_iter()
+            .map(|(name, shape, g, offset)| {
+                let len: usize = shape.iter().product();
+                let bytes = le_bytes(&params.groups[g][offset..offset + len]);
+                (name, shape, bytes)
+            })
+            .collect();
+    let tensors = data
+        .iter()
+        .map(|(name, shape, bytes)| {
+            let view =
+                safetensors::tensor::TensorView::new(safetensors::Dtype::F32, shape.clone(), bytes)
+                    .expect("shape and data agree");
+            (name.clone(), view)
+        })
+        .collect::<Vec<_>>();
+    let metadata = HashMap::from([
+        ("format".to_string(), FORMAT.to_string()),
+        ("cores".into(), model.cores().to_string()),
+        ("subs_per_core".into(), model.subs_per_core().to_string()),
+        ("deform_width".into(), model.net().width.to_string()),
+        ("deformation".into(), model.deformation.to_string()),
+    ]);
+    let bytes =
+        safetensors::serialize(tensors, Some(metadata)).map_err(|e| ModelFileError::Format {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    gs_core::fs::write_atomic(path, &bytes).map_err(|source| ModelFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// The little-endian bytes of `values`.
+fn le_bytes(values: &[f32]) -> Vec<u8> {
+    values.iter().flat_map(|v| v.to_le_bytes()).collect()
+}
+
+/// Reads a model written by [`save`], its network on `device`.
+pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
+    let format = |message: String| ModelFileError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
+        .map_err(|e| format(format!("not a safetensors file ({e})")))?;
+    let meta = header.metadata().clone().unwrap_or_default();
+    if meta.get("format").map(String::as_str) != Some(FORMAT) {
+        return Err(format(format!(
+            "not a D-MiSo model of clipgaussian (metadata format is {:?}, {FORMAT:?} expected)",
+            meta.get("format")
+        )));
+    }
+    let number = |key: &str| -> Result<usize, ModelFileError> {
+        meta.get(key)
+            .and_then(|v| v.parse().ok())
+            .ok_or_else(|| format(format!("metadata {key} is missing or not a count")))
+    };
+    let (cores, subs) = (number("cores")?, number("subs_per_core")?);
+    let net = NetShape {
+        width: number("deform_width")?,
+    };
+    let deformation = meta.get("deformation").map(String::as_str) != Some("false");
+    let tensors = safetensors::SafeTensors::deserialize(&bytes)
+        .map_err(|e| format(format!("not a safetensors file ({e})")))?;
+    let mut found = HashMap::new();
+    for (name, view) in tensors.tensors() {
+        if view.dtype() != safetensors::Dtype::F32 {
+            return Err(format(format!(
+                "{name} is {:?}, f32 expected",
+                view.dtype()
+            )));
+        }
+        let values: Vec<f32> = view
+            .data()
+            .chunks_exact(4)
+            .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]))
+            .collect();
+        found.insert(name, (view.shape().to_vec(), values));
+    }
+    let params = fill_groups(cores, subs, &net, |name| found.remove(name)).map_err(format)?;
+    Dmiso::new(cores, subs, net, deformation, params, device.clone()).map_err(format)
+}
+
+/// The groups of a model from its tensors, each looked up by name (`get` gives its shape and
+/// values); the error names a missing tensor or one of another shape.
+fn fill_groups(
+    cores: usize,
+    subs: usize,
+    net: &NetShape,
+    mut get: impl FnMut(&str) -> Option<(Vec<usize>, Vec<f32>)>,
+) -> Result<DmisoParams, String> {
+    let lens = crate::model::group_lens(cores, subs, net);
+    let mut groups: [Vec<f32>; 9] = lens.map(|n| vec![0.0; n]);
+    for (name, shape, g, offset) in layout(cores, subs, net) {
+        let Some((found, values)) = get(&name) else {
+            return Err(format!("no tensor {name} (of shape {shape:?})"));
+        };
+        if found != shape {
+            return Err(format!(
+                "{name} has shape {found:?}; {shape:?} expected for {cores} cores of {subs} \
+                 sub-Gaussians and a network of width {}",
+                net.width
+            ));
+        }
+        groups[g][offset..offset + values.len()].copy_from_slice(&values);
+    }
+    Ok(DmisoParams { groups })
+}
+
+/// Tensors by name: shape and f32 values.
+type NamedValues = HashMap<String, (Vec<usize>, Vec<f32>)>;
+
+/// Reads a tensor file through candle's PyTorch reader: every tensor by name, as f32 values
+/// with their shape.
+fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
+    if !path.is_file() {
+        return Err(ModelFileError::Io {
+            path: path.to_path_buf(),
+            source: std::io::Error::new(std::io::ErrorKind::NotFound, "not found"),
+        });
+    }
+    let checkpoint = |source| ModelFileError::Checkpoint {
+        path: path.to_path_buf(),
+        source,
+    };
+    let tensors = candle_core::pickle::read_all(path).map_err(checkpoint)?;
+    tensors
+        .into_iter()
+        .map(|(name, t): (String, Tensor)| {
+            let shape = t.dims().to_vec();
+            let values = t
+                .to_dtype(candle_core::DType::F32)
+                .and_then(|t| t.flatten_all())
+                .and_then(|t| t.to_vec1::<f32>())
+                .map_err(checkpoint)?;
+            Ok((name, (shape, values)))
+        })
+        .collect()
+}
+
+/// Where the authors' code saved one iteration of a model in `dir`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct AuthorsFiles {
+    /// `point_cloud/iteration_<it>/point_cloud.ply` (the cores; only its count is read).
+    pub ply: PathBuf,
+    /// `point_cloud/iteration_<it>/model_params.pt`.
+    pub params: PathBuf,
+    /// `deform/iteration_<it>/deform.pth`.
+    pub deform: PathBuf,
+    /// `time_net/iteration_<it>/deform.pth`.
+    pub time_net: PathBuf,
+    /// `cfg_args`, when present.
+    pub cfg_args: Option<PathBuf>,
+}
+
+impl AuthorsFiles {
+    /// The files of iteration `iteration` (`best`, or a number) of the model in `dir`; `None`
+    /// takes `best` when it was saved, else the highest numbered iteration.
+    pub fn find(dir: &Path, iteration: Option<&str>) -> Result<Self, ModelFileError> {
+        let clouds = dir.join("point_cloud");
+        let iteration = match iteration {
+            Some(it) => it.to_string(),
+            None => latest_iteration(&clouds)?,
+        };
+        let at = |folder: &str, file: &str| {
+            dir.join(folder)
+                .join(format!("iteration_{iteration}"))
+                .join(file)
+        };
+        let files = Self {
+            ply: at("point_cloud", "point_cloud.ply"),
+            params: at("point_cloud", "model_params.pt"),
+            deform: at("deform", "deform.pth"),
+            time_net: at("time_net", "deform.pth"),
+            cfg_args: Some(dir.join("cfg_args")).filter(|p| p.is_file()),
+        };
+        for path in [&files.ply, &files.params, &files.deform, &files.time_net] {
+            if !path.is_file() {
+                return Err(ModelFileError::Format {
+                    path: path.clone(),
+                    message: format!(
+                        "not found: a D-MiSo model saves it at iteration {iteration} (is {} the \
+                         folder D-MiSo's train.py wrote with -m?)",
+                        dir.display()
+                    ),
+                });
+            }
+        }
+        Ok(files)
+    }
+}
+
+/// `best` when `point_cloud/iteration_best` exists, else the highest `iteration_<n>`.
+fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
+    let entries = std::fs::read_dir(clouds).map_err(|source| ModelFileError::Io {
+        path: clouds.to_path_buf(),
+        source,
+    })?;
+    let mut best = false;
+    let mut highest: Option<u64> = None;
+    for entry in entries.flatten() {
+        let name = entry.file_name().to_string_lossy().to_string();
+        match name.strip_prefix("iteration_") {
+            Some("best") => best = true,
+            Some(n) => {
+                if let Ok(n) = n.parse::<u64>() {
+                    highest = highest.max(Some(n));
+                }
+            }
+            None => {}
+        }
+    }
+    match (best, highest) {
+        (true, _) => Ok("best".into()),
+        (false, Some(n)) => Ok(n.to_string()),
+        (false, None) => Err(ModelFileError::Format {
+            path: clouds.to_path_buf(),
+            message: "holds no iteration_<n> folder".into(),
+        }),
+    }
+}
+
+/// Whether `cfg_args` (a Python `Namespace(...)`) says `white_background=True`; `None` when it
+/// does not say.
+pub fn white_background(cfg_args: &str) -> Option<bool> {
+    let rest = cfg_args.split("white_background=").nth(1)?;
+    if rest.starts_with("True") {
+        Some(true)
+    } else if rest.starts_with("False") {
+        Some(false)
+    } else {
+        None
+    }
+}
+
+/// Reads the model the authors' code saved (`files`), with its sub-Gaussians, its network on
+/// `device`. The network's width is read from its tensors; every tensor must have the shape
+/// that width and the model's cores and sub-Gaussians give.
+pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, ModelFileError> {
+    let mut params = read_pth(&files.params)?;
+    let bad = |path: &Path, message: String| ModelFileError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let (cores, subs) = match (params.get("pseudomesh"), params.get("alpha")) {
+        (Some((mesh, _)), Some((alpha, _))) if mesh.len() == 3 && alpha.len() == 3 => {
+            (mesh[0], alpha[1])
+        }
+        (None, _) => {
+            return Err(bad(
+                &files.params,
+                "holds no pseudomesh: not a D-MiSo model_params.pt".into(),
+            ))
+        }
+        (Some(_), None) => {
+            return Err(bad(
+                &files.params,
+                "holds no sub-Gaussians (alpha): D-MiSo saved it before creating them (before \
+                 densify_until_iter); take a later iteration"
+                    .into(),
+            ))
+        }
+        (Some((mesh, _)), Some((alpha, _))) => {
+            return Err(bad(
+                &files.params,
+                format!(
+                    "pseudomesh {mesh:?} and alpha {alpha:?}: [G, 3, 3] and [G, K, 3] expected"
+                ),
+            ))
+        }
+    };
+    let cores_in_ply = ply_vertex_count(&files.ply)?;
+    if cores_in_ply != cores {
+        return Err(bad(
+            &files.ply,
+            format!("{cores_in_ply} cores, but model_params.pt holds {cores}: files of two models"),
+        ));
+    }
+    let deform = read_pth(&files.deform)?;
+    let width =
+        match deform.get("timenet.0.weight") {
+            Some((shape, _)) if shape.len() == 2 => shape[0],
+            _ => return Err(bad(
+                &files.deform,
+                "holds no timenet.0.weight: not the deformation network of a D-MiSo model of a \
+                 synthetic (D-NeRF) scene"
+                    .into(),
+            )),
+        };
+    let net = NetShape { width };
+    let time_net = read_pth(&files.time_net)?;
+    let mut deform = deform;
+    let mut time_net = time_net;
+    let filled = fill_groups(cores, subs, &net, |name| {
+        if let Some(n) = name.strip_prefix("deform.") {
+            deform.remove(n)
+        } else if let Some(n) = name.strip_prefix("time_net.") {
+            time_net.remove(n)
+        } else {
+            params.remove(name)
+        }
+    });
+    let params = filled.map_err(|message| {
+        let path = if message.contains("deform.") {
+            &files.deform
+        } else if message.contains("time_net.") {
+            &files.time_net
+        } else {
+            &files.params
+        };
+        bad(path, message)
+    })?;
+    Dmiso::new(cores, subs, net, true, params, device.clone()).map_err(|m| bad(&files.params, m))
+}
+
+/// The vertex count of a binary PLY's header.
+fn ply_vertex_count(path: &Path) -> Result<usize, ModelFileError> {
+    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let head = &bytes[..bytes.len().min(8192)];
+    let text = String::from_utf8_lossy(head);
+    if !text.starts_with("ply\n") || !text.contains("end_header") {
+        return Err(ModelFileError::Format {
+            path: path.to_path_buf(),
+            message: "not a PLY file".into(),
+        });
+    }
+    text.lines()
+        .find_map(|l| l.strip_prefix("element vertex "))
+        .and_then(|n| n.trim().parse().ok())
+        .ok_or_else(|| ModelFileError::Format {
+            path: path.to_path_buf(),
+            message: "no vertex element".into(),
+        })
+}
