@@ -4,12 +4,16 @@
 //! - [`deform_net`]: the deformation network in candle, with its backward.
 //! - [`core_frame`]: a core triangle deformed at a time and its frame, with the backward.
 //! - [`sub_gaussian`]: one sub-Gaussian in its core's frame, with the backward.
+//! - [`init`]: the starting model and the switch to sub-Gaussians.
+//! - [`fit`]: fitting a D-NeRF scene in D-MiSo's stages.
 //! - [`model_file`]: our model file and the folder the authors' code saves.
 //! - [`model`]: [`Dmiso`] behind gs-core's `BaseModel`: sub-Gaussians of every core.
 
 pub mod core_frame;
 pub mod deform_net;
 pub mod encoding;
+pub mod fit;
+pub mod init;
 pub mod model;
 pub mod model_file;
 pub mod sub_gaussian;

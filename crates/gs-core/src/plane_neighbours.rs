@@ -1,6 +1,7 @@
-//! Nearest neighbours of points on a plane: the mean squared distance of each point to its `k`
-//! nearest others, as 3DGS's `distCUDA2` gives it for the initial scales (MiraGe's and VeGaS's
-//! random points on the picture plane), found on a uniform grid.
+//! Nearest neighbours of points on a plane (or in space): the mean squared distance of each
+//! point to its `k` nearest others, as 3DGS's `distCUDA2` gives it for the initial scales
+//! (MiraGe's and VeGaS's random points on the picture plane, D-MiSo's random points in a cube),
+//! found on a uniform grid.
 
 use rand::Rng;
 use rayon::prelude::*;
@@ -34,9 +35,10 @@ pub fn random_points_with_log_scales<R: Rng>(
         .collect()
 }
 
-/// For every point, the mean squared distance to its `k` nearest other points (fewer when
-/// there are fewer other points; infinity when there are none), found on a uniform grid.
-pub fn mean_nearest_dist2(points: &[[f64; 2]], k: usize) -> Vec<f64> {
+/// For every point (of 2 or 3 coordinates), the mean squared distance to its `k` nearest other
+/// points (fewer when there are fewer other points; infinity when there are none), found on a
+/// uniform grid.
+pub fn mean_nearest_dist2<const D: usize>(points: &[[f64; D]], k: usize) -> Vec<f64> {
     if points.is_empty() {
         return Vec::new();
     }
@@ -48,98 +50,126 @@ pub fn mean_nearest_dist2(points: &[[f64; 2]], k: usize) -> Vec<f64> {
         .collect()
 }
 
-/// Points bucketed into square cells of about two points each.
-struct Grid {
-    min: [f64; 2],
+/// Points bucketed into cubic cells of about two points each.
+struct Grid<const D: usize> {
+    min: [f64; D],
     cell: f64,
-    cols: usize,
-    rows: usize,
+    /// Cells along each axis.
+    dims: [usize; D],
     /// `starts[c]..starts[c + 1]` indexes `order` for cell `c`.
     starts: Vec<usize>,
     order: Vec<usize>,
 }
 
-impl Grid {
-    fn new(points: &[[f64; 2]]) -> Self {
-        let mut min = [f64::INFINITY; 2];
-        let mut max = [f64::NEG_INFINITY; 2];
+impl<const D: usize> Grid<D> {
+    /// Most cells along one axis: 4096 in 2D, 256 in 3D (about 16.7 million cells).
+    const MAX_CELLS: usize = match D {
+        1 | 2 => 4096,
+        _ => 256,
+    };
+
+    fn new(points: &[[f64; D]]) -> Self {
+        let mut min = [f64::INFINITY; D];
+        let mut max = [f64::NEG_INFINITY; D];
         for p in points {
-            for a in 0..2 {
+            for a in 0..D {
                 min[a] = min[a].min(p[a]);
                 max[a] = max[a].max(p[a]);
             }
         }
-        let area = ((max[0] - min[0]) * (max[1] - min[1])).max(f64::MIN_POSITIVE);
-        let side = (max[0] - min[0]).max(max[1] - min[1]);
-        let cell = (2.0 * area / points.len() as f64)
-            .sqrt()
-            .max(side / 4096.0)
+        let volume = (0..D)
+            .map(|a| max[a] - min[a])
+            .product::<f64>()
             .max(f64::MIN_POSITIVE);
-        let cols = (((max[0] - min[0]) / cell) as usize + 1).min(4096);
-        let rows = (((max[1] - min[1]) / cell) as usize + 1).min(4096);
-        let cell_of = |p: &[f64; 2]| {
-            let cx = (((p[0] - min[0]) / cell) as usize).min(cols - 1);
-            let cy = (((p[1] - min[1]) / cell) as usize).min(rows - 1);
-            cy * cols + cx
-        };
-        let mut starts = vec![0usize; cols * rows + 1];
-        for p in points {
-            starts[cell_of(p) + 1] += 1;
+        let side = (0..D).map(|a| max[a] - min[a]).fold(0.0, f64::max);
+        let cell = (2.0 * volume / points.len() as f64)
+            .powf(1.0 / D as f64)
+            .max(side / Self::MAX_CELLS as f64)
+            .max(f64::MIN_POSITIVE);
+        let mut dims = [0; D];
+        for a in 0..D {
+            dims[a] = (((max[a] - min[a]) / cell) as usize + 1).min(Self::MAX_CELLS);
         }
-        for c in 0..cols * rows {
+        let mut grid = Self {
+            min,
+            cell,
+            dims,
+            starts: Vec::new(),
+            order: Vec::new(),
+        };
+        let cells: usize = dims.iter().product();
+        let mut starts = vec![0usize; cells + 1];
+        for p in points {
+            starts[grid.index(&grid.cell_of(p)) + 1] += 1;
+        }
+        for c in 0..cells {
             starts[c + 1] += starts[c];
         }
         let mut fill = starts.clone();
         let mut order = vec![0usize; points.len()];
         for (i, p) in points.iter().enumerate() {
-            let c = cell_of(p);
+            let c = grid.index(&grid.cell_of(p));
             order[fill[c]] = i;
             fill[c] += 1;
         }
-        Self {
-            min,
-            cell,
-            cols,
-            rows,
-            starts,
-            order,
-        }
+        grid.starts = starts;
+        grid.order = order;
+        grid
     }
 
-    /// Searches rings of cells around point `i` until the `k` best cannot improve.
-    fn mean_nearest_dist2(&self, points: &[[f64; 2]], i: usize, p: &[f64; 2], k: usize) -> f64 {
-        let cx = (((p[0] - self.min[0]) / self.cell) as usize).min(self.cols - 1) as isize;
-        let cy = (((p[1] - self.min[1]) / self.cell) as usize).min(self.rows - 1) as isize;
+    /// The cell coordinates of `p`.
+    fn cell_of(&self, p: &[f64; D]) -> [isize; D] {
+        let mut c = [0isize; D];
+        for a in 0..D {
+            c[a] = (((p[a] - self.min[a]) / self.cell) as usize).min(self.dims[a] - 1) as isize;
+        }
+        c
+    }
+
+    /// The index of the cell at `c` (inside the grid).
+    fn index(&self, c: &[isize; D]) -> usize {
+        (0..D)
+            .rev()
+            .fold(0, |i, a| i * self.dims[a] + c[a] as usize)
+    }
+
+    /// Searches shells of cells around point `i` until the `k` best cannot improve.
+    fn mean_nearest_dist2(&self, points: &[[f64; D]], i: usize, p: &[f64; D], k: usize) -> f64 {
+        let centre = self.cell_of(p);
         let mut best: Vec<f64> = Vec::with_capacity(k + 1);
-        let max_ring = self.cols.max(self.rows) as isize;
+        let max_ring = self.dims.iter().copied().max().unwrap_or(1) as isize;
         for ring in 0..=max_ring {
-            // Every point outside the rings searched so far is at least this far away.
+            // Every point outside the shells searched so far is at least this far away.
             let reach = (ring - 1).max(0) as f64 * self.cell;
             if best.len() == k && best[k - 1] <= reach * reach {
                 break;
             }
-            for y in cy - ring..=cy + ring {
-                for x in cx - ring..=cx + ring {
-                    let on_ring = (y - cy).abs() == ring || (x - cx).abs() == ring;
-                    if !on_ring
-                        || x < 0
-                        || y < 0
-                        || x >= self.cols as isize
-                        || y >= self.rows as isize
-                    {
+            let side = (2 * ring + 1) as usize;
+            for n in 0..side.pow(D as u32) {
+                let mut c = [0isize; D];
+                let mut rest = n;
+                let mut on_shell = false;
+                let mut inside = true;
+                for a in 0..D {
+                    let offset = (rest % side) as isize - ring;
+                    rest /= side;
+                    on_shell |= offset.abs() == ring;
+                    c[a] = centre[a] + offset;
+                    inside &= c[a] >= 0 && c[a] < self.dims[a] as isize;
+                }
+                if !on_shell || !inside {
+                    continue;
+                }
+                let cell = self.index(&c);
+                for &j in &self.order[self.starts[cell]..self.starts[cell + 1]] {
+                    if j == i {
                         continue;
                     }
-                    let c = y as usize * self.cols + x as usize;
-                    for &j in &self.order[self.starts[c]..self.starts[c + 1]] {
-                        if j == i {
-                            continue;
-                        }
-                        let d2 = (points[j][0] - p[0]).powi(2) + (points[j][1] - p[1]).powi(2);
-                        if best.len() < k || d2 < best[best.len() - 1] {
-                            let at = best.partition_point(|&b| b <= d2);
-                            best.insert(at, d2);
-                            best.truncate(k);
-                        }
+                    let d2: f64 = (0..D).map(|a| (points[j][a] - p[a]).powi(2)).sum();
+                    if best.len() < k || d2 < best[best.len() - 1] {
+                        let at = best.partition_point(|&b| b <= d2);
+                        best.insert(at, d2);
+                        best.truncate(k);
                     }
                 }
             }
@@ -197,10 +227,35 @@ mod tests {
     }
 
     #[test]
+    fn grid_neighbours_in_space_equal_brute_force() {
+        let mut rng = ChaCha8Rng::seed_from_u64(8);
+        for (n, w) in [
+            (400, [1.3, 1.3, 1.3]),
+            (200, [2.0, 0.01, 1.0]),
+            (3, [1.0; 3]),
+        ] {
+            let points: Vec<[f64; 3]> = (0..n)
+                .map(|_| w.map(|s: f64| rng.random_range(-s..=s)))
+                .collect();
+            let grid = mean_nearest_dist2(&points, 3);
+            for (i, a) in grid.iter().enumerate() {
+                let mut d: Vec<f64> = (0..n)
+                    .filter(|&j| j != i)
+                    .map(|j| (0..3).map(|k| (points[j][k] - points[i][k]).powi(2)).sum())
+                    .collect();
+                d.sort_by(f64::total_cmp);
+                d.truncate(3);
+                let b = d.iter().sum::<f64>() / d.len() as f64;
+                assert!((a - b).abs() <= 1e-12 * b.max(1e-30), "{a} vs {b} (n {n})");
+            }
+        }
+    }
+
+    #[test]
     fn duplicate_and_lonely_points() {
         let same = mean_nearest_dist2(&[[0.5, 0.5]; 5], 3);
         assert!(same.iter().all(|&d| d == 0.0));
         assert_eq!(mean_nearest_dist2(&[[1.0, 2.0]], 3), vec![f64::INFINITY]);
-        assert!(mean_nearest_dist2(&[], 3).is_empty());
+        assert!(mean_nearest_dist2::<2>(&[], 3).is_empty());
     }
 }

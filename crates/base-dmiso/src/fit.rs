@@ -1,0 +1,263 @@
+//! Fitting a dynamic scene (CLIPGaussian stage 1 for 4D), in D-MiSo's three stages, each a
+//! run of gs-core's trainer with `(1 - 0.2) L1 + 0.2 D-SSIM` over batches of views:
+//!
+//! 1. warm-up (`warm_up` steps): the cores, static (the network is not called);
+//! 2. deformation: the cores and the network;
+//! 3. from `subs_from`: `sub_cores` cores drawn, `subs_per_core` sub-Gaussians each
+//!    ([`with_sub_gaussians`]), which train with the network and the time-rotation layer; the
+//!    triangles stay (D-MiSo stops training them there).
+//!
+//! D-MiSo's learning rates: triangles `1.6e-4 extent -> 1.6e-5 extent` over 30,000 steps, core
+//! colour 0.0025 (higher degrees a twentieth), opacity 0.05, network `8e-4 -> 1.6e-5` over the
+//! whole fit (from step 0, as D-MiSo decays it through the warm-up); then offsets 1e-3,
+//! sub-Gaussian colour 0.0025 (all degrees), opacity 0.05, log-scales 0.005, quaternions 0.001,
+//! time-rotation layer 0.1. Where this differs from D-MiSo: no densification, pruning or opacity
+//! reset (the cores are the `points` asked for); the SH degree is 3 from the start (D-MiSo
+//! raises it by one every 1000 steps); Adam's moments restart at each stage; the cores are
+//! drawn without repetition; the time-rotation layer starts as the identity `[I | 0]` rather
+//! than at random, so the sub-Gaussians start exactly where their cores were.
+
+use std::ops::ControlFlow;
+
+use candle_core::Device;
+use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
+use gs_core::backend::{Backend, Trainer};
+pub use gs_core::image_loss::FitError;
+use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
+use gs_core::model::View;
+use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
+use gs_core::Image;
+
+use crate::deform_net::NetShape;
+use crate::init::{initial_model, with_sub_gaussians};
+use crate::model::{Dmiso, GROUP_NAMES};
+
+/// How to fit a dynamic scene. The defaults are D-MiSo's (`train.py`'s arguments).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FitSettings {
+    /// Random starting points (cores).
+    pub points: usize,
+    /// Optimizer steps of the whole fit.
+    pub steps: u64,
+    /// Steps of the static warm-up.
+    pub warm_up: u64,
+    /// The step at which the sub-Gaussians are created (D-MiSo's `densify_until_iter`).
+    pub subs_from: u64,
+    /// Cores kept with sub-Gaussians (D-MiSo's `num_gauss`).
+    pub sub_cores: usize,
+    /// Sub-Gaussians per core (D-MiSo's `num_splat`).
+    pub subs_per_core: usize,
+    /// Views per step, their losses averaged.
+    pub batch: usize,
+    /// Width of the deformation network.
+    pub deform_width: usize,
+    /// Seed of the starting model, of the cores drawn and of the view order.
+    pub seed: u64,
+    /// Weight of the D-SSIM term.
+    pub lambda_dssim: f32,
+    /// Background colour, linear RGB in `[0, 1]`.
+    pub background: [f32; 3],
+}
+
+impl Default for FitSettings {
+    fn default() -> Self {
+        Self {
+            points: 100_000,
+            steps: 40_000,
+            warm_up: 3_000,
+            subs_from: 35_000,
+            sub_cores: 2_000,
+            subs_per_core: 500,
+            batch: 2,
+            deform_width: 256,
+            seed: 0,
+            lambda_dssim: 0.2,
+            background: [1.0; 3],
+        }
+    }
+}
+
+impl FitSettings {
+    /// Checks the settings; the error starts with the field.
+    pub fn check(&self) -> Result<(), FitError> {
+        check_fit_settings(self.points, self.steps, self.lambda_dssim, self.background)
+            .map_err(|e| FitError::Settings(e.replace("gaussians:", "points:")))?;
+        let bad = |m: String| Err(FitError::Settings(m));
+        if self.warm_up > self.subs_from || self.subs_from > self.steps {
+            return bad(format!(
+                "warm_up {} <= subs_from {} <= steps {} is required",
+                self.warm_up, self.subs_from, self.steps
+            ));
+        }
+        if self.sub_cores == 0 || self.subs_per_core == 0 {
+            return bad(format!(
+                "sub_cores ({}) and subs_per_core ({}) must be at least 1",
+                self.sub_cores, self.subs_per_core
+            ));
+        }
+        if self.batch == 0 {
+            return bad("batch: must be at least 1".into());
+        }
+        if self.deform_width == 0 {
+            return bad("deform_width: must be at least 1".into());
+        }
+        Ok(())
+    }
+}
+
+/// The stages of a fit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    WarmUp,
+    Deformation,
+    SubGaussians,
+}
+
+/// An exponential decay from `start` to `end` over `length` steps, seen from step `from`.
+fn decay_from(start: f64, end: f64, length: u64, from: u64) -> LrSchedule {
+    let full = LrSchedule::Exponential {
+        start,
+        end,
+        steps: length,
+    };
+    LrSchedule::Exponential {
+        start: full.at(from),
+        end,
+        steps: length.saturating_sub(from).max(1),
+    }
+}
+
+/// D-MiSo's Adam groups (in [`GROUP_NAMES`] order) for `stage`, starting at step `from` of a
+/// fit of `steps` steps of a scene of extent `extent`.
+fn stage_groups(stage: Stage, extent: f64, steps: u64, from: u64) -> Vec<GroupConfig> {
+    let constant = LrSchedule::Constant;
+    let mesh = decay_from(1.6e-4 * extent, 1.6e-5 * extent, 30_000, from);
+    let net = decay_from(8e-4, 1.6e-5, steps, from);
+    let rates: [Option<LrSchedule>; 9] = match stage {
+        Stage::WarmUp | Stage::Deformation => [
+            Some(mesh),
+            None,
+            None,
+            None,
+            Some(constant(0.05)),
+            Some(constant(0.0025)),
+            Some(constant(0.0025 / 20.0)),
+            (stage == Stage::Deformation).then_some(net),
+            None,
+        ],
+        Stage::SubGaussians => [
+            None,
+            Some(constant(1e-3)),
+            Some(constant(0.005)),
+            Some(constant(0.001)),
+            Some(constant(0.05)),
+            Some(constant(0.0025)),
+            Some(constant(0.0025)),
+            Some(net),
+            Some(constant(0.1)),
+        ],
+    };
+    GROUP_NAMES
+        .iter()
+        .zip(rates)
+        .map(|(name, rate)| match rate {
+            Some(rate) => GroupConfig::new(*name, rate),
+            None => GroupConfig::frozen(*name),
+        })
+        .collect()
+}
+
+/// Fits `views` (each at its time) to `images` with `settings` on `backend`, the network on
+/// `device`; `extent` is the scene's camera extent. `on_step` is called after every step with
+/// the step counted over the whole fit (return `ControlFlow::Break` to stop early; the model
+/// of the stage reached is returned).
+pub fn fit<F>(
+    views: &[View],
+    images: &[Image],
+    extent: f64,
+    settings: &FitSettings,
+    backend: &Backend,
+    device: &Device,
+    mut on_step: F,
+) -> Result<Dmiso, FitError>
+where
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    settings.check()?;
+    if views.len() != images.len() || views.is_empty() {
+        return Err(FitError::Settings(format!(
+            "{} views and {} images: one image per view, at least one",
+            views.len(),
+            images.len()
+        )));
+    }
+    let net = NetShape {
+        width: settings.deform_width,
+    };
+    let mut model =
+        initial_model(settings.points, net, settings.seed, device).map_err(FitError::Settings)?;
+    let mut objective = PhotometricObjective {
+        targets: images.to_vec(),
+        lambda: settings.lambda_dssim,
+    };
+    let batch = settings.batch.min(views.len());
+    let mut sampler = ViewSampler::batches(views.len(), batch, BatchOrder::Shuffled, settings.seed);
+    let stages = [
+        (Stage::WarmUp, 0, settings.warm_up),
+        (Stage::Deformation, settings.warm_up, settings.subs_from),
+        (Stage::SubGaussians, settings.subs_from, settings.steps),
+    ];
+    let mut stopped = false;
+    for (stage, from, to) in stages {
+        if stage == Stage::SubGaussians {
+            model = with_sub_gaussians(
+                &model,
+                settings.sub_cores,
+                settings.subs_per_core,
+                settings.seed,
+            )
+            .map_err(FitError::Settings)?;
+        } else {
+            model.deformation = stage == Stage::Deformation;
+        }
+        if from == to || stopped {
+            continue;
+        }
+        let groups = stage_groups(stage, extent, settings.steps, from);
+        let mut trainer = Trainer::new(backend, model, groups, AdamHyper::default())?;
+        let config = TrainConfig {
+            steps: to - from,
+            background: settings.background,
+        };
+        trainer.train(views, &mut objective, &mut sampler, &config, |report| {
+            let mut overall = report.clone();
+            overall.step += from;
+            overall.steps = settings.steps;
+            let flow = on_step(&overall);
+            stopped |= flow.is_break();
+            flow
+        })?;
+        model = trainer.into_model();
+    }
+    Ok(model)
+}
+
+/// The images of `model` at `views`, over `background`.
+pub fn render_views(
+    model: &mut Dmiso,
+    views: &[View],
+    background: [f32; 3],
+    backend: &Backend,
+) -> Result<Vec<Image>, FitError> {
+    let mut renderer = backend.model_renderer(model)?;
+    views
+        .iter()
+        .map(|v| Ok(renderer.render(v, background)?))
+        .collect()
+}
+
+/// The mean PSNR (dB) of `renders` against `images`, image by image.
+pub fn mean_psnr(renders: &[Image], images: &[Image]) -> f64 {
+    let sum: f64 = renders.iter().zip(images).map(|(r, f)| psnr(r, f)).sum();
+    sum / images.len().max(1) as f64
+}
