@@ -7,6 +7,7 @@
 //! - [`init`]: the starting model and the switch to sub-Gaussians.
 //! - [`fit`]: fitting a D-NeRF scene in D-MiSo's stages.
 //! - [`model_file`]: our model file and the folder the authors' code saves.
+//! - [`stylize`]: the 4D stylization run and its outputs.
 //! - [`model`]: [`Dmiso`] behind gs-core's `BaseModel`: sub-Gaussians of every core.
 
 pub mod core_frame;
@@ -16,6 +17,7 @@ pub mod fit;
 pub mod init;
 pub mod model;
 pub mod model_file;
+pub mod stylize;
 pub mod sub_gaussian;
 
-pub use model::{Dmiso, DmisoParams, GROUP_NAMES};
+pub use model::{interpolate, Dmiso, DmisoParams, GROUP_NAMES};

@@ -498,3 +498,20 @@ impl BaseModel for Dmiso {
         Ok(())
     }
 }
+
+/// `(1 - t) a + t b` of every parameter of two models of the same cores, sub-Gaussians and
+/// network (e.g. two stylizations of one fit: the Gaussians and the network's weights), or an
+/// error naming what differs. `t` outside `[0, 1]` extrapolates.
+pub fn interpolate(a: &Dmiso, b: &Dmiso, t: f32) -> Result<Dmiso, String> {
+    let shape = |m: &Dmiso| (m.cores, m.subs, m.net.width);
+    if shape(a) != shape(b) {
+        return Err(format!(
+            "{} cores of {} sub-Gaussians with a network of width {} against {} of {} with {}",
+            a.cores, a.subs, a.net.width, b.cores, b.subs, b.net.width
+        ));
+    }
+    if a.deformation != b.deformation {
+        return Err("one model deforms its cores and the other does not".into());
+    }
+    gs_core::interpolate::blend_groups(a, b, t)
+}

@@ -217,9 +217,6 @@ pub fn interpolate(
     b: &FoldedGaussians,
     t: f32,
 ) -> Result<FoldedGaussians, String> {
-    if !t.is_finite() {
-        return Err(format!("the interpolation parameter t = {t} is not finite"));
-    }
     if a.params.len() != b.params.len() {
         return Err(format!(
             "{} Gaussians against {}",
@@ -230,14 +227,7 @@ pub fn interpolate(
     if a.frames() != b.frames() {
         return Err(format!("{} frames against {}", a.frames(), b.frames()));
     }
-    let mut out = a.clone();
-    let mut b = b.clone();
-    for (x, y) in out.groups_mut().into_iter().zip(b.groups_mut()) {
-        for (v, w) in x.iter_mut().zip(y.iter()) {
-            *v = (1.0 - t) * *v + t * w;
-        }
-    }
-    Ok(out)
+    gs_core::interpolate::blend_groups(a, b, t)
 }
 
 #[cfg(test)]

@@ -15,7 +15,6 @@
 //! - [`stylize`](mod@stylize): the video stylization run (`clipgaussian-video stylize`).
 //! - [`temporal`]: temporal consistency (frame-gap RMSE) for `eval`.
 //! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
-//! - [`video_output`]: the stylized frames, the animated preview and the mp4.
 
 pub mod fit;
 pub mod folded;
@@ -26,4 +25,3 @@ pub mod stylize;
 pub mod temporal;
 pub mod time;
 pub mod video_input;
-pub mod video_output;

@@ -31,8 +31,8 @@ use crate::fit::{fit, render_frames, training_targets, training_views, FitError,
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
 use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
-use crate::video_output::{
-    write_frames, write_mp4, write_preview_gif, VideoOutputError, FRAMES_DIR, PREVIEW_GIF,
+use gs_stylize::animation::{
+    write_frames, write_mp4, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
     STYLIZED_MP4,
 };
 
@@ -142,7 +142,7 @@ pub enum VideoError {
     Stylize(#[from] StylizeError),
     /// An output file.
     #[error("{0}")]
-    Output(#[from] VideoOutputError),
+    Output(#[from] AnimationError),
     /// Ctrl-C during the fit: nothing was written.
     #[error("interrupted while fitting the video; nothing was written")]
     InterruptedFit,

@@ -110,12 +110,12 @@ fn a_video_file_needs_ffmpeg_and_says_so() {
     assert!(e.to_string().contains("clip.mp4"), "{e}");
 }
 
-/// Where ffmpeg is installed: frames written as an mp4 (`video_output::write_mp4`) read back
+/// Where ffmpeg is installed: frames written as an mp4 (`gs_stylize::animation::write_mp4`) read back
 /// through ffmpeg with their count, size and frame rate. Where it is not, the mp4 is not
 /// written and says so (`Ok(false)`).
 #[test]
 fn frames_round_trip_through_an_mp4_when_ffmpeg_is_installed() {
-    use base_vegas::video_output::{write_frames, write_mp4};
+    use gs_stylize::animation::{write_frames, write_mp4};
     let dir = tempfile::tempdir().unwrap();
     let frames: Vec<Image> = (0..5)
         .map(|k| Image::filled(34, 20, [0.1 + 0.15 * k as f32, 0.5, 0.3]))

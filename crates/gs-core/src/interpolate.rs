@@ -12,6 +12,7 @@
 //! - Any finite `t` is allowed: `t` outside `[0, 1]` extrapolates (exaggerates or reverses the
 //!   difference between the sets), which is sometimes wanted. NaN or infinite `t` is an error.
 
+use crate::model::BaseModel;
 use crate::ply::PlyGaussians;
 use crate::GaussianSet;
 
@@ -96,6 +97,37 @@ pub fn interpolate(
         let norm = q.iter().map(|v| v * v).sum::<f32>().sqrt();
         if norm > 0.0 {
             q.iter_mut().for_each(|v| *v /= norm);
+        }
+    }
+    Ok(out)
+}
+
+/// `(1 - t) a + t b` of every parameter group of two models of one modality with groups of the
+/// same names and lengths (e.g. two stylizations of one fitted VeGaS or D-MiSo model: logits,
+/// logs, quaternion inputs and network weights are blended as stored), or an error naming the
+/// first group that differs.
+pub fn blend_groups<M: BaseModel + Clone>(a: &M, b: &M, t: f32) -> Result<M, String> {
+    if !t.is_finite() {
+        return Err(format!("the interpolation parameter t = {t} is not finite"));
+    }
+    let (names, lens) = (a.group_names(), a.group_lens());
+    if names != b.group_names() {
+        return Err(format!(
+            "groups {} against {}",
+            names.join(", "),
+            b.group_names().join(", ")
+        ));
+    }
+    for ((name, n), m) in names.iter().zip(&lens).zip(b.group_lens()) {
+        if *n != m {
+            return Err(format!("{name}: {n} values against {m}"));
+        }
+    }
+    let mut out = a.clone();
+    let mut b = b.clone();
+    for (x, y) in out.groups_mut().into_iter().zip(b.groups_mut()) {
+        for (v, w) in x.iter_mut().zip(y.iter()) {
+            *v = (1.0 - t) * *v + t * w;
         }
     }
     Ok(out)

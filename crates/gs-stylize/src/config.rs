@@ -130,6 +130,23 @@ impl StyleSettings {
         }
     }
 
+    /// The paper's 4D (D-MiSo) settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 0
+    /// (500 where the background must stay), feature_lr 0.025 (the sub-Gaussians' SH, every
+    /// degree), and D-MiSo's stylization rates: the triangles' vertices (the "means")
+    /// `1e-5 extent -> 1e-6 extent` over 5000 steps, opacity 0.05, scales 0.001, rotations
+    /// 0.001.
+    pub fn paper_4d() -> Self {
+        Self {
+            lambda_background: 0.0,
+            feature_lr: 0.025,
+            means_lr_start: 1e-5,
+            means_lr_end: 1e-6,
+            means_lr_steps: 5000,
+            scales_lr: 0.001,
+            ..Self::paper_3d()
+        }
+    }
+
     /// The paper's video (VeGaS) settings (method.md), no style yet: lambdas 5 / 90 / 0.5 / 0,
     /// feature_lr 0.02 (colours only: a modality freezes every other group).
     pub fn paper_video() -> Self {

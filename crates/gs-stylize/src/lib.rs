@@ -16,6 +16,7 @@
 //! - [`weights`]: finding the CLIP, tokenizer and VGG-19 files, errors naming their flags.
 //! - [`writable`]: checking before any work that every output can be written.
 
+pub mod animation;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;

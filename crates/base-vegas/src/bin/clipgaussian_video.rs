@@ -18,12 +18,12 @@ use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{fit_with_progress, run, VideoError, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
 use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
-use base_vegas::video_output::{
-    write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
-};
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::DeviceChoice;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_stylize::animation::{
+    write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
+};
 use gs_stylize::cli::{exit_code, path_value, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score, ClipFiles, Style};
 use gs_stylize::interrupt::stop_on_ctrl_c;

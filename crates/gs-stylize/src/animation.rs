@@ -1,6 +1,7 @@
-//! A stylized video's files: its frames as PNG, an animated GIF preview (original beside
-//! stylized, written in Rust), and an mp4 through the `ffmpeg` program when it is installed.
-//! Each is written under a temporary name and renamed, so a failure leaves nothing half made.
+//! The files of a stylized sequence of frames (a video's frames, a dynamic scene seen through
+//! time): the frames as PNG, an animated GIF preview (original beside stylized, written in
+//! Rust), and an mp4 through the `ffmpeg` program when it is installed. Each is written under a
+//! temporary name and renamed, so a failure leaves nothing half made.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -22,15 +23,15 @@ pub const PREVIEW_MAX_WIDTH: u32 = 960;
 /// Why an output could not be written.
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {message}", path.display())]
-pub struct VideoOutputError {
+pub struct AnimationError {
     /// The file or folder.
     pub path: PathBuf,
     /// What went wrong.
     pub message: String,
 }
 
-fn error(path: &Path, message: impl ToString) -> VideoOutputError {
-    VideoOutputError {
+fn error(path: &Path, message: impl ToString) -> AnimationError {
+    AnimationError {
         path: path.to_path_buf(),
         message: message.to_string(),
     }
@@ -43,7 +44,7 @@ pub fn frame_name(index: usize) -> String {
 
 /// Writes `frames` as `dir/00000.png, ...`: into `<dir>.tmp` first, then renamed over `dir`
 /// (a `dir` of an earlier run is replaced).
-pub fn write_frames(dir: &Path, frames: &[Image]) -> Result<(), VideoOutputError> {
+pub fn write_frames(dir: &Path, frames: &[Image]) -> Result<(), AnimationError> {
     let tmp = gs_core::fs::temporary_path(dir);
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| error(&tmp, e))?;
@@ -67,7 +68,7 @@ pub fn write_preview_gif(
     originals: &[Image],
     stylized: &[Image],
     fps: f64,
-) -> Result<(), VideoOutputError> {
+) -> Result<(), AnimationError> {
     let delay_ms = (1000.0 / fps.max(1e-3)).round().clamp(10.0, 60_000.0) as u32;
     let mut bytes = Vec::new();
     {
@@ -99,7 +100,7 @@ pub fn write_preview_gif(
 /// `path` (H.264, even-sized, `yuv420p` for any player) with `ffmpeg`: `Ok(false)` when
 /// `ffmpeg` is not installed (an older file at `path` is then removed, so that it cannot be
 /// taken for this video's), an error with its message when it fails.
-pub fn write_mp4(frames_dir: &Path, fps: f64, path: &Path) -> Result<bool, VideoOutputError> {
+pub fn write_mp4(frames_dir: &Path, fps: f64, path: &Path) -> Result<bool, AnimationError> {
     let tmp = gs_core::fs::temporary_path(path).with_extension("tmp.mp4");
     let out = Command::new("ffmpeg")
         .args(["-nostdin", "-y", "-v", "error", "-framerate"])

@@ -1,0 +1,513 @@
+//! `clipgaussian-4d`: CLIPGaussian on dynamic scenes (D-NeRF datasets), held as D-MiSo models.
+//!
+//! - `stylize`: fits a scene (or takes a fitted model, ours or the authors') and stylizes it with
+//!   a text or picture style. Ctrl-C stops after the current step and writes a checkpoint.
+//! - `fit`: fits a scene and writes its model.
+//! - `render`: renders a model at a dataset's views and times, or through time from one camera.
+//! - `interpolate`: blends two models of the same cores (Gaussians and network weights).
+//! - `eval`: the paper's CLIP metrics of rendered test views, in time order.
+
+use std::error::Error;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use base_dmiso::fit::{mean_psnr, render_views, FitSettings};
+use base_dmiso::model_file;
+use base_dmiso::stylize::{
+    fit_with_progress, load_scene, read_model, run, sweep_views, DynamicError,
+    DynamicStylizeConfig, MODEL_FILE, SWEEP_DIR, SWEEP_MP4, TEST_DIR,
+};
+use base_dmiso::{interpolate, Dmiso};
+use candle_core::Device;
+use clap::{Args, Parser, Subcommand};
+use gs_core::backend::DeviceChoice;
+use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
+use gs_core::dataset::{Background, LoadOptions};
+use gs_core::Image;
+use gs_stylize::animation::{write_frames, write_mp4, FRAMES_DIR};
+use gs_stylize::cli::{exit_code, path_value, StyleArgs};
+use gs_stylize::evaluation::{check_prompts, resolve_clip, score, ClipFiles, Style};
+use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::writable::{check_output_file, check_output_folder};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use style_loss::compute_device;
+use style_loss::image_layout::hwc_to_tensor;
+
+/// Command-line arguments.
+#[derive(Parser, Debug)]
+#[command(
+    name = "clipgaussian-4d",
+    version,
+    about = "CLIPGaussian on dynamic scenes (D-MiSo): stylize, fit, render, interpolate, eval"
+)]
+struct Cli {
+    /// What to do.
+    #[command(subcommand)]
+    command: Command,
+}
+
+/// The subcommands.
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Stylize a dynamic scene with a text or picture style.
+    ///
+    /// Fits the D-NeRF scene first unless --model gives a fitted one (our model.safetensors, or
+    /// the folder D-MiSo's train.py wrote), then stylizes it with the paper's 4D settings
+    /// (configs/4d.json; configs/4d-keep-background.json keeps the background): batches of 4
+    /// consecutive views, the sub-Gaussians, triangles, deformation network and time-rotation
+    /// layer trained together. Writes to --out: model.safetensors, base.safetensors (the fit,
+    /// when this run fitted), test/ (the test views at their times), sweep/ with preview.gif
+    /// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), losses.json,
+    /// losses.png, config.json and checkpoint/. The configuration comes from --config (the
+    /// paper's defaults when absent), then the flags, then every --set field=value in order.
+    /// Ctrl-C stops after the current step and writes a checkpoint; run the same command with
+    /// --resume to continue.
+    Stylize(Box<StylizeArgs>),
+    /// Fit a D-NeRF scene with D-MiSo (no stylization).
+    ///
+    /// Writes to --out: model.safetensors and test/ (the test views at their times), and prints
+    /// the mean PSNR over the test views.
+    Fit(FitArgs),
+    /// Render a model at the views and times of a dataset split, and optionally through time
+    /// from the split's first camera (sweep/ and, with ffmpeg, sweep.mp4).
+    Render(RenderArgs),
+    /// Interpolate two models of the same cores parameter by parameter: `(1 - t) A + t B` of
+    /// every Gaussian parameter and every network weight, e.g. between two stylizations of one
+    /// fit.
+    Interpolate(InterpolateArgs),
+    /// Score rendered test views against the dataset's test pictures: CLIP-S, CLIP-SIM,
+    /// CLIP-CONS and CLIP-F over the views in time order (CLIP ViT-L/14, x100).
+    Eval(EvalArgs),
+}
+
+/// Arguments of `stylize`.
+#[derive(Args, Debug)]
+struct StylizeArgs {
+    /// JSON configuration (configs/4d.json is the paper's).
+    #[arg(long)]
+    config: Option<PathBuf>,
+    /// The D-NeRF scene folder (transforms_train.json and transforms_test.json with a time per
+    /// frame, RGBA pictures).
+    #[arg(long)]
+    data: Option<PathBuf>,
+    /// A fitted model: a .safetensors file from `fit`/`stylize`, or the folder D-MiSo's train.py
+    /// wrote (-m); default: fit first.
+    #[arg(long)]
+    model: Option<PathBuf>,
+    /// The iteration of an authors' model folder to read (best, or a number); default: best,
+    /// else the highest.
+    #[arg(long)]
+    iteration: Option<String>,
+    /// The output folder (created when absent).
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// Consecutive views per step, their losses averaged (the paper: 4).
+    #[arg(long)]
+    batch_size: Option<usize>,
+    /// Random starting points of the fit.
+    #[arg(long)]
+    points: Option<usize>,
+    /// Steps of the fit.
+    #[arg(long)]
+    fit_steps: Option<u64>,
+    /// The style, model files, device and run controls; `--resume` also reuses
+    /// `<out>/base.safetensors`.
+    #[command(flatten)]
+    style: StyleArgs,
+}
+
+/// Arguments of `fit`.
+#[derive(Args, Debug)]
+struct FitArgs {
+    /// The D-NeRF scene folder.
+    #[arg(long)]
+    data: PathBuf,
+    /// The output folder (created after the fit; files of the same names are replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Random starting points (cores).
+    #[arg(long, default_value_t = FitSettings::default().points)]
+    points: usize,
+    /// Optimizer steps of the whole fit.
+    #[arg(long, default_value_t = FitSettings::default().steps)]
+    steps: u64,
+    /// Steps of the static warm-up.
+    #[arg(long, default_value_t = FitSettings::default().warm_up)]
+    warm_up: u64,
+    /// The step at which the sub-Gaussians are created.
+    #[arg(long, default_value_t = FitSettings::default().subs_from)]
+    subs_from: u64,
+    /// Cores kept with sub-Gaussians.
+    #[arg(long, default_value_t = FitSettings::default().sub_cores)]
+    sub_cores: usize,
+    /// Sub-Gaussians per core.
+    #[arg(long, default_value_t = FitSettings::default().subs_per_core)]
+    subs_per_core: usize,
+    /// Views per step.
+    #[arg(long, default_value_t = FitSettings::default().batch)]
+    batch: usize,
+    /// Width of the deformation network.
+    #[arg(long, default_value_t = FitSettings::default().deform_width)]
+    deform_width: usize,
+    /// Seed of the starting model, the cores drawn and the view order.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Composite the pictures over black (default: white, D-MiSo's -w).
+    #[arg(long)]
+    black_background: bool,
+    /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// Arguments of `render`.
+#[derive(Args, Debug)]
+struct RenderArgs {
+    /// The model: a .safetensors file, or the folder D-MiSo's train.py wrote.
+    #[arg(long)]
+    model: PathBuf,
+    /// The iteration of an authors' model folder (best, or a number).
+    #[arg(long)]
+    iteration: Option<String>,
+    /// The D-NeRF scene whose cameras and times to render.
+    #[arg(long)]
+    data: PathBuf,
+    /// The split: test, train or val.
+    #[arg(long, default_value = "test", value_parser = parse_split)]
+    split: Split,
+    /// Frames of a sweep through time from the split's first camera (0: none).
+    #[arg(long, default_value_t = 0)]
+    sweep: usize,
+    /// Frame rate of the sweep's mp4.
+    #[arg(long, default_value_t = 24.0)]
+    fps: f64,
+    /// Render over black (default: white).
+    #[arg(long)]
+    black_background: bool,
+    /// Where to render: cpu, gpu, or auto.
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    device: DeviceChoice,
+    /// The output folder (frames/ and, with --sweep, sweep/ and sweep.mp4 in it).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `interpolate`.
+#[derive(Args, Debug)]
+struct InterpolateArgs {
+    /// The first model (t = 0): a .safetensors file or an authors' folder.
+    #[arg(long)]
+    a: PathBuf,
+    /// The second model (t = 1), of the same cores, sub-Gaussians and network.
+    #[arg(long)]
+    b: PathBuf,
+    /// The interpolation parameter; values outside [0, 1] extrapolate.
+    #[arg(long, allow_negative_numbers = true)]
+    t: f32,
+    /// The output model (.safetensors).
+    #[arg(long)]
+    out: PathBuf,
+}
+
+/// Arguments of `eval`.
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// The rendered test views (e.g. `<stylize out>/test`): 00000.png ... in the order of
+    /// transforms_test.json.
+    #[arg(long)]
+    renders: PathBuf,
+    /// The D-NeRF scene (its test split is the reference).
+    #[arg(long)]
+    data: PathBuf,
+    /// The style prompt (exactly one of --style-prompt and --style-image).
+    #[arg(long)]
+    style_prompt: Option<String>,
+    /// The style picture.
+    #[arg(long)]
+    style_image: Option<PathBuf>,
+    /// The neutral prompt of CLIP-SIM (the training source prompt).
+    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
+    source_prompt: String,
+    /// Composite the test pictures over black (default: white).
+    #[arg(long)]
+    black_background: bool,
+    /// CLIP config.json (default ViT-L/14).
+    #[arg(long)]
+    clip_config: Option<PathBuf>,
+    /// CLIP weights (default ViT-L/14 from the Hugging Face cache).
+    #[arg(long)]
+    clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json.
+    #[arg(long)]
+    tokenizer: Option<PathBuf>,
+    /// Where to write the scores as JSON (printed too).
+    #[arg(long)]
+    out: Option<PathBuf>,
+}
+
+/// `test`, `train` or `val`.
+fn parse_split(text: &str) -> Result<Split, String> {
+    match text {
+        "test" => Ok(Split::Test),
+        "train" => Ok(Split::Train),
+        "val" => Ok(Split::Val),
+        other => Err(format!("{other:?} is not one of test, train, val")),
+    }
+}
+
+fn background(black: bool) -> Background {
+    if black {
+        Background::Black
+    } else {
+        Background::White
+    }
+}
+
+/// The candle device of the deformation network for `choice` (the style loss's).
+fn net_device(choice: DeviceChoice) -> Result<Device, Box<dyn Error>> {
+    Ok(compute_device::open_for(choice)?.0)
+}
+
+/// Runs `stylize`.
+fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let overrides: Vec<Override> = args.style.overrides(vec![
+        ("data", path_value(&args.data)),
+        ("model", path_value(&args.model)),
+        ("iteration", args.iteration.clone().map(Into::into)),
+        ("out", path_value(&args.out)),
+        ("batch_size", args.batch_size.map(Into::into)),
+        ("fit_points", args.points.map(Into::into)),
+        ("fit_steps", args.fit_steps.map(Into::into)),
+    ])?;
+    let config: DynamicStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
+    let summary = run(&config, &args.style.run_options()?)?;
+    let out = config.out.as_deref().expect("run checked out");
+    println!(
+        "wrote {} ({} cores of {} sub-Gaussians), {} test views to {}, {} sweep frames to {}{}",
+        out.join(MODEL_FILE).display(),
+        summary.model.cores(),
+        summary.model.subs_per_core(),
+        summary.test_renders.len(),
+        out.join(TEST_DIR).display(),
+        summary.sweep.len(),
+        out.join(SWEEP_DIR).display(),
+        if summary.wrote_mp4 {
+            format!(" and {}", out.join(SWEEP_MP4).display())
+        } else {
+            " (no mp4: ffmpeg is not installed)".into()
+        },
+    );
+    Ok(())
+}
+
+/// Runs `fit`.
+fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
+    let bg = background(args.black_background);
+    let settings = FitSettings {
+        points: args.points,
+        steps: args.steps,
+        warm_up: args.warm_up,
+        subs_from: args.subs_from,
+        sub_cores: args.sub_cores,
+        subs_per_core: args.subs_per_core,
+        batch: args.batch,
+        deform_width: args.deform_width,
+        seed: args.seed,
+        background: bg.rgb(),
+        ..FitSettings::default()
+    };
+    settings.check()?;
+    let (train, test) = load_scene(&args.data, bg)?;
+    let options = RunOptions {
+        resume: false,
+        progress: !args.quiet,
+        stop: stop_on_ctrl_c()?,
+    };
+    let backend = open_device(args.device)?;
+    let device = net_device(args.device)?;
+    let start = Instant::now();
+    let mut model = fit_with_progress(&train, &settings, &options, &backend, &device)?;
+    let seconds = start.elapsed().as_secs_f64();
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    model_file::save(&model, &args.out.join(MODEL_FILE))?;
+    let (views, images, which) = match &test {
+        Some(test) => (&test.views, &test.images, "test"),
+        None => (&train.views, &train.images, "training"),
+    };
+    let renders = render_views(&mut model, views, bg.rgb(), &backend)?;
+    write_frames(&args.out.join(TEST_DIR), &renders)?;
+    println!(
+        "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, mean PSNR \
+         {:.2} dB over the {which} views; wrote {}",
+        args.data.display(),
+        train.views.len(),
+        model.cores(),
+        model.subs_per_core(),
+        mean_psnr(&renders, images),
+        args.out.display()
+    );
+    Ok(())
+}
+
+/// Runs `render`.
+fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_output_folder(&args.out)?;
+    if !(args.fps.is_finite() && args.fps > 0.0) {
+        return Err(format!("--fps {} must be positive", args.fps).into());
+    }
+    let bg = background(args.black_background);
+    let options = LoadOptions {
+        background: bg,
+        downscale: 1,
+    };
+    let split = load_with_times(&args.data, args.split, &options)?;
+    let backend = open_device(args.device)?;
+    let mut model = read_model(
+        &args.model,
+        args.iteration.as_deref(),
+        &net_device(args.device)?,
+    )?;
+    let renders = render_views(&mut model, &split.views, bg.rgb(), &backend)?;
+    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    write_frames(&args.out.join(FRAMES_DIR), &renders)?;
+    let mut line = format!(
+        "wrote {} views to {} (mean PSNR {:.2} dB against the pictures)",
+        renders.len(),
+        args.out.join(FRAMES_DIR).display(),
+        mean_psnr(&renders, &split.images)
+    );
+    if args.sweep > 0 {
+        let views = sweep_views(&split.views[0].camera, args.sweep);
+        let sweep = render_views(&mut model, &views, bg.rgb(), &backend)?;
+        let dir = args.out.join(SWEEP_DIR);
+        write_frames(&dir, &sweep)?;
+        let mp4 = write_mp4(&dir, args.fps, &args.out.join(SWEEP_MP4))?;
+        line += &format!(
+            ", {} sweep frames to {}{}",
+            sweep.len(),
+            dir.display(),
+            if mp4 {
+                " and sweep.mp4"
+            } else {
+                " (no mp4: ffmpeg is not installed)"
+            }
+        );
+    }
+    println!("{line}");
+    Ok(())
+}
+
+/// Runs `interpolate`.
+fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    check_output_file(&args.out)?;
+    let read =
+        |p: &Path| -> Result<Dmiso, Box<dyn Error>> { Ok(read_model(p, None, &Device::Cpu)?) };
+    let (a, b) = (read(&args.a)?, read(&args.b)?);
+    let blended = interpolate(&a, &b, args.t)
+        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    model_file::save(&blended, &args.out)?;
+    println!("wrote {} (t = {})", args.out.display(), args.t);
+    Ok(())
+}
+
+/// The pictures `00000.png ...` of `dir`, `count` of them.
+fn read_renders(dir: &Path, count: usize) -> Result<Vec<Image>, Box<dyn Error>> {
+    (0..count)
+        .map(|i| {
+            let path = dir.join(format!("{i:05}.png"));
+            Image::load(&path, [0.0; 3]).map_err(|e| format!("{}: {e}", path.display()).into())
+        })
+        .collect()
+}
+
+/// Runs `eval`.
+fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(out) = &args.out {
+        check_output_file(out)?;
+    }
+    let style = match (&args.style_prompt, &args.style_image) {
+        (Some(p), None) => Style::Prompt(p.clone()),
+        (None, Some(i)) => Style::Image(i.clone()),
+        _ => return Err("give exactly one of --style-prompt and --style-image".into()),
+    };
+    check_prompts(&style, &args.source_prompt)?;
+    let bg = background(args.black_background);
+    let options = LoadOptions {
+        background: bg,
+        downscale: 1,
+    };
+    let test = load_with_times(&args.data, Split::Test, &options)?;
+    let renders = read_renders(&args.renders, test.views.len())?;
+    if let Some((i, r)) = renders
+        .iter()
+        .enumerate()
+        .find(|(i, r)| (r.width, r.height) != (test.images[*i].width, test.images[*i].height))
+    {
+        return Err(format!(
+            "{}: render {i} is {}x{}, its test picture {}x{}",
+            args.renders.display(),
+            r.width,
+            r.height,
+            test.images[i].width,
+            test.images[i].height
+        )
+        .into());
+    }
+    // Consecutive pairs in time order.
+    let mut order: Vec<usize> = (0..test.views.len()).collect();
+    order.sort_by(|&a, &b| test.views[a].time.total_cmp(&test.views[b].time));
+    let clip = resolve_clip(&ClipFiles {
+        config: args.clip_config.clone(),
+        weights: args.clip_weights.clone(),
+        tokenizer: args.tokenizer.clone(),
+    })?;
+    let tensors = |images: &[Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
+        order
+            .iter()
+            .map(|&i| {
+                let f = &images[i];
+                let (h, w) = (f.height as usize, f.width as usize);
+                Ok(hwc_to_tensor(&f.data, h, w, &Device::Cpu)?)
+            })
+            .collect()
+    };
+    let metrics = score(
+        &clip,
+        &tensors(&renders)?,
+        &tensors(&test.images)?,
+        &style,
+        &args.source_prompt,
+        bg.rgb(),
+    )?;
+    let text = serde_json::to_string_pretty(&metrics)?;
+    println!("{text}");
+    if let Some(out) = &args.out {
+        gs_core::fs::write_atomic(out, (text + "\n").as_bytes())
+            .map_err(|e| format!("{}: {e}", out.display()))?;
+    }
+    Ok(())
+}
+
+fn main() -> ExitCode {
+    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
+    style_loss::memory::keep_freed_memory();
+    let cli = Cli::parse();
+    let result = match &cli.command {
+        Command::Stylize(args) => stylize(args),
+        Command::Fit(args) => fit(args),
+        Command::Render(args) => render(args),
+        Command::Interpolate(args) => interpolate_models(args),
+        Command::Eval(args) => eval(args),
+    };
+    exit_code(result, |e| {
+        matches!(
+            e.downcast_ref::<DynamicError>(),
+            Some(DynamicError::InterruptedFit)
+        )
+    })
+}

@@ -1,0 +1,494 @@
+//! Dynamic-scene stylization (CLIPGaussian on D-MiSo): a D-NeRF scene, fitted first unless a
+//! fitted model is given (ours, or one the authors' code saved), is stylized with the paper's 4D
+//! settings (`configs/4d.json`; `configs/4d-keep-background.json` adds the background term):
+//! batches of 4 consecutive training views with their losses averaged, the sub-Gaussians, the
+//! triangles, the deformation network and the time-rotation layer trained together.
+//!
+//! Every input (configuration, output folder and checkpoint, dataset, model, patch size, style
+//! image, CLIP configuration, weight files) is checked before the fit. Outputs in `out`:
+//! - `model.safetensors`: the stylized model, to stylize again, render or interpolate;
+//! - `base.safetensors`: the fitted model when this run fitted it (a resumed run reuses it);
+//! - `test/00000.png ...`: the test views at their times, when the scene has a test split;
+//! - `sweep/00000.png ...`, `preview.gif` (original | stylized) and `sweep.mp4` (with
+//!   `ffmpeg`): the scene through time from its first test camera (else its first camera);
+//! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
+
+use std::path::{Path, PathBuf};
+
+use candle_core::Device;
+use gs_core::adam::{GroupConfig, LrSchedule};
+use gs_core::backend::Backend;
+use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
+use gs_core::dataset::{Background, Dataset, DatasetError, LoadOptions};
+use gs_core::model::View;
+use gs_core::train::BatchOrder;
+use gs_core::Image;
+use gs_stylize::animation::{
+    write_frames, write_mp4, write_preview_gif, AnimationError, PREVIEW_GIF,
+};
+use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::progress::with_progress;
+use gs_stylize::run::check_patches_fit;
+use gs_stylize::{prepare, Batches, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use serde::{Deserialize, Serialize};
+
+use crate::fit::{fit, render_views, FitError, FitSettings};
+use crate::model::{Dmiso, GROUP_NAMES};
+use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
+
+/// The stylized model.
+pub const MODEL_FILE: &str = "model.safetensors";
+/// The model fitted by this run.
+pub const BASE_FILE: &str = "base.safetensors";
+/// The renders of the test views.
+pub const TEST_DIR: &str = "test";
+/// The frames of the sweep through time.
+pub const SWEEP_DIR: &str = "sweep";
+/// The sweep as a video, when `ffmpeg` is installed.
+pub const SWEEP_MP4: &str = "sweep.mp4";
+
+/// Everything a dynamic-scene stylization needs (a flat JSON object: `configs/4d.json`). The
+/// defaults are the paper's 4D settings ([`StyleSettings::paper_4d`]) and D-MiSo's.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct DynamicStylizeConfig {
+    /// The D-NeRF scene: `transforms_train.json` (and `transforms_test.json`), every frame
+    /// with a `time` in `[0, 1]`.
+    pub data: Option<PathBuf>,
+    /// A fitted model: our `.safetensors` file, or the folder D-MiSo's `train.py` wrote; none:
+    /// fit one first.
+    pub model: Option<PathBuf>,
+    /// The iteration of the authors' folder to read (`best`, or a number); none: `best`, else
+    /// the highest.
+    pub iteration: Option<String>,
+    /// The output folder.
+    pub out: Option<PathBuf>,
+    /// Composite the pictures over white (D-MiSo's `-w`, CLIPGaussian's 4D examples) rather
+    /// than black.
+    pub white_background: bool,
+    /// Consecutive training views per step, their losses averaged.
+    pub batch_size: usize,
+    /// Learning rate of the sub-Gaussians' offsets.
+    pub alpha_lr: f64,
+    /// Learning rate of the deformation network at step 0.
+    pub deform_lr_start: f64,
+    /// Learning rate of the deformation network at the end of its decay.
+    pub deform_lr_end: f64,
+    /// Length of the deformation network's decay, steps.
+    pub deform_lr_steps: u64,
+    /// Learning rate of the time-rotation layer.
+    pub time_net_lr: f64,
+    /// Frames of the sweep through time.
+    pub sweep_frames: usize,
+    /// Frame rate of the sweep's preview and video.
+    pub sweep_fps: f64,
+    /// The fit (when no model is given).
+    pub fit_points: usize,
+    /// Steps of the fit.
+    pub fit_steps: u64,
+    /// Static warm-up steps of the fit.
+    pub fit_warm_up: u64,
+    /// The fit's step at which the sub-Gaussians are created.
+    pub fit_subs_from: u64,
+    /// Cores kept with sub-Gaussians.
+    pub fit_sub_cores: usize,
+    /// Sub-Gaussians per core.
+    pub fit_subs_per_core: usize,
+    /// Views per step of the fit.
+    pub fit_batch: usize,
+    /// Width of the fitted deformation network.
+    pub deform_width: usize,
+    /// The style, the losses, the Gaussians' learning rates and the model files.
+    #[serde(flatten)]
+    pub style: StyleSettings,
+}
+
+impl Default for DynamicStylizeConfig {
+    fn default() -> Self {
+        let fit = FitSettings::default();
+        Self {
+            data: None,
+            model: None,
+            iteration: None,
+            out: None,
+            white_background: true,
+            batch_size: 4,
+            alpha_lr: 1e-5,
+            deform_lr_start: 5e-5,
+            deform_lr_end: 1e-6,
+            deform_lr_steps: 5000,
+            time_net_lr: 0.1,
+            sweep_frames: 60,
+            sweep_fps: 24.0,
+            fit_points: fit.points,
+            fit_steps: fit.steps,
+            fit_warm_up: fit.warm_up,
+            fit_subs_from: fit.subs_from,
+            fit_sub_cores: fit.sub_cores,
+            fit_subs_per_core: fit.subs_per_core,
+            fit_batch: fit.batch,
+            deform_width: fit.deform_width,
+            style: StyleSettings::paper_4d(),
+        }
+    }
+}
+
+impl DynamicStylizeConfig {
+    /// The background colour.
+    pub fn background(&self) -> Background {
+        if self.white_background {
+            Background::White
+        } else {
+            Background::Black
+        }
+    }
+
+    /// The fit this configuration asks for.
+    pub fn fit_settings(&self) -> FitSettings {
+        FitSettings {
+            points: self.fit_points,
+            steps: self.fit_steps,
+            warm_up: self.fit_warm_up,
+            subs_from: self.fit_subs_from,
+            sub_cores: self.fit_sub_cores,
+            subs_per_core: self.fit_subs_per_core,
+            batch: self.fit_batch,
+            deform_width: self.deform_width,
+            seed: self.style.seed,
+            background: self.background().rgb(),
+            ..FitSettings::default()
+        }
+    }
+
+    /// Checks the fields of this configuration that gs-stylize does not.
+    fn check(&self) -> Result<(), DynamicError> {
+        let bad = |m: String| Err(DynamicError::Config(m));
+        if self.batch_size == 0 {
+            return bad("batch_size: must be at least 1".into());
+        }
+        for (name, v) in [
+            ("alpha_lr", self.alpha_lr),
+            ("deform_lr_start", self.deform_lr_start),
+            ("deform_lr_end", self.deform_lr_end),
+            ("time_net_lr", self.time_net_lr),
+        ] {
+            if !(v.is_finite() && v >= 0.0) {
+                return bad(format!("{name}: {v} must be a finite rate, 0 or more"));
+            }
+        }
+        if !(self.sweep_fps.is_finite() && self.sweep_fps > 0.0) {
+            return bad(format!("sweep_fps: {} must be positive", self.sweep_fps));
+        }
+        Ok(())
+    }
+}
+
+/// The optimizer groups of a stylization of a scene of extent `extent` (in [`GROUP_NAMES`]
+/// order): triangles from the "means" rates times the extent, offsets `alpha_lr`, log-scales
+/// `scales_lr`, quaternions `rotations_lr`, opacity `opacity_lr`, SH of every degree
+/// `feature_lr`, the network `deform_lr_start -> deform_lr_end`, the time-rotation layer
+/// `time_net_lr`.
+pub fn stylize_groups(config: &DynamicStylizeConfig, extent: f64) -> Vec<GroupConfig> {
+    let s = &config.style;
+    let constant = LrSchedule::Constant;
+    let rates = [
+        LrSchedule::Exponential {
+            start: s.means_lr_start * extent,
+            end: s.means_lr_end * extent,
+            steps: s.means_lr_steps,
+        },
+        constant(config.alpha_lr),
+        constant(s.scales_lr),
+        constant(s.rotations_lr),
+        constant(s.opacity_lr),
+        constant(s.feature_lr),
+        constant(s.feature_lr),
+        LrSchedule::Exponential {
+            start: config.deform_lr_start,
+            end: config.deform_lr_end,
+            steps: config.deform_lr_steps,
+        },
+        constant(config.time_net_lr),
+    ];
+    GROUP_NAMES
+        .iter()
+        .zip(rates)
+        .map(|(name, rate)| GroupConfig::new(*name, rate))
+        .collect()
+}
+
+/// Why a dynamic-scene run could not run; each names the file or field at fault.
+#[derive(Debug, thiserror::Error)]
+pub enum DynamicError {
+    /// A configuration value out of its range.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// The dataset.
+    #[error("{0}")]
+    Dataset(#[from] DatasetError),
+    /// A model file.
+    #[error("{0}")]
+    Model(#[from] ModelFileError),
+    /// The fit.
+    #[error("{0}")]
+    Fit(#[from] FitError),
+    /// The stylization.
+    #[error("{0}")]
+    Stylize(#[from] StylizeError),
+    /// An output file.
+    #[error("{0}")]
+    Output(#[from] AnimationError),
+    /// Ctrl-C during the fit: nothing was written.
+    #[error("interrupted while fitting the scene; nothing was written")]
+    InterruptedFit,
+}
+
+/// What a finished run produced.
+#[derive(Clone, Debug)]
+pub struct DynamicSummary {
+    /// The stylized model.
+    pub model: Dmiso,
+    /// The renders of the test views (empty without a test split).
+    pub test_renders: Vec<Image>,
+    /// The frames of the sweep through time.
+    pub sweep: Vec<Image>,
+    /// Whether `sweep.mp4` was written (ffmpeg installed).
+    pub wrote_mp4: bool,
+}
+
+/// The training and (when present) test splits of the D-NeRF scene in `data`.
+pub fn load_scene(
+    data: &Path,
+    background: Background,
+) -> Result<(Dataset, Option<Dataset>), DatasetError> {
+    let options = LoadOptions {
+        background,
+        downscale: 1,
+    };
+    let train = load_with_times(data, Split::Train, &options)?;
+    let test = if data.join(Split::Test.file_name()).is_file() {
+        let test = load_with_times(data, Split::Test, &options)?;
+        let (tw, th) = (train.images[0].width, train.images[0].height);
+        if let Some((i, image)) = test
+            .images
+            .iter()
+            .enumerate()
+            .find(|(_, im)| (im.width, im.height) != (tw, th))
+        {
+            return Err(DatasetError::ImageSize {
+                path: test.image_paths[i].clone(),
+                expected: (tw, th),
+                found: (image.width, image.height),
+            });
+        }
+        Some(test)
+    } else {
+        None
+    };
+    Ok((train, test))
+}
+
+/// Reads a model: our file, or the folder the authors' code saved (at `iteration`).
+pub fn read_model(
+    path: &Path,
+    iteration: Option<&str>,
+    device: &Device,
+) -> Result<Dmiso, ModelFileError> {
+    if path.is_dir() {
+        read_authors(&AuthorsFiles::find(path, iteration)?, device)
+    } else {
+        model_file::load(path, device)
+    }
+}
+
+/// `frames` views from `camera` at times evenly spread over `[0, 1]`.
+pub fn sweep_views(camera: &gs_core::Camera, frames: usize) -> Vec<View> {
+    (0..frames)
+        .map(|i| View {
+            camera: camera.clone(),
+            time: if frames > 1 {
+                i as f64 / (frames - 1) as f64
+            } else {
+                0.0
+            },
+        })
+        .collect()
+}
+
+/// Runs the stylization `config` describes (see the module documentation).
+pub fn run(
+    config: &DynamicStylizeConfig,
+    options: &RunOptions,
+) -> Result<DynamicSummary, DynamicError> {
+    config.check()?;
+    let out = config
+        .out
+        .as_deref()
+        .ok_or_else(|| DynamicError::Config("out: is required".into()))?;
+    let data = config
+        .data
+        .as_deref()
+        .ok_or_else(|| DynamicError::Config("data: is required (a D-NeRF scene folder)".into()))?;
+    let prepared = prepare(&config.style, out, options.clone())?;
+    let backend = prepared.backend();
+    let device = prepared.loss_device().clone();
+    let background = config.background();
+    let (train, test) = load_scene(data, background)?;
+    let labels: Vec<String> = train
+        .image_paths
+        .iter()
+        .map(|p| p.display().to_string())
+        .collect();
+    check_patches_fit(&config.style, &train.images[..1], &labels[..1])?;
+    if config.batch_size > train.views.len() {
+        return Err(DynamicError::Config(format!(
+            "batch_size: {} is more than the {} training views",
+            config.batch_size,
+            train.views.len()
+        )));
+    }
+    let base_file = out.join(BASE_FILE);
+    let model = match &config.model {
+        Some(path) => read_model(path, config.iteration.as_deref(), &device)?,
+        None if options.resume && base_file.exists() => model_file::load(&base_file, &device)?,
+        None => {
+            let model =
+                fit_with_progress(&train, &config.fit_settings(), options, backend, &device)?;
+            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
+                path: out.to_path_buf(),
+                source,
+            })?;
+            model_file::save(&model, &base_file)?;
+            model
+        }
+    };
+    let base = model.clone();
+    let masks = train
+        .masks
+        .iter()
+        .map(|m| m.as_ref().map(|m| m.data.clone()))
+        .collect::<Option<Vec<_>>>();
+    let job = StylizeJob {
+        groups: stylize_groups(config, train.extent),
+        model,
+        views: train.views.clone(),
+        images: train.images.clone(),
+        labels,
+        masks,
+        background: background.rgb(),
+        batches: Batches {
+            size: config.batch_size,
+            order: BatchOrder::Consecutive,
+        },
+    };
+    let outcome = prepared.stylize(config, job)?;
+    let mut model = outcome.model;
+    model_file::save(&model, &out.join(MODEL_FILE))?;
+    let test_renders = match &test {
+        Some(test) => {
+            let renders = render_views(&mut model, &test.views, background.rgb(), backend)?;
+            write_frames(&out.join(TEST_DIR), &renders)?;
+            renders
+        }
+        None => Vec::new(),
+    };
+    let camera = &test.as_ref().unwrap_or(&train).views[0].camera;
+    let views = sweep_views(camera, config.sweep_frames.max(1));
+    let sweep = render_views(&mut model, &views, background.rgb(), backend)?;
+    let mut base = base;
+    let original = render_views(&mut base, &views, background.rgb(), backend)?;
+    let sweep_dir = out.join(SWEEP_DIR);
+    write_frames(&sweep_dir, &sweep)?;
+    write_preview_gif(&out.join(PREVIEW_GIF), &original, &sweep, config.sweep_fps)?;
+    // The renders and the model are the results; a failed mp4 is reported, not fatal.
+    let wrote_mp4 = match write_mp4(&sweep_dir, config.sweep_fps, &out.join(SWEEP_MP4)) {
+        Ok(wrote) => wrote,
+        Err(e) => {
+            eprintln!("warning: {e}; the frames are in {}", sweep_dir.display());
+            false
+        }
+    };
+    mark_finished(out, config.style.steps)?;
+    Ok(DynamicSummary {
+        model,
+        test_renders,
+        sweep,
+        wrote_mp4,
+    })
+}
+
+/// Fits the scene `train` on `backend` (the network on `device`), showing the progress when
+/// `options.progress` ([`with_progress`]); the stop flag ends the fit with
+/// [`DynamicError::InterruptedFit`].
+pub fn fit_with_progress(
+    train: &Dataset,
+    settings: &FitSettings,
+    options: &RunOptions,
+    backend: &Backend,
+    device: &Device,
+) -> Result<Dmiso, DynamicError> {
+    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
+        fit(
+            &train.views,
+            &train.images,
+            train.extent,
+            settings,
+            backend,
+            device,
+            on_step,
+        )
+    });
+    let fitted = fitted?;
+    if stopped {
+        return Err(DynamicError::InterruptedFit);
+    }
+    Ok(fitted)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_are_the_papers_4d_settings() {
+        let config = DynamicStylizeConfig::default();
+        let s = &config.style;
+        assert_eq!(
+            (
+                s.lambda_directional,
+                s.lambda_patch,
+                s.lambda_content,
+                s.lambda_background
+            ),
+            (5.0, 90.0, 0.8, 0.0)
+        );
+        assert_eq!((s.feature_lr, s.steps, config.batch_size), (0.025, 5000, 4));
+        let groups = stylize_groups(&config, 2.0);
+        let at = |name: &str, step: u64| {
+            groups
+                .iter()
+                .find(|g| g.name == name)
+                .unwrap()
+                .schedule
+                .at(step)
+        };
+        assert!((at("pseudomesh", 0) - 2e-5).abs() < 1e-15);
+        assert!((at("pseudomesh", 5000) - 2e-6).abs() < 1e-15);
+        assert!((at("deform", 0) - 5e-5).abs() < 1e-15);
+        assert!((at("deform", 5000) - 1e-6).abs() < 1e-15);
+        let constants: Vec<f64> = [
+            "alpha",
+            "attached_scale",
+            "attached_rotation",
+            "attached_opacity",
+            "attached_features_dc",
+            "attached_features_rest",
+            "time_net",
+        ]
+        .iter()
+        .map(|n| at(n, 777))
+        .collect();
+        assert_eq!(constants, [1e-5, 0.001, 0.001, 0.05, 0.025, 0.025, 0.1]);
+        assert!(groups.iter().all(|g| !g.frozen));
+    }
+}

@@ -1,0 +1,391 @@
+//! `clipgaussian-4d` from file to file with the tiny random-weight CLIP and VGG: fit a
+//! generated D-NeRF scene, stylize it (with the fitted model, with the fit inside the run and
+//! resumed, and with a model in the authors' layout), keep the cores, sub-Gaussians and network
+//! shapes, train the network with the Gaussians, interpolate, render, eval; refuse bad inputs
+//! with a clear error and nothing written.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use base_dmiso::model::group;
+use base_dmiso::model_file;
+use base_dmiso::stylize::DynamicStylizeConfig;
+use base_dmiso::Dmiso;
+use candle_core::Device;
+use style_loss::test_models::{write_tiny_models, TinyModelFiles};
+
+const SIZE: u32 = 32;
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_clipgaussian-4d"))
+}
+
+fn run(cmd: &mut Command) -> Output {
+    let out = cmd.output().expect("run clipgaussian-4d");
+    assert!(
+        out.status.success(),
+        "{:?} failed:\n{}",
+        cmd,
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
+fn fails(cmd: &mut Command) -> String {
+    let out = cmd.output().expect("run clipgaussian-4d");
+    assert!(!out.status.success(), "{cmd:?} should fail");
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn scene(dir: &Path) -> PathBuf {
+    let data = dir.join("scene");
+    common::write_scene(&data, 8, 3, SIZE);
+    data
+}
+
+/// The tiny fit's settings as `fit` flags.
+const FIT: [&str; 14] = [
+    "--points",
+    "200",
+    "--steps",
+    "40",
+    "--warm-up",
+    "10",
+    "--subs-from",
+    "25",
+    "--sub-cores",
+    "50",
+    "--subs-per-core",
+    "3",
+    "--deform-width",
+    "16",
+];
+
+fn load(path: &Path) -> Dmiso {
+    model_file::load(path, &Device::Cpu).unwrap()
+}
+
+fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
+    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
+        .args(["--clip-config", s(&models.clip_config)])
+        .args(["--clip-weights", s(&models.clip_weights)])
+        .args(["--tokenizer", s(&models.tokenizer)])
+        .args(["--vgg-weights", s(&models.vgg_weights)])
+        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
+        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
+        .args(["--set", "sweep_frames=5"])
+        .args(["--set", "checkpoint_every=2", "--device", "cpu"])
+        .args(["--style-prompt", "a red fire"]);
+}
+
+fn count_pngs(dir: &Path) -> usize {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .filter(|e| {
+            e.as_ref()
+                .unwrap()
+                .path()
+                .extension()
+                .is_some_and(|x| x == "png")
+        })
+        .count()
+}
+
+#[test]
+fn fit_stylize_interpolate_render_from_file_to_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let data = scene(dir.path());
+    let fitted = dir.path().join("fitted");
+    let out = run(bin()
+        .args(["fit", "--quiet", "--device", "cpu", "--data", s(&data)])
+        .args(["--out", s(&fitted)])
+        .args(FIT));
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        text.contains("mean PSNR") && text.contains("50 cores of 3 sub-Gaussians"),
+        "{text}"
+    );
+    assert_eq!(count_pngs(&fitted.join("test")), 3);
+    let base = load(&fitted.join("model.safetensors"));
+    assert_eq!(
+        (base.cores(), base.subs_per_core(), base.net().width),
+        (50, 3, 16)
+    );
+
+    let styled = dir.path().join("styled");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 3);
+    let out = run(cmd
+        .args(["--data", s(&data)])
+        .args(["--model", s(&fitted.join("model.safetensors"))])
+        .args(["--out", s(&styled)]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("3 test views"), "{stdout}");
+    assert!(
+        stdout.lines().all(|l| !l.to_lowercase().contains("error")),
+        "{stdout}"
+    );
+    for name in ["preview.gif", "losses.json", "losses.png", "config.json"] {
+        assert!(styled.join(name).is_file(), "{name}");
+    }
+    assert_eq!(count_pngs(&styled.join("test")), 3);
+    assert_eq!(count_pngs(&styled.join("sweep")), 5);
+    let stylized = load(&styled.join("model.safetensors"));
+    assert_eq!(
+        (stylized.cores(), stylized.subs_per_core(), stylized.net()),
+        (base.cores(), base.subs_per_core(), base.net())
+    );
+    // Everything trains together: the Gaussians, the triangles, the network, the layer.
+    for g in [
+        group::PSEUDOMESH,
+        group::ALPHA,
+        group::DC,
+        group::DEFORM,
+        group::TIME_NET,
+    ] {
+        assert_ne!(
+            stylized.params().groups[g],
+            base.params().groups[g],
+            "group {g} moved"
+        );
+    }
+    let losses: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(styled.join("losses.json")).unwrap())
+            .unwrap();
+    assert_eq!(losses.as_array().unwrap().len(), 3);
+
+    // Interpolation of the fit and its stylization: the Gaussians and the network's weights.
+    let half = dir.path().join("half.safetensors");
+    run(bin()
+        .args(["interpolate", "--a"])
+        .arg(fitted.join("model.safetensors"))
+        .args([
+            "--b",
+            s(&styled.join("model.safetensors")),
+            "--t",
+            "0.5",
+            "--out",
+            s(&half),
+        ]));
+    let blended = load(&half);
+    for g in [group::DC, group::DEFORM] {
+        let (a, b, m) = (
+            &base.params().groups[g],
+            &stylized.params().groups[g],
+            &blended.params().groups[g],
+        );
+        for k in [0, a.len() / 2, a.len() - 1] {
+            assert!((m[k] - 0.5 * (a[k] + b[k])).abs() < 1e-6);
+        }
+    }
+
+    // Render at the dataset's views, and through time.
+    let rendered = dir.path().join("rendered");
+    let out = run(bin()
+        .args(["render", "--device", "cpu", "--model", s(&half)])
+        .args(["--data", s(&data), "--sweep", "4", "--out", s(&rendered)]));
+    assert!(String::from_utf8_lossy(&out.stdout).contains("wrote 3 views"));
+    assert_eq!(count_pngs(&rendered.join("frames")), 3);
+    assert_eq!(count_pngs(&rendered.join("sweep")), 4);
+
+    // The model the authors' code saved (the fixture) stylizes as well.
+    let authors = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/dmiso_small");
+    let theirs = dir.path().join("theirs");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    run(cmd
+        .args(["--data", s(&data), "--model", s(&authors)])
+        .args(["--out", s(&theirs)]));
+    let styled_theirs = load(&theirs.join("model.safetensors"));
+    assert_eq!(
+        (
+            styled_theirs.cores(),
+            styled_theirs.subs_per_core(),
+            styled_theirs.net().width
+        ),
+        (5, 3, 32)
+    );
+}
+
+#[test]
+fn a_run_that_fits_first_resumes_with_its_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let data = scene(dir.path());
+    let out = dir.path().join("out");
+    let fit_settings = [
+        "fit_points=150",
+        "fit_steps=20",
+        "fit_warm_up=5",
+        "fit_subs_from=10",
+        "fit_sub_cores=40",
+        "fit_subs_per_core=2",
+        "deform_width=8",
+    ];
+    let with_fit = |cmd: &mut Command| {
+        for f in fit_settings {
+            cmd.args(["--set", f]);
+        }
+    };
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    with_fit(&mut cmd);
+    run(cmd.args(["--data", s(&data), "--out", s(&out)]));
+    let base = load(&out.join("base.safetensors"));
+    assert_eq!((base.cores(), base.subs_per_core()), (40, 2));
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 4);
+    with_fit(&mut cmd);
+    run(cmd.args(["--data", s(&data), "--out", s(&out), "--resume"]));
+    assert_eq!(
+        load(&out.join("base.safetensors")),
+        base,
+        "the fit is reused"
+    );
+    let losses: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("losses.json")).unwrap()).unwrap();
+    assert_eq!(losses.as_array().unwrap().len(), 4);
+}
+
+#[test]
+fn bad_inputs_are_refused_with_nothing_written() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let data = scene(dir.path());
+    let json = data.join("transforms_train.json");
+    let original = std::fs::read_to_string(&json).unwrap();
+    let out = dir.path().join("out");
+    let stylize = |extra: &[&str]| {
+        let mut cmd = bin();
+        stylize_args(&mut cmd, &models, 2);
+        cmd.args(["--data", s(&data), "--out", s(&out)]).args(extra);
+        fails(&mut cmd)
+    };
+    let model = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/dmiso_small");
+    let with_model = ["--model", s(&model)];
+
+    // A frame without a time.
+    std::fs::write(&json, original.replacen("\"time\"", "\"tiem\"", 1)).unwrap();
+    let e = stylize(&with_model);
+    assert!(
+        e.contains("transforms_train.json") && e.contains("no \"time\""),
+        "{e}"
+    );
+    // A time outside [0, 1].
+    let mut v: serde_json::Value = serde_json::from_str(&original).unwrap();
+    v["frames"][2]["time"] = serde_json::json!(1.5);
+    std::fs::write(&json, v.to_string()).unwrap();
+    let e = stylize(&with_model);
+    assert!(
+        e.contains("frame 2") && e.contains("1.5") && e.contains("[0, 1]"),
+        "{e}"
+    );
+    std::fs::write(&json, &original).unwrap();
+    // A picture of another size.
+    let picture = data.join("train/r_003.png");
+    let keep = std::fs::read(&picture).unwrap();
+    image::RgbaImage::new(SIZE + 2, SIZE)
+        .save(&picture)
+        .unwrap();
+    let e = stylize(&with_model);
+    assert!(e.contains("r_003.png") && e.contains("34x32"), "{e}");
+    std::fs::write(&picture, keep).unwrap();
+    // A truncated deformation network.
+    let broken = dir.path().join("broken");
+    copy_dir(&model, &broken);
+    let pth = broken.join("deform/iteration_best/deform.pth");
+    let bytes = std::fs::read(&pth).unwrap();
+    std::fs::write(&pth, &bytes[..bytes.len() / 3]).unwrap();
+    let e = stylize(&["--model", s(&broken)]);
+    assert!(e.contains("deform.pth"), "{e}");
+    // A foreign file as our model.
+    let foreign = dir.path().join("foreign.safetensors");
+    std::fs::write(&foreign, b"not a model").unwrap();
+    let e = stylize(&["--model", s(&foreign)]);
+    assert!(e.contains("foreign.safetensors"), "{e}");
+    // A batch larger than the views.
+    let e = stylize(&["--model", s(&model), "--batch-size", "9"]);
+    assert!(
+        e.contains("batch_size") && e.contains("8 training views"),
+        "{e}"
+    );
+    assert!(!out.exists(), "nothing was written");
+}
+
+#[test]
+fn help_configs_and_eval() {
+    let out = run(bin().arg("--help"));
+    let text = String::from_utf8_lossy(&out.stdout);
+    for sub in ["stylize", "fit", "render", "interpolate", "eval"] {
+        assert!(text.contains(sub), "{sub} in --help");
+    }
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let paper: DynamicStylizeConfig =
+        gs_stylize::resolve_config(Some(&root.join("configs/4d.json")), &[]).unwrap();
+    assert_eq!(paper, DynamicStylizeConfig::default());
+    let keep: DynamicStylizeConfig =
+        gs_stylize::resolve_config(Some(&root.join("configs/4d-keep-background.json")), &[])
+            .unwrap();
+    assert_eq!(keep.style.lambda_background, 500.0);
+
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let data = scene(dir.path());
+    // The test pictures against themselves (composited over white, as eval reads them).
+    let renders = dir.path().join("renders");
+    std::fs::create_dir(&renders).unwrap();
+    let test = gs_core::dataset::nerf_synthetic::load_with_times(
+        &data,
+        gs_core::dataset::nerf_synthetic::Split::Test,
+        &gs_core::dataset::LoadOptions {
+            background: gs_core::dataset::Background::White,
+            downscale: 1,
+        },
+    )
+    .unwrap();
+    for (i, im) in test.images.iter().enumerate() {
+        im.save_png(&renders.join(format!("{i:05}.png"))).unwrap();
+    }
+    let metrics = dir.path().join("metrics.json");
+    run(bin()
+        .args(["eval", "--renders", s(&renders), "--data", s(&data)])
+        .args(["--style-prompt", "a red fire"])
+        .args(["--clip-config", s(&models.clip_config)])
+        .args(["--clip-weights", s(&models.clip_weights)])
+        .args(["--tokenizer", s(&models.tokenizer)])
+        .args(["--out", s(&metrics)]));
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
+    assert_eq!(m["views"], 3);
+    assert!((m["clip_f"].as_f64().unwrap() - 100.0).abs() < 1e-3, "{m}");
+    std::fs::remove_file(renders.join("00002.png")).unwrap();
+    let e = fails(
+        bin()
+            .args(["eval", "--renders", s(&renders), "--data", s(&data)])
+            .args(["--style-prompt", "a red fire"])
+            .args(["--clip-config", s(&models.clip_config)])
+            .args(["--clip-weights", s(&models.clip_weights)])
+            .args(["--tokenizer", s(&models.tokenizer)]),
+    );
+    assert!(e.contains("00002.png"), "{e}");
+}
+
+fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
+}
