@@ -7,8 +7,9 @@
 #
 #   scripts/build_cuda.sh     # compute capability 9.0 (H100); CUDA_COMPUTE_CAP=89 for an RTX 4090
 #
-# Output: target/cuda/release/clipgaussian-2d and clipgaussian-3d, and the timing examples
-# target/cuda/release/examples/{step_timing,style_loss_timing}; stripped copies of all four
+# Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d and clipgaussian-4d (whose
+# deformation network runs on the CUDA device too), and the timing examples
+# target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped copies of all
 # (about 55 MB each, without the debug information) in target/cuda/dist. To run them, the loader needs the
 # NVIDIA driver and CUDA 13's cuBLAS, cuRAND and NVRTC, for example those of PyTorch's wheels:
 #   export LD_LIBRARY_PATH=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))'):$LD_LIBRARY_PATH
@@ -51,11 +52,12 @@ nvcc --version | tail -n 2
 
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-target/cuda}
 cargo build --release \
-    -p base-mirage -p base-3dgs -p integration-tests -p style-loss \
-    --features base-mirage/cuda,base-3dgs/cuda,integration-tests/cuda,style-loss/cuda \
-    --bins --example step_timing --example style_loss_timing
+    -p base-mirage -p base-3dgs -p base-dmiso -p integration-tests -p style-loss \
+    --features base-mirage/cuda,base-3dgs/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
+    --bins --example step_timing --example style_loss_timing --example benchmark_4d
 mkdir -p "$CARGO_TARGET_DIR/dist"
-for binary in clipgaussian-2d clipgaussian-3d examples/step_timing examples/style_loss_timing; do
+for binary in clipgaussian-2d clipgaussian-3d clipgaussian-4d examples/step_timing \
+    examples/style_loss_timing examples/benchmark_4d; do
     strip -o "$CARGO_TARGET_DIR/dist/$(basename "$binary")" "$CARGO_TARGET_DIR/release/$binary"
 done
 echo "built with CUDA $cuda_version (compute capability $CUDA_COMPUTE_CAP) in $CARGO_TARGET_DIR/release"

@@ -11,16 +11,20 @@
 //! colour 0.0025 (higher degrees a twentieth), opacity 0.05, network `8e-4 -> 1.6e-5` over the
 //! whole fit (from step 0, as D-MiSo decays it through the warm-up); then offsets 1e-3,
 //! sub-Gaussian colour 0.0025 (all degrees), opacity 0.05, log-scales 0.005, quaternions 0.001,
-//! time-rotation layer 0.1. Where this differs from D-MiSo: no densification, pruning or opacity
-//! reset (the cores are the `points` asked for); the SH degree is 3 from the start (D-MiSo
-//! raises it by one every 1000 steps); Adam's moments restart at each stage; the cores are
-//! drawn without repetition; the time-rotation layer starts as the identity `[I | 0]` rather
-//! than at random, so the sub-Gaussians start exactly where their cores were.
+//! time-rotation layer 0.1. Before `subs_from` the cores are densified as D-MiSo does
+//! ([`crate::densify`]: clone, split, prune every 100 steps from step 500, opacity reset every
+//! 3000 and, over white, at step 500), the optimizer's moments following the rows.
+//!
+//! Where this differs from D-MiSo: the SH degree is 3 from the start (D-MiSo raises it by one
+//! every 1000 steps); Adam's moments restart when the warm-up ends; the cores given
+//! sub-Gaussians are drawn without repetition; the time-rotation layer starts as the identity
+//! `[I | 0]` rather than at random, so the sub-Gaussians start exactly where their cores were;
+//! the densification's statistics differ as [`crate::densify`] says.
 
 use std::ops::ControlFlow;
 
 use candle_core::Device;
-use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
+use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, Trainer};
 pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
@@ -29,6 +33,7 @@ use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
 use gs_core::Image;
 
 use crate::deform_net::NetShape;
+use crate::densify::{densify, reset_opacity, DensifySettings, Recording};
 use crate::init::{initial_model, with_sub_gaussians};
 use crate::model::{Dmiso, GROUP_NAMES};
 
@@ -57,6 +62,9 @@ pub struct FitSettings {
     pub lambda_dssim: f32,
     /// Background colour, linear RGB in `[0, 1]`.
     pub background: [f32; 3],
+    /// D-MiSo's densification of the cores before `subs_from` (none: the cores stay the
+    /// `points` drawn).
+    pub densify: Option<DensifySettings>,
 }
 
 impl Default for FitSettings {
@@ -73,6 +81,7 @@ impl Default for FitSettings {
             seed: 0,
             lambda_dssim: 0.2,
             background: [1.0; 3],
+            densify: Some(DensifySettings::default()),
         }
     }
 }
@@ -208,6 +217,16 @@ where
         (Stage::SubGaussians, settings.subs_from, settings.steps),
     ];
     let mut stopped = false;
+    let mut run = Run {
+        views,
+        objective: &mut objective,
+        sampler: &mut sampler,
+        settings,
+        backend,
+        extent,
+        on_step: &mut on_step,
+        stopped: &mut stopped,
+    };
     for (stage, from, to) in stages {
         if stage == Stage::SubGaussians {
             model = with_sub_gaussians(
@@ -220,26 +239,137 @@ where
         } else {
             model.deformation = stage == Stage::Deformation;
         }
-        if from == to || stopped {
+        if from == to || *run.stopped {
             continue;
         }
-        let groups = stage_groups(stage, extent, settings.steps, from);
-        let mut trainer = Trainer::new(backend, model, groups, AdamHyper::default())?;
-        let config = TrainConfig {
-            steps: to - from,
-            background: settings.background,
-        };
-        trainer.train(views, &mut objective, &mut sampler, &config, |report| {
-            let mut overall = report.clone();
-            overall.step += from;
-            overall.steps = settings.steps;
-            let flow = on_step(&overall);
-            stopped |= flow.is_break();
-            flow
-        })?;
-        model = trainer.into_model();
+        model = run.stage(stage, model, from, to)?;
     }
     Ok(model)
+}
+
+/// What the stages of one fit share.
+struct Run<'a, F> {
+    views: &'a [View],
+    objective: &'a mut PhotometricObjective,
+    sampler: &'a mut ViewSampler,
+    settings: &'a FitSettings,
+    backend: &'a Backend,
+    extent: f64,
+    on_step: &'a mut F,
+    stopped: &'a mut bool,
+}
+
+impl<F> Run<'_, F>
+where
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    /// The steps after which the cores are densified or their opacity reset, in `(from, to]`
+    /// (none with sub-Gaussians or without densification).
+    fn events(&self, stage: Stage, from: u64, to: u64) -> Vec<u64> {
+        let Some(d) = &self.settings.densify else {
+            return Vec::new();
+        };
+        if stage == Stage::SubGaussians {
+            return Vec::new();
+        }
+        let white = self.settings.background == [1.0; 3];
+        (from + 1..=to)
+            .filter(|&s| s < self.settings.subs_from)
+            .filter(|&s| {
+                (s > d.from && s % d.every.max(1) == 0)
+                    || s % d.opacity_reset_every.max(1) == 0
+                    || (white && s == d.from)
+            })
+            .collect()
+    }
+
+    /// Trains `model` from step `from` to `to` of the fit in `stage`, densifying the cores at
+    /// the steps [`Run::events`] names (each a new optimizer whose moments follow the rows).
+    fn stage(&mut self, stage: Stage, model: Dmiso, from: u64, to: u64) -> Result<Dmiso, FitError> {
+        let groups = stage_groups(stage, self.extent, self.settings.steps, from);
+        let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
+        let mut model = Recording::new(model);
+        let mut state: Option<Vec<u8>> = None;
+        let mut ends = self.events(stage, from, to);
+        ends.push(to);
+        ends.dedup();
+        for end in ends {
+            let mut trainer =
+                Trainer::new(self.backend, model, groups.clone(), AdamHyper::default())?;
+            if let Some(bytes) = &state {
+                trainer
+                    .restore_optimizer(bytes)
+                    .map_err(|e| FitError::Settings(e.to_string()))?;
+            }
+            let config = TrainConfig {
+                steps: end - from,
+                background: self.settings.background,
+            };
+            let (on_step, stopped, total) =
+                (&mut *self.on_step, &mut *self.stopped, self.settings.steps);
+            trainer.train(
+                self.views,
+                self.objective,
+                self.sampler,
+                &config,
+                |report| {
+                    let mut overall = report.clone();
+                    overall.step += from;
+                    overall.steps = total;
+                    let flow = on_step(&overall);
+                    *stopped |= flow.is_break();
+                    flow
+                },
+            )?;
+            let bytes = trainer.save_optimizer();
+            let lens: Vec<Option<usize>> = trainer
+                .param_groups()
+                .iter()
+                .zip(&trained)
+                .map(|(g, &t)| t.then_some(g.len()))
+                .collect();
+            let recorded = trainer.into_model();
+            if *self.stopped || end == to {
+                return Ok(recorded.model);
+            }
+            let stats = recorded.stats();
+            let mut next = recorded.model;
+            let d = self
+                .settings
+                .densify
+                .as_ref()
+                .expect("events need densification");
+            let mut changes = None;
+            if end > d.from && end % d.every.max(1) == 0 {
+                let (dense, rows) =
+                    densify(&next, &stats, self.extent, d, self.settings.seed ^ end)
+                        .map_err(FitError::Settings)?;
+                next = dense;
+                changes = Some(rows);
+            }
+            let white = self.settings.background == [1.0; 3];
+            let mut bytes = match changes {
+                Some(rows) => rearrange_state(&bytes, &groups, &lens, &rows),
+                None => Ok(bytes),
+            }
+            .map_err(|e| FitError::Settings(e.to_string()))?;
+            if end % d.opacity_reset_every.max(1) == 0 || (white && end == d.from) {
+                let new_lens: Vec<Option<usize>> = next
+                    .params()
+                    .groups
+                    .iter()
+                    .zip(&trained)
+                    .map(|(g, &t)| t.then_some(g.len()))
+                    .collect();
+                let rows = reset_opacity(&mut next);
+                bytes = rearrange_state(&bytes, &groups, &new_lens, &rows)
+                    .map_err(|e| FitError::Settings(e.to_string()))?;
+            }
+            state = Some(bytes);
+            model = Recording::new(next);
+        }
+        unreachable!("the last segment ends at the stage's end")
+    }
 }
 
 /// The images of `model` at `views`, over `background`.

@@ -4,6 +4,7 @@
 //! - [`deform_net`]: the deformation network in candle, with its backward.
 //! - [`core_frame`]: a core triangle deformed at a time and its frame, with the backward.
 //! - [`sub_gaussian`]: one sub-Gaussian in its core's frame, with the backward.
+//! - [`densify`]: D-MiSo's densification of the cores during the fit.
 //! - [`init`]: the starting model and the switch to sub-Gaussians.
 //! - [`fit`]: fitting a D-NeRF scene in D-MiSo's stages.
 //! - [`model_file`]: our model file and the folder the authors' code saves.
@@ -12,6 +13,7 @@
 
 pub mod core_frame;
 pub mod deform_net;
+pub mod densify;
 pub mod encoding;
 pub mod fit;
 pub mod init;

@@ -3,6 +3,8 @@
 //! candle's PyTorch reader, it builds the same sub-Gaussians, renders the same image, and its
 //! backward gives PyTorch's gradient of every parameter group.
 
+mod common;
+
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
@@ -166,7 +168,7 @@ fn the_backward_gives_pytorchs_gradient_of_every_group() {
 fn broken_or_foreign_checkpoints_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("model");
-    copy_dir(&fixture("dmiso_small"), &copy);
+    common::copy_dir(&fixture("dmiso_small"), &copy);
     let files = AuthorsFiles::find(&copy, Some("best")).unwrap();
     // Truncated deformation network.
     let bytes = std::fs::read(&files.deform).unwrap();
@@ -187,7 +189,7 @@ fn broken_or_foreign_checkpoints_are_refused_by_name() {
         &files.time_net,
     )
     .unwrap();
-    copy_dir(
+    common::copy_dir(
         &fixture("dmiso_zero_bias").join("deform"),
         &copy.join("deform"),
     );
@@ -213,17 +215,4 @@ fn broken_or_foreign_checkpoints_are_refused_by_name() {
         .unwrap_err()
         .to_string();
     assert!(e.contains("iteration_7000"), "{e}");
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
 }

@@ -299,7 +299,7 @@ fn bad_inputs_are_refused_with_nothing_written() {
     std::fs::write(&picture, keep).unwrap();
     // A truncated deformation network.
     let broken = dir.path().join("broken");
-    copy_dir(&model, &broken);
+    common::copy_dir(&model, &broken);
     let pth = broken.join("deform/iteration_best/deform.pth");
     let bytes = std::fs::read(&pth).unwrap();
     std::fs::write(&pth, &bytes[..bytes.len() / 3]).unwrap();
@@ -375,17 +375,4 @@ fn help_configs_and_eval() {
             .args(["--tokenizer", s(&models.tokenizer)]),
     );
     assert!(e.contains("00002.png"), "{e}");
-}
-
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
 }

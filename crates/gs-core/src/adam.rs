@@ -252,6 +252,64 @@ impl Adam {
     }
 }
 
+/// How one parameter group's Adam moments follow its values when a model adds, copies or drops
+/// rows (a densification: a row is a Gaussian's or a core's values).
+#[derive(Clone, Debug, PartialEq)]
+pub enum RowChange {
+    /// The group is unchanged.
+    Keep,
+    /// New row `r` (of `width` values) takes the moments of old row `from[r]`, or zeros for a
+    /// new row (`None`), as PyTorch's optimizer state after 3DGS's densification.
+    Rows {
+        /// Values per row.
+        width: usize,
+        /// The old row of each new row.
+        from: Vec<Option<usize>>,
+    },
+    /// The values were replaced: the moments restart at zero (3DGS's opacity reset).
+    Reset,
+}
+
+/// The optimizer state `bytes` (saved by an optimizer of `groups`, whose trained groups held
+/// `lens[i]` values, `None` when frozen) with each group's moments changed as `changes` says
+/// ([`RowChange`]), to restore into the optimizer of the changed model; the step count is kept.
+pub fn rearrange_state(
+    bytes: &[u8],
+    groups: &[GroupConfig],
+    lens: &[Option<usize>],
+    changes: &[RowChange],
+) -> Result<Vec<u8>, GsError> {
+    let (step, moments) = decode_state(bytes, groups, lens)?;
+    let moments: Vec<Option<SavedMoments>> = moments
+        .into_iter()
+        .zip(changes)
+        .map(|(m, change)| {
+            m.map(|(m, v)| match change {
+                RowChange::Keep => (m, v),
+                RowChange::Reset => (vec![0.0; m.len()], vec![0.0; v.len()]),
+                RowChange::Rows { width, from } => {
+                    let gather = |old: &[f32]| -> Vec<f32> {
+                        from.iter()
+                            .flat_map(|r| match r {
+                                Some(r) => old[r * width..(r + 1) * width].to_vec(),
+                                None => vec![0.0; *width],
+                            })
+                            .collect()
+                    };
+                    (gather(&m), gather(&v))
+                }
+            })
+        })
+        .collect();
+    Ok(encode_state(
+        step,
+        groups,
+        moments
+            .iter()
+            .map(|m| m.as_ref().map(|(m, v)| (m.as_slice(), v.as_slice()))),
+    ))
+}
+
 /// The first and second moments of one trained group, as saved.
 pub(crate) type SavedMoments = (Vec<f32>, Vec<f32>);
 
@@ -375,6 +433,57 @@ impl<'a> ByteReader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn rearranged_moments_follow_their_rows() {
+        let groups = vec![
+            GroupConfig::new("rows", LrSchedule::Constant(0.1)),
+            GroupConfig::new("reset", LrSchedule::Constant(0.1)),
+            GroupConfig::frozen("frozen"),
+            GroupConfig::new("kept", LrSchedule::Constant(0.1)),
+        ];
+        let mut adam = Adam::new(groups.clone(), &[6, 2, 3, 1], AdamHyper::default());
+        let mut p: Vec<Vec<f32>> = vec![vec![0.0; 6], vec![0.0; 2], vec![0.0; 3], vec![0.0]];
+        let g: Vec<Vec<f32>> = vec![
+            vec![1.0, 2.0, 3.0, 4.0, 5.0, 6.0],
+            vec![1.0, 1.0],
+            vec![],
+            vec![7.0],
+        ];
+        let mut refs: Vec<&mut [f32]> = p.iter_mut().map(|v| v.as_mut_slice()).collect();
+        let grads: Vec<&[f32]> = g.iter().map(|v| v.as_slice()).collect();
+        adam.step(&mut refs, &grads);
+        let saved = adam.save_state();
+        let changes = [
+            RowChange::Rows {
+                width: 2,
+                from: vec![Some(2), None, Some(0), Some(2)],
+            },
+            RowChange::Reset,
+            RowChange::Keep,
+            RowChange::Keep,
+        ];
+        let lens = [Some(6), Some(2), None, Some(1)];
+        let bytes = rearrange_state(&saved, &groups, &lens, &changes).unwrap();
+        let mut after = Adam::new(groups.clone(), &[8, 2, 3, 1], AdamHyper::default());
+        after.restore_state(&bytes).unwrap();
+        assert_eq!(after.step_count(), 1);
+        let m = |a: &Adam, i: usize| a.moments[i].as_ref().unwrap().m.clone();
+        let first = m(&adam, 0);
+        assert_eq!(
+            m(&after, 0),
+            [&first[4..6], &[0.0, 0.0], &first[0..2], &first[4..6]].concat()
+        );
+        assert_eq!(m(&after, 1), vec![0.0; 2]);
+        assert_eq!(m(&after, 3), m(&adam, 3));
+        let e = rearrange_state(
+            &saved,
+            &groups,
+            &[Some(5), Some(2), None, Some(1)],
+            &changes,
+        );
+        assert!(e.is_err(), "the saved lengths are checked");
+    }
 
     #[test]
     fn exponential_schedule_hits_both_ends_and_the_geometric_middle() {

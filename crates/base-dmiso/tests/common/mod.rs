@@ -1,6 +1,6 @@
 //! A small generated dynamic scene in the D-NeRF layout: coloured blobs that move and turn
 //! through time, seen by cameras on a circle, one time per frame, RGBA PNGs over a
-//! transparent background.
+//! transparent background; and a folder copy for tests that break files.
 
 #![allow(dead_code)]
 
@@ -140,4 +140,18 @@ pub fn write_split(dir: &Path, name: &str, views: &[View]) {
 pub fn write_scene(dir: &Path, train: usize, test: usize, size: u32) {
     write_split(dir, "train", &views(train, 0.0, size));
     write_split(dir, "test", &views(test, 0.5, size));
+}
+
+/// Copies the folder `from` (recursively) to `to`.
+pub fn copy_dir(from: &Path, to: &Path) {
+    std::fs::create_dir_all(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let entry = entry.unwrap();
+        let target = to.join(entry.file_name());
+        if entry.file_type().unwrap().is_dir() {
+            copy_dir(&entry.path(), &target);
+        } else {
+            std::fs::copy(entry.path(), target).unwrap();
+        }
+    }
 }
