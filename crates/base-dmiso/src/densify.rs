@@ -110,6 +110,15 @@ impl Recording {
         }
     }
 
+    /// `model` with the statistics gathered so far on its cores (which must be the same).
+    pub fn with_stats(model: Dmiso, stats: GradStats) -> Self {
+        debug_assert_eq!(stats.sum.len(), model.cores());
+        Self {
+            model,
+            stats: Mutex::new(stats),
+        }
+    }
+
     /// The statistics so far.
     pub fn stats(&self) -> GradStats {
         self.stats.lock().expect("not poisoned").clone()
@@ -287,12 +296,17 @@ pub fn densify(
                 s3 * normal(&mut rng),
             ];
             let centre = [0, 1, 2].map(|a| tri[0][a] + z[0] * r1[a] + z[1] * r2[a] + z[2] * r3[a]);
-            let (l2, l3) = (s2 / 1.6, s3 / 1.6);
+            // D-MiSo's `create_faces`: legs of the scales / 1.6 along the in-plane axes, the
+            // longer one first (to v2).
+            let (mut l2, mut l3, mut d2, mut d3) = (s2 / 1.6, s3 / 1.6, r2, r3);
+            if l2 <= l3 {
+                (l2, l3, d2, d3) = (l3, l2, d3, d2);
+            }
             let mut mesh = [0.0f32; 9];
             for a in 0..3 {
                 mesh[a] = centre[a] as f32;
-                mesh[3 + a] = (centre[a] + l2 * r2[a]) as f32;
-                mesh[6 + a] = (centre[a] + l3 * r3[a]) as f32;
+                mesh[3 + a] = (centre[a] + l2 * d2[a]) as f32;
+                mesh[6 + a] = (centre[a] + l3 * d3[a]) as f32;
             }
             push_row(&mut groups, c, Some(mesh), None);
         }

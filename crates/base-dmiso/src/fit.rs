@@ -8,8 +8,8 @@
 //!    triangles stay (D-MiSo stops training them there).
 //!
 //! D-MiSo's learning rates: triangles `1.6e-4 extent -> 1.6e-5 extent` over 30,000 steps, core
-//! colour 0.0025 (higher degrees a twentieth), opacity 0.05, network `8e-4 -> 1.6e-5` over the
-//! whole fit (from step 0, as D-MiSo decays it through the warm-up); then offsets 1e-3,
+//! colour 0.0025 (higher degrees a twentieth), opacity 0.05, network `8e-4 -> 1.6e-5` over
+//! 40,000 steps (from step 0, as D-MiSo decays it through the warm-up); then offsets 1e-3,
 //! sub-Gaussian colour 0.0025 (all degrees), opacity 0.05, log-scales 0.005, quaternions 0.001,
 //! time-rotation layer 0.1. Before `subs_from` the cores are densified as D-MiSo does
 //! ([`crate::densify`]: clone, split, prune every 100 steps from step 500, opacity reset every
@@ -28,7 +28,7 @@ use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, Trainer};
 pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
-use gs_core::model::View;
+use gs_core::model::{BaseModel, View};
 use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
 use gs_core::Image;
 
@@ -56,6 +56,9 @@ pub struct FitSettings {
     pub batch: usize,
     /// Width of the deformation network.
     pub deform_width: usize,
+    /// Length of the network's learning-rate decay, steps (D-MiSo's `deform_lr_max_steps`,
+    /// 40,000 whatever the fit's length).
+    pub deform_lr_steps: u64,
     /// Seed of the starting model, of the cores drawn and of the view order.
     pub seed: u64,
     /// Weight of the D-SSIM term.
@@ -78,6 +81,7 @@ impl Default for FitSettings {
             subs_per_core: 500,
             batch: 2,
             deform_width: 256,
+            deform_lr_steps: 40_000,
             seed: 0,
             lambda_dssim: 0.2,
             background: [1.0; 3],
@@ -137,11 +141,11 @@ fn decay_from(start: f64, end: f64, length: u64, from: u64) -> LrSchedule {
 }
 
 /// D-MiSo's Adam groups (in [`GROUP_NAMES`] order) for `stage`, starting at step `from` of a
-/// fit of `steps` steps of a scene of extent `extent`.
-fn stage_groups(stage: Stage, extent: f64, steps: u64, from: u64) -> Vec<GroupConfig> {
+/// fit whose network decays over `net_steps`, in a scene of extent `extent`.
+fn stage_groups(stage: Stage, extent: f64, net_steps: u64, from: u64) -> Vec<GroupConfig> {
     let constant = LrSchedule::Constant;
     let mesh = decay_from(1.6e-4 * extent, 1.6e-5 * extent, 30_000, from);
-    let net = decay_from(8e-4, 1.6e-5, steps, from);
+    let net = decay_from(8e-4, 1.6e-5, net_steps, from);
     let rates: [Option<LrSchedule>; 9] = match stage {
         Stage::WarmUp | Stage::Deformation => [
             Some(mesh),
@@ -228,6 +232,9 @@ where
         stopped: &mut stopped,
     };
     for (stage, from, to) in stages {
+        if *run.stopped {
+            break;
+        }
         if stage == Stage::SubGaussians {
             model = with_sub_gaussians(
                 &model,
@@ -239,10 +246,9 @@ where
         } else {
             model.deformation = stage == Stage::Deformation;
         }
-        if from == to || *run.stopped {
-            continue;
+        if from < to {
+            model = run.stage(stage, model, from, to)?;
         }
-        model = run.stage(stage, model, from, to)?;
     }
     Ok(model)
 }
@@ -272,103 +278,134 @@ where
         if stage == Stage::SubGaussians {
             return Vec::new();
         }
-        let white = self.settings.background == [1.0; 3];
         (from + 1..=to)
             .filter(|&s| s < self.settings.subs_from)
-            .filter(|&s| {
-                (s > d.from && s % d.every.max(1) == 0)
-                    || s % d.opacity_reset_every.max(1) == 0
-                    || (white && s == d.from)
-            })
+            .filter(|&s| (s > d.from && s.is_multiple_of(d.every.max(1))) || self.resets_opacity(s))
             .collect()
     }
 
     /// Trains `model` from step `from` to `to` of the fit in `stage`, densifying the cores at
-    /// the steps [`Run::events`] names (each a new optimizer whose moments follow the rows).
+    /// the steps [`Run::events`] names (each a new optimizer whose moments follow the rows;
+    /// an event at `to` changes the model the next stage starts from).
     fn stage(&mut self, stage: Stage, model: Dmiso, from: u64, to: u64) -> Result<Dmiso, FitError> {
-        let groups = stage_groups(stage, self.extent, self.settings.steps, from);
-        let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
+        let groups = stage_groups(stage, self.extent, self.settings.deform_lr_steps, from);
+        let events = self.events(stage, from, to);
+        if events.is_empty() {
+            return Ok(self.segment(model, &groups, None, from, to)?.0);
+        }
+        let settings = self
+            .settings
+            .densify
+            .clone()
+            .expect("events need densification");
         let mut model = Recording::new(model);
         let mut state: Option<Vec<u8>> = None;
-        let mut ends = self.events(stage, from, to);
-        ends.push(to);
-        ends.dedup();
+        let mut ends = events.clone();
+        if ends.last() != Some(&to) {
+            ends.push(to);
+        }
         for end in ends {
-            let mut trainer =
-                Trainer::new(self.backend, model, groups.clone(), AdamHyper::default())?;
-            if let Some(bytes) = &state {
-                trainer
-                    .restore_optimizer(bytes)
-                    .map_err(|e| FitError::Settings(e.to_string()))?;
-            }
-            let config = TrainConfig {
-                steps: end - from,
-                background: self.settings.background,
-            };
-            let (on_step, stopped, total) =
-                (&mut *self.on_step, &mut *self.stopped, self.settings.steps);
-            trainer.train(
-                self.views,
-                self.objective,
-                self.sampler,
-                &config,
-                |report| {
-                    let mut overall = report.clone();
-                    overall.step += from;
-                    overall.steps = total;
-                    let flow = on_step(&overall);
-                    *stopped |= flow.is_break();
-                    flow
-                },
-            )?;
-            let bytes = trainer.save_optimizer();
-            let lens: Vec<Option<usize>> = trainer
-                .param_groups()
-                .iter()
-                .zip(&trained)
-                .map(|(g, &t)| t.then_some(g.len()))
-                .collect();
-            let recorded = trainer.into_model();
-            if *self.stopped || end == to {
+            let (recorded, bytes) = self.segment(model, &groups, state.take(), from, end)?;
+            if *self.stopped || !events.contains(&end) {
                 return Ok(recorded.model);
             }
-            let stats = recorded.stats();
+            let lens: Vec<Option<usize>> = recorded
+                .model
+                .group_lens()
+                .into_iter()
+                .zip(&groups)
+                .map(|(n, g)| (!g.frozen).then_some(n))
+                .collect();
+            let mut stats = Some(recorded.stats());
             let mut next = recorded.model;
-            let d = self
-                .settings
-                .densify
-                .as_ref()
-                .expect("events need densification");
-            let mut changes = None;
-            if end > d.from && end % d.every.max(1) == 0 {
-                let (dense, rows) =
-                    densify(&next, &stats, self.extent, d, self.settings.seed ^ end)
-                        .map_err(FitError::Settings)?;
+            let mut bytes = bytes;
+            if end > settings.from && end.is_multiple_of(settings.every.max(1)) {
+                let (dense, rows) = densify(
+                    &next,
+                    stats.as_ref().expect("kept until densified"),
+                    self.extent,
+                    &settings,
+                    self.settings.seed ^ end,
+                )
+                .map_err(FitError::Settings)?;
+                bytes = rearrange_state(&bytes, &groups, &lens, &rows)
+                    .map_err(|e| FitError::Settings(e.to_string()))?;
                 next = dense;
-                changes = Some(rows);
+                // The statistics restart after a densification only.
+                stats = None;
             }
-            let white = self.settings.background == [1.0; 3];
-            let mut bytes = match changes {
-                Some(rows) => rearrange_state(&bytes, &groups, &lens, &rows),
-                None => Ok(bytes),
-            }
-            .map_err(|e| FitError::Settings(e.to_string()))?;
-            if end % d.opacity_reset_every.max(1) == 0 || (white && end == d.from) {
-                let new_lens: Vec<Option<usize>> = next
-                    .params()
-                    .groups
-                    .iter()
-                    .zip(&trained)
-                    .map(|(g, &t)| t.then_some(g.len()))
+            if self.resets_opacity(end) {
+                let lens: Vec<Option<usize>> = next
+                    .group_lens()
+                    .into_iter()
+                    .zip(&groups)
+                    .map(|(n, g)| (!g.frozen).then_some(n))
                     .collect();
                 let rows = reset_opacity(&mut next);
-                bytes = rearrange_state(&bytes, &groups, &new_lens, &rows)
+                bytes = rearrange_state(&bytes, &groups, &lens, &rows)
                     .map_err(|e| FitError::Settings(e.to_string()))?;
             }
+            if end == to {
+                return Ok(next);
+            }
             state = Some(bytes);
-            model = Recording::new(next);
+            model = match stats {
+                Some(stats) => Recording::with_stats(next, stats),
+                None => Recording::new(next),
+            };
         }
         unreachable!("the last segment ends at the stage's end")
+    }
+
+    /// Whether the opacities are reset after step `step` (every `opacity_reset_every` steps,
+    /// and at the densification's first step over a white background).
+    fn resets_opacity(&self, step: u64) -> bool {
+        let Some(d) = &self.settings.densify else {
+            return false;
+        };
+        let white = self.settings.background == [1.0; 3];
+        step.is_multiple_of(d.opacity_reset_every.max(1)) || (white && step == d.from)
+    }
+
+    /// Trains `model` with a new optimizer of `groups` (restored from `state` when given) until
+    /// it has taken `end - from` steps of the stage starting at step `from`; returns the model
+    /// and the optimizer's state.
+    fn segment<M: BaseModel>(
+        &mut self,
+        model: M,
+        groups: &[GroupConfig],
+        state: Option<Vec<u8>>,
+        from: u64,
+        end: u64,
+    ) -> Result<(M, Vec<u8>), FitError> {
+        let mut trainer = Trainer::new(self.backend, model, groups.to_vec(), AdamHyper::default())?;
+        if let Some(bytes) = &state {
+            trainer
+                .restore_optimizer(bytes)
+                .map_err(|e| FitError::Settings(e.to_string()))?;
+        }
+        let config = TrainConfig {
+            steps: end - from,
+            background: self.settings.background,
+        };
+        let (on_step, stopped, total) =
+            (&mut *self.on_step, &mut *self.stopped, self.settings.steps);
+        trainer.train(
+            self.views,
+            self.objective,
+            self.sampler,
+            &config,
+            |report| {
+                let mut overall = report.clone();
+                overall.step += from;
+                overall.steps = total;
+                let flow = on_step(&overall);
+                *stopped |= flow.is_break();
+                flow
+            },
+        )?;
+        let bytes = trainer.save_optimizer();
+        Ok((trainer.into_model(), bytes))
     }
 }
 

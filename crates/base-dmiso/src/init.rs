@@ -3,7 +3,7 @@
 //! - [`initial_model`]: random points in the cube `[-1.3, 1.3]^3` (D-MiSo's start when the
 //!   scene has no `points3d.ply`, as D-NeRF scenes have not), each a triangle
 //!   `(p, p + d e_z, p + d e_y)` with `d` the root mean squared distance to its 3 nearest
-//!   others; random colours, opacity 0.1; the network with PyTorch's default initialisation. It
+//!   others; SH DC coefficients uniform in `[0, 1/255]` (nearly grey), opacity 0.1; the network with PyTorch's default initialisation. It
 //!   has one sub-Gaussian per core that is the core itself (offsets and log-scales 0, identity
 //!   rotation, the time-rotation layer `[I | 0]`), so it renders the cores as D-MiSo does
 //!   before its sub-Gaussians exist.
@@ -26,9 +26,6 @@ pub const INIT_HALF_SIDE: f64 = 1.3;
 
 /// The opacity of the initial cores.
 pub const INIT_OPACITY: f64 = 0.1;
-
-/// SH degree-0 constant.
-const C0: f64 = 0.28209479177387814;
 
 /// The time-rotation layer that passes the quaternion through: weight `[I_4 | 0]`, bias 0.
 pub fn identity_time_net() -> Vec<f32> {
@@ -78,8 +75,9 @@ pub fn initial_model(
                 groups[group::PSEUDOMESH][9 * c + 3 * j + a] = v[a] as f32;
             }
         }
+        // D-MiSo's random points: SH DC coefficients uniform in [0, 1/255], nearly grey.
         for a in 0..3 {
-            groups[group::DC][3 * c + a] = ((rng.random::<f64>() - 0.5) / C0) as f32;
+            groups[group::DC][3 * c + a] = (rng.random::<f64>() / 255.0) as f32;
         }
         groups[group::ROTATION][4 * c] = 1.0;
     }

@@ -475,15 +475,15 @@ impl BaseModel for Dmiso {
                 }
                 g_layer
             })
-            .reduce(
-                || [0.0f64; TIME_NET_LEN],
-                |mut a, b| {
-                    for (x, y) in a.iter_mut().zip(b) {
-                        *x += y;
-                    }
-                    a
-                },
-            );
+            .collect::<Vec<_>>()
+            // Summed in block order: the same result on every run.
+            .into_iter()
+            .fold([0.0f64; TIME_NET_LEN], |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    *x += y;
+                }
+                a
+            });
         if trained[group::TIME_NET] {
             for (o, v) in out[group::TIME_NET].iter_mut().zip(time_net_grad) {
                 *o += v as f32;

@@ -93,8 +93,9 @@ fn layout(cores: usize, subs: usize, net: &NetShape) -> Vec<(String, Vec<usize>,
     out
 }
 
-/// Writes `model` to `path` (`model.safetensors`), through a temporary name.
-pub fn save(model: &Dmiso, path: &Path) -> Result<(), ModelFileError> {
+/// Writes `model` to `path` (`model.safetensors`), through a temporary name, recording the
+/// background it was fitted or stylized over (`white`) when given.
+pub fn save(model: &Dmiso, path: &Path, white: Option<bool>) -> Result<(), ModelFileError> {
     let params = model.params();
     let data: Vec<(String, Vec<usize>, Vec<u8>)> =
         layout(model.cores(), model.subs_per_core(), &model.net())
@@ -114,13 +115,16 @@ pub fn save(model: &Dmiso, path: &Path) -> Result<(), ModelFileError> {
             (name.clone(), view)
         })
         .collect::<Vec<_>>();
-    let metadata = HashMap::from([
+    let mut metadata = HashMap::from([
         ("format".to_string(), FORMAT.to_string()),
         ("cores".into(), model.cores().to_string()),
         ("subs_per_core".into(), model.subs_per_core().to_string()),
         ("deform_width".into(), model.net().width.to_string()),
         ("deformation".into(), model.deformation.to_string()),
     ]);
+    if let Some(white) = white {
+        metadata.insert("white_background".into(), white.to_string());
+    }
     let bytes =
         safetensors::serialize(tensors, Some(metadata)).map_err(|e| ModelFileError::Format {
             path: path.to_path_buf(),
@@ -326,6 +330,33 @@ fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
     }
 }
 
+/// The background a model records: our file's `white_background` metadata, or the
+/// `white_background` of the `cfg_args` beside the authors' folder; `None` when it records none.
+pub fn recorded_background(path: &Path) -> Result<Option<bool>, ModelFileError> {
+    if path.is_dir() {
+        let cfg = path.join("cfg_args");
+        return match std::fs::read_to_string(&cfg) {
+            Ok(text) => Ok(white_background(&text)),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+            Err(source) => Err(ModelFileError::Io { path: cfg, source }),
+        };
+    }
+    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    let (_, header) =
+        safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| ModelFileError::Format {
+            path: path.to_path_buf(),
+            message: format!("not a safetensors file ({e})"),
+        })?;
+    Ok(header
+        .metadata()
+        .as_ref()
+        .and_then(|m| m.get("white_background"))
+        .and_then(|v| v.parse().ok()))
+}
+
 /// Whether `cfg_args` (a Python `Namespace(...)`) says `white_background=True`; `None` when it
 /// does not say.
 pub fn white_background(cfg_args: &str) -> Option<bool> {
@@ -440,4 +471,18 @@ fn ply_vertex_count(path: &Path) -> Result<usize, ModelFileError> {
             path: path.to_path_buf(),
             message: "no vertex element".into(),
         })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cfg_args_say_the_background() {
+        let white = "Namespace(data_device='cuda', white_background=True, is_blender=True)";
+        let black = "Namespace(white_background=False)";
+        assert_eq!(white_background(white), Some(true));
+        assert_eq!(white_background(black), Some(false));
+        assert_eq!(white_background("Namespace(eval=True)"), None);
+    }
 }

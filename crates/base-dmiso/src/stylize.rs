@@ -60,12 +60,14 @@ pub struct DynamicStylizeConfig {
     pub model: Option<PathBuf>,
     /// The iteration of the authors' folder to read (`best`, or a number); none: `best`, else
     /// the highest.
+    #[serde(deserialize_with = "iteration_name")]
     pub iteration: Option<String>,
     /// The output folder.
     pub out: Option<PathBuf>,
-    /// Composite the pictures over white (D-MiSo's `-w`, CLIPGaussian's 4D examples) rather
-    /// than black.
-    pub white_background: bool,
+    /// Composite the pictures over white (D-MiSo's `-w`) or black; none: the background the
+    /// model records (our file's, or the authors' `cfg_args`), else white (CLIPGaussian's 4D
+    /// examples).
+    pub white_background: Option<bool>,
     /// Consecutive training views per step, their losses averaged.
     pub batch_size: usize,
     /// Learning rate of the sub-Gaussians' offsets.
@@ -111,7 +113,7 @@ impl Default for DynamicStylizeConfig {
             model: None,
             iteration: None,
             out: None,
-            white_background: true,
+            white_background: None,
             batch_size: 4,
             alpha_lr: 1e-5,
             deform_lr_start: 5e-5,
@@ -134,9 +136,9 @@ impl Default for DynamicStylizeConfig {
 }
 
 impl DynamicStylizeConfig {
-    /// The background colour.
-    pub fn background(&self) -> Background {
-        if self.white_background {
+    /// The background colour: the configured one, else `recorded` (the model's), else white.
+    pub fn background(&self, recorded: Option<bool>) -> Background {
+        if self.white_background.or(recorded).unwrap_or(true) {
             Background::White
         } else {
             Background::Black
@@ -155,7 +157,7 @@ impl DynamicStylizeConfig {
             batch: self.fit_batch,
             deform_width: self.deform_width,
             seed: self.style.seed,
-            background: self.background().rgb(),
+            background: self.background(None).rgb(),
             ..FitSettings::default()
         }
     }
@@ -180,6 +182,19 @@ impl DynamicStylizeConfig {
             return bad(format!("sweep_fps: {} must be positive", self.sweep_fps));
         }
         Ok(())
+    }
+}
+
+/// An iteration given as `"best"`, `"5000"` or `5000`.
+fn iteration_name<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<String>, D::Error> {
+    use serde::de::Error;
+    match Option::<serde_json::Value>::deserialize(d)? {
+        None | Some(serde_json::Value::Null) => Ok(None),
+        Some(serde_json::Value::String(s)) => Ok(Some(s)),
+        Some(serde_json::Value::Number(n)) => Ok(Some(n.to_string())),
+        Some(other) => Err(D::Error::custom(format!(
+            "{other} is not an iteration (best, or a number)"
+        ))),
     }
 }
 
@@ -332,7 +347,15 @@ pub fn run(
     let prepared = prepare(&config.style, out, options.clone())?;
     let backend = prepared.backend();
     let device = prepared.loss_device().clone();
-    let background = config.background();
+    let recorded = match &config.model {
+        Some(path) => model_file::recorded_background(path)?,
+        None if options.resume && out.join(BASE_FILE).exists() => {
+            model_file::recorded_background(&out.join(BASE_FILE))?
+        }
+        None => None,
+    };
+    let background = config.background(recorded);
+    let white = Some(background == Background::White);
     let (train, test) = load_scene(data, background)?;
     let labels: Vec<String> = train
         .image_paths
@@ -358,7 +381,7 @@ pub fn run(
                 path: out.to_path_buf(),
                 source,
             })?;
-            model_file::save(&model, &base_file)?;
+            model_file::save(&model, &base_file, white)?;
             model
         }
     };
@@ -383,7 +406,7 @@ pub fn run(
     };
     let outcome = prepared.stylize(config, job)?;
     let mut model = outcome.model;
-    model_file::save(&model, &out.join(MODEL_FILE))?;
+    model_file::save(&model, &out.join(MODEL_FILE), white)?;
     let test_renders = match &test {
         Some(test) => {
             let renders = render_views(&mut model, &test.views, background.rgb(), backend)?;

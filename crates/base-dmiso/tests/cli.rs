@@ -118,6 +118,8 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         (base.cores(), base.subs_per_core(), base.net().width),
         (50, 3, 16)
     );
+    let recorded = |p: &Path| model_file::recorded_background(p).unwrap();
+    assert_eq!(recorded(&fitted.join("model.safetensors")), Some(true));
 
     let styled = dir.path().join("styled");
     let mut cmd = bin();
@@ -205,6 +207,12 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         .args(["--out", s(&theirs)]));
     let styled_theirs = load(&theirs.join("model.safetensors"));
     assert_eq!(
+        recorded(&authors),
+        Some(true),
+        "their cfg_args: white_background=True"
+    );
+    assert_eq!(recorded(&theirs.join("model.safetensors")), Some(true));
+    assert_eq!(
         (
             styled_theirs.cores(),
             styled_theirs.subs_per_core(),
@@ -237,13 +245,27 @@ fn a_run_that_fits_first_resumes_with_its_fit() {
     let mut cmd = bin();
     stylize_args(&mut cmd, &models, 2);
     with_fit(&mut cmd);
-    run(cmd.args(["--data", s(&data), "--out", s(&out)]));
+    run(cmd.args([
+        "--data",
+        s(&data),
+        "--out",
+        s(&out),
+        "--background",
+        "black",
+    ]));
     let base = load(&out.join("base.safetensors"));
+    let recorded = model_file::recorded_background(&out.join("base.safetensors")).unwrap();
+    assert_eq!(recorded, Some(false), "the fit records its background");
     assert_eq!((base.cores(), base.subs_per_core()), (40, 2));
     let mut cmd = bin();
     stylize_args(&mut cmd, &models, 4);
     with_fit(&mut cmd);
-    run(cmd.args(["--data", s(&data), "--out", s(&out), "--resume"]));
+    // A resumed run has the same settings: a run without --background would be refused.
+    run(cmd
+        .args(["--data", s(&data), "--out", s(&out), "--resume"])
+        .args(["--background", "black"]));
+    let recorded = model_file::recorded_background(&out.join("model.safetensors")).unwrap();
+    assert_eq!(recorded, Some(false));
     assert_eq!(
         load(&out.join("base.safetensors")),
         base,

@@ -66,8 +66,8 @@ enum Command {
     Stylize(Box<StylizeArgs>),
     /// Fit a D-NeRF scene with D-MiSo (no stylization).
     ///
-    /// Writes to --out: model.safetensors and test/ (the test views at their times), and prints
-    /// the mean PSNR over the test views.
+    /// Writes to --out: model.safetensors and test/ (the test views at their times; train/, the
+    /// training views, when the scene has no test split), and prints their mean PSNR.
     Fit(FitArgs),
     /// Render a model at the views and times of a dataset split, and optionally through time
     /// from the split's first camera (sweep/ and, with ffmpeg, sweep.mp4).
@@ -105,6 +105,10 @@ struct StylizeArgs {
     /// Consecutive views per step, their losses averaged (the paper: 4).
     #[arg(long)]
     batch_size: Option<usize>,
+    /// The colour the pictures are composited over (default: the background the model
+    /// records, else white).
+    #[arg(long, value_enum)]
+    background: Option<BackgroundArg>,
     /// Random starting points of the fit.
     #[arg(long)]
     points: Option<usize>,
@@ -153,9 +157,9 @@ struct FitArgs {
     /// Seed of the starting model, the cores drawn and the view order.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Composite the pictures over black (default: white, D-MiSo's -w).
-    #[arg(long)]
-    black_background: bool,
+    /// The colour the pictures are composited over, white (D-MiSo's -w) or black.
+    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
+    background: BackgroundArg,
     /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -185,9 +189,9 @@ struct RenderArgs {
     /// Frame rate of the sweep's mp4.
     #[arg(long, default_value_t = 24.0)]
     fps: f64,
-    /// Render over black (default: white).
-    #[arg(long)]
-    black_background: bool,
+    /// Render over white or black (default: the background the model records, else white).
+    #[arg(long, value_enum)]
+    background: Option<BackgroundArg>,
     /// Where to render: cpu, gpu, or auto.
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -232,9 +236,9 @@ struct EvalArgs {
     /// The neutral prompt of CLIP-SIM (the training source prompt).
     #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
     source_prompt: String,
-    /// Composite the test pictures over black (default: white).
-    #[arg(long)]
-    black_background: bool,
+    /// The colour the test pictures are composited over (that of the renders).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
+    background: BackgroundArg,
     /// CLIP config.json (default ViT-L/14).
     #[arg(long)]
     clip_config: Option<PathBuf>,
@@ -259,11 +263,21 @@ fn parse_split(text: &str) -> Result<Split, String> {
     }
 }
 
-fn background(black: bool) -> Background {
-    if black {
-        Background::Black
-    } else {
-        Background::White
+/// A background colour on the command line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum BackgroundArg {
+    /// (1, 1, 1).
+    White,
+    /// (0, 0, 0).
+    Black,
+}
+
+impl BackgroundArg {
+    fn colour(self) -> Background {
+        match self {
+            Self::White => Background::White,
+            Self::Black => Background::Black,
+        }
     }
 }
 
@@ -280,6 +294,10 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("iteration", args.iteration.clone().map(Into::into)),
         ("out", path_value(&args.out)),
         ("batch_size", args.batch_size.map(Into::into)),
+        (
+            "white_background",
+            args.background.map(|b| (b == BackgroundArg::White).into()),
+        ),
         ("fit_points", args.points.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
     ])?;
@@ -307,7 +325,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     check_output_folder(&args.out)?;
-    let bg = background(args.black_background);
+    let bg = args.background.colour();
     let settings = FitSettings {
         points: args.points,
         steps: args.steps,
@@ -334,13 +352,15 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let mut model = fit_with_progress(&train, &settings, &options, &backend, &device)?;
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    model_file::save(&model, &args.out.join(MODEL_FILE))?;
+    let white = Some(bg == Background::White);
+    model_file::save(&model, &args.out.join(MODEL_FILE), white)?;
     let (views, images, which) = match &test {
         Some(test) => (&test.views, &test.images, "test"),
         None => (&train.views, &train.images, "training"),
     };
     let renders = render_views(&mut model, views, bg.rgb(), &backend)?;
-    write_frames(&args.out.join(TEST_DIR), &renders)?;
+    let folder = if test.is_some() { TEST_DIR } else { "train" };
+    write_frames(&args.out.join(folder), &renders)?;
     println!(
         "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, mean PSNR \
          {:.2} dB over the {which} views; wrote {}",
@@ -360,7 +380,12 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
-    let bg = background(args.black_background);
+    let recorded = model_file::recorded_background(&args.model)?;
+    let bg = match (args.background, recorded) {
+        (Some(b), _) => b.colour(),
+        (None, Some(false)) => Background::Black,
+        (None, _) => Background::White,
+    };
     let options = LoadOptions {
         background: bg,
         downscale: 1,
@@ -410,7 +435,11 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     let (a, b) = (read(&args.a)?, read(&args.b)?);
     let blended = interpolate(&a, &b, args.t)
         .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
-    model_file::save(&blended, &args.out)?;
+    model_file::save(
+        &blended,
+        &args.out,
+        model_file::recorded_background(&args.a)?,
+    )?;
     println!("wrote {} (t = {})", args.out.display(), args.t);
     Ok(())
 }
@@ -436,7 +465,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         _ => return Err("give exactly one of --style-prompt and --style-image".into()),
     };
     check_prompts(&style, &args.source_prompt)?;
-    let bg = background(args.black_background);
+    let bg = args.background.colour();
     let options = LoadOptions {
         background: bg,
         downscale: 1,
