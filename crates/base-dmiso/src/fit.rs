@@ -33,7 +33,7 @@ use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
 use gs_core::Image;
 
 use crate::deform_net::NetShape;
-use crate::densify::{densify, reset_opacity, DensifySettings, Recording};
+use crate::densify::{densify, reset_opacity, DensifySettings, GradStats, Recording};
 use crate::init::{initial_model, with_sub_gaussians};
 use crate::model::{Dmiso, GROUP_NAMES};
 
@@ -231,6 +231,7 @@ where
         on_step: &mut on_step,
         stopped: &mut stopped,
     };
+    let mut stats = None;
     for (stage, from, to) in stages {
         if *run.stopped {
             break;
@@ -247,7 +248,7 @@ where
             model.deformation = stage == Stage::Deformation;
         }
         if from < to {
-            model = run.stage(stage, model, from, to)?;
+            (model, stats) = run.stage(stage, model, (from, to), stats)?;
         }
     }
     Ok(model)
@@ -286,19 +287,26 @@ where
 
     /// Trains `model` from step `from` to `to` of the fit in `stage`, densifying the cores at
     /// the steps [`Run::events`] names (each a new optimizer whose moments follow the rows;
-    /// an event at `to` changes the model the next stage starts from).
-    fn stage(&mut self, stage: Stage, model: Dmiso, from: u64, to: u64) -> Result<Dmiso, FitError> {
+    /// an event at `to` changes the model the next stage starts from). The cores' gradient
+    /// statistics continue from `stats` (those of the stage before) and are returned for the
+    /// next stage.
+    fn stage(
+        &mut self,
+        stage: Stage,
+        model: Dmiso,
+        (from, to): (u64, u64),
+        stats: Option<GradStats>,
+    ) -> Result<(Dmiso, Option<GradStats>), FitError> {
         let groups = stage_groups(stage, self.extent, self.settings.deform_lr_steps, from);
+        let densifying = self.settings.densify.clone();
+        let (Some(settings), false) = (densifying, stage == Stage::SubGaussians) else {
+            return Ok((self.segment(model, &groups, None, from, to)?.0, None));
+        };
         let events = self.events(stage, from, to);
-        if events.is_empty() {
-            return Ok(self.segment(model, &groups, None, from, to)?.0);
-        }
-        let settings = self
-            .settings
-            .densify
-            .clone()
-            .expect("events need densification");
-        let mut model = Recording::new(model);
+        let mut model = match stats {
+            Some(stats) => Recording::with_stats(model, stats),
+            None => Recording::new(model),
+        };
         let mut state: Option<Vec<u8>> = None;
         let mut ends = events.clone();
         if ends.last() != Some(&to) {
@@ -307,7 +315,8 @@ where
         for end in ends {
             let (recorded, bytes) = self.segment(model, &groups, state.take(), from, end)?;
             if *self.stopped || !events.contains(&end) {
-                return Ok(recorded.model);
+                let stats = recorded.stats();
+                return Ok((recorded.model, Some(stats)));
             }
             let lens: Vec<Option<usize>> = recorded
                 .model
@@ -346,7 +355,7 @@ where
                     .map_err(|e| FitError::Settings(e.to_string()))?;
             }
             if end == to {
-                return Ok(next);
+                return Ok((next, stats));
             }
             state = Some(bytes);
             model = match stats {
