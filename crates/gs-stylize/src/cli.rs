@@ -13,8 +13,10 @@ use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 use gs_core::backend::DeviceChoice;
+use gs_core::dataset::Background;
 use serde_json::Value;
 
+use crate::evaluation::{ClipFiles, Style};
 use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use crate::writable::check_output_file;
 use crate::{Override, RunOptions, StylizeError};
@@ -49,8 +51,9 @@ pub struct StyleArgs {
     /// $CLIPGAUSSIAN_VGG19_WEIGHTS, else the Hugging Face cache, else downloaded on first use).
     #[arg(long)]
     pub vgg_weights: Option<PathBuf>,
-    /// Where the Gaussians are rendered and trained: cpu, gpu, or auto (a real GPU when there
-    /// is one, else the cpu; the default). CLIP and VGG run on the cpu.
+    /// Where the run computes: cpu, gpu, or auto (a real GPU when there is one, else the cpu;
+    /// the default). The Gaussians render and train there through wgpu; CLIP and VGG run on
+    /// candle's CUDA or Metal device in builds with that feature, else on the cpu.
     #[arg(long)]
     pub device: Option<DeviceChoice>,
     /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
@@ -111,6 +114,79 @@ impl StyleArgs {
             overrides.push(Override::parse(s)?);
         }
         Ok(overrides)
+    }
+}
+
+/// The style and the CLIP model of `eval` (the paper's CLIP metrics, ViT-L/14 by default).
+#[derive(clap::Args, Debug)]
+pub struct EvalStyleArgs {
+    /// The style as text.
+    #[arg(
+        long,
+        required_unless_present = "style_image",
+        conflicts_with = "style_image"
+    )]
+    pub style_prompt: Option<String>,
+    /// The style as a picture.
+    #[arg(long)]
+    pub style_image: Option<PathBuf>,
+    /// The neutral prompt of CLIP-SIM (the training source prompt).
+    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
+    pub source_prompt: String,
+    /// CLIP config.json (default: ViT-L/14, the paper's evaluation model).
+    #[arg(long)]
+    pub clip_config: Option<PathBuf>,
+    /// CLIP weights, safetensors (default: ViT-L/14 from $CLIPGAUSSIAN_CLIP_L14_WEIGHTS, else
+    /// the Hugging Face cache, else downloaded from the Hugging Face Hub into that cache on
+    /// first use).
+    #[arg(long)]
+    pub clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face
+    /// cache, else downloaded on first use).
+    #[arg(long)]
+    pub tokenizer: Option<PathBuf>,
+}
+
+impl EvalStyleArgs {
+    /// The style (clap has checked that exactly one of prompt and picture is given).
+    pub fn style(&self) -> Style {
+        match (&self.style_image, &self.style_prompt) {
+            (Some(image), _) => Style::Image(image.clone()),
+            (None, prompt) => Style::Prompt(prompt.clone().unwrap_or_default()),
+        }
+    }
+
+    /// The CLIP files given.
+    pub fn clip_files(&self) -> ClipFiles {
+        ClipFiles {
+            config: self.clip_config.clone(),
+            weights: self.clip_weights.clone(),
+            tokenizer: self.tokenizer.clone(),
+        }
+    }
+}
+
+/// A background colour on the command line: `white` or `black`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BackgroundArg {
+    /// (1, 1, 1).
+    White,
+    /// (0, 0, 0).
+    Black,
+}
+
+impl BackgroundArg {
+    /// As a dataset's background.
+    pub fn dataset(self) -> Background {
+        match self {
+            Self::White => Background::White,
+            Self::Black => Background::Black,
+        }
+    }
+
+    /// The colour, linear RGB.
+    pub fn rgb(self) -> [f32; 3] {
+        self.dataset().rgb()
     }
 }
 

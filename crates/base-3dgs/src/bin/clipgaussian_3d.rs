@@ -11,14 +11,16 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
-use base_3dgs::dataset::{Background, LoadOptions};
-use base_3dgs::evaluation::{evaluate_folders, write_metrics, ClipFiles, Style};
+use base_3dgs::dataset::LoadOptions;
+use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
 use gs_core::ply::read_ply;
-use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
+use gs_stylize::cli::{
+    exit_code, path_value, BackgroundArg, EvalStyleArgs, InterpolateArgs, StyleArgs,
+};
 use gs_stylize::open_device;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 
@@ -115,31 +117,6 @@ enum SplitArg {
     Val,
 }
 
-/// The colour behind the Gaussians (and behind transparent pixels of input pictures).
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum BackgroundArg {
-    /// (1, 1, 1).
-    White,
-    /// (0, 0, 0), 3DGS's default.
-    Black,
-}
-
-impl BackgroundArg {
-    fn dataset(self) -> Background {
-        match self {
-            Self::White => Background::White,
-            Self::Black => Background::Black,
-        }
-    }
-
-    fn rgb(self) -> [f32; 3] {
-        match self {
-            Self::White => [1.0; 3],
-            Self::Black => [0.0; 3],
-        }
-    }
-}
-
 /// Arguments of `render`.
 #[derive(Args, Debug)]
 struct RenderArgs {
@@ -183,31 +160,9 @@ struct EvalArgs {
     /// The folder of ground-truth pictures, with the same file names as the renders.
     #[arg(long)]
     gt: PathBuf,
-    /// The style as text.
-    #[arg(
-        long,
-        required_unless_present = "style_image",
-        conflicts_with = "style_image"
-    )]
-    style_prompt: Option<String>,
-    /// The style as a picture.
-    #[arg(long)]
-    style_image: Option<PathBuf>,
-    /// The neutral prompt of CLIP-SIM (the training source prompt).
-    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
-    source_prompt: String,
-    /// CLIP config.json (default: ViT-L/14, the paper's evaluation model).
-    #[arg(long)]
-    clip_config: Option<PathBuf>,
-    /// CLIP weights, safetensors (default: ViT-L/14 from $CLIPGAUSSIAN_CLIP_L14_WEIGHTS, else
-    /// the Hugging Face cache, else downloaded from the Hugging Face Hub into that cache on
-    /// first use).
-    #[arg(long)]
-    clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face
-    /// cache, else downloaded on first use).
-    #[arg(long)]
-    tokenizer: Option<PathBuf>,
+    /// The style and the CLIP model.
+    #[command(flatten)]
+    style: EvalStyleArgs,
     /// The colour behind transparent pixels of the pictures (white by default, the background
     /// `stylize` renders over).
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
@@ -270,22 +225,12 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
-    let style = match (&args.style_prompt, &args.style_image) {
-        (_, Some(image)) => Style::Image(image.clone()),
-        (Some(prompt), None) => Style::Prompt(prompt.clone()),
-        (None, None) => return Err("one of --style-prompt and --style-image is required".into()),
-    };
-    let clip_files = ClipFiles {
-        config: args.clip_config.clone(),
-        weights: args.clip_weights.clone(),
-        tokenizer: args.tokenizer.clone(),
-    };
     let metrics = evaluate_folders(
         &args.renders,
         &args.gt,
-        &style,
-        &args.source_prompt,
-        &clip_files,
+        &args.style.style(),
+        &args.style.source_prompt,
+        &args.style.clip_files(),
         args.background.rgb(),
     )?;
     let optional = |v: Option<f64>| v.map_or("n/a (one view)".into(), |v| format!("{v:.4}"));

@@ -26,8 +26,8 @@ use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_core::Image;
 use gs_stylize::animation::{write_frames, write_mp4, FRAMES_DIR};
-use gs_stylize::cli::{exit_code, path_value, StyleArgs};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score, ClipFiles, Style};
+use gs_stylize::cli::{exit_code, path_value, BackgroundArg, EvalStyleArgs, StyleArgs};
+use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -227,27 +227,12 @@ struct EvalArgs {
     /// The D-NeRF scene (its test split is the reference).
     #[arg(long)]
     data: PathBuf,
-    /// The style prompt (exactly one of --style-prompt and --style-image).
-    #[arg(long)]
-    style_prompt: Option<String>,
-    /// The style picture.
-    #[arg(long)]
-    style_image: Option<PathBuf>,
-    /// The neutral prompt of CLIP-SIM (the training source prompt).
-    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
-    source_prompt: String,
+    /// The style and the CLIP model.
+    #[command(flatten)]
+    style: EvalStyleArgs,
     /// The colour the test pictures are composited over (that of the renders).
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
-    /// CLIP config.json (default ViT-L/14).
-    #[arg(long)]
-    clip_config: Option<PathBuf>,
-    /// CLIP weights (default ViT-L/14 from the Hugging Face cache).
-    #[arg(long)]
-    clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json.
-    #[arg(long)]
-    tokenizer: Option<PathBuf>,
     /// Where to write the scores as JSON (printed too).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -260,24 +245,6 @@ fn parse_split(text: &str) -> Result<Split, String> {
         "train" => Ok(Split::Train),
         "val" => Ok(Split::Val),
         other => Err(format!("{other:?} is not one of test, train, val")),
-    }
-}
-
-/// A background colour on the command line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-enum BackgroundArg {
-    /// (1, 1, 1).
-    White,
-    /// (0, 0, 0).
-    Black,
-}
-
-impl BackgroundArg {
-    fn colour(self) -> Background {
-        match self {
-            Self::White => Background::White,
-            Self::Black => Background::Black,
-        }
     }
 }
 
@@ -325,7 +292,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     check_output_folder(&args.out)?;
-    let bg = args.background.colour();
+    let bg = args.background.dataset();
     let settings = FitSettings {
         points: args.points,
         steps: args.steps,
@@ -382,7 +349,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     }
     let recorded = model_file::recorded_background(&args.model)?;
     let bg = match (args.background, recorded) {
-        (Some(b), _) => b.colour(),
+        (Some(b), _) => b.dataset(),
         (None, Some(false)) => Background::Black,
         (None, _) => Background::White,
     };
@@ -459,13 +426,9 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     if let Some(out) = &args.out {
         check_output_file(out)?;
     }
-    let style = match (&args.style_prompt, &args.style_image) {
-        (Some(p), None) => Style::Prompt(p.clone()),
-        (None, Some(i)) => Style::Image(i.clone()),
-        _ => return Err("give exactly one of --style-prompt and --style-image".into()),
-    };
-    check_prompts(&style, &args.source_prompt)?;
-    let bg = args.background.colour();
+    let style = args.style.style();
+    check_prompts(&style, &args.style.source_prompt)?;
+    let bg = args.background.dataset();
     let options = LoadOptions {
         background: bg,
         downscale: 1,
@@ -490,11 +453,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     // Consecutive pairs in time order.
     let mut order: Vec<usize> = (0..test.views.len()).collect();
     order.sort_by(|&a, &b| test.views[a].time.total_cmp(&test.views[b].time));
-    let clip = resolve_clip(&ClipFiles {
-        config: args.clip_config.clone(),
-        weights: args.clip_weights.clone(),
-        tokenizer: args.tokenizer.clone(),
-    })?;
+    let clip = resolve_clip(&args.style.clip_files())?;
     let tensors = |images: &[Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
         order
             .iter()
@@ -510,7 +469,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &tensors(&renders)?,
         &tensors(&test.images)?,
         &style,
-        &args.source_prompt,
+        &args.style.source_prompt,
         bg.rgb(),
     )?;
     let text = serde_json::to_string_pretty(&metrics)?;

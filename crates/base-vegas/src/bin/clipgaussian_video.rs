@@ -24,8 +24,8 @@ use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_stylize::animation::{
     write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
-use gs_stylize::cli::{exit_code, path_value, StyleArgs};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score, ClipFiles, Style};
+use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, StyleArgs};
+use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -194,24 +194,9 @@ struct EvalArgs {
     /// The original video (a frames folder or a video file) with as many frames.
     #[arg(long)]
     video: PathBuf,
-    /// The style prompt (exactly one of --style-prompt and --style-image).
-    #[arg(long)]
-    style_prompt: Option<String>,
-    /// The style picture.
-    #[arg(long)]
-    style_image: Option<PathBuf>,
-    /// The neutral prompt of CLIP-SIM (the training source prompt).
-    #[arg(long, default_value = style_loss::DEFAULT_SOURCE_PROMPT)]
-    source_prompt: String,
-    /// CLIP config.json (default ViT-L/14).
-    #[arg(long)]
-    clip_config: Option<PathBuf>,
-    /// CLIP weights (default ViT-L/14 from the Hugging Face cache).
-    #[arg(long)]
-    clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json.
-    #[arg(long)]
-    tokenizer: Option<PathBuf>,
+    /// The style and the CLIP model.
+    #[command(flatten)]
+    style: EvalStyleArgs,
     /// Where to write the scores as JSON (printed too).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -411,12 +396,8 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     if let Some(out) = &args.out {
         check_output_file(out)?;
     }
-    let style = match (&args.style_prompt, &args.style_image) {
-        (Some(p), None) => Style::Prompt(p.clone()),
-        (None, Some(i)) => Style::Image(i.clone()),
-        _ => return Err("give exactly one of --style-prompt and --style-image".into()),
-    };
-    check_prompts(&style, &args.source_prompt)?;
+    let style = args.style.style();
+    check_prompts(&style, &args.style.source_prompt)?;
     let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS)?;
     let video = load_video(&args.video, [0.0; 3], DEFAULT_FOLDER_FPS)?;
     if renders.frames.len() != video.frames.len() {
@@ -429,11 +410,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         )
         .into());
     }
-    let clip = resolve_clip(&ClipFiles {
-        config: args.clip_config.clone(),
-        weights: args.clip_weights.clone(),
-        tokenizer: args.tokenizer.clone(),
-    })?;
+    let clip = resolve_clip(&args.style.clip_files())?;
     let temporal = temporal_consistency(&renders.frames, &video.frames);
     let tensors = |frames: &[gs_core::Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
         frames
@@ -451,7 +428,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
             &rendered,
             &truths,
             &style,
-            &args.source_prompt,
+            &args.style.source_prompt,
             [0.0; 3],
         )?,
         temporal,
