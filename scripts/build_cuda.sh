@@ -9,8 +9,9 @@
 #
 # Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d and clipgaussian-4d (whose
 # deformation network runs on the CUDA device too), and the timing examples
-# target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped copies of all
-# (about 55 MB each, without the debug information) in target/cuda/dist. To run them, the loader needs the
+# target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped copies of
+# all six (52-67 MB each, without the debug information; each under the device's 64 MiB carry
+# limit, so one a call) in target/cuda/dist. To run them, the loader needs the
 # NVIDIA driver and CUDA 13's cuBLAS, cuRAND and NVRTC, for example those of PyTorch's wheels:
 #   export LD_LIBRARY_PATH=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))'):$LD_LIBRARY_PATH
 set -euo pipefail

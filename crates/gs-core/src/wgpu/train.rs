@@ -99,7 +99,8 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
             .model
             .gpu_forward(&mut gpu, view)
             .map_err(|e| device_or_model(e, training_bytes(lens, &self.trained, 0, pixels)))?;
-        let run_needs = training_bytes(self.params.lens(), &self.trained, gaussians.len(), pixels);
+        let run_needs = training_bytes(self.params.lens(), &self.trained, gaussians.len(), pixels)
+            + self.sum_bytes();
         let needs = |e: GpuError| StepFailure::Device(e.with_run_needs(run_needs));
         let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
         let Some(grad) = evaluate(&rendered.image(ctx)) else {
@@ -148,6 +149,24 @@ impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
             .map_err(StepFailure::Device)?;
         self.params.mark_changed();
         Ok(StepEnd::Taken)
+    }
+}
+
+impl<M> GpuBackend<'_, M> {
+    /// Bytes of the batch's summed gradient (none for a step of one view).
+    fn sum_bytes(&self) -> u64 {
+        if self.views < 2 {
+            return 0;
+        }
+        let trained: u64 = self
+            .params
+            .lens()
+            .iter()
+            .zip(&self.trained)
+            .filter(|(_, &t)| t)
+            .map(|(&n, _)| n as u64)
+            .sum();
+        4 * trained
     }
 }
 
