@@ -139,6 +139,10 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     }
     assert_eq!(count_pngs(&styled.join("test")), 3);
     assert_eq!(count_pngs(&styled.join("sweep")), 5);
+    // The sweep's mp4 is written exactly where ffmpeg is installed (not on CI).
+    let ffmpeg = Command::new("ffmpeg").arg("-version").output().is_ok();
+    assert_eq!(styled.join("sweep.mp4").is_file(), ffmpeg);
+    assert_eq!(stdout.contains("no mp4"), !ffmpeg, "{stdout}");
     let stylized = load(&styled.join("model.safetensors"));
     assert_eq!(
         (stylized.cores(), stylized.subs_per_core(), stylized.net()),
