@@ -7,40 +7,20 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use base_dmiso::model::group;
 use base_dmiso::model_file;
 use base_dmiso::stylize::DynamicStylizeConfig;
 use base_dmiso::Dmiso;
 use candle_core::Device;
+use gs_stylize::test_support::{fails, path_str as s, succeeds as run, tiny_style_flags};
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 
 const SIZE: u32 = 32;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_clipgaussian-4d"))
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("run clipgaussian-4d");
-    assert!(
-        out.status.success(),
-        "{:?} failed:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn fails(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("run clipgaussian-4d");
-    assert!(!out.status.success(), "{cmd:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 fn scene(dir: &Path) -> PathBuf {
@@ -72,16 +52,10 @@ fn load(path: &Path) -> Dmiso {
 }
 
 fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
-    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
-        .args(["--clip-config", s(&models.clip_config)])
-        .args(["--clip-weights", s(&models.clip_weights)])
-        .args(["--tokenizer", s(&models.tokenizer)])
-        .args(["--vgg-weights", s(&models.vgg_weights)])
-        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
-        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
-        .args(["--set", "sweep_frames=5"])
-        .args(["--set", "checkpoint_every=2", "--device", "cpu"])
-        .args(["--style-prompt", "a red fire"]);
+    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()]);
+    tiny_style_flags(cmd, models);
+    cmd.args(["--set", "sweep_frames=5"])
+        .args(["--set", "checkpoint_every=2", "--device", "cpu"]);
 }
 
 fn count_pngs(dir: &Path) -> usize {

@@ -4,13 +4,14 @@
 //! CI) close to the cpu, resume a GPU run on the cpu, and refuse a device that is not there.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Command;
 
 use base_mirage::model_file::FittedTo;
 use gs_core::backend::ALLOW_SOFTWARE_GPU;
 use gs_core::ply::read_ply;
 use gs_core::wgpu::{AdapterChoice, GpuContext};
 use gs_core::GaussianSet;
+use gs_stylize::test_support::{fails, path_str as s, succeeds as run, tiny_style_flags};
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 use tempfile::TempDir;
 
@@ -19,23 +20,6 @@ const H: u32 = 32;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_clipgaussian-2d"))
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("run clipgaussian-2d");
-    assert!(
-        out.status.success(),
-        "{:?} failed:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn fails(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("run clipgaussian-2d");
-    assert!(!out.status.success(), "{cmd:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
 /// A `W x H` RGBA picture with a transparent corner, written as PNG.
@@ -49,10 +33,6 @@ fn write_picture(dir: &Path) -> PathBuf {
     path
 }
 
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
-}
-
 /// `stylize` arguments with the tiny models and small patches, `steps` steps, no progress.
 fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
     shown_stylize_args(cmd, models, steps);
@@ -61,15 +41,9 @@ fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
 
 /// [`stylize_args`] with the progress shown.
 fn shown_stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
-    cmd.args(["stylize", "--steps", &steps.to_string()])
-        .args(["--clip-config", s(&models.clip_config)])
-        .args(["--clip-weights", s(&models.clip_weights)])
-        .args(["--tokenizer", s(&models.tokenizer)])
-        .args(["--vgg-weights", s(&models.vgg_weights)])
-        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
-        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
-        .args(["--set", "checkpoint_every=3", "--set", "feature_lr=0.05"])
-        .args(["--style-prompt", "a red fire"]);
+    cmd.args(["stylize", "--steps", &steps.to_string()]);
+    tiny_style_flags(cmd, models);
+    cmd.args(["--set", "checkpoint_every=3", "--set", "feature_lr=0.05"]);
 }
 
 fn png_size(path: &Path) -> (u32, u32) {

@@ -7,6 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
 use base_vegas::model_file::read_model;
+use gs_stylize::test_support::{fails, path_str as s, succeeds as run, tiny_style_flags};
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 
 const W: u32 = 40;
@@ -15,27 +16,6 @@ const FRAMES: usize = 6;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_clipgaussian-video"))
-}
-
-fn run(cmd: &mut Command) -> Output {
-    let out = cmd.output().expect("run clipgaussian-video");
-    assert!(
-        out.status.success(),
-        "{:?} failed:\n{}",
-        cmd,
-        String::from_utf8_lossy(&out.stderr)
-    );
-    out
-}
-
-fn fails(cmd: &mut Command) -> String {
-    let out = cmd.output().expect("run clipgaussian-video");
-    assert!(!out.status.success(), "{cmd:?} should fail");
-    String::from_utf8_lossy(&out.stderr).into_owned()
-}
-
-fn s(p: &Path) -> &str {
-    p.to_str().unwrap()
 }
 
 /// A frames folder: a square moving across a gradient, numbered 1..=FRAMES without padding.
@@ -78,15 +58,9 @@ fn fit_video(video: &Path, out: &Path, gaussians: usize, steps: u64) -> Output {
 }
 
 fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
-    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()])
-        .args(["--clip-config", s(&models.clip_config)])
-        .args(["--clip-weights", s(&models.clip_weights)])
-        .args(["--tokenizer", s(&models.tokenizer)])
-        .args(["--vgg-weights", s(&models.vgg_weights)])
-        .args(["--set", "vgg_widths=[4,8,16,32,32]"])
-        .args(["--set", "patch_size=16", "--set", "num_patches=3"])
-        .args(["--set", "checkpoint_every=3", "--device", "cpu"])
-        .args(["--style-prompt", "a red fire"]);
+    cmd.args(["stylize", "--quiet", "--steps", &steps.to_string()]);
+    tiny_style_flags(cmd, models);
+    cmd.args(["--set", "checkpoint_every=3", "--device", "cpu"]);
 }
 
 fn frame_sizes(dir: &Path) -> Vec<(u32, u32)> {

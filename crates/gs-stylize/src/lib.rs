@@ -27,6 +27,8 @@ pub mod picture;
 pub mod plot;
 pub mod progress;
 pub mod run;
+#[cfg(feature = "test-support")]
+pub mod test_support;
 pub mod weights;
 pub mod writable;
 
