@@ -114,19 +114,13 @@ pub fn deform(vertices: &[V3<f64>; 3], d: Option<&Deformation>) -> [V3<f64>; 3] 
 
 /// The frame of the triangle `p` (deformed).
 pub fn frame(p: &[V3<f64>; 3]) -> Frame {
-    let f = FrameParts::new(p);
-    Frame {
-        origin: p[0],
-        normal: f.normal,
-        a_dir: f.a_dir,
-        b_dir: f.b_dir,
-        log_scales: [(f.la + FRAME_EPS).ln(), f.s3.abs().max(MIN_SCALE).ln()],
-        quat: f.quat,
-    }
+    FrameState::new(p).frame()
 }
 
-/// The intermediate values of [`frame`], kept for its backward.
-struct FrameParts {
+/// The frame of a deformed triangle with the intermediate values its backward needs, computed
+/// once for both ([`FrameState::frame`], [`FrameState::backward`]).
+pub struct FrameState {
+    origin: V3<f64>,
     a: V3<f64>,
     b: V3<f64>,
     la: f64,
@@ -143,12 +137,15 @@ struct FrameParts {
     s3: f64,
     lm: f64,
     normal: V3<f64>,
+    /// The rotation matrix of columns `r1, r2, r3`.
+    columns: M3<f64>,
     raw_norm: f64,
     quat: [f64; 4],
 }
 
-impl FrameParts {
-    fn new(p: &[V3<f64>; 3]) -> Self {
+impl FrameState {
+    /// The frame of the triangle `p` (deformed) and its intermediates.
+    pub fn new(p: &[V3<f64>; 3]) -> Self {
         let a = sub(p[1], p[0]);
         let b = sub(p[2], p[0]);
         let (a_dir, la) = normalize3(a);
@@ -174,6 +171,7 @@ impl FrameParts {
         ];
         let (quat, raw_norm) = normalize_quat(matrix_to_quaternion(&columns).0);
         Self {
+            origin: p[0],
             a,
             b,
             la,
@@ -190,68 +188,85 @@ impl FrameParts {
             s3,
             lm,
             normal,
+            columns,
             raw_norm,
             quat,
         }
+    }
+
+    /// The frame.
+    pub fn frame(&self) -> Frame {
+        Frame {
+            origin: self.origin,
+            normal: self.normal,
+            a_dir: self.a_dir,
+            b_dir: self.b_dir,
+            log_scales: [
+                (self.la + FRAME_EPS).ln(),
+                self.s3.abs().max(MIN_SCALE).ln(),
+            ],
+            quat: self.quat,
+        }
+    }
+
+    /// Gradient with respect to the deformed triangle of a loss whose gradient with respect
+    /// to its frame is `g`.
+    pub fn backward(&self, g: &FrameGrads) -> [V3<f64>; 3] {
+        let f = self;
+        let g_raw = normalize_quat_backward(f.quat, f.raw_norm, g.quat);
+        let g_m = matrix_to_quaternion_backward(&f.columns, g_raw);
+        let mut g_r1 = [g_m[0][0], g_m[1][0], g_m[2][0]];
+        let mut g_r2 = [g_m[0][1], g_m[1][1], g_m[2][1]];
+        let mut g_r3 = [g_m[0][2], g_m[1][2], g_m[2][2]];
+        let mut g_a = [0.0; 3];
+        let mut g_b = [0.0; 3];
+        // ln|b.r3| (clamped: no gradient below MIN_SCALE).
+        if f.s3.abs() > MIN_SCALE {
+            let g_s3 = g.log_scales[1] / f.s3;
+            axpy(&mut g_b, g_s3, f.r3);
+            axpy(&mut g_r3, g_s3, f.b);
+        }
+        // ln(|a| + eps).
+        let g_la = g.log_scales[0] / (f.la + FRAME_EPS);
+        // r3 = w / (|w| + eps).
+        let g_w = eps_normalize_backward(f.w, f.lw, g_r3);
+        // w = b - (b.r1) r1 - (b.r2) r2.
+        let (br1, br2) = (dot(&f.b, &f.r1), dot(&f.b, &f.r2));
+        let (wr1, wr2) = (dot(&g_w, &f.r1), dot(&g_w, &f.r2));
+        for k in 0..3 {
+            g_b[k] += g_w[k] - f.r1[k] * wr1 - f.r2[k] * wr2;
+            g_r1[k] -= br1 * g_w[k] + wr1 * f.b[k];
+            g_r2[k] -= br2 * g_w[k] + wr2 * f.b[k];
+        }
+        // r2 = a / (|a| + eps).
+        add_into(&mut g_a, eps_normalize_backward(f.a, f.la, g_r2));
+        // r1 = c / (|c| + eps), c = a_dir x b_dir.
+        let g_c = eps_normalize_backward(f.c, f.lc, g_r1);
+        let mut g_a_dir = g.a_dir;
+        let mut g_b_dir = g.b_dir;
+        add_into(&mut g_a_dir, cross(f.b_dir, g_c));
+        add_into(&mut g_b_dir, cross(g_c, f.a_dir));
+        add_into(&mut g_a, normalize3_backward(f.a_dir, f.la, g_a_dir));
+        add_into(&mut g_b, normalize3_backward(f.b_dir, f.lb, g_b_dir));
+        axpy(&mut g_a, if f.la > 0.0 { g_la } else { 0.0 }, f.a_dir);
+        // normal = m / |m|, m = a x b.
+        let g_mm = normalize3_backward(f.normal, f.lm, g.normal);
+        add_into(&mut g_a, cross(f.b, g_mm));
+        add_into(&mut g_b, cross(g_mm, f.a));
+        let mut g_p = [[0.0; 3]; 3];
+        for k in 0..3 {
+            g_p[0][k] = g.origin[k] - g_a[k] - g_b[k];
+            g_p[1][k] = g_a[k];
+            g_p[2][k] = g_b[k];
+        }
+        g_p
     }
 }
 
 /// Gradient with respect to the deformed triangle `p` of a loss whose gradient with respect
 /// to [`frame`]`(p)` is `g`.
 pub fn frame_backward(p: &[V3<f64>; 3], g: &FrameGrads) -> [V3<f64>; 3] {
-    let f = FrameParts::new(p);
-    let columns = [
-        [f.r1[0], f.r2[0], f.r3[0]],
-        [f.r1[1], f.r2[1], f.r3[1]],
-        [f.r1[2], f.r2[2], f.r3[2]],
-    ];
-    let g_raw = normalize_quat_backward(f.quat, f.raw_norm, g.quat);
-    let g_m = matrix_to_quaternion_backward(&columns, g_raw);
-    let mut g_r1 = [g_m[0][0], g_m[1][0], g_m[2][0]];
-    let mut g_r2 = [g_m[0][1], g_m[1][1], g_m[2][1]];
-    let mut g_r3 = [g_m[0][2], g_m[1][2], g_m[2][2]];
-    let mut g_a = [0.0; 3];
-    let mut g_b = [0.0; 3];
-    // ln|b.r3| (clamped: no gradient below MIN_SCALE).
-    if f.s3.abs() > MIN_SCALE {
-        let g_s3 = g.log_scales[1] / f.s3;
-        axpy(&mut g_b, g_s3, f.r3);
-        axpy(&mut g_r3, g_s3, f.b);
-    }
-    // ln(|a| + eps).
-    let g_la = g.log_scales[0] / (f.la + FRAME_EPS);
-    // r3 = w / (|w| + eps).
-    let g_w = eps_normalize_backward(f.w, f.lw, g_r3);
-    // w = b - (b.r1) r1 - (b.r2) r2.
-    let (br1, br2) = (dot(&f.b, &f.r1), dot(&f.b, &f.r2));
-    let (wr1, wr2) = (dot(&g_w, &f.r1), dot(&g_w, &f.r2));
-    for k in 0..3 {
-        g_b[k] += g_w[k] - f.r1[k] * wr1 - f.r2[k] * wr2;
-        g_r1[k] -= br1 * g_w[k] + wr1 * f.b[k];
-        g_r2[k] -= br2 * g_w[k] + wr2 * f.b[k];
-    }
-    // r2 = a / (|a| + eps).
-    add_into(&mut g_a, eps_normalize_backward(f.a, f.la, g_r2));
-    // r1 = c / (|c| + eps), c = a_dir x b_dir.
-    let g_c = eps_normalize_backward(f.c, f.lc, g_r1);
-    let mut g_a_dir = g.a_dir;
-    let mut g_b_dir = g.b_dir;
-    add_into(&mut g_a_dir, cross(f.b_dir, g_c));
-    add_into(&mut g_b_dir, cross(g_c, f.a_dir));
-    add_into(&mut g_a, normalize3_backward(f.a_dir, f.la, g_a_dir));
-    add_into(&mut g_b, normalize3_backward(f.b_dir, f.lb, g_b_dir));
-    axpy(&mut g_a, if f.la > 0.0 { g_la } else { 0.0 }, f.a_dir);
-    // normal = m / |m|, m = a x b.
-    let g_mm = normalize3_backward(f.normal, f.lm, g.normal);
-    add_into(&mut g_a, cross(f.b, g_mm));
-    add_into(&mut g_b, cross(g_mm, f.a));
-    let mut g_p = [[0.0; 3]; 3];
-    for k in 0..3 {
-        g_p[0][k] = g.origin[k] - g_a[k] - g_b[k];
-        g_p[1][k] = g_a[k];
-        g_p[2][k] = g_b[k];
-    }
-    g_p
+    FrameState::new(p).backward(g)
 }
 
 /// Gradients of the canonical vertices and of the network's outputs, given the gradient `g_p`

@@ -15,7 +15,6 @@
 //! picture. Unlike D-MiSo, which takes the last view of each batch, every view of a batch
 //! counts.
 
-use std::borrow::Cow;
 use std::sync::Mutex;
 
 use gs_core::adam::RowChange;
@@ -151,7 +150,7 @@ impl BaseModel for Recording {
         let Forward { gaussians, tape } = self.model.forward(view)?;
         let means = gaussians.means.clone();
         Ok(Forward {
-            gaussians: Cow::Owned(gaussians.into_owned()),
+            gaussians,
             tape: (tape, means),
         })
     }

@@ -318,13 +318,7 @@ where
                 let stats = recorded.stats();
                 return Ok((recorded.model, Some(stats)));
             }
-            let lens: Vec<Option<usize>> = recorded
-                .model
-                .group_lens()
-                .into_iter()
-                .zip(&groups)
-                .map(|(n, g)| (!g.frozen).then_some(n))
-                .collect();
+            let lens = trained_lens(&recorded.model, &groups);
             let mut stats = Some(recorded.stats());
             let mut next = recorded.model;
             let mut bytes = bytes;
@@ -344,12 +338,7 @@ where
                 stats = None;
             }
             if self.resets_opacity(end) {
-                let lens: Vec<Option<usize>> = next
-                    .group_lens()
-                    .into_iter()
-                    .zip(&groups)
-                    .map(|(n, g)| (!g.frozen).then_some(n))
-                    .collect();
+                let lens = trained_lens(&next, &groups);
                 let rows = reset_opacity(&mut next);
                 bytes = rearrange_state(&bytes, &groups, &lens, &rows)
                     .map_err(|e| FitError::Settings(e.to_string()))?;
@@ -416,6 +405,17 @@ where
         let bytes = trainer.save_optimizer();
         Ok((trainer.into_model(), bytes))
     }
+}
+
+/// The lengths of `model`'s groups that `groups` trains (`None` for frozen ones), as its
+/// optimizer's state holds them.
+fn trained_lens(model: &Dmiso, groups: &[GroupConfig]) -> Vec<Option<usize>> {
+    model
+        .group_lens()
+        .into_iter()
+        .zip(groups)
+        .map(|(n, g)| (!g.frozen).then_some(n))
+        .collect()
 }
 
 /// The images of `model` at `views`, over `background`.

@@ -22,7 +22,7 @@ use gs_core::model::{BaseModel, Forward, ModelError, View};
 use gs_core::raster::GradMask;
 use rayon::prelude::*;
 
-use crate::core_frame::{deform, deform_backward, frame, frame_backward, Deformation, FrameGrads};
+use crate::core_frame::{deform, deform_backward, frame, Deformation, FrameGrads, FrameState};
 use crate::deform_net::{self, NetShape, NetTape, OUTPUTS};
 use crate::encoding::{time_encoding, triangle_encoding, VERTEX_ENCODING};
 use crate::sub_gaussian::{
@@ -423,7 +423,8 @@ impl BaseModel for Dmiso {
                         .then(|| Deformation::from_slice(&outputs[OUTPUTS * c..OUTPUTS * (c + 1)]));
                     let v = vertices(&g[group::PSEUDOMESH], c);
                     let p = deform(&v, d.as_ref());
-                    let f = frame(&p);
+                    let state = FrameState::new(&p);
+                    let f = state.frame();
                     let mut gf = FrameGrads::default();
                     for s in 0..k {
                         let i = c * k + s;
@@ -455,7 +456,7 @@ impl BaseModel for Dmiso {
                             }
                         }
                     }
-                    let g_p = frame_backward(&p, &gf);
+                    let g_p = state.backward(&gf);
                     let core = deform_backward(&v, d.as_ref(), &g_p);
                     if !g_mesh.is_empty() {
                         for j in 0..3 {

@@ -187,30 +187,34 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
             .collect();
         found.insert(name, (view.shape().to_vec(), values));
     }
-    let params = fill_groups(cores, subs, &net, |name| found.remove(name)).map_err(format)?;
+    let params = fill_groups(cores, subs, &net, |name| found.remove(name))
+        .map_err(|(_, message)| format(message))?;
     Dmiso::new(cores, subs, net, deformation, params, device.clone()).map_err(format)
 }
 
 /// The groups of a model from its tensors, each looked up by name (`get` gives its shape and
-/// values); the error names a missing tensor or one of another shape.
+/// values); the error is the name of a missing tensor or of one of another shape, and a
+/// message that names it.
 fn fill_groups(
     cores: usize,
     subs: usize,
     net: &NetShape,
     mut get: impl FnMut(&str) -> Option<(Vec<usize>, Vec<f32>)>,
-) -> Result<DmisoParams, String> {
+) -> Result<DmisoParams, (String, String)> {
     let lens = crate::model::group_lens(cores, subs, net);
     let mut groups: [Vec<f32>; 9] = lens.map(|n| vec![0.0; n]);
     for (name, shape, g, offset) in layout(cores, subs, net) {
         let Some((found, values)) = get(&name) else {
-            return Err(format!("no tensor {name} (of shape {shape:?})"));
+            let message = format!("no tensor {name} (of shape {shape:?})");
+            return Err((name, message));
         };
         if found != shape {
-            return Err(format!(
+            let message = format!(
                 "{name} has shape {found:?}; {shape:?} expected for {cores} cores of {subs} \
                  sub-Gaussians and a network of width {}",
                 net.width
-            ));
+            );
+            return Err((name, message));
         }
         groups[g][offset..offset + values.len()].copy_from_slice(&values);
     }
@@ -259,8 +263,6 @@ pub struct AuthorsFiles {
     pub deform: PathBuf,
     /// `time_net/iteration_<it>/deform.pth`.
     pub time_net: PathBuf,
-    /// `cfg_args`, when present.
-    pub cfg_args: Option<PathBuf>,
 }
 
 impl AuthorsFiles {
@@ -282,7 +284,6 @@ impl AuthorsFiles {
             params: at("point_cloud", "model_params.pt"),
             deform: at("deform", "deform.pth"),
             time_net: at("time_net", "deform.pth"),
-            cfg_args: Some(dir.join("cfg_args")).filter(|p| p.is_file()),
         };
         for path in [&files.ply, &files.params, &files.deform, &files.time_net] {
             if !path.is_file() {
@@ -341,21 +342,35 @@ pub fn recorded_background(path: &Path) -> Result<Option<bool>, ModelFileError> 
             Err(source) => Err(ModelFileError::Io { path: cfg, source }),
         };
     }
-    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+    // Only the header: an 8-byte length, then the JSON header with the metadata.
+    use std::io::Read;
+    let not_ours = |what: String| ModelFileError::Format {
+        path: path.to_path_buf(),
+        message: format!("not a safetensors file ({what})"),
+    };
+    let mut file = std::fs::File::open(path).map_err(|source| ModelFileError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let (_, header) =
-        safetensors::SafeTensors::read_metadata(&bytes).map_err(|e| ModelFileError::Format {
-            path: path.to_path_buf(),
-            message: format!("not a safetensors file ({e})"),
-        })?;
-    Ok(header
-        .metadata()
-        .as_ref()
-        .and_then(|m| m.get("white_background"))
+    let mut len = [0u8; 8];
+    file.read_exact(&mut len)
+        .map_err(|e| not_ours(format!("header length: {e}")))?;
+    let len = u64::from_le_bytes(len);
+    if len > MAX_HEADER_BYTES {
+        return Err(not_ours(format!("a header of {len} bytes")));
+    }
+    let mut header = vec![0u8; len as usize];
+    file.read_exact(&mut header)
+        .map_err(|e| not_ours(format!("header: {e}")))?;
+    let header: serde_json::Value =
+        serde_json::from_slice(&header).map_err(|e| not_ours(format!("header: {e}")))?;
+    Ok(header["__metadata__"]["white_background"]
+        .as_str()
         .and_then(|v| v.parse().ok()))
 }
+
+/// The largest safetensors header read for its metadata (the format's own limit is 100 MB).
+const MAX_HEADER_BYTES: u64 = 100_000_000;
 
 /// Whether `cfg_args` (a Python `Namespace(...)`) says `white_background=True`; `None` when it
 /// does not say.
@@ -413,7 +428,7 @@ pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, Mode
             format!("{cores_in_ply} cores, but model_params.pt holds {cores}: files of two models"),
         ));
     }
-    let deform = read_pth(&files.deform)?;
+    let mut deform = read_pth(&files.deform)?;
     let width =
         match deform.get("timenet.0.weight") {
             Some((shape, _)) if shape.len() == 2 => shape[0],
@@ -425,9 +440,7 @@ pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, Mode
             )),
         };
     let net = NetShape { width };
-    let time_net = read_pth(&files.time_net)?;
-    let mut deform = deform;
-    let mut time_net = time_net;
+    let mut time_net = read_pth(&files.time_net)?;
     let filled = fill_groups(cores, subs, &net, |name| {
         if let Some(n) = name.strip_prefix("deform.") {
             deform.remove(n)
@@ -437,10 +450,10 @@ pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, Mode
             params.remove(name)
         }
     });
-    let params = filled.map_err(|message| {
-        let path = if message.contains("deform.") {
+    let params = filled.map_err(|(name, message)| {
+        let path = if name.starts_with("deform.") {
             &files.deform
-        } else if message.contains("time_net.") {
+        } else if name.starts_with("time_net.") {
             &files.time_net
         } else {
             &files.params

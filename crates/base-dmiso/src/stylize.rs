@@ -24,7 +24,7 @@ use gs_core::model::View;
 use gs_core::train::BatchOrder;
 use gs_core::Image;
 use gs_stylize::animation::{
-    write_frames, write_mp4, write_preview_gif, AnimationError, PREVIEW_GIF,
+    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, PREVIEW_GIF,
 };
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
@@ -138,11 +138,7 @@ impl Default for DynamicStylizeConfig {
 impl DynamicStylizeConfig {
     /// The background colour: the configured one, else `recorded` (the model's), else white.
     pub fn background(&self, recorded: Option<bool>) -> Background {
-        if self.white_background.or(recorded).unwrap_or(true) {
-            Background::White
-        } else {
-            Background::Black
-        }
+        background_of(self.white_background, recorded)
     }
 
     /// The fit this configuration asks for.
@@ -182,6 +178,16 @@ impl DynamicStylizeConfig {
             return bad(format!("sweep_fps: {} must be positive", self.sweep_fps));
         }
         Ok(())
+    }
+}
+
+/// The background of a run: white when `white` says so (given), else when the model records
+/// white or nothing (`recorded`); else black.
+pub fn background_of(white: Option<bool>, recorded: Option<bool>) -> Background {
+    if white.or(recorded).unwrap_or(true) {
+        Background::White
+    } else {
+        Background::Black
     }
 }
 
@@ -347,12 +353,13 @@ pub fn run(
     let prepared = prepare(&config.style, out, options.clone())?;
     let backend = prepared.backend();
     let device = prepared.loss_device().clone();
-    let recorded = match &config.model {
-        Some(path) => model_file::recorded_background(path)?,
-        None if options.resume && out.join(BASE_FILE).exists() => {
-            model_file::recorded_background(&out.join(BASE_FILE))?
-        }
-        None => None,
+    let base_file = out.join(BASE_FILE);
+    // A resumed run that fitted its model takes it up again.
+    let refit = config.model.is_none() && options.resume && base_file.exists();
+    let recorded = match (&config.model, refit) {
+        (Some(path), _) => model_file::recorded_background(path)?,
+        (None, true) => model_file::recorded_background(&base_file)?,
+        (None, false) => None,
     };
     let background = config.background(recorded);
     let white = Some(background == Background::White);
@@ -370,10 +377,9 @@ pub fn run(
             train.views.len()
         )));
     }
-    let base_file = out.join(BASE_FILE);
-    let model = match &config.model {
+    let mut model = match &config.model {
         Some(path) => read_model(path, config.iteration.as_deref(), &device)?,
-        None if options.resume && base_file.exists() => model_file::load(&base_file, &device)?,
+        None if refit => model_file::load(&base_file, &device)?,
         None => {
             let model =
                 fit_with_progress(&train, &config.fit_settings(), options, backend, &device)?;
@@ -385,7 +391,10 @@ pub fn run(
             model
         }
     };
-    let base = model.clone();
+    // The sweep through time, of the model before stylization, for the preview.
+    let camera = &test.as_ref().unwrap_or(&train).views[0].camera;
+    let views = sweep_views(camera, config.sweep_frames.max(1));
+    let original = render_views(&mut model, &views, background.rgb(), backend)?;
     let masks = train
         .masks
         .iter()
@@ -415,22 +424,11 @@ pub fn run(
         }
         None => Vec::new(),
     };
-    let camera = &test.as_ref().unwrap_or(&train).views[0].camera;
-    let views = sweep_views(camera, config.sweep_frames.max(1));
     let sweep = render_views(&mut model, &views, background.rgb(), backend)?;
-    let mut base = base;
-    let original = render_views(&mut base, &views, background.rgb(), backend)?;
     let sweep_dir = out.join(SWEEP_DIR);
     write_frames(&sweep_dir, &sweep)?;
     write_preview_gif(&out.join(PREVIEW_GIF), &original, &sweep, config.sweep_fps)?;
-    // The renders and the model are the results; a failed mp4 is reported, not fatal.
-    let wrote_mp4 = match write_mp4(&sweep_dir, config.sweep_fps, &out.join(SWEEP_MP4)) {
-        Ok(wrote) => wrote,
-        Err(e) => {
-            eprintln!("warning: {e}; the frames are in {}", sweep_dir.display());
-            false
-        }
-    };
+    let wrote_mp4 = write_mp4_or_warn(&sweep_dir, config.sweep_fps, &out.join(SWEEP_MP4));
     mark_finished(out, config.style.steps)?;
     Ok(DynamicSummary {
         model,

@@ -32,7 +32,7 @@ use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
 use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
 use gs_stylize::animation::{
-    write_frames, write_mp4, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
+    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
     STYLIZED_MP4,
 };
 
@@ -280,14 +280,7 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
     let frames_dir = out.join(FRAMES_DIR);
     write_frames(&frames_dir, &stylized)?;
     write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
-    // The frames and the model are the results; a failed mp4 is reported, not fatal.
-    let wrote_mp4 = match write_mp4(&frames_dir, video.fps, &out.join(STYLIZED_MP4)) {
-        Ok(wrote) => wrote,
-        Err(e) => {
-            eprintln!("warning: {e}; the frames are in {}", frames_dir.display());
-            false
-        }
-    };
+    let wrote_mp4 = write_mp4_or_warn(&frames_dir, video.fps, &out.join(STYLIZED_MP4));
     mark_finished(out, config.style.steps)?;
     Ok(VideoSummary {
         model: outcome.model,

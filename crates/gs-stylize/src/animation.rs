@@ -139,6 +139,18 @@ pub fn write_mp4(frames_dir: &Path, fps: f64, path: &Path) -> Result<bool, Anima
     Ok(true)
 }
 
+/// [`write_mp4`] after a run whose frames (in `frames_dir`) are its results: a failure is a
+/// warning on stderr naming the frames, not an error. Whether the mp4 was written.
+pub fn write_mp4_or_warn(frames_dir: &Path, fps: f64, path: &Path) -> bool {
+    match write_mp4(frames_dir, fps, path) {
+        Ok(wrote) => wrote,
+        Err(e) => {
+            eprintln!("warning: {e}; the frames are in {}", frames_dir.display());
+            false
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use image::AnimationDecoder;

@@ -15,7 +15,7 @@ use std::time::Instant;
 use base_dmiso::fit::{mean_psnr, render_views, FitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
-    fit_with_progress, load_scene, read_model, run, sweep_views, DynamicError,
+    background_of, fit_with_progress, load_scene, read_model, run, sweep_views, DynamicError,
     DynamicStylizeConfig, MODEL_FILE, SWEEP_DIR, SWEEP_MP4, TEST_DIR,
 };
 use base_dmiso::{interpolate, Dmiso};
@@ -347,12 +347,10 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
-    let recorded = model_file::recorded_background(&args.model)?;
-    let bg = match (args.background, recorded) {
-        (Some(b), _) => b.dataset(),
-        (None, Some(false)) => Background::Black,
-        (None, _) => Background::White,
-    };
+    let bg = background_of(
+        args.background.map(|b| b == BackgroundArg::White),
+        model_file::recorded_background(&args.model)?,
+    );
     let options = LoadOptions {
         background: bg,
         downscale: 1,

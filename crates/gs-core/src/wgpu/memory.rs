@@ -19,15 +19,19 @@ const SORT_BYTES: u64 = 5 * 4;
 /// on how much of the image each Gaussian covers.
 pub fn training_bytes(lens: &[usize], trained: &[bool], gaussians: usize, pixels: u64) -> u64 {
     let values: u64 = lens.iter().map(|&n| n as u64).sum();
-    let trained_values: u64 = lens
-        .iter()
-        .zip(trained)
-        .filter(|(_, &t)| t)
-        .map(|(&n, _)| n as u64)
-        .sum();
+    let trained_values = trained_values(lens, trained);
     let per_view =
         gaussians as u64 * (SPLAT_BYTES + SPLAT_GRAD_BYTES + SORT_BYTES) + pixels * PIXEL_BYTES;
     4 * values + 3 * 4 * trained_values + per_view
+}
+
+/// Values of the trained groups (`lens[i]` values, trained when `trained[i]`).
+pub(crate) fn trained_values(lens: &[usize], trained: &[bool]) -> u64 {
+    lens.iter()
+        .zip(trained)
+        .filter(|(_, &t)| t)
+        .map(|(&n, _)| n as u64)
+        .sum()
 }
 
 #[cfg(test)]

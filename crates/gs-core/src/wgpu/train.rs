@@ -12,7 +12,7 @@ use super::backward::backward;
 use super::buffers::{read, storage, zeroed_f32};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
-use super::memory::training_bytes;
+use super::memory::{trained_values, training_bytes};
 use super::model::{GpuForward, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
 use crate::image::Image;
@@ -158,15 +158,7 @@ impl<M> GpuBackend<'_, M> {
         if self.views < 2 {
             return 0;
         }
-        let trained: u64 = self
-            .params
-            .lens()
-            .iter()
-            .zip(&self.trained)
-            .filter(|(_, &t)| t)
-            .map(|(&n, _)| n as u64)
-            .sum();
-        4 * trained
+        4 * trained_values(self.params.lens(), &self.trained)
     }
 }
 
