@@ -259,6 +259,7 @@ fn downscale_2_halves_intrinsics_and_image_sizes() {
     let options = LoadOptions {
         background: Background::White,
         downscale: 2,
+        ..LoadOptions::default()
     };
     let check = |data: &base_3dgs::dataset::Dataset| {
         for (half, full) in data.views.iter().zip(&full.views) {

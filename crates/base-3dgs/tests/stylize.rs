@@ -17,8 +17,10 @@ use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig
 use candle_core::{Device, Tensor};
 use common::TempDir;
 use gs_core::backend::DeviceChoice;
+use gs_core::dataset::GroundTruth;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
+use gs_core::render_clamp::clamp_unit;
 use gs_core::GaussianSet;
 use gs_stylize::checkpoint;
 use gs_stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
@@ -45,6 +47,10 @@ impl Setup {
             data: Some(data),
             out: Some(dir.path().join("out")),
             preview_views: vec![0, 2],
+            // The scene's pictures are renders over black with alpha: composited over white,
+            // their background differs from the transparent pixels' stored black.
+            white_background: true,
+            ground_truth: GroundTruth::Composited,
             style: StyleSettings {
                 style_prompt: Some("fire".into()),
                 steps: 20,
@@ -98,8 +104,14 @@ fn resume() -> RunOptions {
 /// dataset with the same patches each time, so the losses before and after stylization compare.
 fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
     let device = Device::Cpu;
+    let background = if config.white_background {
+        Background::White
+    } else {
+        Background::Black
+    };
     let options = LoadOptions {
-        background: Background::White,
+        background,
+        ground_truth: config.ground_truth,
         downscale: 1,
     };
     let data = nerf_synthetic::load(config.data.as_ref().unwrap(), Split::Train, &options).unwrap();
@@ -140,7 +152,8 @@ fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
             let mask = data.masks[v].as_ref().unwrap();
             let mask = Tensor::from_slice(&mask.data, (s, s), &device).unwrap();
             let cache = loss.cache_view(&gt, Some(&mask)).unwrap();
-            let img = render(gaussians, &data.views[v].camera, [1.0; 3]).image;
+            // The loss sees the render clamped to [0, 1], as in the run.
+            let img = clamp_unit(&render(gaussians, &data.views[v].camera, background.rgb()).image);
             let x = hwc_to_tensor(&img.data, s, s, &device).unwrap();
             let patches = loss.sample_patches(&mut rng, s, s).unwrap();
             let o = loss

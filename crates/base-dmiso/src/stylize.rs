@@ -16,9 +16,9 @@
 use std::path::{Path, PathBuf};
 
 use candle_core::Device;
-use gs_core::adam::{GroupConfig, LrSchedule};
+use gs_core::adam::{GroupConfig, LrSchedule, RateAt};
 use gs_core::backend::Backend;
-use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
+use gs_core::dataset::nerf_synthetic::{load_with_times, Split, TrainSplits};
 use gs_core::dataset::{Background, Dataset, DatasetError, LoadOptions};
 use gs_core::model::View;
 use gs_core::train::BatchOrder;
@@ -29,11 +29,13 @@ use gs_stylize::animation::{
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
-use gs_stylize::{prepare, Batches, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use gs_stylize::{
+    prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{fit, render_views, FitError, FitSettings};
-use crate::model::{Dmiso, GROUP_NAMES};
+use crate::model::{group, Dmiso, GROUP_NAMES};
 use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
 
 /// The stylized model.
@@ -68,6 +70,11 @@ pub struct DynamicStylizeConfig {
     /// model records (our file's, or the authors' `cfg_args`), else white (CLIPGaussian's 4D
     /// examples).
     pub white_background: Option<bool>,
+    /// Which splits train (and are fitted, when no model is given): `train_and_test` (the
+    /// default: the authors' commands pass no `--eval`, so D-MiSo's loader trains on both, the
+    /// test frames after the training ones, and takes the extent of both) or `train`. The test
+    /// views are rendered into `test/` either way.
+    pub train_splits: TrainSplits,
     /// Consecutive training views per step, their losses averaged.
     pub batch_size: usize,
     /// Learning rate of the sub-Gaussians' offsets.
@@ -114,6 +121,7 @@ impl Default for DynamicStylizeConfig {
             iteration: None,
             out: None,
             white_background: None,
+            train_splits: TrainSplits::TrainAndTest,
             batch_size: 4,
             alpha_lr: 1e-5,
             deform_lr_start: 5e-5,
@@ -231,12 +239,25 @@ pub fn stylize_groups(config: &DynamicStylizeConfig, extent: f64) -> Vec<GroupCo
         },
         constant(config.time_net_lr),
     ];
-    GROUP_NAMES
+    let mut groups: Vec<GroupConfig> = GROUP_NAMES
         .iter()
         .zip(rates)
         .map(|(name, rate)| GroupConfig::new(*name, rate))
-        .collect()
+        .collect();
+    authors_update_rules(&mut groups);
+    groups
 }
+
+/// What the authors' 4D loop does beyond the rates: the network's rate is updated after each
+/// step (update `k` uses `lr(k - 1)`, the triangles' `lr(k)`), and the time-rotation layer has
+/// its own Adam with torch's default epsilon 1e-8 (every other group 1e-15).
+fn authors_update_rules(groups: &mut [GroupConfig]) {
+    groups[group::DEFORM].rate_at = RateAt::PreviousIteration;
+    groups[group::TIME_NET].eps = Some(TORCH_ADAM_EPS);
+}
+
+/// `torch.optim.Adam`'s default epsilon.
+const TORCH_ADAM_EPS: f64 = 1e-8;
 
 /// Why a dynamic-scene run could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
@@ -285,6 +306,7 @@ pub fn load_scene(
     let options = LoadOptions {
         background,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let train = load_with_times(data, Split::Train, &options)?;
     let test = if data.join(Split::Test.file_name()).is_file() {
@@ -363,7 +385,10 @@ pub fn run(
     };
     let background = config.background(recorded);
     let white = Some(background == Background::White);
-    let (train, test) = load_scene(data, background)?;
+    let (mut train, test) = load_scene(data, background)?;
+    if let (TrainSplits::TrainAndTest, Some(test)) = (config.train_splits, &test) {
+        train.append(test.clone());
+    }
     let labels: Vec<String> = train
         .image_paths
         .iter()
@@ -412,6 +437,7 @@ pub fn run(
             size: config.batch_size,
             order: BatchOrder::Consecutive,
         },
+        render_clamp: RenderClamp::Off,
     };
     let outcome = prepared.stylize(config, job)?;
     let mut model = outcome.model;

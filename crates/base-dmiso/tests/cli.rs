@@ -347,6 +347,7 @@ fn help_configs_and_eval() {
         &gs_core::dataset::LoadOptions {
             background: gs_core::dataset::Background::White,
             downscale: 1,
+            ..gs_core::dataset::LoadOptions::default()
         },
     )
     .unwrap();

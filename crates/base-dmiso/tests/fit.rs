@@ -20,6 +20,7 @@ fn a_fit_reproduces_held_out_times() {
     let options = LoadOptions {
         background: Background::White,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let train = load_with_times(dir.path(), Split::Train, &options).unwrap();
     let test = load_with_times(dir.path(), Split::Test, &options).unwrap();

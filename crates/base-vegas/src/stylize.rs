@@ -24,7 +24,9 @@ use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
-use gs_stylize::{prepare, Batches, RunOptions, StyleSettings, StylizeError, StylizeJob};
+use gs_stylize::{
+    prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+};
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{fit, render_frames, training_targets, training_views, FitError, FitSettings};
@@ -266,6 +268,7 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
         masks: None,
         background: config.background,
         batches: Batches::ONE,
+        render_clamp: RenderClamp::Off,
     };
     let mut outcome = prepared.stylize(config, job)?;
     let stylized = render_frames(

@@ -48,6 +48,19 @@ fn progress(step: u64, steps: u64) -> f64 {
     }
 }
 
+/// Which point of its schedule a group's `k`-th update (1-based) uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum RateAt {
+    /// `lr(k)`: the rate is set from the 1-based iteration before the step, as INRIA 3DGS's
+    /// `update_learning_rate(iteration)` and every loop derived from it (CLIPGaussian's 3D,
+    /// MiraGe, VeGaS, D-MiSo's triangles).
+    #[default]
+    Iteration,
+    /// `lr(k - 1)`: the rate is updated after the step, so the first update uses the schedule's
+    /// start (D-MiSo's deformation network).
+    PreviousIteration,
+}
+
 /// One parameter group: a name, a schedule, and whether it is trained at all.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GroupConfig {
@@ -55,16 +68,23 @@ pub struct GroupConfig {
     pub name: String,
     /// Learning rate per step.
     pub schedule: LrSchedule,
+    /// Which point of the schedule each update uses.
+    pub rate_at: RateAt,
+    /// Adam's epsilon for this group; `None` takes the optimizer's ([`AdamHyper::eps`]).
+    pub eps: Option<f64>,
     /// A frozen group is never updated and needs no gradient.
     pub frozen: bool,
 }
 
 impl GroupConfig {
-    /// A trained group.
+    /// A trained group whose `k`-th update uses `schedule.at(k)` ([`RateAt::Iteration`]) and the
+    /// optimizer's epsilon.
     pub fn new(name: impl Into<String>, schedule: LrSchedule) -> Self {
         Self {
             name: name.into(),
             schedule,
+            rate_at: RateAt::Iteration,
+            eps: None,
             frozen: false,
         }
     }
@@ -72,10 +92,38 @@ impl GroupConfig {
     /// A frozen group.
     pub fn frozen(name: impl Into<String>) -> Self {
         Self {
-            name: name.into(),
-            schedule: LrSchedule::Constant(0.0),
             frozen: true,
+            ..Self::new(name, LrSchedule::Constant(0.0))
         }
+    }
+
+    /// The same group with its updates at `rate_at`.
+    pub fn with_rate_at(self, rate_at: RateAt) -> Self {
+        Self { rate_at, ..self }
+    }
+
+    /// The same group with Adam's epsilon `eps`.
+    pub fn with_eps(self, eps: f64) -> Self {
+        Self {
+            eps: Some(eps),
+            ..self
+        }
+    }
+
+    /// The learning rate of update `update` (1-based; 0 for a frozen group).
+    pub fn lr_for_update(&self, update: u64) -> f64 {
+        if self.frozen {
+            return 0.0;
+        }
+        match self.rate_at {
+            RateAt::Iteration => self.schedule.at(update),
+            RateAt::PreviousIteration => self.schedule.at(update.saturating_sub(1)),
+        }
+    }
+
+    /// Adam's epsilon for this group, `default` unless it has its own.
+    pub fn eps_or(&self, default: f64) -> f64 {
+        self.eps.unwrap_or(default)
     }
 }
 
@@ -86,7 +134,8 @@ pub struct AdamHyper {
     pub beta1: f64,
     /// Second-moment decay.
     pub beta2: f64,
-    /// Added to the root of the second moment; 1e-15 as in 3DGS and CLIPGaussian.
+    /// Added to the root of the second moment; 1e-15 as in 3DGS and CLIPGaussian (a group may
+    /// have its own, [`GroupConfig::eps`]).
     pub eps: f64,
 }
 
@@ -158,13 +207,7 @@ impl Adam {
     pub fn current_lrs(&self) -> Vec<f64> {
         self.groups
             .iter()
-            .map(|g| {
-                if g.frozen {
-                    0.0
-                } else {
-                    g.schedule.at(self.step)
-                }
-            })
+            .map(|g| g.lr_for_update(self.step + 1))
             .collect()
     }
 
@@ -204,7 +247,8 @@ impl Adam {
                 "gradient of group {} has the wrong size",
                 self.groups[i].name
             );
-            let lr = self.groups[i].schedule.at(self.step);
+            let lr = self.groups[i].lr_for_update(t);
+            let eps = self.groups[i].eps_or(eps);
             let step_size = (lr / bc1) as f32;
             let inv_bc2_sqrt = (1.0 / bc2.sqrt()) as f32;
             let (b1, b2, eps) = (beta1 as f32, beta2 as f32, eps as f32);
@@ -496,6 +540,49 @@ mod tests {
         assert!((s.at(50) - 1e-5).abs() < 1e-15);
         assert!((s.at(100) - 1e-6).abs() < 1e-18);
         assert!((s.at(1000) - 1e-6).abs() < 1e-18);
+    }
+
+    #[test]
+    fn the_first_update_uses_iteration_one_of_the_schedule_or_its_start_when_asked() {
+        let schedule = LrSchedule::Exponential {
+            start: 1e-2,
+            end: 1e-4,
+            steps: 2,
+        };
+        let groups = vec![
+            GroupConfig::new("iteration", schedule.clone()),
+            GroupConfig::new("previous", schedule.clone()).with_rate_at(RateAt::PreviousIteration),
+        ];
+        let mut adam = Adam::new(groups, &[1, 1], AdamHyper::default());
+        assert_eq!(adam.current_lrs(), vec![schedule.at(1), schedule.at(0)]);
+        let (mut a, mut b) = (vec![0.0f32], vec![0.0f32]);
+        // Adam's first update is lr * sign(g) (up to eps): it shows the rate used.
+        adam.step(&mut [&mut a, &mut b], &[&[1.0], &[1.0]]);
+        assert!(
+            (f64::from(a[0]) + 1e-3).abs() < 1e-7,
+            "lr(1) = 1e-3, got {}",
+            a[0]
+        );
+        assert!(
+            (f64::from(b[0]) + 1e-2).abs() < 1e-7,
+            "lr(0) = 1e-2, got {}",
+            b[0]
+        );
+        assert_eq!(adam.current_lrs(), vec![schedule.at(2), schedule.at(1)]);
+    }
+
+    #[test]
+    fn a_group_may_have_its_own_epsilon() {
+        let groups = vec![
+            GroupConfig::new("default", LrSchedule::Constant(1.0)),
+            GroupConfig::new("torch default", LrSchedule::Constant(1.0)).with_eps(1e-8),
+        ];
+        let mut adam = Adam::new(groups, &[1, 1], AdamHyper::default());
+        let (mut a, mut b) = (vec![0.0f32], vec![0.0f32]);
+        adam.step(&mut [&mut a, &mut b], &[&[1e-9], &[1e-9]]);
+        // |update| = lr * |g| / (|g| + eps): 1 with eps 1e-15, 1/11 with eps 1e-8.
+        assert!((a[0] + 1.0).abs() < 1e-5, "{}", a[0]);
+        assert!((b[0] + 1.0 / 11.0).abs() < 1e-5, "{}", b[0]);
     }
 
     /// Adam as PyTorch writes it, in f64, for one scalar.

@@ -14,6 +14,7 @@
 //!   the format of 3DGS and MiraGe models alike.
 //! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
 //! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
+//! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
 //! - [`backend`]: the device chosen at run time (`cpu|gpu|auto`), training and rendering on it.
 //! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
 //!
@@ -63,6 +64,7 @@ pub mod plane_neighbours;
 pub mod ply;
 pub mod raster;
 pub mod real;
+pub mod render_clamp;
 pub mod sh;
 pub mod train;
 #[cfg(feature = "wgpu")]

@@ -412,6 +412,9 @@ mod tests {
         out: Option<PathBuf>,
         resolution: u32,
         white_background: bool,
+        ground_truth: String,
+        background_mask: String,
+        train_splits: String,
         preview_views: Vec<usize>,
         #[serde(flatten)]
         style: StyleSettings,
@@ -424,7 +427,10 @@ mod tests {
                 data: None,
                 out: None,
                 resolution: 1,
-                white_background: true,
+                white_background: false,
+                ground_truth: "file_colour".into(),
+                background_mask: "ground_truth_colour".into(),
+                train_splits: "train_and_test".into(),
                 preview_views: vec![0],
                 style: StyleSettings::paper_3d(),
             }

@@ -35,6 +35,7 @@ pub mod writable;
 use std::path::PathBuf;
 
 pub use config::{resolve_config, Override, StyleSettings};
+pub use gs_core::render_clamp::RenderClamp;
 pub use run::{open_device, prepare, Batches, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
 
 /// Why a stylization could not run; each names the file or field at fault.

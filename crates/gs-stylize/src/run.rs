@@ -15,6 +15,7 @@ use candle_core::Device;
 use gs_core::adam::{AdamHyper, GroupConfig};
 use gs_core::backend::{Backend, DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
+use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
 use gs_core::Image;
 use serde::Serialize;
@@ -72,6 +73,9 @@ pub struct StylizeJob<M> {
     /// Views per step (their losses averaged) and how they are grouped; one shuffled view per
     /// step is [`Batches::ONE`].
     pub batches: Batches,
+    /// What the loss sees of each render: clamped to `[0, 1]` where the modality's authors'
+    /// renderer clamps (3DGS), else the render as it is.
+    pub render_clamp: RenderClamp,
 }
 
 /// The views of each step of a stylization.
@@ -236,6 +240,7 @@ impl PreparedRun {
             masks,
             background,
             batches,
+            render_clamp,
             ..
         } = job;
         let (loss, masks) = build_loss(settings, weights, masks, background, device)?;
@@ -332,7 +337,7 @@ impl PreparedRun {
         while trainer.step_count() < settings.steps {
             trainer.train(
                 &views,
-                &mut objective,
+                &mut ClampedObjective::new(&mut objective, render_clamp),
                 &mut sampler,
                 &train_config,
                 |report| {

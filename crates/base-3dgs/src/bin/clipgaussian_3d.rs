@@ -200,6 +200,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
             let options = LoadOptions {
                 background: args.background.dataset(),
                 downscale: args.resolution,
+                ..LoadOptions::default()
             };
             dataset_cameras(data, split, &options)?
         }

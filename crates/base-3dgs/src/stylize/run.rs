@@ -10,8 +10,11 @@ use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::outputs::{write_previews, StepLosses};
-use gs_stylize::{prepare, Batches, RunOptions, StylizeError, StylizeJob, StylizeOutcome};
+use gs_stylize::{
+    prepare, Batches, RenderClamp, RunOptions, StylizeError, StylizeJob, StylizeOutcome,
+};
 
+use super::config::BackgroundPixels;
 use super::StylizeConfig;
 use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
@@ -47,11 +50,7 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
             "preview_views: view {v} does not exist (the dataset has {count})"
         )));
     }
-    let masks = dataset
-        .masks
-        .iter()
-        .map(|m| m.as_ref().map(|m| m.data.clone()))
-        .collect();
+    let masks = background_masks(&dataset, config.background_mask);
     let job = StylizeJob {
         model: ply.gaussians.clone(),
         groups: config.style.optimizer_groups(dataset.extent),
@@ -65,6 +64,7 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         masks,
         background: dataset.background,
         batches: Batches::ONE,
+        render_clamp: RenderClamp::Unit,
     };
     let out = config.out_path();
     let StylizeOutcome { model, losses } = prepared.stylize(config, job)?;
@@ -109,12 +109,13 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
         } else {
             Background::Black
         },
+        ground_truth: config.ground_truth,
         downscale: config.resolution,
     };
     let wrap = |e: DatasetError| StylizeError::Input(format!("dataset {}: {e}", data.display()));
     match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
-            nerf_synthetic::load(data, Split::Train, &options).map_err(wrap)
+            nerf_synthetic::load_training(data, config.train_splits, &options).map_err(wrap)
         }
         Some(Layout::Colmap) => colmap::load(data, &options).map_err(wrap),
         None => Err(StylizeError::Input(format!(
@@ -122,5 +123,83 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
             data.display(),
             Split::Train.file_name()
         ))),
+    }
+}
+
+/// The background mask of every view (1 = background) as `rule` says. The background loss is
+/// for objects, whose pictures have alpha (the authors' `--object`): a dataset where a view has
+/// no alpha has no masks, and the term is off.
+fn background_masks(dataset: &Dataset, rule: BackgroundPixels) -> Option<Vec<Vec<f32>>> {
+    if dataset.masks.iter().any(Option::is_none) {
+        return None;
+    }
+    match rule {
+        BackgroundPixels::Alpha => dataset
+            .masks
+            .iter()
+            .map(|m| m.as_ref().map(|m| m.data.clone()))
+            .collect(),
+        BackgroundPixels::GroundTruthColour => {
+            let [r, g, b] = dataset.background;
+            let background_sum = r + g + b;
+            Some(
+                dataset
+                    .images
+                    .iter()
+                    .map(|image| {
+                        image
+                            .data
+                            .chunks_exact(3)
+                            .map(|p| f32::from(u8::from(p[0] + p[1] + p[2] == background_sum)))
+                            .collect()
+                    })
+                    .collect(),
+            )
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use gs_core::dataset::BackgroundMask;
+    use gs_core::Image;
+
+    /// One view of three pixels: white, nearly white, black; alpha 0 only at the black one.
+    fn dataset(background: [f32; 3]) -> Dataset {
+        let data = vec![1.0, 1.0, 1.0, 1.0, 1.0, 254.0 / 255.0, 0.0, 0.0, 0.0];
+        Dataset {
+            views: Vec::new(),
+            images: vec![Image {
+                width: 3,
+                height: 1,
+                data,
+            }],
+            masks: vec![Some(BackgroundMask {
+                width: 3,
+                height: 1,
+                data: vec![0.0, 0.0, 1.0],
+            })],
+            image_paths: Vec::new(),
+            background,
+            extent: 1.0,
+            points: None,
+        }
+    }
+
+    #[test]
+    fn the_authors_mask_is_the_pixels_whose_colours_sum_to_the_background() {
+        let white = background_masks(&dataset([1.0; 3]), BackgroundPixels::GroundTruthColour);
+        assert_eq!(white, Some(vec![vec![1.0, 0.0, 0.0]]));
+        let black = background_masks(&dataset([0.0; 3]), BackgroundPixels::GroundTruthColour);
+        assert_eq!(black, Some(vec![vec![0.0, 0.0, 1.0]]));
+        let alpha = background_masks(&dataset([1.0; 3]), BackgroundPixels::Alpha);
+        assert_eq!(alpha, Some(vec![vec![0.0, 0.0, 1.0]]));
+        let mut without_alpha = dataset([1.0; 3]);
+        without_alpha.masks = vec![None];
+        assert_eq!(
+            background_masks(&without_alpha, BackgroundPixels::Alpha),
+            None
+        );
     }
 }

@@ -354,6 +354,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let options = LoadOptions {
         background: bg,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let split = load_with_times(&args.data, args.split, &options)?;
     let backend = open_device(args.device)?;
@@ -430,6 +431,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     let options = LoadOptions {
         background: bg,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let test = load_with_times(&args.data, Split::Test, &options)?;
     let renders = read_renders(&args.renders, test.views.len())?;

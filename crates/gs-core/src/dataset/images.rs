@@ -59,14 +59,54 @@ fn image_error(path: &Path, e: image::ImageError) -> DatasetError {
     }
 }
 
-/// Loads `path`, checks its size against `expected`, composites alpha over `background`, and
-/// resizes to `target` (bicubic, Catmull-Rom, as PIL's default resize that 3DGS uses) when it is
-/// given and differs from the file's size. The mask is present when the file has alpha.
+/// How alpha is composited over the background.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Composite {
+    /// In `f32`, kept as it is (COLMAP pictures, 8-bit RGB already).
+    Float,
+    /// In `f64` and then cut to whole 8-bit levels, as INRIA 3DGS's and D-MiSo's
+    /// `readCamerasFromTransforms` ([`composite_8bit`]).
+    EightBit,
+    /// Not at all: the colour channels as stored ([`super::GroundTruth::FileColour`]).
+    None,
+}
+
+impl Composite {
+    /// How `ground_truth` composites a picture of a NeRF-synthetic scene (`eight_bit`) or of a
+    /// COLMAP one.
+    pub(crate) fn of(ground_truth: super::GroundTruth, eight_bit: bool) -> Self {
+        match (ground_truth, eight_bit) {
+            (super::GroundTruth::FileColour, _) => Self::None,
+            (super::GroundTruth::Composited, true) => Self::EightBit,
+            (super::GroundTruth::Composited, false) => Self::Float,
+        }
+    }
+}
+
+/// One pixel composited as INRIA 3DGS's `readCamerasFromTransforms` does it: with `scale` the
+/// file's full level (255 for 8-bit files), `arr = (c / scale) (a / scale) + bg (1 - a / scale)`
+/// in `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
+/// `floor(arr * 255)`, a whole level in `0..=255`.
+pub fn composite_8bit(rgb: [f64; 3], alpha: f64, scale: f64, background: [f32; 3]) -> [u8; 3] {
+    let a = alpha / scale;
+    let level = |c: usize| {
+        let arr = (rgb[c] / scale) * a + f64::from(background[c]) * (1.0 - a);
+        // In [0, 1] for in-range inputs; the clamp only guards a hostile scale.
+        (arr * 255.0).floor().clamp(0.0, 255.0) as u8
+    };
+    [level(0), level(1), level(2)]
+}
+
+/// Loads `path`, checks its size against `expected`, composites alpha over `background` as
+/// `composite` says, and resizes to `target` (bicubic, Catmull-Rom, as PIL's default resize that
+/// 3DGS uses) when it is given and differs from the file's size. The mask is present when the
+/// file has alpha.
 pub(crate) fn load(
     path: &Path,
     expected: ExpectedSize,
     target: Option<(u32, u32)>,
     background: [f32; 3],
+    composite: Composite,
 ) -> Result<(Image, Option<BackgroundMask>), DatasetError> {
     let decoded = image::open(path).map_err(|e| image_error(path, e))?;
     let found = (decoded.width(), decoded.height());
@@ -83,13 +123,20 @@ pub(crate) fn load(
         });
     }
     let has_alpha = decoded.color().has_alpha();
-    let mut rgba = decoded.to_rgba32f();
-    for p in rgba.pixels_mut() {
-        let a = p[3];
-        for c in 0..3 {
-            p[c] = p[c] * a + background[c] * (1.0 - a);
+    let mut rgba = match composite {
+        Composite::Float => {
+            let mut rgba = decoded.to_rgba32f();
+            for p in rgba.pixels_mut() {
+                let a = p[3];
+                for c in 0..3 {
+                    p[c] = p[c] * a + background[c] * (1.0 - a);
+                }
+            }
+            rgba
         }
-    }
+        Composite::EightBit => composited_8bit(&decoded, background),
+        Composite::None => decoded.to_rgba32f(),
+    };
     if let Some((w, h)) = target.filter(|&t| t != found) {
         rgba = image::imageops::resize(&rgba, w, h, FilterType::CatmullRom);
     }
@@ -114,4 +161,37 @@ pub(crate) fn load(
         },
         mask,
     ))
+}
+
+/// `decoded` composited over `background` by [`composite_8bit`], from its own levels (8-bit
+/// files from their bytes, deeper ones from 16-bit levels), as `f32` levels / 255 with the
+/// file's alpha kept for the mask.
+fn composited_8bit(decoded: &image::DynamicImage, background: [f32; 3]) -> image::Rgba32FImage {
+    let (width, height) = (decoded.width(), decoded.height());
+    let eight_bit = decoded.color().bytes_per_pixel() / decoded.color().channel_count() == 1;
+    let pixels: Vec<([f64; 4], f64)> = if eight_bit {
+        decoded
+            .to_rgba8()
+            .pixels()
+            .map(|p| (p.0.map(f64::from), 255.0))
+            .collect()
+    } else {
+        decoded
+            .to_rgba16()
+            .pixels()
+            .map(|p| (p.0.map(f64::from), 65535.0))
+            .collect()
+    };
+    let mut out = image::Rgba32FImage::new(width, height);
+    for (o, (p, scale)) in out.pixels_mut().zip(pixels) {
+        let rgb = composite_8bit([p[0], p[1], p[2]], p[3], scale, background);
+        let level = |v: u8| f32::from(v) / 255.0;
+        *o = image::Rgba([
+            level(rgb[0]),
+            level(rgb[1]),
+            level(rgb[2]),
+            (p[3] / scale) as f32,
+        ]);
+    }
+    out
 }

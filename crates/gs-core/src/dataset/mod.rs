@@ -9,8 +9,9 @@ use std::path::{Path, PathBuf};
 
 use crate::model::View;
 use crate::{GsError, Image};
+use serde::{Deserialize, Serialize};
 
-pub use images::{BackgroundMask, ALPHA_BACKGROUND_BELOW};
+pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
 
 /// The two dataset layouts a folder can have.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -59,11 +60,30 @@ impl Background {
     }
 }
 
+/// How a picture with transparency becomes the ground truth of its view.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GroundTruth {
+    /// Composited over the background and cut to whole 8-bit levels ([`composite_8bit`]):
+    /// `readCamerasFromTransforms` of D-MiSo, VeGaS, MiraGe and of INRIA 3DGS before its
+    /// August 2024 release. COLMAP pictures (8-bit RGB) are composited in `f32` where they have
+    /// alpha.
+    #[default]
+    Composited,
+    /// The picture's colour channels as stored, alpha ignored (it still gives the background
+    /// mask): INRIA 3DGS at the commit CLIPGaussian's 3D code pins, whose `loadCam` re-opens the
+    /// file and keeps its first three channels, so a transparent pixel is whatever colour the
+    /// file stores there (black in the NeRF-synthetic scenes), whatever the background.
+    FileColour,
+}
+
 /// How to load a dataset.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct LoadOptions {
     /// Background that alpha is composited over.
     pub background: Background,
+    /// How pictures with alpha become the ground truth.
+    pub ground_truth: GroundTruth,
     /// Resolution divisor, 3DGS's `-r`: 1 keeps the images as they are; `f > 1` divides the
     /// width and height by `f` (rounded) and the intrinsics with them (see
     /// [`crate::Camera::downscaled`]). COLMAP scenes use `images_<f>/` when it exists.
@@ -74,6 +94,7 @@ impl Default for LoadOptions {
     fn default() -> Self {
         Self {
             background: Background::Black,
+            ground_truth: GroundTruth::Composited,
             downscale: 1,
         }
     }
@@ -136,6 +157,16 @@ impl Dataset {
         }
         dataset.extent = scene_extent(&dataset.views);
         dataset
+    }
+
+    /// Appends the frames of `other` (same background) after these; the extent becomes that of
+    /// all the views.
+    pub fn append(&mut self, other: Dataset) {
+        self.views.extend(other.views);
+        self.images.extend(other.images);
+        self.masks.extend(other.masks);
+        self.image_paths.extend(other.image_paths);
+        self.extent = scene_extent(&self.views);
     }
 }
 

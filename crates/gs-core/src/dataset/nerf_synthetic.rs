@@ -1,7 +1,9 @@
 //! NeRF-synthetic (Blender) scenes: `transforms_{train,test,val}.json` with `camera_angle_x`
 //! (horizontal field of view, radians) and frames of `file_path` and `transform_matrix`
 //! (camera-to-world, OpenGL axes). Images are RGBA PNGs; alpha is composited over the chosen
-//! background and gives the background mask.
+//! background and the result cut to whole 8-bit levels, as D-MiSo and INRIA 3DGS before August
+//! 2024 read these scenes ([`composite_8bit`](super::composite_8bit)), or the stored colours are
+//! kept ([`GroundTruth`](super::GroundTruth)); alpha gives the background mask.
 //!
 //! D-NeRF scenes are the same layout with a `time` in `[0, 1]` per frame ([`load_with_times`]).
 
@@ -10,9 +12,9 @@ use std::path::{Path, PathBuf};
 use crate::model::View;
 use crate::Camera;
 use rayon::prelude::*;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
-use super::images::{self, ExpectedSize};
+use super::images::{self, Composite, ExpectedSize};
 use super::{check_options, Dataset, DatasetError, LoadOptions};
 
 /// Which transforms file to load.
@@ -67,6 +69,52 @@ fn image_path(root: &Path, file_path: &str) -> PathBuf {
     } else {
         root.join(format!("{file_path}.png"))
     }
+}
+
+/// Which splits a run trains on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TrainSplits {
+    /// `transforms_train.json` and then, when the scene has it, `transforms_test.json`: INRIA
+    /// 3DGS's and D-MiSo's loaders without `--eval`, which CLIPGaussian's commands never pass,
+    /// so the test views train too and enter the scene extent.
+    #[default]
+    TrainAndTest,
+    /// `transforms_train.json` only (the loaders with `--eval`): the test views stay unseen.
+    Train,
+}
+
+/// The training views of the NeRF-synthetic scene in `root` as `splits` says, train first (as
+/// INRIA's `train_cam_infos.extend(test_cam_infos)`), the extent that of all of them; each
+/// split as [`load`] reads it.
+pub fn load_training(
+    root: &Path,
+    splits: TrainSplits,
+    options: &LoadOptions,
+) -> Result<Dataset, DatasetError> {
+    load_training_split(root, splits, options, false)
+}
+
+/// [`load_training`] for a D-NeRF scene, each view at its frame's time ([`load_with_times`]).
+pub fn load_training_with_times(
+    root: &Path,
+    splits: TrainSplits,
+    options: &LoadOptions,
+) -> Result<Dataset, DatasetError> {
+    load_training_split(root, splits, options, true)
+}
+
+fn load_training_split(
+    root: &Path,
+    splits: TrainSplits,
+    options: &LoadOptions,
+    with_times: bool,
+) -> Result<Dataset, DatasetError> {
+    let mut dataset = load_split(root, Split::Train, options, with_times)?;
+    if splits == TrainSplits::TrainAndTest && root.join(Split::Test.file_name()).is_file() {
+        dataset.append(load_split(root, Split::Test, options, with_times)?);
+    }
+    Ok(dataset)
 }
 
 /// Loads one split of the NeRF-synthetic scene in `root`. Every image must have the size given by
@@ -173,6 +221,7 @@ fn load_split(
                 ExpectedSize::Exact(size.0, size.1),
                 Some((camera.width, camera.height)),
                 background,
+                Composite::of(options.ground_truth, true),
             )?;
             Ok((
                 View {

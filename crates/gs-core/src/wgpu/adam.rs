@@ -152,7 +152,7 @@ impl GpuAdam {
             }
             let grad =
                 grads[i].unwrap_or_else(|| panic!("trained group {} has no gradient", group.name));
-            let lr = group.schedule.at(self.step);
+            let lr = group.lr_for_update(t);
             let params_uniform = uniform(
                 ctx,
                 &AdamUniform {
@@ -160,7 +160,7 @@ impl GpuAdam {
                     inv_bc2_sqrt: (1.0 / bc2.sqrt()) as f32,
                     beta1: beta1 as f32,
                     beta2: beta2 as f32,
-                    eps: eps as f32,
+                    eps: group.eps_or(eps) as f32,
                     unused: [0; 3],
                 },
             );

@@ -14,7 +14,7 @@ use crate::model::View;
 use crate::Camera;
 use rayon::prelude::*;
 
-use super::images::{self, ExpectedSize};
+use super::images::{self, Composite, ExpectedSize};
 use super::{check_options, Dataset, DatasetError, LoadOptions, PointCloud};
 
 /// COLMAP's camera models by id: name and number of parameters.
@@ -224,6 +224,7 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
                     ExpectedSize::Near(scaled.width, scaled.height),
                     None,
                     background,
+                    Composite::of(options.ground_truth, false),
                 )?;
                 let (sx, sy) = (
                     image.width as f64 / w as f64,
@@ -245,6 +246,7 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
                     ExpectedSize::Exact(w, h),
                     Some((scaled.width, scaled.height)),
                     background,
+                    Composite::of(options.ground_truth, false),
                 )?;
                 (scaled, image, mask)
             };
