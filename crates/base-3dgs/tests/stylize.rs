@@ -391,7 +391,7 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
             paper.style.patch_size,
             paper.style.num_patches
         ),
-        (5000, 128, 64)
+        (4999, 128, 64)
     );
     let light =
         StylizeConfig::resolve(Some(&root.join("configs/3d-light.json")), &required).unwrap();

@@ -509,7 +509,8 @@ mod tests {
             ),
             (5.0, 90.0, 0.8, 0.0)
         );
-        assert_eq!((s.feature_lr, s.steps, config.batch_size), (0.025, 5000, 4));
+        assert_eq!((s.feature_lr, s.steps, config.batch_size), (0.025, 4999, 4));
+        assert_eq!(config.train_splits, TrainSplits::TrainAndTest);
         let groups = stylize_groups(&config, 2.0);
         let at = |name: &str, step: u64| {
             groups
@@ -537,5 +538,17 @@ mod tests {
         .collect();
         assert_eq!(constants, [1e-5, 0.001, 0.001, 0.05, 0.025, 0.025, 0.1]);
         assert!(groups.iter().all(|g| !g.frozen));
+        // The authors' update rules: the network's rate set after each step, the time layer's
+        // own Adam with torch's default epsilon; the rest as INRIA's groups.
+        for g in &groups {
+            let (rate_at, eps) = match g.name.as_str() {
+                "deform" => (RateAt::PreviousIteration, None),
+                "time_net" => (RateAt::Iteration, Some(1e-8)),
+                _ => (RateAt::Iteration, None),
+            };
+            assert_eq!((g.rate_at, g.eps), (rate_at, eps), "{}", g.name);
+        }
+        assert!((groups[group::DEFORM].lr_for_update(1) - 5e-5).abs() < 1e-15);
+        assert!((groups[group::PSEUDOMESH].lr_for_update(5000) - 2e-6).abs() < 1e-15);
     }
 }

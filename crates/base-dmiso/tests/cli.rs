@@ -310,8 +310,21 @@ fn bad_inputs_are_refused_with_nothing_written() {
     std::fs::write(&foreign, b"not a model").unwrap();
     let e = stylize(&["--model", s(&foreign)]);
     assert!(e.contains("foreign.safetensors"), "{e}");
-    // A batch larger than the views.
-    let e = stylize(&["--model", s(&model), "--batch-size", "9"]);
+    // A batch larger than the views: the 8 train and 3 test views train (the authors' runs
+    // pass no --eval), or the 8 train views alone.
+    let e = stylize(&["--model", s(&model), "--batch-size", "12"]);
+    assert!(
+        e.contains("batch_size") && e.contains("11 training views"),
+        "{e}"
+    );
+    let e = stylize(&[
+        "--model",
+        s(&model),
+        "--batch-size",
+        "9",
+        "--set",
+        "train_splits=train",
+    ]);
     assert!(
         e.contains("batch_size") && e.contains("8 training views"),
         "{e}"

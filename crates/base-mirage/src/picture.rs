@@ -1,5 +1,5 @@
 //! The picture a user gives (PNG or JPEG of any size, transparency composited over a chosen
-//! background, never resized) and the embedded default picture.
+//! background and cut to 8 bits, never resized) and the embedded default picture.
 
 use std::f32::consts::PI;
 use std::path::Path;
@@ -32,9 +32,10 @@ pub enum PictureError {
 }
 
 /// Reads the picture at `path` at its own resolution; transparent pixels are composited over
-/// `background` (linear RGB in `[0, 1]`).
+/// `background` (linear RGB in `[0, 1]`) and the result cut to whole 8-bit levels, as MiraGe
+/// reads pictures.
 pub fn load_picture(path: &Path, background: [f32; 3]) -> Result<Image, PictureError> {
-    let image = Image::load(path, background)?;
+    let image = Image::load_8bit_composite(path, background)?;
     if image.width < MIN_SIDE || image.height < MIN_SIDE {
         return Err(PictureError::TooSmall {
             path: path.display().to_string(),
@@ -133,5 +134,26 @@ mod tests {
         let var: f32 =
             img.data.iter().map(|v| (v - mean).powi(2)).sum::<f32>() / img.data.len() as f32;
         assert!(var > 0.02, "a picture, not a flat colour: variance {var}");
+    }
+
+    #[test]
+    fn a_transparent_picture_is_composited_and_cut_to_8_bits_as_mirage_reads_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("ramp.png");
+        image::RgbaImage::from_fn(256, 32, |x, y| {
+            image::Rgba([x as u8, 255 - x as u8, 7, (8 * y) as u8])
+        })
+        .save(&path)
+        .unwrap();
+        for background in [[0.0; 3], [1.0; 3]] {
+            let picture = load_picture(&path, background).unwrap();
+            for (x, y) in [(0, 0), (255, 16), (130, 9), (3, 31), (200, 1)] {
+                let rgba = [x as f64, 255.0 - x as f64, 7.0];
+                let want =
+                    gs_core::dataset::composite_8bit(rgba, 8.0 * y as f64, 255.0, background)
+                        .map(|v| f32::from(v) / 255.0);
+                assert_eq!(picture.pixel(x, y), want, "({x}, {y}) over {background:?}");
+            }
+        }
     }
 }

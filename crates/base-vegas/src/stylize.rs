@@ -333,6 +333,6 @@ mod tests {
             ),
             (5.0, 90.0, 0.5)
         );
-        assert_eq!((config.style.feature_lr, config.style.steps), (0.02, 5000));
+        assert_eq!((config.style.feature_lr, config.style.steps), (0.02, 4999));
     }
 }

@@ -1,7 +1,8 @@
 //! The video a user gives: a folder of numbered frames (PNG or JPEG, as DAVIS ships them,
 //! sorted naturally so that `9.png` comes before `10.png`), or a video file (mp4, webm, mov,
 //! mkv, avi) decoded by the `ffmpeg` program. Frames keep their own resolution; transparent
-//! pixels are composited over the background, as VeGaS reads its frames.
+//! pixels are composited over the background and the result cut to whole 8-bit levels, as VeGaS
+//! reads its frames.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -172,9 +173,11 @@ fn decode_frames(
         .par_iter()
         .zip(&labels)
         .map(|(f, l)| {
-            Image::load(f, background).map_err(|source| VideoInputError::Unreadable {
-                label: l.clone(),
-                source,
+            Image::load_8bit_composite(f, background).map_err(|source| {
+                VideoInputError::Unreadable {
+                    label: l.clone(),
+                    source,
+                }
             })
         })
         .collect::<Result<Vec<Image>, _>>()?;

@@ -272,7 +272,7 @@ fn the_configuration_files_hold_the_paper_defaults() {
     );
     assert_eq!(
         (s.feature_lr, s.steps, s.num_patches, s.patch_size),
-        (0.02, 5000, 64, 128)
+        (0.02, 4999, 64, 128)
     );
     let light: VideoStylizeConfig =
         gs_stylize::resolve_config(Some(&root.join("video-light.json")), &[]).unwrap();

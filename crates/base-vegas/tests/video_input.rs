@@ -140,3 +140,40 @@ fn frames_round_trip_through_an_mp4_when_ffmpeg_is_installed() {
         assert!(!mp4.exists());
     }
 }
+
+/// A 256 x 256 RGBA frame whose pixel (x, y) is grey level x at alpha y.
+fn write_rgba_ramp(path: &Path) {
+    image::RgbaImage::from_fn(256, 256, |x, y| {
+        image::Rgba([x as u8, x as u8, x as u8, y as u8])
+    })
+    .save(path)
+    .unwrap();
+}
+
+#[test]
+fn transparent_frames_are_composited_and_cut_to_8_bits_as_vegas_reads_them() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["0.png", "1.png"] {
+        write_rgba_ramp(&dir.path().join(name));
+    }
+    for background in [[0.0; 3], [1.0; 3]] {
+        let video = load_video(dir.path(), background, DEFAULT_FOLDER_FPS).unwrap();
+        let frame = &video.frames[1];
+        for (a, c) in [
+            (0, 200),
+            (1, 255),
+            (77, 130),
+            (128, 255),
+            (254, 3),
+            (255, 64),
+        ] {
+            let want = gs_core::dataset::composite_8bit([c as f64; 3], a as f64, 255.0, background)
+                .map(|v| f32::from(v) / 255.0);
+            assert_eq!(
+                frame.pixel(c, a),
+                want,
+                "colour {c} alpha {a} over {background:?}"
+            );
+        }
+    }
+}

@@ -68,6 +68,24 @@ impl Image<f32> {
         })
     }
 
+    /// Reads a PNG or JPEG file as the loaders of D-MiSo, VeGaS and MiraGe read pictures: alpha
+    /// composited over `background` in `f64` and the result cut to whole 8-bit levels
+    /// ([`crate::dataset::composite_8bit`]), so the values are `level / 255`.
+    pub fn load_8bit_composite(path: &Path, background: [f32; 3]) -> Result<Self, GsError> {
+        let img = image::open(path).map_err(|e| GsError::Image {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+        let rgba = crate::dataset::composited_8bit(&img, background);
+        let (width, height) = rgba.dimensions();
+        let data = rgba.pixels().flat_map(|p| [p[0], p[1], p[2]]).collect();
+        Ok(Self {
+            width,
+            height,
+            data,
+        })
+    }
+
     /// The image as 8-bit RGB, values clamped to `[0, 1]` and rounded.
     pub fn to_rgb8(&self) -> image::RgbImage {
         let bytes = self

@@ -5,7 +5,7 @@ use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use rand::seq::SliceRandom;
-use rand::SeedableRng;
+use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::adam::Adam;
@@ -19,10 +19,12 @@ pub enum BatchOrder {
     /// Each batch is the next views of a shuffle-without-replacement stream (every view once
     /// per epoch, a fresh random order each epoch).
     Shuffled,
-    /// Each batch is a window of consecutive views in the dataset's order (D-MiSo and
-    /// CLIPGaussian's 4D batches: neighbouring cameras and times); the windows start at
-    /// `0, B, 2B, ...` (the last one wraps around to the first views) and are visited once per
-    /// epoch in a fresh random order.
+    /// CLIPGaussian's 4D batches (and D-MiSo's): each batch is `B` consecutive entries of the
+    /// views not yet drawn this epoch, kept in dataset order (neighbouring cameras and times),
+    /// from a start drawn uniformly in `0..=max(0, left - B)`; so a batch may join views either
+    /// side of an earlier batch, and the epoch's last one may be shorter than `B` (its loss is
+    /// still divided by `B`, as the authors' `batch_loss / BATCH_SIZE`). The list refills when
+    /// empty.
     Consecutive,
 }
 
@@ -81,30 +83,36 @@ impl ViewSampler {
         self.batch
     }
 
-    /// The next single index of the underlying stream (a view when shuffled, a window's first
-    /// view when consecutive); refills and reshuffles when the epoch is used up.
+    /// The next view of a shuffle-without-replacement stream; refills and reshuffles when the
+    /// epoch is used up.
     pub fn next_view(&mut self) -> usize {
         if self.pending.is_empty() {
-            self.pending = match self.order {
-                BatchOrder::Shuffled => (0..self.count).collect(),
-                BatchOrder::Consecutive => (0..self.count).step_by(self.batch).collect(),
-            };
+            self.pending = (0..self.count).collect();
             self.pending.shuffle(&mut self.rng);
         }
         self.pending.pop().expect("refilled above")
     }
 
-    /// The views of the next step.
+    /// The views of the next step ([`BatchOrder`]).
     pub fn next_batch(&mut self) -> Vec<usize> {
         match self.order {
             BatchOrder::Shuffled => (0..self.batch).map(|_| self.next_view()).collect(),
             BatchOrder::Consecutive => {
-                let start = self.next_view();
-                (start..start + self.batch)
-                    .map(|i| i % self.count)
-                    .collect()
+                if self.pending.is_empty() {
+                    self.pending = (0..self.count).collect();
+                }
+                let left = self.pending.len();
+                let start = self.rng.random_range(0..=left.saturating_sub(self.batch));
+                let end = (start + self.batch).min(left);
+                self.pending.drain(start..end).collect()
             }
         }
+    }
+
+    /// What a step's summed loss is divided by: the batch size, also for a shorter last batch
+    /// of an epoch ([`BatchOrder::Consecutive`]), as the authors divide by `BATCH_SIZE`.
+    pub fn divisor(&self) -> usize {
+        self.batch
     }
 }
 
@@ -119,7 +127,8 @@ pub struct ObjectiveValue {
     pub grad: Vec<f32>,
 }
 
-/// The loss of one step: its objective's values, averaged over the step's views.
+/// The loss of one step: its objective's values summed over the step's views and divided by
+/// the batch size (their mean, except for a short last batch of [`BatchOrder::Consecutive`]).
 #[derive(Clone, Debug, PartialEq)]
 pub struct StepValue {
     /// The total loss.
@@ -129,10 +138,10 @@ pub struct StepValue {
 }
 
 impl StepValue {
-    /// The mean of the losses and of each named term of `values` (the terms of the first
-    /// value, in its order; a term another value lacks counts as 0 there).
-    fn mean(values: &[ObjectiveValue]) -> Self {
-        let n = values.len().max(1) as f32;
+    /// The sums of the losses and of each named term of `values` divided by `divisor` (the
+    /// terms of the first value, in its order; a term another value lacks counts as 0 there).
+    fn divided(values: &[ObjectiveValue], divisor: usize) -> Self {
+        let n = divisor.max(1) as f32;
         let Some(first) = values.first() else {
             return Self {
                 loss: 0.0,
@@ -188,7 +197,7 @@ pub struct StepReport {
     pub view: usize,
     /// Indices of the step's views, in the order they were rendered.
     pub batch: Vec<usize>,
-    /// The objective's value, averaged over the step's views.
+    /// The objective's value over the step's views (summed, divided by the batch size).
     pub value: StepValue,
     /// Time spent rendering (forward), over the step's views.
     pub render_time: Duration,
@@ -325,9 +334,10 @@ where
     while backend.step_count() < config.steps {
         let step = backend.step_count() + 1;
         let batch = sampler.next_batch();
-        // The batch's losses are averaged: each view's dL/dimage is scaled by 1/B (exactly 1
-        // for one view), so the summed parameter gradient is the mean's.
-        let scale = 1.0 / batch.len() as f32;
+        // The batch's losses are summed and divided by B: each view's dL/dimage is scaled by
+        // 1/B (exactly 1 for one view), so the summed parameter gradient is the loss's.
+        let divisor = sampler.divisor();
+        let scale = 1.0 / divisor as f32;
         let (mut render_time, mut objective_time, mut backward_time) = Default::default();
         let mut values = Vec::with_capacity(batch.len());
         backend
@@ -403,7 +413,7 @@ where
             steps: config.steps,
             view: batch[0],
             batch,
-            value: StepValue::mean(&values),
+            value: StepValue::divided(&values, divisor),
             render_time,
             objective_time,
             backward_time,
@@ -699,11 +709,7 @@ mod tests {
         for report in &reports {
             let batch = sampler.next_batch();
             assert_eq!(report.batch, batch);
-            assert_eq!(batch.len(), 3);
-            assert!(
-                batch.windows(2).all(|w| w[1] == (w[0] + 1) % 5),
-                "{batch:?}"
-            );
+            assert!(batch.windows(2).all(|w| w[1] > w[0]), "{batch:?}");
             let mean = batch.iter().sum::<usize>() as f32 / 3.0;
             assert_eq!(report.value.loss, mean);
             assert_eq!(report.value.terms, vec![("view".to_string(), 2.0 * mean)]);
@@ -725,24 +731,39 @@ mod tests {
             let refs: Vec<&[f32]> = sum.iter().map(|g| g.as_slice()).collect();
             adam.step(&mut by_hand.groups_mut(), &refs);
         }
-        assert_eq!(reports.len(), 3);
+        let lens: Vec<usize> = reports.iter().map(|r| r.batch.len()).collect();
+        assert_eq!(
+            lens,
+            vec![3, 2, 3],
+            "the epoch's last batch is short, still divided by 3"
+        );
         assert_eq!(trained, by_hand);
         assert_ne!(trained, model);
     }
 
     #[test]
-    fn consecutive_batches_cover_every_view_each_epoch_and_wrap_around() {
+    fn consecutive_batches_are_runs_of_the_views_left_from_a_uniform_start() {
         let mut s = ViewSampler::batches(7, 3, BatchOrder::Consecutive, 1);
-        let mut starts: Vec<usize> = (0..3).map(|_| s.next_batch()[0]).collect();
-        starts.sort_unstable();
-        assert_eq!(starts, vec![0, 3, 6]);
-        let mut seen: Vec<usize> = (0..3).flat_map(|_| s.next_batch()).collect();
-        seen.sort_unstable();
-        assert_eq!(
-            seen,
-            vec![0, 0, 1, 1, 2, 3, 4, 5, 6],
-            "the window at 6 wraps to 0, 1"
-        );
+        for _ in 0..5 {
+            // One epoch: runs of increasing views, every view once, the last run maybe short.
+            let mut left: Vec<usize> = (0..7).collect();
+            while !left.is_empty() {
+                let batch = s.next_batch();
+                assert_eq!(batch.len(), 3.min(left.len()), "{batch:?} of {left:?}");
+                let start = left.iter().position(|&v| v == batch[0]).unwrap();
+                assert_eq!(
+                    batch,
+                    left[start..start + batch.len()],
+                    "consecutive in {left:?}"
+                );
+                left.drain(start..start + batch.len());
+            }
+        }
+        // The start is uniform over 0..=left-B: every start of a 7-view epoch occurs.
+        let starts: std::collections::BTreeSet<usize> = (0..200)
+            .map(|seed| ViewSampler::batches(7, 3, BatchOrder::Consecutive, seed).next_batch()[0])
+            .collect();
+        assert_eq!(starts.into_iter().collect::<Vec<_>>(), vec![0, 1, 2, 3, 4]);
         let mut shuffled = ViewSampler::batches(4, 2, BatchOrder::Shuffled, 2);
         let mut epoch: Vec<usize> = (0..2).flat_map(|_| shuffled.next_batch()).collect();
         epoch.sort_unstable();

@@ -85,7 +85,10 @@ fn a_clamped_render_gives_no_gradient_above_1_on_the_cpu_and_on_wgpu() {
     for backend in backends() {
         let name = backend.describe();
         let (raw, largest_raw) = one_step(&backend, RenderClamp::Off);
-        assert!(largest_raw > 1.5, "{name}: the render exceeds 1 ({largest_raw})");
+        assert!(
+            largest_raw > 1.5,
+            "{name}: the render exceeds 1 ({largest_raw})"
+        );
         assert_ne!(raw, start, "{name}: unclamped, the loss moves the Gaussian");
 
         let (clamped, largest) = one_step(&backend, RenderClamp::Unit);

@@ -33,7 +33,8 @@ pub struct StyleArgs {
     /// The source prompt the style direction starts from (default "a Photo").
     #[arg(long)]
     pub source_prompt: Option<String>,
-    /// Stylization steps.
+    /// Stylization steps: optimizer updates (default 4999, the updates of the authors' 5000
+    /// iterations).
     #[arg(long)]
     pub steps: Option<u64>,
     /// CLIP config.json (default: ViT-B/32).

@@ -18,6 +18,10 @@ use style_loss::ClipPrecision;
 
 use crate::StylizeError;
 
+/// Optimizer updates of the paper's runs: the authors' 5000 iterations, the last of which
+/// updates nothing.
+pub const PAPER_UPDATES: u64 = 4999;
+
 /// The modality-independent settings of a stylization: the style, the loss weights, the learning
 /// rates, the patches, the checkpoints and the model files. There is no `Default`: each modality
 /// starts from its paper's values ([`StyleSettings::paper_3d`] for 3D scenes).
@@ -29,7 +33,9 @@ pub struct StyleSettings {
     pub style_image: Option<PathBuf>,
     /// The source prompt the style direction starts from.
     pub source_prompt: String,
-    /// Optimizer steps.
+    /// Optimizer updates. The paper states 5000 steps; the authors' loops run
+    /// `--iterations 5000` and step the optimizer in every iteration but the last
+    /// (`if iteration < opt.iterations`), so 4999 updates: the default of every modality.
     pub steps: u64,
     /// Seed of the view order and of the patch sampling.
     pub seed: u64,
@@ -87,13 +93,14 @@ pub struct StyleSettings {
 impl StyleSettings {
     /// The paper's 3D settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 1000 (the
     /// background term only applies to datasets with masks), feature_lr 0.01, the 3DGS rates of
-    /// the other groups, 5000 steps, 64 patches of 128 x 128, a checkpoint every 500 steps.
+    /// the other groups, 4999 updates (the authors' 5000 iterations), 64 patches of 128 x 128, a
+    /// checkpoint every 500 steps.
     pub fn paper_3d() -> Self {
         Self {
             style_prompt: None,
             style_image: None,
             source_prompt: style_loss::DEFAULT_SOURCE_PROMPT.to_string(),
-            steps: 5000,
+            steps: PAPER_UPDATES,
             seed: 0,
             device: DeviceChoice::Auto,
             lambda_directional: 5.0,

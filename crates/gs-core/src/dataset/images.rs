@@ -166,7 +166,10 @@ pub(crate) fn load(
 /// `decoded` composited over `background` by [`composite_8bit`], from its own levels (8-bit
 /// files from their bytes, deeper ones from 16-bit levels), as `f32` levels / 255 with the
 /// file's alpha kept for the mask.
-fn composited_8bit(decoded: &image::DynamicImage, background: [f32; 3]) -> image::Rgba32FImage {
+pub(crate) fn composited_8bit(
+    decoded: &image::DynamicImage,
+    background: [f32; 3],
+) -> image::Rgba32FImage {
     let (width, height) = (decoded.width(), decoded.height());
     let eight_bit = decoded.color().bytes_per_pixel() / decoded.color().channel_count() == 1;
     let pixels: Vec<([f64; 4], f64)> = if eight_bit {

@@ -11,6 +11,7 @@ use crate::model::View;
 use crate::{GsError, Image};
 use serde::{Deserialize, Serialize};
 
+pub(crate) use images::composited_8bit;
 pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
 
 /// The two dataset layouts a folder can have.
