@@ -143,8 +143,9 @@ struct RenderArgs {
     /// checked before any work).
     #[arg(long)]
     out: PathBuf,
-    /// The background colour (white by default, as `stylize` renders).
-    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
+    /// The background colour (black by default, as `stylize` renders unless its
+    /// `white_background` is set).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
     background: BackgroundArg,
     /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
@@ -163,9 +164,9 @@ struct EvalArgs {
     /// The style and the CLIP model.
     #[command(flatten)]
     style: EvalStyleArgs,
-    /// The colour behind transparent pixels of the pictures (white by default, the background
-    /// `stylize` renders over).
-    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
+    /// The colour behind transparent pixels of the pictures (black by default, the background
+    /// `stylize` renders over unless its `white_background` is set).
+    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
     background: BackgroundArg,
     /// Where to write the scores as JSON (its folder must exist; checked before any work).
     #[arg(long, default_value = "metrics.json")]
