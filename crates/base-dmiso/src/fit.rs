@@ -24,7 +24,7 @@
 use std::ops::ControlFlow;
 
 use candle_core::Device;
-use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule};
+use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RateAt};
 use gs_core::backend::{Backend, Trainer};
 pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
@@ -35,7 +35,7 @@ use gs_core::Image;
 use crate::deform_net::NetShape;
 use crate::densify::{densify, reset_opacity, DensifySettings, GradStats, Recording};
 use crate::init::{initial_model, with_sub_gaussians};
-use crate::model::{Dmiso, GROUP_NAMES};
+use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 
 /// How to fit a dynamic scene. The defaults are D-MiSo's (`train.py`'s arguments).
 #[derive(Clone, Debug, PartialEq)]
@@ -170,14 +170,18 @@ fn stage_groups(stage: Stage, extent: f64, net_steps: u64, from: u64) -> Vec<Gro
             Some(constant(0.1)),
         ],
     };
-    GROUP_NAMES
+    // D-MiSo's train.py updates every rate after the step (update k at lr(k - 1), from the
+    // stage's start) and gives the time-rotation layer its own Adam with torch's epsilon.
+    let mut groups: Vec<GroupConfig> = GROUP_NAMES
         .iter()
         .zip(rates)
         .map(|(name, rate)| match rate {
-            Some(rate) => GroupConfig::new(*name, rate),
+            Some(rate) => GroupConfig::new(*name, rate).with_rate_at(RateAt::PreviousIteration),
             None => GroupConfig::frozen(*name),
         })
-        .collect()
+        .collect();
+    groups[group::TIME_NET].eps = Some(TORCH_ADAM_EPS);
+    groups
 }
 
 /// Fits `views` (each at its time) to `images` with `settings` on `backend`, the network on
@@ -436,4 +440,29 @@ pub fn render_views(
 pub fn mean_psnr(renders: &[Image], images: &[Image]) -> f64 {
     let sum: f64 = renders.iter().zip(images).map(|(r, f)| psnr(r, f)).sum();
     sum / images.len().max(1) as f64
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_rate_is_updated_after_the_step_and_the_time_layer_has_torchs_epsilon() {
+        let deformation = stage_groups(Stage::Deformation, 2.0, 40_000, 3000);
+        // The first update of a stage uses the rate at the stage's start, as D-MiSo's
+        // train.py sets it after the step before.
+        let full_mesh = LrSchedule::Exponential {
+            start: 1.6e-4 * 2.0,
+            end: 1.6e-5 * 2.0,
+            steps: 30_000,
+        };
+        let first = deformation[group::PSEUDOMESH].lr_for_update(1);
+        assert!((first - full_mesh.at(3000)).abs() < 1e-18, "{first}");
+        let subs = stage_groups(Stage::SubGaussians, 2.0, 40_000, 0);
+        for g in subs.iter().filter(|g| !g.frozen) {
+            assert_eq!(g.rate_at, RateAt::PreviousIteration, "{}", g.name);
+        }
+        assert_eq!(subs[group::TIME_NET].eps, Some(TORCH_ADAM_EPS));
+        assert_eq!(subs[group::DEFORM].eps, None);
+    }
 }

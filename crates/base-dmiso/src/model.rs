@@ -65,6 +65,10 @@ pub mod group {
     pub const TIME_NET: usize = 8;
 }
 
+/// Adam's epsilon of the time-rotation layer: D-MiSo gives it an optimizer of its own with
+/// `torch.optim.Adam`'s default (every other group: 1e-15).
+pub const TORCH_ADAM_EPS: f64 = 1e-8;
+
 /// SH degree of the sub-Gaussians.
 pub const SH_DEGREE: usize = 3;
 

@@ -35,7 +35,7 @@ use gs_stylize::{
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{fit, render_views, FitError, FitSettings};
-use crate::model::{group, Dmiso, GROUP_NAMES};
+use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
 
 /// The stylized model.
@@ -255,9 +255,6 @@ fn authors_update_rules(groups: &mut [GroupConfig]) {
     groups[group::DEFORM].rate_at = RateAt::PreviousIteration;
     groups[group::TIME_NET].eps = Some(TORCH_ADAM_EPS);
 }
-
-/// `torch.optim.Adam`'s default epsilon.
-const TORCH_ADAM_EPS: f64 = 1e-8;
 
 /// Why a dynamic-scene run could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]

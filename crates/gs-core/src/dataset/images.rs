@@ -68,7 +68,7 @@ pub(crate) enum Composite {
     /// `readCamerasFromTransforms` ([`composite_8bit`]).
     EightBit,
     /// Not at all: the colour channels as stored ([`super::GroundTruth::FileColour`]).
-    None,
+    Stored,
 }
 
 impl Composite {
@@ -76,7 +76,7 @@ impl Composite {
     /// COLMAP one.
     pub(crate) fn of(ground_truth: super::GroundTruth, eight_bit: bool) -> Self {
         match (ground_truth, eight_bit) {
-            (super::GroundTruth::FileColour, _) => Self::None,
+            (super::GroundTruth::FileColour, _) => Self::Stored,
             (super::GroundTruth::Composited, true) => Self::EightBit,
             (super::GroundTruth::Composited, false) => Self::Float,
         }
@@ -135,7 +135,7 @@ pub(crate) fn load(
             rgba
         }
         Composite::EightBit => composited_8bit(&decoded, background),
-        Composite::None => decoded.to_rgba32f(),
+        Composite::Stored => decoded.to_rgba32f(),
     };
     if let Some((w, h)) = target.filter(|&t| t != found) {
         rgba = image::imageops::resize(&rgba, w, h, FilterType::CatmullRom);
