@@ -598,3 +598,53 @@ fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
         "{help}"
     );
 }
+
+#[test]
+fn stylize_renders_over_black_unless_background_white_is_asked() {
+    let dir = TempDir::new("cli-stylize-background");
+    let (ply, data) = write_scene(dir.path());
+    let (clip_config, clip_weights) = write_tiny_clip(dir.path());
+    let tokenizer = fixture("tokenizer/tokenizer.json");
+    let vgg = fixture("tiny_vgg19.safetensors");
+    for (flags, white) in [(vec![], false), (vec!["--background", "white"], true)] {
+        let out = dir.path().join(format!("out-{white}"));
+        let mut args = vec![
+            "stylize",
+            "--ply",
+            s(&ply),
+            "--data",
+            s(&data),
+            "--out",
+            s(&out),
+            "--style-prompt",
+            "fire",
+            "--steps",
+            "1",
+            "--device",
+            "cpu",
+            "--quiet",
+            "--clip-config",
+            s(&clip_config),
+            "--clip-weights",
+            s(&clip_weights),
+            "--tokenizer",
+            s(&tokenizer),
+            "--vgg-weights",
+            s(&vgg),
+            "--set",
+            "vgg_widths=[4,8,16,32,32]",
+            "--set",
+            "patch_size=16",
+            "--set",
+            "num_patches=2",
+        ];
+        args.extend(flags);
+        succeeds(&args);
+        let config: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap())
+                .unwrap();
+        assert_eq!(config["white_background"], white);
+        assert_eq!(config["ground_truth"], "file_colour");
+        assert_eq!(config["steps"], 1);
+    }
+}

@@ -5,7 +5,7 @@ mod common;
 
 use std::path::Path;
 
-use base_3dgs::dataset::nerf_synthetic::{self, Split};
+use base_3dgs::dataset::nerf_synthetic::{self, Split, TrainSplits};
 use base_3dgs::dataset::{composite_8bit, scene_extent, Background, DatasetError, LoadOptions};
 use common::TempDir;
 
@@ -209,4 +209,43 @@ fn missing_files_bad_json_and_size_mismatches_are_clear_errors() {
     };
     let e = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap_err();
     assert!(e.to_string().contains("downscale"), "{e}");
+}
+
+#[test]
+fn training_views_are_the_train_then_the_test_frames_with_the_extent_of_both() {
+    let dir = TempDir::new("nerf-training");
+    write_scene(dir.path(), "train");
+    let options = LoadOptions::default();
+    let alone = nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options);
+    assert_eq!(
+        alone.unwrap().views.len(),
+        3,
+        "no test split: the train views"
+    );
+    write_scene(dir.path(), "test");
+    // The test cameras moved, so the extent of both differs from the train split's.
+    let path = dir.path().join("transforms_test.json");
+    let mut json: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    json["frames"][1]["transform_matrix"][0][3] = 9.into();
+    std::fs::write(&path, json.to_string()).unwrap();
+    let both =
+        nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
+    let train = nerf_synthetic::load_training(dir.path(), TrainSplits::Train, &options).unwrap();
+    assert_eq!(train.views.len(), 3);
+    assert_eq!(both.views.len(), 6);
+    for (k, path) in both.image_paths.iter().enumerate() {
+        let split = if k < 3 { "train" } else { "test" };
+        assert!(
+            path.ends_with(format!("{split}/r_{}.png", k % 3)),
+            "{path:?}"
+        );
+    }
+    assert_eq!(both.extent, scene_extent(&both.views));
+    assert!(
+        both.extent > train.extent + 1.0,
+        "{} vs {}",
+        both.extent,
+        train.extent
+    );
 }

@@ -13,6 +13,7 @@ use std::sync::Arc;
 
 use base_3dgs::dataset::nerf_synthetic::{self, Split};
 use base_3dgs::dataset::{Background, LoadOptions};
+use base_3dgs::stylize::config::BackgroundPixels;
 use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
 use candle_core::{Device, Tensor};
 use common::TempDir;
@@ -51,6 +52,7 @@ impl Setup {
             // their background differs from the transparent pixels' stored black.
             white_background: true,
             ground_truth: GroundTruth::Composited,
+            object: true,
             style: StyleSettings {
                 style_prompt: Some("fire".into()),
                 steps: 20,
@@ -248,14 +250,42 @@ fn a_run_from_a_colmap_layout_keeps_the_count_and_its_cameras_match_the_nerf_twi
         c.data = Some(data);
         c.style.steps = 6;
         c.preview_views = vec![1];
+        c.background_mask = BackgroundPixels::Alpha;
     });
     let summary = run(&config, &quiet()).unwrap();
     let stylized = read_ply(&summary.stylized_ply).unwrap();
     assert_eq!(stylized.gaussians.len(), random_set().len());
     assert_eq!(summary.losses.len(), 6);
     assert!(summary.losses.iter().all(|l| l.total.is_finite()));
-    // No masks in a COLMAP scene: no background term.
+    // No alpha in a COLMAP scene: no background term under the alpha rule.
     assert!(!summary.losses[0].terms.contains_key("background"));
+}
+
+#[test]
+fn a_run_with_the_authors_3d_defaults_has_a_background_term_only_for_an_object() {
+    let setup = Setup::new("stylize-defaults");
+    let defaults = StylizeConfig::default();
+    let config = |object: bool, out: &str| {
+        setup.with(|c| {
+            c.white_background = defaults.white_background;
+            c.ground_truth = defaults.ground_truth;
+            c.background_mask = defaults.background_mask;
+            c.object = object;
+            c.out = Some(setup.dir.path().join(out));
+            c.style.steps = 3;
+        })
+    };
+    assert!(!defaults.object && !defaults.white_background);
+    let scene = run(&config(false, "scene"), &quiet()).unwrap();
+    assert!(scene.losses.iter().all(|l| l.total.is_finite()));
+    assert!(!scene.losses[0].terms.contains_key("background"));
+    // The scene's transparent pixels are stored black: the colour rule marks them over black
+    // (the render there is the same scene over black, so the term is small).
+    let object = run(&config(true, "object"), &quiet()).unwrap();
+    assert!(object.losses.iter().all(|l| l
+        .terms
+        .get("background")
+        .is_some_and(|b| b.is_finite() && *b >= 0.0)));
 }
 
 #[test]

@@ -1,7 +1,8 @@
 //! Dynamic-scene stylization (CLIPGaussian on D-MiSo): a D-NeRF scene, fitted first unless a
 //! fitted model is given (ours, or one the authors' code saved), is stylized with the paper's 4D
 //! settings (`configs/4d.json`; `configs/4d-keep-background.json` adds the background term):
-//! batches of 4 consecutive training views with their losses averaged, the sub-Gaussians, the
+//! batches of up to 4 consecutive training views with their losses summed and divided by 4, the
+//! sub-Gaussians, the
 //! triangles, the deformation network and the time-rotation layer trained together.
 //!
 //! Every input (configuration, output folder and checkpoint, dataset, model, patch size, style
@@ -75,7 +76,8 @@ pub struct DynamicStylizeConfig {
     /// test frames after the training ones, and takes the extent of both) or `train`. The test
     /// views are rendered into `test/` either way.
     pub train_splits: TrainSplits,
-    /// Consecutive training views per step, their losses averaged.
+    /// Consecutive training views per step (runs of the views left in the epoch), their losses
+    /// summed and divided by this size.
     pub batch_size: usize,
     /// Learning rate of the sub-Gaussians' offsets.
     pub alpha_lr: f64,

@@ -51,7 +51,7 @@ pub const ORIGINAL_PNG: &str = "original.png";
 
 /// Everything a 2D stylization run needs (a flat JSON object: `configs/2d.json`). The
 /// defaults are the paper's 2D settings (method.md): lambdas 5 / 90 / 0.8 / 0, feature_lr
-/// 0.0025, 5000 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
+/// 0.0025, 4999 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct MirageStylizeConfig {

@@ -44,7 +44,7 @@ pub const MODEL_PLY: &str = "model.ply";
 pub const BASE_PLY: &str = "base.ply";
 
 /// Everything a video stylization needs (a flat JSON object: `configs/video.json`). The
-/// defaults are the paper's video settings: lambdas 5 / 90 / 0.5 / 0, feature_lr 0.02, 5000
+/// defaults are the paper's video settings: lambdas 5 / 90 / 0.5 / 0, feature_lr 0.02, 4999
 /// steps, 64 patches of 128 x 128.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

@@ -48,10 +48,7 @@ impl<T: Real> Image<T> {
 impl Image<f32> {
     /// Reads a PNG or JPEG file; an alpha channel, if any, is composited over `background`.
     pub fn load(path: &Path, background: [f32; 3]) -> Result<Self, GsError> {
-        let img = image::open(path).map_err(|e| GsError::Image {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
+        let img = open_image(path)?;
         let rgba = img.to_rgba32f();
         let (width, height) = rgba.dimensions();
         let mut data = Vec::with_capacity(width as usize * height as usize * 3);
@@ -72,18 +69,28 @@ impl Image<f32> {
     /// composited over `background` in `f64` and the result cut to whole 8-bit levels
     /// ([`crate::dataset::composite_8bit`]), so the values are `level / 255`.
     pub fn load_8bit_composite(path: &Path, background: [f32; 3]) -> Result<Self, GsError> {
-        let img = image::open(path).map_err(|e| GsError::Image {
-            path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
-        let rgba = crate::dataset::composited_8bit(&img, background);
+        let img = open_image(path)?;
+        Ok(Self::rgb_of(&crate::dataset::composited_8bit(
+            &img, background,
+        )))
+    }
+
+    /// Reads a PNG or JPEG file's stored colours, alpha ignored, as `level / 255` (PIL's
+    /// levels; the authors' style images: `ToTensor()(image)[:3]`).
+    pub fn load_stored_colours(path: &Path) -> Result<Self, GsError> {
+        let img = open_image(path)?;
+        Ok(Self::rgb_of(&crate::dataset::stored_levels(&img)))
+    }
+
+    /// The RGB channels of `rgba`.
+    fn rgb_of(rgba: &image::Rgba32FImage) -> Self {
         let (width, height) = rgba.dimensions();
         let data = rgba.pixels().flat_map(|p| [p[0], p[1], p[2]]).collect();
-        Ok(Self {
+        Self {
             width,
             height,
             data,
-        })
+        }
     }
 
     /// The image as 8-bit RGB, values clamped to `[0, 1]` and rounded.
@@ -129,6 +136,14 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> 
             .map_err(std::io::Error::other)
     })
     .map_err(|e| GsError::Image {
+        path: path.to_path_buf(),
+        message: e.to_string(),
+    })
+}
+
+/// Decodes the picture at `path`; the error names the file.
+fn open_image(path: &Path) -> Result<image::DynamicImage, GsError> {
+    image::open(path).map_err(|e| GsError::Image {
         path: path.to_path_buf(),
         message: e.to_string(),
     })

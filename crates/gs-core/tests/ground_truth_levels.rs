@@ -96,3 +96,49 @@ fn file_colour_keeps_the_stored_colours_whatever_the_alpha_and_background() {
     let mask = data.masks[0].as_ref().unwrap();
     assert_eq!(mask.background_count(), 256, "alpha still gives the mask");
 }
+
+#[test]
+fn sixteen_bit_pictures_are_read_by_their_high_byte_as_pil_reads_them() {
+    let dir = tempfile::tempdir().unwrap();
+    // (value, alpha) pairs where the high byte and v / 65535 give different levels.
+    let pixels: [(u16, u16); 4] = [
+        (0xFF00, 0xFFFF),
+        (0x0100, 0xFFFF),
+        (0x80FF, 0x8000),
+        (0xFFFF, 0x00FF),
+    ];
+    let picture = image::ImageBuffer::<image::Rgba<u16>, Vec<u16>>::from_fn(4, 1, |x, _| {
+        let (v, a) = pixels[x as usize];
+        image::Rgba([v, v, v, a])
+    });
+    picture.save(dir.path().join("r_0.png")).unwrap();
+    let json = serde_json::json!({
+        "camera_angle_x": 0.7,
+        "frames": [{"file_path": "./r_0",
+                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]
+    });
+    std::fs::write(dir.path().join("transforms_train.json"), json.to_string()).unwrap();
+    for ground_truth in [GroundTruth::Composited, GroundTruth::FileColour] {
+        let options = LoadOptions {
+            background: Background::White,
+            ground_truth,
+            downscale: 1,
+        };
+        let image = &nerf_synthetic::load(dir.path(), Split::Train, &options)
+            .unwrap()
+            .images[0];
+        for (x, &(v, a)) in pixels.iter().enumerate() {
+            let (c, a) = ((v >> 8) as usize, (a >> 8) as usize);
+            let want = match ground_truth {
+                GroundTruth::Composited => authors_level(true, a, c),
+                GroundTruth::FileColour => c as u8,
+            };
+            let want = f32::from(want) / 255.0;
+            assert_eq!(
+                image.pixel(x as u32, 0),
+                [want; 3],
+                "{ground_truth:?} pixel {x}"
+            );
+        }
+    }
+}

@@ -27,7 +27,7 @@ use style_loss::{
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
 use crate::outputs::{write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
-use crate::picture::load_picture;
+use crate::picture::load_style_picture;
 use crate::plot::write_loss_plot;
 use crate::progress::Progress;
 use crate::weights::{resolve_weights, WeightFiles};
@@ -68,9 +68,10 @@ pub struct StylizeJob<M> {
     /// A background mask per view (`[h * w]`, 1 = background) when every view has one; the
     /// background loss is on only with masks and a positive `lambda_background`.
     pub masks: Option<Vec<Vec<f32>>>,
-    /// The colour renders are composited over, also behind transparent style-image pixels.
+    /// The colour renders are composited over.
     pub background: [f32; 3],
-    /// Views per step (their losses averaged) and how they are grouped; one shuffled view per
+    /// Views per step (their losses summed and divided by the size) and how they are grouped;
+    /// one shuffled view per
     /// step is [`Batches::ONE`].
     pub batches: Batches,
     /// What the loss sees of each render: clamped to `[0, 1]` where the modality's authors'
@@ -243,7 +244,7 @@ impl PreparedRun {
             render_clamp,
             ..
         } = job;
-        let (loss, masks) = build_loss(settings, weights, masks, background, device)?;
+        let (loss, masks) = build_loss(settings, weights, masks, device)?;
         let mut objective = StyleObjective::new(
             loss,
             &images,
@@ -489,7 +490,7 @@ pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), Styl
 /// Checks that the style image of `settings` decodes and that its CLIP configuration parses.
 fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), StylizeError> {
     if let Some(path) = &settings.style_image {
-        load_picture(path, [0.0; 3], &Device::Cpu)
+        load_style_picture(path, &Device::Cpu)
             .map_err(|e| StylizeError::Input(format!("style image: {e}")))?;
     }
     if let Some(path) = &settings.clip_config {
@@ -498,18 +499,18 @@ fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), Sty
     Ok(())
 }
 
-/// The style loss of `settings` (the style image over `background`) and the masks it uses:
-/// `masks` when the background weight is positive, else none.
+/// The style loss of `settings` (the style image's stored colours, alpha ignored, as the
+/// authors read it) and the masks it uses: `masks` when the background weight is positive, else
+/// none.
 fn build_loss(
     settings: &StyleSettings,
     files: &WeightFiles,
     masks: Option<ViewMasks>,
-    background: [f32; 3],
     device: &Device,
 ) -> Result<(StyleLoss, Option<ViewMasks>), StylizeError> {
     let style_image = match &settings.style_image {
         Some(path) => Some(
-            load_picture(path, background, device)
+            load_style_picture(path, device)
                 .map_err(|e| StylizeError::Input(format!("style image: {e}")))?,
         ),
         None => None,

@@ -89,6 +89,10 @@ struct StylizeArgs {
     /// are, or the configuration's `resolution`).
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
+    /// The colour renders are composited over (default black, as the authors' commands, or
+    /// the configuration's `white_background`).
+    #[arg(long, value_enum)]
+    background: Option<BackgroundArg>,
     /// The style, model files, device and run controls.
     #[command(flatten)]
     style: StyleArgs,
@@ -102,6 +106,10 @@ impl StylizeArgs {
             ("data", path_value(&self.data)),
             ("out", path_value(&self.out)),
             ("resolution", self.resolution.map(Into::into)),
+            (
+                "white_background",
+                self.background.map(|b| (b == BackgroundArg::White).into()),
+            ),
         ])
     }
 }

@@ -9,8 +9,7 @@ use gs_core::dataset::GroundTruth;
 use gs_stylize::{resolve_config, Override, StyleSettings, StylizeError};
 use serde::{Deserialize, Serialize};
 
-/// Which ground-truth pixels the background loss holds to the background colour (in scenes whose
-/// pictures have alpha).
+/// Which ground-truth pixels the background loss holds to the background colour.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum BackgroundPixels {
@@ -44,12 +43,16 @@ pub struct StylizeConfig {
     /// (over the background, cut to 8 bits, as INRIA 3DGS before August 2024 and the other
     /// modalities' loaders).
     pub ground_truth: GroundTruth,
+    /// Whether the scene is an object whose background the background loss holds (the
+    /// authors' `--object`): off by default, as the authors' example commands; the paper weighs
+    /// the term 1000 (`lambda_background`) for objects.
+    pub object: bool,
     /// Which pixels the background loss holds to the background: `ground_truth_colour` (the
     /// default, as the authors' `--object` term: pixels whose ground-truth colours sum to the
-    /// background's) or `alpha` (pixels whose alpha is 0; only in datasets with alpha). The
-    /// paper weighs the term 1000 for objects; the authors' example commands leave it out (set
-    /// `lambda_background` 0 to do the same). Either way the term runs only on scenes whose
-    /// pictures all have alpha (objects); a COLMAP scene of RGB pictures has none.
+    /// background's; with `file_colour` over black that is the transparent pixels, stored black,
+    /// and any opaque pure-black one) or `alpha` (pixels whose alpha is 0; a dataset whose
+    /// pictures lack alpha then has no term). With `alpha` and `file_colour`, the term pulls
+    /// transparent pixels to their stored colour, not to a white background.
     pub background_mask: BackgroundPixels,
     /// Which NeRF-synthetic splits train: `train_and_test` (the default: the authors' commands
     /// pass no `--eval`, so INRIA's loader trains on both and takes the extent of both) or
@@ -72,6 +75,7 @@ impl Default for StylizeConfig {
             resolution: 1,
             white_background: false,
             ground_truth: GroundTruth::FileColour,
+            object: false,
             background_mask: BackgroundPixels::GroundTruthColour,
             train_splits: TrainSplits::TrainAndTest,
             preview_views: vec![0],

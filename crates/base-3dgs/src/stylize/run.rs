@@ -50,7 +50,10 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
             "preview_views: view {v} does not exist (the dataset has {count})"
         )));
     }
-    let masks = background_masks(&dataset, config.background_mask);
+    let masks = config
+        .object
+        .then(|| background_masks(&dataset, config.background_mask))
+        .flatten();
     let job = StylizeJob {
         model: ply.gaussians.clone(),
         groups: config.style.optimizer_groups(dataset.extent),
@@ -126,13 +129,9 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
     }
 }
 
-/// The background mask of every view (1 = background) as `rule` says. The background loss is
-/// for objects, whose pictures have alpha (the authors' `--object`): a dataset where a view has
-/// no alpha has no masks, and the term is off.
+/// The background mask of every view (1 = background) as `rule` says; `None` (no background
+/// term) under [`BackgroundPixels::Alpha`] when a view has no alpha.
 fn background_masks(dataset: &Dataset, rule: BackgroundPixels) -> Option<Vec<Vec<f32>>> {
-    if dataset.masks.iter().any(Option::is_none) {
-        return None;
-    }
     match rule {
         BackgroundPixels::Alpha => dataset
             .masks
@@ -200,6 +199,11 @@ mod tests {
         assert_eq!(
             background_masks(&without_alpha, BackgroundPixels::Alpha),
             None
+        );
+        assert_eq!(
+            background_masks(&without_alpha, BackgroundPixels::GroundTruthColour),
+            white,
+            "the colour rule needs no alpha"
         );
     }
 }

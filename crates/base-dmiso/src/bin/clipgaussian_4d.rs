@@ -102,7 +102,7 @@ struct StylizeArgs {
     /// The output folder (created when absent).
     #[arg(long)]
     out: Option<PathBuf>,
-    /// Consecutive views per step, their losses averaged (the paper: 4).
+    /// Consecutive views per step, their losses summed and divided by it (the paper: 4).
     #[arg(long)]
     batch_size: Option<usize>,
     /// The colour the pictures are composited over (default: the background the model

@@ -84,7 +84,7 @@ impl Composite {
 }
 
 /// One pixel composited as INRIA 3DGS's `readCamerasFromTransforms` does it: with `scale` the
-/// file's full level (255 for 8-bit files), `arr = (c / scale) (a / scale) + bg (1 - a / scale)`
+/// full level (255: PIL reads every file as 8-bit levels, [`pil_levels`]), `arr = (c / scale) (a / scale) + bg (1 - a / scale)`
 /// in `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
 /// `floor(arr * 255)`, a whole level in `0..=255`.
 pub fn composite_8bit(rgb: [f64; 3], alpha: f64, scale: f64, background: [f32; 3]) -> [u8; 3] {
@@ -135,7 +135,7 @@ pub(crate) fn load(
             rgba
         }
         Composite::EightBit => composited_8bit(&decoded, background),
-        Composite::Stored => decoded.to_rgba32f(),
+        Composite::Stored => stored_levels(&decoded),
     };
     if let Some((w, h)) = target.filter(|&t| t != found) {
         rgba = image::imageops::resize(&rgba, w, h, FilterType::CatmullRom);
@@ -163,38 +163,51 @@ pub(crate) fn load(
     ))
 }
 
-/// `decoded` composited over `background` by [`composite_8bit`], from its own levels (8-bit
-/// files from their bytes, deeper ones from 16-bit levels), as `f32` levels / 255 with the
-/// file's alpha kept for the mask.
+/// The picture's 8-bit RGBA levels as PIL reads it: 8-bit files as they are; 16-bit RGB, RGBA
+/// and grey-alpha files by the high byte of each value (PIL's `RGB;16B` unpacking); 16-bit grey
+/// clipped to 255 (PIL's `I;16` converted to RGBA); other formats through the image crate.
+pub(crate) fn pil_levels(decoded: &image::DynamicImage) -> image::RgbaImage {
+    use image::DynamicImage as D;
+    let high_byte = |v: u16| (v >> 8) as u8;
+    match decoded {
+        D::ImageRgb16(_) | D::ImageRgba16(_) | D::ImageLumaA16(_) => {
+            let wide = decoded.to_rgba16();
+            image::RgbaImage::from_fn(wide.width(), wide.height(), |x, y| {
+                image::Rgba(wide.get_pixel(x, y).0.map(high_byte))
+            })
+        }
+        D::ImageLuma16(grey) => image::RgbaImage::from_fn(grey.width(), grey.height(), |x, y| {
+            let v = grey.get_pixel(x, y).0[0].min(255) as u8;
+            image::Rgba([v, v, v, 255])
+        }),
+        _ => decoded.to_rgba8(),
+    }
+}
+
+/// The stored colours and alpha of `decoded` as PIL's levels ([`pil_levels`]) / 255.
+pub(crate) fn stored_levels(decoded: &image::DynamicImage) -> image::Rgba32FImage {
+    let levels = pil_levels(decoded);
+    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
+        image::Rgba(levels.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0))
+    })
+}
+
+/// `decoded` composited over `background` by [`composite_8bit`] from its levels as PIL reads
+/// them ([`pil_levels`]), as `f32` levels / 255 with the file's alpha kept for the mask.
 pub(crate) fn composited_8bit(
     decoded: &image::DynamicImage,
     background: [f32; 3],
 ) -> image::Rgba32FImage {
-    let (width, height) = (decoded.width(), decoded.height());
-    let eight_bit = decoded.color().bytes_per_pixel() / decoded.color().channel_count() == 1;
-    let pixels: Vec<([f64; 4], f64)> = if eight_bit {
-        decoded
-            .to_rgba8()
-            .pixels()
-            .map(|p| (p.0.map(f64::from), 255.0))
-            .collect()
-    } else {
-        decoded
-            .to_rgba16()
-            .pixels()
-            .map(|p| (p.0.map(f64::from), 65535.0))
-            .collect()
-    };
-    let mut out = image::Rgba32FImage::new(width, height);
-    for (o, (p, scale)) in out.pixels_mut().zip(pixels) {
-        let rgb = composite_8bit([p[0], p[1], p[2]], p[3], scale, background);
+    let levels = pil_levels(decoded);
+    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
+        let p = levels.get_pixel(x, y).0.map(f64::from);
+        let rgb = composite_8bit([p[0], p[1], p[2]], p[3], 255.0, background);
         let level = |v: u8| f32::from(v) / 255.0;
-        *o = image::Rgba([
+        image::Rgba([
             level(rgb[0]),
             level(rgb[1]),
             level(rgb[2]),
-            (p[3] / scale) as f32,
-        ]);
-    }
-    out
+            (p[3] / 255.0) as f32,
+        ])
+    })
 }

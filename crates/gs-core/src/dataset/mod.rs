@@ -11,8 +11,8 @@ use crate::model::View;
 use crate::{GsError, Image};
 use serde::{Deserialize, Serialize};
 
-pub(crate) use images::composited_8bit;
 pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
+pub(crate) use images::{composited_8bit, stored_levels};
 
 /// The two dataset layouts a folder can have.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

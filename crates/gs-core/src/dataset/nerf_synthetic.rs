@@ -92,27 +92,9 @@ pub fn load_training(
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<Dataset, DatasetError> {
-    load_training_split(root, splits, options, false)
-}
-
-/// [`load_training`] for a D-NeRF scene, each view at its frame's time ([`load_with_times`]).
-pub fn load_training_with_times(
-    root: &Path,
-    splits: TrainSplits,
-    options: &LoadOptions,
-) -> Result<Dataset, DatasetError> {
-    load_training_split(root, splits, options, true)
-}
-
-fn load_training_split(
-    root: &Path,
-    splits: TrainSplits,
-    options: &LoadOptions,
-    with_times: bool,
-) -> Result<Dataset, DatasetError> {
-    let mut dataset = load_split(root, Split::Train, options, with_times)?;
+    let mut dataset = load(root, Split::Train, options)?;
     if splits == TrainSplits::TrainAndTest && root.join(Split::Test.file_name()).is_file() {
-        dataset.append(load_split(root, Split::Test, options, with_times)?);
+        dataset.append(load(root, Split::Test, options)?);
     }
     Ok(dataset)
 }
