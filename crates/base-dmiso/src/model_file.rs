@@ -375,13 +375,36 @@ const MAX_HEADER_BYTES: u64 = 100_000_000;
 /// Whether `cfg_args` (a Python `Namespace(...)`) says `white_background=True`; `None` when it
 /// does not say.
 pub fn white_background(cfg_args: &str) -> Option<bool> {
-    let rest = cfg_args.split("white_background=").nth(1)?;
+    cfg_flag(cfg_args, "white_background")
+}
+
+/// The boolean `name` of `cfg_args` (a Python `Namespace(a=1, name=True, ...)`); `None` when it
+/// has no such argument or it is not `True` or `False`.
+pub fn cfg_flag(cfg_args: &str, name: &str) -> Option<bool> {
+    let rest = ["(", " "]
+        .iter()
+        .find_map(|before| cfg_args.split(&format!("{before}{name}=")).nth(1))?;
     if rest.starts_with("True") {
         Some(true)
     } else if rest.starts_with("False") {
         Some(false)
     } else {
         None
+    }
+}
+
+/// Whether the authors' model folder `path` was fitted with `--eval` (its `cfg_args` says
+/// `eval=True`: D-MiSo then trained on the train split only); `None` for our model files and
+/// for a folder whose `cfg_args` does not say.
+pub fn recorded_eval(path: &Path) -> Result<Option<bool>, ModelFileError> {
+    if !path.is_dir() {
+        return Ok(None);
+    }
+    let cfg = path.join("cfg_args");
+    match std::fs::read_to_string(&cfg) {
+        Ok(text) => Ok(cfg_flag(&text, "eval")),
+        Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
+        Err(source) => Err(ModelFileError::Io { path: cfg, source }),
     }
 }
 
@@ -497,5 +520,16 @@ mod tests {
         assert_eq!(white_background(white), Some(true));
         assert_eq!(white_background(black), Some(false));
         assert_eq!(white_background("Namespace(eval=True)"), None);
+        let cfg = "Namespace(eval=True, is_blender=True, load2gpu_on_the_fly=False)";
+        assert_eq!(cfg_flag(cfg, "eval"), Some(true));
+        assert_eq!(
+            cfg_flag("Namespace(sh_degree=3, eval=False)", "eval"),
+            Some(false)
+        );
+        assert_eq!(
+            cfg_flag("Namespace(no_eval=True)", "eval"),
+            None,
+            "whole names only"
+        );
     }
 }

@@ -71,11 +71,12 @@ pub struct DynamicStylizeConfig {
     /// model records (our file's, or the authors' `cfg_args`), else white (CLIPGaussian's 4D
     /// examples).
     pub white_background: Option<bool>,
-    /// Which splits train (and are fitted, when no model is given): `train_and_test` (the
-    /// default: the authors' commands pass no `--eval`, so D-MiSo's loader trains on both, the
-    /// test frames after the training ones, and takes the extent of both) or `train`. The test
-    /// views are rendered into `test/` either way.
-    pub train_splits: TrainSplits,
+    /// Which splits train (and are fitted, when no model is given): `train_and_test` (D-MiSo's
+    /// loader without `--eval`: the test frames after the training ones, the extent of both) or
+    /// `train`. Unset (the default): as the authors' model folder's `cfg_args` says (`eval`
+    /// overrides the command line in the authors' 4D code), else `train_and_test` (their
+    /// example fit passes no `--eval`). The test views are rendered into `test/` either way.
+    pub train_splits: Option<TrainSplits>,
     /// Consecutive training views per step (runs of the views left in the epoch), their losses
     /// summed and divided by this size.
     pub batch_size: usize,
@@ -123,7 +124,7 @@ impl Default for DynamicStylizeConfig {
             iteration: None,
             out: None,
             white_background: None,
-            train_splits: TrainSplits::TrainAndTest,
+            train_splits: None,
             batch_size: 4,
             alpha_lr: 1e-5,
             deform_lr_start: 5e-5,
@@ -383,9 +384,17 @@ pub fn run(
         (None, false) => None,
     };
     let background = config.background(recorded);
+    let recorded_eval = match &config.model {
+        Some(path) => model_file::recorded_eval(path)?,
+        None => None,
+    };
+    let train_splits = config.train_splits.unwrap_or(match recorded_eval {
+        Some(true) => TrainSplits::Train,
+        Some(false) | None => TrainSplits::TrainAndTest,
+    });
     let white = Some(background == Background::White);
     let (mut train, test) = load_scene(data, background)?;
-    if let (TrainSplits::TrainAndTest, Some(test)) = (config.train_splits, &test) {
+    if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
         train.append(test.clone());
     }
     let labels: Vec<String> = train
@@ -509,7 +518,7 @@ mod tests {
             (5.0, 90.0, 0.8, 0.0)
         );
         assert_eq!((s.feature_lr, s.steps, config.batch_size), (0.025, 4999, 4));
-        assert_eq!(config.train_splits, TrainSplits::TrainAndTest);
+        assert_eq!(config.train_splits, None);
         let groups = stylize_groups(&config, 2.0);
         let at = |name: &str, step: u64| {
             groups

@@ -310,9 +310,24 @@ fn bad_inputs_are_refused_with_nothing_written() {
     std::fs::write(&foreign, b"not a model").unwrap();
     let e = stylize(&["--model", s(&foreign)]);
     assert!(e.contains("foreign.safetensors"), "{e}");
-    // A batch larger than the views: the 8 train and 3 test views train (the authors' runs
-    // pass no --eval), or the 8 train views alone.
-    let e = stylize(&["--model", s(&model), "--batch-size", "12"]);
+    // A batch larger than the views. The authors' model records eval=True in its cfg_args: its
+    // 8 train views train, as D-MiSo's loader with --eval; without it (as the authors' example
+    // fit), the 3 test views join them.
+    let e = stylize(&["--model", s(&model), "--batch-size", "9"]);
+    assert!(
+        e.contains("batch_size") && e.contains("8 training views"),
+        "{e}"
+    );
+    let cfg = std::fs::read_to_string(model.join("cfg_args")).unwrap();
+    assert!(cfg.contains("eval=True"), "{cfg}");
+    let without_eval = dir.path().join("without-eval");
+    common::copy_dir(&model, &without_eval);
+    std::fs::write(
+        without_eval.join("cfg_args"),
+        cfg.replace("eval=True", "eval=False"),
+    )
+    .unwrap();
+    let e = stylize(&["--model", s(&without_eval), "--batch-size", "12"]);
     assert!(
         e.contains("batch_size") && e.contains("11 training views"),
         "{e}"
@@ -321,12 +336,12 @@ fn bad_inputs_are_refused_with_nothing_written() {
         "--model",
         s(&model),
         "--batch-size",
-        "9",
+        "12",
         "--set",
-        "train_splits=train",
+        "train_splits=train_and_test",
     ]);
     assert!(
-        e.contains("batch_size") && e.contains("8 training views"),
+        e.contains("batch_size") && e.contains("11 training views"),
         "{e}"
     );
     assert!(!out.exists(), "nothing was written");
