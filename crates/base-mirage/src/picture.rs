@@ -1,10 +1,12 @@
 //! The picture a user gives (PNG or JPEG of any size, transparency composited over a chosen
-//! background and cut to 8 bits, never resized) and the embedded default picture.
+//! background and cut to 8 bits, shrunk to 1600 pixels wide when wider unless asked otherwise,
+//! as MiraGe reads pictures) and the embedded default picture.
 
 use std::f32::consts::PI;
 use std::path::Path;
 
 use gs_core::{GsError, Image};
+use gs_stylize::wide_pictures::shrink_wide;
 
 /// The smallest side, in pixels, of a picture that can be fitted: one 16x16 rasterizer tile.
 pub const MIN_SIDE: u32 = 16;
@@ -31,11 +33,15 @@ pub enum PictureError {
     },
 }
 
-/// Reads the picture at `path` at its own resolution; transparent pixels are composited over
-/// `background` (linear RGB in `[0, 1]`) and the result cut to whole 8-bit levels, as MiraGe
-/// reads pictures.
-pub fn load_picture(path: &Path, background: [f32; 3]) -> Result<Image, PictureError> {
-    let image = Image::load_8bit_composite(path, background)?;
+/// Reads the picture at `path` as MiraGe reads pictures: transparent pixels composited over
+/// `background` (linear RGB in `[0, 1]`) and the result cut to whole 8-bit levels, then shrunk
+/// when wider than `max_width` (0: kept at its size; [`shrink_wide`]).
+pub fn load_picture(
+    path: &Path,
+    background: [f32; 3],
+    max_width: u32,
+) -> Result<Image, PictureError> {
+    let image = shrink_wide(Image::load_8bit_composite(path, background)?, max_width);
     if image.width < MIN_SIDE || image.height < MIN_SIDE {
         return Err(PictureError::TooSmall {
             path: path.display().to_string(),
@@ -137,6 +143,28 @@ mod tests {
     }
 
     #[test]
+    fn a_picture_wider_than_the_limit_is_shrunk_as_mirage_shrinks_it() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("wide.png");
+        image::RgbImage::from_fn(1650, 20, |x, y| {
+            image::Rgb([(x % 256) as u8, (y * 9) as u8, 40])
+        })
+        .save(&path)
+        .unwrap();
+        let full = load_picture(&path, [0.0; 3], 0).unwrap();
+        assert_eq!((full.width, full.height), (1650, 20));
+        let shrunk = load_picture(
+            &path,
+            [0.0; 3],
+            gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH,
+        )
+        .unwrap();
+        // int(20 / (1650 / 1600)) = 19.
+        assert_eq!((shrunk.width, shrunk.height), (1600, 19));
+        assert_eq!(shrunk, shrink_wide(full, 1600));
+    }
+
+    #[test]
     fn a_transparent_picture_is_composited_and_cut_to_8_bits_as_mirage_reads_it() {
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("ramp.png");
@@ -146,7 +174,7 @@ mod tests {
         .save(&path)
         .unwrap();
         for background in [[0.0; 3], [1.0; 3]] {
-            let picture = load_picture(&path, background).unwrap();
+            let picture = load_picture(&path, background, 0).unwrap();
             for (x, y) in [(0, 0), (255, 16), (130, 9), (3, 31), (200, 1)] {
                 let rgba = [x as f64, 255.0 - x as f64, 7.0];
                 let want =

@@ -22,6 +22,7 @@ use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
+use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::{
     prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
 };
@@ -65,6 +66,9 @@ pub struct MirageStylizeConfig {
     /// also read as `white`, `black` or `"R,G,B"` ([`crate::background`]).
     #[serde(deserialize_with = "crate::background::deserialize")]
     pub background: [f32; 3],
+    /// A picture wider than this is shrunk to it, pixels, as MiraGe's loader shrinks it (PIL's
+    /// bicubic of the 8-bit picture; default 1600); 0 keeps every picture at its size.
+    pub max_width: u32,
     /// Distance of the cameras from the picture plane, world units (MiraGe: 1).
     pub distance: f64,
     /// Gaussians of the fit (when no model is given).
@@ -88,6 +92,7 @@ impl Default for MirageStylizeConfig {
             model: None,
             out: None,
             background: fit.background,
+            max_width: AUTHORS_MAX_WIDTH,
             distance: DEFAULT_DISTANCE,
             fit_gaussians: fit.gaussians,
             fit_steps: fit.steps,
@@ -169,7 +174,7 @@ pub struct MirageSummary {
 /// Loads the picture the configuration names, or the embedded default.
 fn picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
     match &config.picture {
-        Some(path) => Ok(load_picture(path, config.background)?),
+        Some(path) => Ok(load_picture(path, config.background, config.max_width)?),
         None => Ok(default_picture()),
     }
 }

@@ -37,6 +37,7 @@ use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
     STYLIZED_MP4,
 };
+use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 
 /// The stylized model.
 pub const MODEL_PLY: &str = "model.ply";
@@ -57,6 +58,9 @@ pub struct VideoStylizeConfig {
     pub out: Option<PathBuf>,
     /// Frame rate of a folder of frames (a video file has its own), frames per second.
     pub fps: f64,
+    /// Frames wider than this are shrunk to it, pixels, as VeGaS's loader shrinks them (PIL's
+    /// bicubic of the 8-bit frame; default 1600); 0 keeps every frame at its size.
+    pub max_width: u32,
     /// Colour behind transparent pixels and behind the Gaussians, RGB in `[0, 1]` (VeGaS: black).
     pub background: [f32; 3],
     /// Distance of the cameras from the plane, world units (VeGaS: 1).
@@ -78,6 +82,7 @@ impl Default for VideoStylizeConfig {
             model: None,
             out: None,
             fps: DEFAULT_FOLDER_FPS,
+            max_width: AUTHORS_MAX_WIDTH,
             background: fit.background,
             distance: DEFAULT_DISTANCE,
             fit_gaussians: fit.gaussians,
@@ -215,7 +220,7 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
     }
     let prepared = prepare(&config.style, out, options.clone())?;
     let backend = prepared.backend();
-    let video = load_video(video_path, config.background, config.fps)?;
+    let video = load_video(video_path, config.background, config.fps, config.max_width)?;
     check_patches_fit(&config.style, &video.frames[..1], &video.labels[..1])?;
     let (w, h) = video.size();
     let record = VideoRecord {

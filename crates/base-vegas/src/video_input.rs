@@ -1,13 +1,14 @@
 //! The video a user gives: a folder of numbered frames (PNG or JPEG, as DAVIS ships them,
 //! sorted naturally so that `9.png` comes before `10.png`), or a video file (mp4, webm, mov,
-//! mkv, avi) decoded by the `ffmpeg` program. Frames keep their own resolution; transparent
-//! pixels are composited over the background and the result cut to whole 8-bit levels, as VeGaS
-//! reads its frames.
+//! mkv, avi) decoded by the `ffmpeg` program. Transparent pixels are composited over the
+//! background and the result cut to whole 8-bit levels, and frames wider than 1600 pixels are
+//! shrunk to 1600 (unless asked otherwise), as VeGaS reads its frames.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use gs_core::{GsError, Image};
+use gs_stylize::wide_pictures::shrink_wide;
 use rayon::prelude::*;
 
 /// Frame rate given to a folder of frames when none is asked for, frames per second.
@@ -96,8 +97,26 @@ pub enum VideoInputError {
 }
 
 /// Reads the video at `path` (a frame folder, or a video file through `ffmpeg`); transparent
-/// pixels go over `background`. A folder's frames play at `folder_fps`.
+/// pixels go over `background`; frames wider than `max_width` (0: none) are shrunk as VeGaS's
+/// loader shrinks them ([`shrink_wide`]). A folder's frames play at `folder_fps`.
 pub fn load_video(
+    path: &Path,
+    background: [f32; 3],
+    folder_fps: f64,
+    max_width: u32,
+) -> Result<Video, VideoInputError> {
+    let mut video = read_video(path, background, folder_fps)?;
+    if max_width > 0 {
+        video.frames = std::mem::take(&mut video.frames)
+            .into_par_iter()
+            .map(|f| shrink_wide(f, max_width))
+            .collect();
+    }
+    Ok(video)
+}
+
+/// [`load_video`] at the frames' own size.
+fn read_video(
     path: &Path,
     background: [f32; 3],
     folder_fps: f64,

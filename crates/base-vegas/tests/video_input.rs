@@ -20,7 +20,7 @@ fn a_folder_of_frames_is_read_in_natural_order() {
         write_frame(&dir.path().join(name), 20, 12, value);
     }
     std::fs::write(dir.path().join("notes.txt"), "not a frame").unwrap();
-    let video = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS).unwrap();
+    let video = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap();
     assert_eq!(video.frames.len(), 4);
     assert_eq!(video.size(), (20, 12));
     assert_eq!(video.fps, DEFAULT_FOLDER_FPS);
@@ -34,7 +34,7 @@ fn a_folder_of_frames_is_read_in_natural_order() {
 }
 
 fn error_of(path: &Path) -> String {
-    let e = load_video(path, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap_err();
+    let e = load_video(path, [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap_err();
     e.to_string()
 }
 
@@ -92,7 +92,7 @@ fn a_video_file_needs_ffmpeg_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let clip = dir.path().join("clip.mp4");
     std::fs::write(&clip, b"not really an mp4").unwrap();
-    let e = load_video(&clip, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap_err();
+    let e = load_video(&clip, [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap_err();
     let has_ffmpeg = std::process::Command::new("ffprobe")
         .arg("-version")
         .output()
@@ -130,7 +130,7 @@ fn frames_round_trip_through_an_mp4_when_ffmpeg_is_installed() {
         .is_ok();
     assert_eq!(written, has_ffmpeg);
     if written {
-        let video = load_video(&mp4, [0.0; 3], DEFAULT_FOLDER_FPS).unwrap();
+        let video = load_video(&mp4, [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap();
         assert_eq!(video.frames.len(), 5);
         assert_eq!(video.size(), (34, 20));
         assert!((video.fps - 12.0).abs() < 1e-9, "fps {}", video.fps);
@@ -157,7 +157,7 @@ fn transparent_frames_are_composited_and_cut_to_8_bits_as_vegas_reads_them() {
         write_rgba_ramp(&dir.path().join(name));
     }
     for background in [[0.0; 3], [1.0; 3]] {
-        let video = load_video(dir.path(), background, DEFAULT_FOLDER_FPS).unwrap();
+        let video = load_video(dir.path(), background, DEFAULT_FOLDER_FPS, 0).unwrap();
         let frame = &video.frames[1];
         for (a, c) in [
             (0, 200),
@@ -175,5 +175,29 @@ fn transparent_frames_are_composited_and_cut_to_8_bits_as_vegas_reads_them() {
                 "colour {c} alpha {a} over {background:?}"
             );
         }
+    }
+}
+
+#[test]
+fn frames_wider_than_the_limit_are_shrunk_as_vegas_shrinks_them() {
+    let dir = tempfile::tempdir().unwrap();
+    for (k, name) in ["0.png", "1.png"].iter().enumerate() {
+        image::RgbImage::from_fn(1700, 9, |x, y| {
+            let v = ((x * 7 + y * 13 + k as u32 * 5) % 256) as u8;
+            image::Rgb([v, 255 - v, v / 2])
+        })
+        .save(dir.path().join(name))
+        .unwrap();
+    }
+    let full = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap();
+    assert_eq!(full.size(), (1700, 9));
+    let shrunk = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS, 1600).unwrap();
+    // int(9 / (1700 / 1600)) = 8.
+    assert_eq!(shrunk.size(), (1600, 8));
+    for (big, small) in full.frames.iter().zip(&shrunk.frames) {
+        assert_eq!(
+            *small,
+            gs_stylize::wide_pictures::shrink_wide(big.clone(), 1600)
+        );
     }
 }

@@ -26,6 +26,7 @@ use gs_core::image_loss::psnr;
 use gs_core::Image;
 use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
@@ -101,6 +102,10 @@ struct StylizeArgs {
     /// (default black, as MiraGe).
     #[arg(long, value_parser = parse_background)]
     background: Option<[f32; 3]>,
+    /// A picture wider than this is shrunk to it, pixels (PIL's bicubic, as MiraGe; default
+    /// 1600); 0 keeps every picture at its size.
+    #[arg(long)]
+    max_width: Option<u32>,
     /// The style (default "Starry Night by Vincent van Gogh"), model files, device and run
     /// controls; `--resume` also reuses `<out>/base.ply`.
     #[command(flatten)]
@@ -120,6 +125,7 @@ impl StylizeArgs {
                 "background",
                 self.background.map(|b| serde_json::Value::from(b.to_vec())),
             ),
+            ("max_width", self.max_width.map(Into::into)),
         ])
     }
 }
@@ -148,6 +154,10 @@ struct FitArgs {
     /// Colour behind transparent pixels and behind the Gaussians: white, black or R,G,B.
     #[arg(long, value_parser = parse_background, default_value = "black")]
     background: [f32; 3],
+    /// A picture wider than this is shrunk to it, pixels (PIL's bicubic, as MiraGe); 0 keeps
+    /// every picture at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
     /// Distance of the cameras from the picture plane, world units.
     #[arg(long, default_value_t = DEFAULT_DISTANCE)]
     distance: f64,
@@ -208,7 +218,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     check_output_folder(&args.out)?;
-    let picture = load_picture(&args.picture, args.background)?;
+    let picture = load_picture(&args.picture, args.background, args.max_width)?;
     let settings = FitSettings {
         gaussians: args.gaussians,
         steps: args.steps,

@@ -27,6 +27,7 @@ use gs_stylize::animation::{
 use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use serde::Serialize;
@@ -98,6 +99,10 @@ struct StylizeArgs {
     /// Frame rate of a frames folder, frames per second (a video file has its own).
     #[arg(long)]
     fps: Option<f64>,
+    /// Frames wider than this are shrunk to it, pixels (PIL's bicubic, as VeGaS; default 1600);
+    /// 0 keeps every frame at its size.
+    #[arg(long)]
+    max_width: Option<u32>,
     /// Folded Gaussians of the fit.
     #[arg(long)]
     gaussians: Option<usize>,
@@ -131,6 +136,10 @@ struct FitArgs {
     /// Frame rate of a frames folder, frames per second.
     #[arg(long, default_value_t = DEFAULT_FOLDER_FPS)]
     fps: f64,
+    /// Frames wider than this are shrunk to it, pixels (PIL's bicubic, as VeGaS); 0 keeps every
+    /// frame at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
     /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -222,6 +231,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("model", path_value(&args.model)),
         ("out", path_value(&args.out)),
         ("fps", args.fps.map(Into::into)),
+        ("max_width", args.max_width.map(Into::into)),
         ("fit_gaussians", args.gaussians.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
     ])?;
@@ -257,7 +267,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
-    let video = load_video(&args.video, settings.background, args.fps)?;
+    let video = load_video(&args.video, settings.background, args.fps, args.max_width)?;
     let options = RunOptions {
         resume: false,
         progress: !args.quiet,
@@ -398,8 +408,9 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     }
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
-    let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS)?;
-    let video = load_video(&args.video, [0.0; 3], DEFAULT_FOLDER_FPS)?;
+    let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS, 0)?;
+    // The frames at the renders' width when wider, as the run that made them shrank them.
+    let video = load_video(&args.video, [0.0; 3], DEFAULT_FOLDER_FPS, renders.size().0)?;
     if renders.frames.len() != video.frames.len() {
         return Err(format!(
             "{} holds {} frames, {} holds {}",
