@@ -107,8 +107,7 @@ fn alpha_is_composited_over_the_chosen_background_and_gives_the_mask() {
         // Partly transparent: composited, then cut to whole 8-bit levels as 3DGS's loader
         // (gs-core's tests hold composite_8bit to the authors' numpy for every level).
         let px = img.pixel(2, 0);
-        let want =
-            composite_8bit([255.0, 0.0, 0.0], 128.0, 255.0, [bg; 3]).map(|v| f32::from(v) / 255.0);
+        let want = composite_8bit([255, 0, 0], 128, [bg; 3]).map(|v| f32::from(v) / 255.0);
         assert_eq!(px, want);
         let float = [a + bg * (1.0 - a), bg * (1.0 - a), bg * (1.0 - a)];
         assert!(

@@ -335,12 +335,7 @@ fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
 /// `white_background` of the `cfg_args` beside the authors' folder; `None` when it records none.
 pub fn recorded_background(path: &Path) -> Result<Option<bool>, ModelFileError> {
     if path.is_dir() {
-        let cfg = path.join("cfg_args");
-        return match std::fs::read_to_string(&cfg) {
-            Ok(text) => Ok(white_background(&text)),
-            Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-            Err(source) => Err(ModelFileError::Io { path: cfg, source }),
-        };
+        return Ok(cfg_args(path)?.as_deref().and_then(white_background));
     }
     // Only the header: an 8-byte length, then the JSON header with the metadata.
     use std::io::Read;
@@ -400,9 +395,14 @@ pub fn recorded_eval(path: &Path) -> Result<Option<bool>, ModelFileError> {
     if !path.is_dir() {
         return Ok(None);
     }
-    let cfg = path.join("cfg_args");
+    Ok(cfg_args(path)?.and_then(|text| cfg_flag(&text, "eval")))
+}
+
+/// The `cfg_args` beside the authors' model folder `dir`; `None` when there is none.
+fn cfg_args(dir: &Path) -> Result<Option<String>, ModelFileError> {
+    let cfg = dir.join("cfg_args");
     match std::fs::read_to_string(&cfg) {
-        Ok(text) => Ok(cfg_flag(&text, "eval")),
+        Ok(text) => Ok(Some(text)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
         Err(source) => Err(ModelFileError::Io { path: cfg, source }),
     }

@@ -176,10 +176,9 @@ mod tests {
         for background in [[0.0; 3], [1.0; 3]] {
             let picture = load_picture(&path, background, 0).unwrap();
             for (x, y) in [(0, 0), (255, 16), (130, 9), (3, 31), (200, 1)] {
-                let rgba = [x as f64, 255.0 - x as f64, 7.0];
-                let want =
-                    gs_core::dataset::composite_8bit(rgba, 8.0 * y as f64, 255.0, background)
-                        .map(|v| f32::from(v) / 255.0);
+                let rgb = [x as u8, 255 - x as u8, 7];
+                let want = gs_core::dataset::composite_8bit(rgb, (8 * y) as u8, background)
+                    .map(|v| f32::from(v) / 255.0);
                 assert_eq!(picture.pixel(x, y), want, "({x}, {y}) over {background:?}");
             }
         }

@@ -106,12 +106,10 @@ pub fn load_video(
     max_width: u32,
 ) -> Result<Video, VideoInputError> {
     let mut video = read_video(path, background, folder_fps)?;
-    if max_width > 0 {
-        video.frames = std::mem::take(&mut video.frames)
-            .into_par_iter()
-            .map(|f| shrink_wide(f, max_width))
-            .collect();
-    }
+    video.frames = std::mem::take(&mut video.frames)
+        .into_par_iter()
+        .map(|f| shrink_wide(f, max_width))
+        .collect();
     Ok(video)
 }
 

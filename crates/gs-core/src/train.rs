@@ -113,12 +113,6 @@ impl ViewSampler {
             }
         }
     }
-
-    /// What a step's summed loss is divided by: the batch size, also for a shorter last batch
-    /// of an epoch ([`BatchOrder::Consecutive`]), as the authors divide by `BATCH_SIZE`.
-    pub fn divisor(&self) -> usize {
-        self.batch
-    }
 }
 
 /// What an objective returns for one rendered view.
@@ -339,9 +333,10 @@ where
     while backend.step_count() < config.steps {
         let step = backend.step_count() + 1;
         let batch = sampler.next_batch();
-        // The batch's losses are summed and divided by B: each view's dL/dimage is scaled by
-        // 1/B (exactly 1 for one view), so the summed parameter gradient is the loss's.
-        let divisor = sampler.divisor();
+        // The batch's losses are summed and divided by B, also for a shorter last batch of an
+        // epoch (the authors' `batch_loss / BATCH_SIZE`): each view's dL/dimage is scaled by 1/B
+        // (exactly 1 for one view), so the summed parameter gradient is the loss's.
+        let divisor = sampler.batch_size();
         let scale = 1.0 / divisor as f32;
         let (mut render_time, mut objective_time, mut backward_time) = Default::default();
         let mut values = Vec::with_capacity(batch.len());

@@ -20,7 +20,7 @@ fn every_colour_and_alpha_gives_the_authors_8_bit_level() {
         for a in 0..256 {
             for c in 0..256 {
                 let want = authors_level(white, a, c);
-                let got = composite_8bit([c as f64; 3], a as f64, 255.0, bg);
+                let got = composite_8bit([c as u8; 3], a as u8, bg);
                 assert_eq!(got, [want; 3], "colour {c} alpha {a} white {white}");
                 let exact = (c as f64 / 255.0 * (a as f64 / 255.0)
                     + f64::from(bg[0]) * (1.0 - a as f64 / 255.0))

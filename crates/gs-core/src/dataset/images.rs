@@ -83,16 +83,16 @@ impl Composite {
     }
 }
 
-/// One pixel composited as INRIA 3DGS's `readCamerasFromTransforms` does it: with `scale` the
-/// full level (255: PIL reads every file as 8-bit levels, [`pil_levels`]), `arr = (c / scale) (a / scale) + bg (1 - a / scale)`
-/// in `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
+/// One pixel of 8-bit levels (as PIL reads every file, [`pil_levels`]) composited as INRIA
+/// 3DGS's `readCamerasFromTransforms` does it: `arr = (c / 255) (a / 255) + bg (1 - a / 255)` in
+/// `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
 /// `floor(arr * 255)`, a whole level in `0..=255`.
-pub fn composite_8bit(rgb: [f64; 3], alpha: f64, scale: f64, background: [f32; 3]) -> [u8; 3] {
-    let a = alpha / scale;
+pub fn composite_8bit(rgb: [u8; 3], alpha: u8, background: [f32; 3]) -> [u8; 3] {
+    let a = f64::from(alpha) / 255.0;
+    // `arr` lies in [0, 1]; the cast saturates at the ends.
     let level = |c: usize| {
-        let arr = (rgb[c] / scale) * a + f64::from(background[c]) * (1.0 - a);
-        // In [0, 1] for in-range inputs; the clamp only guards a hostile scale.
-        (arr * 255.0).floor().clamp(0.0, 255.0) as u8
+        let arr = (f64::from(rgb[c]) / 255.0) * a + f64::from(background[c]) * (1.0 - a);
+        (arr * 255.0).floor() as u8
     };
     [level(0), level(1), level(2)]
 }
@@ -200,14 +200,9 @@ pub(crate) fn composited_8bit(
 ) -> image::Rgba32FImage {
     let levels = pil_levels(decoded);
     image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
-        let p = levels.get_pixel(x, y).0.map(f64::from);
-        let rgb = composite_8bit([p[0], p[1], p[2]], p[3], 255.0, background);
+        let [r, g, b, a] = levels.get_pixel(x, y).0;
+        let rgb = composite_8bit([r, g, b], a, background);
         let level = |v: u8| f32::from(v) / 255.0;
-        image::Rgba([
-            level(rgb[0]),
-            level(rgb[1]),
-            level(rgb[2]),
-            (p[3] / 255.0) as f32,
-        ])
+        image::Rgba([level(rgb[0]), level(rgb[1]), level(rgb[2]), level(a)])
     })
 }
