@@ -143,17 +143,17 @@ fn main(
                     g_alpha += t_before * (z - behind_depth) * g_d;
                     behind_depth = a * z + one_minus * behind_depth;
                     trans = t_before;
-                    if opacity * falloff < ALPHA_MAX {
-                        g[5] = g_alpha * falloff;
-                        if geometry {
-                            let conic = s.conic_depth.xyz;
-                            let g_sigma = -g_alpha * a;
-                            g[2] = g_sigma * 0.5 * dx * dx;
-                            g[3] = g_sigma * dx * dy;
-                            g[4] = g_sigma * 0.5 * dy * dy;
-                            g[0] = g_sigma * (conic.x * dx + conic.y * dy);
-                            g[1] = g_sigma * (conic.y * dx + conic.z * dy);
-                        }
+                    // The cap at ALPHA_MAX passes the gradient as if it were not there
+                    // (INRIA's rule, as the cpu backward).
+                    g[5] = g_alpha * falloff;
+                    if geometry {
+                        let conic = s.conic_depth.xyz;
+                        let g_sigma = -g_alpha * opacity * falloff;
+                        g[2] = g_sigma * 0.5 * dx * dx;
+                        g[3] = g_sigma * dx * dy;
+                        g[4] = g_sigma * 0.5 * dy * dy;
+                        g[0] = g_sigma * (conic.x * dx + conic.y * dy);
+                        g[1] = g_sigma * (conic.y * dx + conic.z * dy);
                     }
                     for (var q = 0u; q < SPLAT_GRADS; q++) {
                         if g[q] != 0.0 && slot_needed(q) {

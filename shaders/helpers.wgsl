@@ -3,7 +3,7 @@
 
 const TILE_SIZE: u32 = 16u;
 const EPS2D: f32 = 0.3;
-const NEAR_PLANE: f32 = 0.01;
+const NEAR_PLANE: f32 = 0.2;
 const FAR_PLANE: f32 = 1e10;
 const ALPHA_MAX: f32 = 0.99;
 const ALPHA_MIN: f32 = 1.0 / 255.0;
@@ -95,17 +95,19 @@ fn sigmoid(x: f32) -> f32 {
     return e / (1.0 + e);
 }
 
-// The tiles [x0, x1) x [y0, y1) a splat is binned into: its square radius box (as the cpu
-// backend bins) cut to the tiles its box mean2d +- extent touches (with a one-pixel margin),
-// outside of which it reaches no pixel.
+// The tiles [x0, x1) x [y0, y1) a splat is binned into: INRIA's rectangle of its radius (as
+// the cpu backend bins: floor((p - r) / 16) to floor((p + r + 15) / 16) with p = mean2d - 0.5)
+// cut to the tiles its box mean2d +- extent touches (with a one-pixel margin), outside of which
+// it reaches no pixel.
 fn tile_rect(s: Splat, tiles: vec2u) -> vec4u {
     let t = f32(TILE_SIZE);
     let m = s.mean_extent.xy;
     let e = s.mean_extent.zw + vec2f(1.0);
     let r = s.cut_radius.y;
     let n = vec2f(tiles);
-    let lo = max(floor((m - vec2f(r)) / t), floor((m - e) / t));
-    let hi = min(ceil((m + vec2f(r)) / t), floor((m + e) / t) + 1.0);
+    let p = m - vec2f(0.5);
+    let lo = max(floor((p - vec2f(r)) / t), floor((m - e) / t));
+    let hi = min(floor((p + vec2f(r + t - 1.0)) / t), floor((m + e) / t) + 1.0);
     let lo_u = vec2u(clamp(lo, vec2f(0.0), n));
     let hi_u = vec2u(clamp(hi, vec2f(0.0), n));
     return vec4u(lo_u.x, max(hi_u.x, lo_u.x), lo_u.y, max(hi_u.y, lo_u.y));

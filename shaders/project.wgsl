@@ -124,7 +124,7 @@ fn project_gaussian(i: u32) -> Projection {
     }
     f.conic = vec3f(c / det, -b / det, a / det);
     let mid = 0.5 * (a + c);
-    let lambda = mid + sqrt(max(mid * mid - det, 0.01));
+    let lambda = mid + sqrt(max(mid * mid - det, 0.1));
     f.radius = ceil(3.0 * sqrt(lambda));
     f.mean2d = vec2f(fx * p_cam.x / z + view.intrinsics.z, fy * p_cam.y / z + view.intrinsics.w);
     if !finite3(f.conic) || !finite(f.mean2d.x) || !finite(f.mean2d.y) || !finite(f.radius) {

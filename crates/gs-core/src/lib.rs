@@ -18,7 +18,8 @@
 //! - [`backend`]: the device chosen at run time (`cpu|gpu|auto`), training and rendering on it.
 //! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
 //!
-//! Conventions follow gsplat; see `docs/conventions.md` in the repository.
+//! Conventions follow gsplat's layouts and INRIA's rasterizer rules (near plane, radius, tiles,
+//! gradient at the alpha cap); see `docs/conventions.md` in the repository.
 //!
 //! Rendering a pipeline's own arrays and differentiating the render, on the cpu or (with
 //! `DeviceChoice::Gpu` or `Auto`) on a GPU through the same calls:

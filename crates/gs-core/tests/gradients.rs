@@ -189,9 +189,10 @@ fn behind_the_camera_draws_nothing_and_gets_zero_gradient() {
 
 #[test]
 fn straddling_the_near_plane() {
-    // Centre 0.05 in front of the camera, extent 0.3 behind and in front of it.
+    // Centre 0.25 in front of the camera, 0.05 past the near plane (0.2), extent 0.3 on both
+    // sides of it.
     let g = degenerate_scene(|g| {
-        g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
+        g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.75]);
         g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
     });
     check_gradients(&g, &front_camera(24, 24), 5, &no_skip);
@@ -199,8 +200,10 @@ fn straddling_the_near_plane() {
 
 #[test]
 fn opacity_near_zero_and_near_one() {
-    // -5.3: opacity 0.005, just above 1/255, so it is drawn near its centre only; 9: alpha
-    // clamps at 0.99 where the Gaussian is dense.
+    // -5.3: opacity 0.005, just above 1/255, so it is drawn near its centre only; 9: opacity
+    // 0.9999, whose alpha peaks at 0.9898 on this view's pixel centres, just below the 0.99
+    // cap. At the cap itself the gradient is INRIA's, not the finite difference's
+    // (tests/alpha_cap_gradient.rs).
     for logit in [-5.3, 9.0] {
         let g = degenerate_scene(|g| g.opacity_logits[0] = logit);
         check_gradients(&g, &front_camera(24, 24), 6, &no_skip);

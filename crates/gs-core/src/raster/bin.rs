@@ -20,19 +20,21 @@ pub(crate) struct TileBins {
     pub ids: Vec<u32>,
 }
 
-/// The tile rectangle `[x0, x1) x [y0, y1)` a splat touches.
+/// The tile rectangle `[x0, x1) x [y0, y1)` a splat is binned into: INRIA's `getRect` of its
+/// radius, in INRIA's pixel coordinates (centres at integers, so `mean2d - 0.5`):
+/// `floor((p - r) / 16)` to `floor((p + r + 15) / 16)`. A pixel outside it gets nothing from
+/// the splat even where its alpha would pass 1/255, as in the authors' renderers.
 fn tile_rect<T: Real>(s: &Splat<T>, tiles_x: usize, tiles_y: usize) -> [usize; 4] {
     let t = TILE_SIZE as f64;
     let r = s.radius.to_f64();
-    let (mx, my) = (s.mean2d[0].to_f64(), s.mean2d[1].to_f64());
+    let (px, py) = (s.mean2d[0].to_f64() - 0.5, s.mean2d[1].to_f64() - 0.5);
     // `as usize` saturates: negative values give 0 and huge radii give usize::MAX.
-    let lo = |v: f64, n: usize| ((v / t).floor().max(0.0) as usize).min(n);
-    let hi = |v: f64, n: usize| ((v / t).ceil().max(0.0) as usize).min(n);
+    let tile = |v: f64, n: usize| ((v / t).floor().max(0.0) as usize).min(n);
     [
-        lo(mx - r, tiles_x),
-        hi(mx + r, tiles_x),
-        lo(my - r, tiles_y),
-        hi(my + r, tiles_y),
+        tile(px - r, tiles_x),
+        tile(px + r + t - 1.0, tiles_x),
+        tile(py - r, tiles_y),
+        tile(py + r + t - 1.0, tiles_y),
     ]
 }
 

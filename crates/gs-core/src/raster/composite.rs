@@ -1,4 +1,10 @@
-//! Front-to-back alpha compositing of binned splats per 16x16 tile, and its exact backward.
+//! Front-to-back alpha compositing of binned splats per 16x16 tile, and its backward.
+//!
+//! The backward is the exact derivative of the forward except at the cap `alpha <= ALPHA_MAX`:
+//! there, as in INRIA's rasterizer (and the renderers of every modality's authors, all derived
+//! from it), the gradient of `opacity * exp(-sigma)` passes as if the cap were not there,
+//! where the exact derivative (gsplat's rule) would be zero. Trained scenes have many Gaussians
+//! of opacity near 1, whose centres are capped.
 //!
 //! Work is split by bands of one tile row, so every band owns a contiguous slice of the image
 //! and of the tile lists. Inside a tile the loops are splat-major: each splat visits only the
@@ -322,17 +328,17 @@ pub(crate) fn backward<T: Real>(
                             g_alpha += t_before * (s.depth - behind_depth[q]) * g_d[q];
                             behind_depth[q] = a * s.depth + one_minus * behind_depth[q];
                             trans[q] = t_before;
-                            if s.opacity * falloff < T::from_f64(ALPHA_MAX) {
-                                // alpha = opacity * exp(-sigma) where the clamp is inactive.
-                                acc.opacity += g_alpha * falloff;
-                                if geometry {
-                                    let g_sigma = -g_alpha * a;
-                                    acc.conic[0] += g_sigma * half * dx * dx;
-                                    acc.conic[1] += g_sigma * dx * dy;
-                                    acc.conic[2] += g_sigma * half * dy * dy;
-                                    acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
-                                    acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
-                                }
+                            // alpha = opacity * exp(-sigma), differentiated as if the
+                            // cap at ALPHA_MAX were not there (INRIA's rule, see the module
+                            // documentation).
+                            acc.opacity += g_alpha * falloff;
+                            if geometry {
+                                let g_sigma = -g_alpha * s.opacity * falloff;
+                                acc.conic[0] += g_sigma * half * dx * dx;
+                                acc.conic[1] += g_sigma * dx * dy;
+                                acc.conic[2] += g_sigma * half * dy * dy;
+                                acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
+                                acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
                             }
                         }
                     }

@@ -1,8 +1,11 @@
 //! The differentiable rasterizer (cpu backend, rayon): EWA projection, SH colour, 16x16 tile
-//! binning, depth-ordered front-to-back compositing over a background colour, and the exact
-//! backward pass to every Gaussian parameter and to the background.
+//! binning, depth-ordered front-to-back compositing over a background colour, and the backward
+//! pass to every Gaussian parameter and to the background (exact except at the alpha cap, see
+//! [`backward`]).
 //!
-//! Conventions are gsplat's (see `docs/conventions.md`). Gaussians whose parameters are not
+//! Layouts are gsplat's; the near plane, radius, tile rectangles and the gradient at the alpha
+//! cap are INRIA's rasterizer's, which every modality's authors use (see
+//! `docs/conventions.md`). Gaussians whose parameters are not
 //! finite, whose quaternion is zero, whose depth is at or below [`NEAR_PLANE`], whose 2D
 //! covariance is degenerate or not finite, or that lie entirely off screen are culled: they
 //! draw nothing and receive zero gradient.
@@ -25,11 +28,13 @@ use project::{CameraT, Needs, Splat, SplatGrad};
 pub const TILE_SIZE: usize = 16;
 /// Added to the diagonal of every 2D covariance (pixels^2), as gsplat's `eps2d`.
 pub const EPS2D: f64 = 0.3;
-/// Gaussians at camera depth `z <= NEAR_PLANE` are culled.
-pub const NEAR_PLANE: f64 = 0.01;
+/// Gaussians at camera depth `z <= NEAR_PLANE` are culled (INRIA's `in_frustum`, which every
+/// modality's authors' renderer keeps; gsplat's default is 0.01).
+pub const NEAR_PLANE: f64 = 0.2;
 /// Gaussians at camera depth `z >= FAR_PLANE` are culled (gsplat's default far plane).
 pub const FAR_PLANE: f64 = 1e10;
-/// Upper clamp of a splat's alpha.
+/// Upper clamp of a splat's alpha; the backward passes the gradient through it as INRIA's
+/// rasterizer does (see [`backward`]).
 pub const ALPHA_MAX: f64 = 0.99;
 /// Splats with alpha below this at a pixel are skipped there.
 pub const ALPHA_MIN: f64 = 1.0 / 255.0;
@@ -164,9 +169,12 @@ pub struct Gradients<T: Real = f32> {
     pub background: [T; 3],
 }
 
-/// The exact backward pass of [`render`]: given the gradients of a loss with respect to its
+/// The backward pass of [`render`]: given the gradients of a loss with respect to its
 /// outputs, the gradients with respect to the parameters of `gaussians` (the same set that was
-/// rendered, through the same `camera`) and to the background.
+/// rendered, through the same `camera`) and to the background. It is the exact derivative
+/// except where a splat's alpha is capped at [`ALPHA_MAX`]: there the gradient of
+/// `opacity * exp(-sigma)` passes as if uncapped, as INRIA's rasterizer (and so every
+/// modality's authors' code) computes it; the exact derivative would be zero.
 ///
 /// # Panics
 /// If `gaussians` or `camera` is not the one `rendered` came from (count or image size differ),

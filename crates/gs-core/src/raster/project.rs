@@ -205,7 +205,9 @@ fn forward<T: Real>(
     }
     let conic = [cc / det, -b / det, a / det];
     let mid = c(0.5) * (a + cc);
-    let lambda = mid + (mid * mid - det).max(c(0.01)).sqrt();
+    // INRIA's floor of 0.1 under the root (gsplat's is 0.01): it sets the radius, and so the
+    // tiles a splat is drawn in.
+    let lambda = mid + (mid * mid - det).max(c(0.1)).sqrt();
     let radius = (c(3.0) * lambda.sqrt()).ceil();
     let mean2d = [
         cam.fx * p_cam[0] / z + cam.cx,

@@ -129,7 +129,7 @@ pub fn degenerate_cases() -> Vec<(&'static str, GaussianSet<f64>)> {
         (
             "straddling the near plane",
             degenerate_scene(|g| {
-                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.95]);
+                g.means[0..3].copy_from_slice(&[0.01, 0.02, -3.75]);
                 g.log_scales[0..3].copy_from_slice(&[-1.2, -1.5, -1.2]);
             }),
         ),
