@@ -35,8 +35,9 @@ use crate::writable::check_output_folder;
 use crate::{StyleSettings, StylizeError};
 
 /// The patch stream is seeded with `seed + PATCH_SEED_OFFSET`, so that it is not the same
-/// ChaCha8 stream as the view order (seeded with `seed`).
-const PATCH_SEED_OFFSET: u64 = 1;
+/// ChaCha8 stream as the view order (seeded with `seed`). Public so that a replay of a run
+/// (e.g. in another framework) can draw the same patches.
+pub const PATCH_SEED_OFFSET: u64 = 1;
 
 /// How to run, beyond the configuration.
 #[derive(Clone, Debug, Default)]
