@@ -9,9 +9,6 @@
 //! After 1 and 10 updates every parameter group must agree to float32 noise.
 
 mod common;
-// Only the tiny CLIP and the fixture paths of the shared test scene are used here.
-#[allow(dead_code)]
-mod scene;
 
 use std::path::{Path, PathBuf};
 
@@ -23,8 +20,8 @@ use gs_core::dataset::GroundTruth;
 use gs_core::train::{BatchOrder, ViewSampler};
 use gs_core::GaussianSet;
 use gs_stylize::run::PATCH_SEED_OFFSET;
-use scene::{fixture, write_tiny_clip};
 use serde_json::{json, Value};
+use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 use style_loss::{style_rng, ClipConfig, ClipModel, ClipTokenizer, PatchSettings, StyleDirection};
 
 /// The run's seed, and what its draws depend on: views, picture size, patches, updates.
@@ -41,7 +38,7 @@ fn replay_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/authors_replay")
 }
 
-fn settings(tiny_clip: &(PathBuf, PathBuf)) -> StyleSettings {
+fn settings(tiny: &TinyModelFiles) -> StyleSettings {
     StyleSettings {
         style_prompt: Some(PROMPT.into()),
         steps: UPDATES,
@@ -50,18 +47,18 @@ fn settings(tiny_clip: &(PathBuf, PathBuf)) -> StyleSettings {
         patch_size: PATCH_SIZE,
         num_patches: NUM_PATCHES,
         checkpoint_every: 0,
-        clip_config: Some(tiny_clip.0.clone()),
-        clip_weights: Some(tiny_clip.1.clone()),
-        tokenizer: Some(fixture("tokenizer/tokenizer.json")),
-        vgg_weights: Some(fixture("tiny_vgg19.safetensors")),
-        vgg_widths: [4, 8, 16, 32, 32],
+        clip_config: Some(tiny.clip_config.clone()),
+        clip_weights: Some(tiny.clip_weights.clone()),
+        tokenizer: Some(tiny.tokenizer.clone()),
+        vgg_weights: Some(tiny.vgg_weights.clone()),
+        vgg_widths: tiny.vgg_widths.0,
         ..StyleSettings::paper_3d()
     }
 }
 
 /// This run's draws: the view of each update, its patches, and the text direction.
-fn draws(tiny_clip: &(PathBuf, PathBuf)) -> Value {
-    let s = settings(tiny_clip);
+fn draws(tiny: &TinyModelFiles) -> Value {
+    let s = settings(tiny);
     let mut views = ViewSampler::batches(VIEWS, 1, BatchOrder::Shuffled, SEED);
     let mut rng = style_rng(SEED.wrapping_add(PATCH_SEED_OFFSET));
     let patch_settings = PatchSettings {
@@ -80,11 +77,11 @@ fn draws(tiny_clip: &(PathBuf, PathBuf)) -> Value {
             json!({"view": view, "patches": patches})
         })
         .collect();
-    let config = ClipConfig::from_json_file(&tiny_clip.0).unwrap();
+    let config = ClipConfig::from_json_file(&tiny.clip_config).unwrap();
     let clip =
-        ClipModel::load_with_precision(&config, &tiny_clip.1, &Device::Cpu, s.clip_precision)
+        ClipModel::load_with_precision(&config, &tiny.clip_weights, &Device::Cpu, s.clip_precision)
             .unwrap();
-    let tokenizer = ClipTokenizer::from_file(&fixture("tokenizer/tokenizer.json")).unwrap();
+    let tokenizer = ClipTokenizer::from_file(&tiny.tokenizer).unwrap();
     let direction = StyleDirection::from_text(&clip, &tokenizer, PROMPT, &s.source_prompt)
         .unwrap()
         .as_tensor()
@@ -104,7 +101,7 @@ fn draws(tiny_clip: &(PathBuf, PathBuf)) -> Value {
 #[ignore = "writes the replay's input; run by hand before scripts/make_3d_replay_fixture.py"]
 fn write_replay_draws() {
     let dir = TempDir::new("replay-draws");
-    let draws = draws(&write_tiny_clip(dir.path()));
+    let draws = draws(&write_tiny_models(dir.path()));
     std::fs::create_dir_all(replay_dir()).unwrap();
     let text = serde_json::to_string_pretty(&draws).unwrap();
     std::fs::write(replay_dir().join("draws.json"), text + "\n").unwrap();
@@ -113,7 +110,7 @@ fn write_replay_draws() {
 #[test]
 fn the_replay_used_this_runs_draws() {
     let dir = TempDir::new("replay-draws-check");
-    let ours = draws(&write_tiny_clip(dir.path()));
+    let ours = draws(&write_tiny_models(dir.path()));
     let text = std::fs::read_to_string(replay_dir().join("draws.json")).unwrap();
     let recorded: Value = serde_json::from_str(&text).unwrap();
     assert_eq!(
@@ -178,12 +175,7 @@ fn update_errors(
 }
 
 /// Runs the stylization of `variant` (its settings from `replay.json`) for `updates` updates.
-fn our_run(
-    variant: &Value,
-    updates: u64,
-    dir: &Path,
-    tiny_clip: &(PathBuf, PathBuf),
-) -> GaussianSet {
+fn our_run(variant: &Value, updates: u64, dir: &Path, tiny: &TinyModelFiles) -> GaussianSet {
     let out = dir.join(format!("{}-{updates}", variant["name"].as_str().unwrap()));
     let ground_truth = match variant["ground_truth"].as_str().unwrap() {
         "file_colour" => GroundTruth::FileColour,
@@ -200,7 +192,7 @@ fn our_run(
         object: variant["object"].as_bool().unwrap(),
         style: StyleSettings {
             steps: updates,
-            ..settings(tiny_clip)
+            ..settings(tiny)
         },
         ..StylizeConfig::default()
     };
@@ -210,7 +202,7 @@ fn our_run(
 #[test]
 fn the_run_ends_where_the_authors_loop_ends() {
     let dir = TempDir::new("replay-run");
-    let tiny_clip = write_tiny_clip(dir.path());
+    let tiny = write_tiny_models(dir.path());
     let replay: Value =
         serde_json::from_str(&std::fs::read_to_string(replay_dir().join("replay.json")).unwrap())
             .unwrap();
@@ -226,7 +218,7 @@ fn the_run_ends_where_the_authors_loop_ends() {
     for variant in replay["variants"].as_array().unwrap() {
         let name = variant["name"].as_str().unwrap();
         for updates in [1, UPDATES] {
-            let ours = our_run(variant, updates, dir.path(), &tiny_clip);
+            let ours = our_run(variant, updates, dir.path(), &tiny);
             let key = format!("{name}.after_{updates}");
             for (group, error) in update_errors(&start, &ours, &reference, &key) {
                 report.push(format!("{name} after {updates}: {group} {error:.2e}"));
