@@ -17,22 +17,17 @@ use candle_core::{DType, Device, Tensor};
 use common::TempDir;
 use gs_core::backend::DeviceChoice;
 use gs_core::dataset::GroundTruth;
-use gs_core::train::{BatchOrder, ViewSampler};
 use gs_core::GaussianSet;
-use gs_stylize::run::PATCH_SEED_OFFSET;
-use serde_json::{json, Value};
+use gs_stylize::test_support::{assert_replay_draws, replay_draws, update_error};
+use serde_json::Value;
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
-use style_loss::{style_rng, ClipConfig, ClipModel, ClipTokenizer, PatchSettings, StyleDirection};
 
 /// The run's seed, and what its draws depend on: views, picture size, patches, updates.
 const SEED: u64 = 7;
 const VIEWS: usize = 5;
 const WIDTH: usize = 64;
 const HEIGHT: usize = 48;
-const PATCH_SIZE: usize = 32;
-const NUM_PATCHES: usize = 4;
 const UPDATES: u64 = 10;
-const PROMPT: &str = "fire";
 
 fn replay_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures/authors_replay")
@@ -40,12 +35,12 @@ fn replay_dir() -> PathBuf {
 
 fn settings(tiny: &TinyModelFiles) -> StyleSettings {
     StyleSettings {
-        style_prompt: Some(PROMPT.into()),
+        style_prompt: Some("fire".into()),
         steps: UPDATES,
         seed: SEED,
         device: DeviceChoice::Cpu,
-        patch_size: PATCH_SIZE,
-        num_patches: NUM_PATCHES,
+        patch_size: 32,
+        num_patches: 4,
         checkpoint_every: 0,
         clip_config: Some(tiny.clip_config.clone()),
         clip_weights: Some(tiny.clip_weights.clone()),
@@ -56,52 +51,18 @@ fn settings(tiny: &TinyModelFiles) -> StyleSettings {
     }
 }
 
-/// This run's draws: the view of each update, its patches, and the text direction.
-fn draws(tiny: &TinyModelFiles) -> Value {
-    let s = settings(tiny);
-    let mut views = ViewSampler::batches(VIEWS, 1, BatchOrder::Shuffled, SEED);
-    let mut rng = style_rng(SEED.wrapping_add(PATCH_SEED_OFFSET));
-    let patch_settings = PatchSettings {
-        patch_size: s.patch_size,
-        num_patches: s.num_patches,
-        distortion_scale: s.distortion_scale,
-    };
-    let steps: Vec<Value> = (0..UPDATES)
-        .map(|_| {
-            let view = views.next_batch()[0];
-            let patches = patch_settings.sample(&mut rng, HEIGHT, WIDTH).unwrap();
-            let patches: Vec<Value> = patches
-                .iter()
-                .map(|p| json!({"top": p.top, "left": p.left, "corners": p.corners}))
-                .collect();
-            json!({"view": view, "patches": patches})
-        })
-        .collect();
-    let config = ClipConfig::from_json_file(&tiny.clip_config).unwrap();
-    let clip =
-        ClipModel::load_with_precision(&config, &tiny.clip_weights, &Device::Cpu, s.clip_precision)
-            .unwrap();
-    let tokenizer = ClipTokenizer::from_file(&tiny.tokenizer).unwrap();
-    let direction = StyleDirection::from_text(&clip, &tokenizer, PROMPT, &s.source_prompt)
-        .unwrap()
-        .as_tensor()
-        .to_vec1::<f32>()
-        .unwrap();
-    json!({
-        "seed": SEED, "views": VIEWS, "width": WIDTH, "height": HEIGHT,
-        "patch_size": PATCH_SIZE, "num_patches": NUM_PATCHES, "updates": UPDATES,
-        "prompt": PROMPT, "source_prompt": s.source_prompt,
-        "style_direction": direction, "steps": steps,
-    })
-}
-
 /// Writes `draws.json`, the input of `scripts/make_3d_replay_fixture.py`; run it (with
 /// `--ignored`) when the random streams change, then the script.
 #[test]
 #[ignore = "writes the replay's input; run by hand before scripts/make_3d_replay_fixture.py"]
 fn write_replay_draws() {
     let dir = TempDir::new("replay-draws");
-    let draws = draws(&write_tiny_models(dir.path()));
+    let draws = replay_draws(
+        &settings(&write_tiny_models(dir.path())),
+        VIEWS,
+        HEIGHT,
+        WIDTH,
+    );
     std::fs::create_dir_all(replay_dir()).unwrap();
     let text = serde_json::to_string_pretty(&draws).unwrap();
     std::fs::write(replay_dir().join("draws.json"), text + "\n").unwrap();
@@ -110,43 +71,33 @@ fn write_replay_draws() {
 #[test]
 fn the_replay_used_this_runs_draws() {
     let dir = TempDir::new("replay-draws-check");
-    let ours = draws(&write_tiny_models(dir.path()));
-    let text = std::fs::read_to_string(replay_dir().join("draws.json")).unwrap();
-    let recorded: Value = serde_json::from_str(&text).unwrap();
-    assert_eq!(
-        ours["steps"], recorded["steps"],
-        "the run's view order or patch draws changed: regenerate the replay \
-         (cargo test --test authors_replay -- --ignored write_replay_draws, then \
-         scripts/make_3d_replay_fixture.py)"
+    let ours = replay_draws(
+        &settings(&write_tiny_models(dir.path())),
+        VIEWS,
+        HEIGHT,
+        WIDTH,
     );
-    let close = |a: &Value, b: &Value| {
-        let (a, b) = (a.as_array().unwrap(), b.as_array().unwrap());
-        a.len() == b.len()
-            && a.iter()
-                .zip(b)
-                .all(|(x, y)| (x.as_f64().unwrap() - y.as_f64().unwrap()).abs() < 1e-6)
-    };
-    assert!(close(
-        &ours["style_direction"],
-        &recorded["style_direction"]
-    ));
+    assert_replay_draws(
+        &replay_dir().join("draws.json"),
+        &ours,
+        "regenerate the replay (cargo test -p base-3dgs --test authors_replay -- --ignored \
+         write_replay_draws, then scripts/make_3d_replay_fixture.py)",
+    );
 }
 
-/// The parameter groups of `g` by the fixture's names, as f64.
-fn groups(g: &GaussianSet) -> Vec<(&'static str, Vec<f64>)> {
-    let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect();
-    vec![
-        ("means", f(&g.means)),
-        ("sh_dc", f(&g.sh_dc)),
-        ("sh_rest", f(&g.sh_rest)),
-        ("opacity_logits", f(&g.opacity_logits)),
-        ("log_scales", f(&g.log_scales)),
-        ("quats", f(&g.quats)),
+/// The parameter groups of `g` by the fixture's names.
+fn groups(g: &GaussianSet) -> [(&'static str, &[f32]); 6] {
+    [
+        ("means", &g.means),
+        ("sh_dc", &g.sh_dc),
+        ("sh_rest", &g.sh_rest),
+        ("opacity_logits", &g.opacity_logits),
+        ("log_scales", &g.log_scales),
+        ("quats", &g.quats),
     ]
 }
 
-/// `|ours - reference| / |reference - start|` of every group: the error relative to the
-/// update the authors' loop made.
+/// [`update_error`] of every group against the fixture's `{key}.{group}`.
 fn update_errors(
     start: &GaussianSet,
     ours: &GaussianSet,
@@ -159,17 +110,10 @@ fn update_errors(
         .map(|((name, start), (_, ours))| {
             let r = reference[&format!("{key}.{name}")]
                 .flatten_all()
-                .unwrap()
-                .to_dtype(DType::F64)
-                .unwrap()
-                .to_vec1::<f64>()
+                .and_then(|t| t.to_dtype(DType::F64))
+                .and_then(|t| t.to_vec1::<f64>())
                 .unwrap();
-            assert_eq!(r.len(), ours.len(), "{key}.{name}");
-            let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
-            let diff = norm(&mut ours.iter().zip(&r).map(|(o, r)| o - r));
-            let update = norm(&mut r.iter().zip(&start).map(|(r, s)| r - s));
-            assert!(update > 0.0, "{key}.{name}: the reference did not move");
-            (name, diff / update)
+            (name, update_error(start, ours, &r))
         })
         .collect()
 }

@@ -1,6 +1,6 @@
-//! What the command-line tests of the modality binaries share (feature `test-support`): running
-//! a binary and asserting that it succeeded or failed, and the `stylize` flags of the tiny
-//! random-weight models (`style_loss::test_models`).
+//! What the tests of the modality crates share (feature `test-support`): running a binary and
+//! asserting that it succeeded or failed, the `stylize` flags of the tiny random-weight models
+//! (`style_loss::test_models`), and the draws and errors of the replays of the authors' loops.
 
 use std::path::Path;
 use std::process::{Command, Output};
@@ -54,4 +54,109 @@ pub fn tiny_style_flags(cmd: &mut Command, models: &TinyModelFiles) {
         .args(["--set", "vgg_widths=[4,8,16,32,32]"])
         .args(["--set", "patch_size=16", "--set", "num_patches=3"])
         .args(["--style-prompt", "a red fire"]);
+}
+
+/// The random draws of a stylization run with `settings` on `views` views of `height x width`:
+/// the view and the patch crops and warps of each of its `settings.steps` updates, and its text
+/// direction (from `settings.style_prompt` with its model files), as the JSON a replay of the
+/// run in another framework reads (`draws.json` of the replay fixtures). Fields: `steps` (`[{view,
+/// patches: [{top, left, corners}]}]`), `style_direction`, and the inputs they depend on.
+///
+/// # Panics
+/// If the settings have no prompt or their model files cannot be read (a broken test setup).
+pub fn replay_draws(
+    settings: &crate::StyleSettings,
+    views: usize,
+    height: usize,
+    width: usize,
+) -> serde_json::Value {
+    use gs_core::train::{BatchOrder, ViewSampler};
+    use serde_json::json;
+    use style_loss::{
+        style_rng, ClipConfig, ClipModel, ClipTokenizer, PatchSettings, StyleDirection,
+    };
+
+    let mut sampler = ViewSampler::batches(views, 1, BatchOrder::Shuffled, settings.seed);
+    let mut rng = style_rng(settings.seed.wrapping_add(crate::run::PATCH_SEED_OFFSET));
+    let patches = PatchSettings {
+        patch_size: settings.patch_size,
+        num_patches: settings.num_patches,
+        distortion_scale: settings.distortion_scale,
+    };
+    let steps: Vec<serde_json::Value> = (0..settings.steps)
+        .map(|_| {
+            let view = sampler.next_batch()[0];
+            let drawn: Vec<serde_json::Value> = patches
+                .sample(&mut rng, height, width)
+                .expect("the patches fit the views")
+                .iter()
+                .map(|p| json!({"top": p.top, "left": p.left, "corners": p.corners}))
+                .collect();
+            json!({"view": view, "patches": drawn})
+        })
+        .collect();
+    let file = |f: &Option<std::path::PathBuf>| f.clone().expect("the tiny model files are set");
+    let config = ClipConfig::from_json_file(&file(&settings.clip_config)).expect("CLIP config");
+    let clip = ClipModel::load_with_precision(
+        &config,
+        &file(&settings.clip_weights),
+        &candle_core::Device::Cpu,
+        settings.clip_precision,
+    )
+    .expect("CLIP weights");
+    let tokenizer = ClipTokenizer::from_file(&file(&settings.tokenizer)).expect("tokenizer");
+    let prompt = settings.style_prompt.as_deref().expect("a style prompt");
+    let direction = StyleDirection::from_text(&clip, &tokenizer, prompt, &settings.source_prompt)
+        .and_then(|d| Ok(d.as_tensor().to_vec1::<f32>()?))
+        .expect("the text direction");
+    json!({
+        "seed": settings.seed, "views": views, "width": width, "height": height,
+        "patch_size": settings.patch_size, "num_patches": settings.num_patches,
+        "updates": settings.steps, "prompt": prompt, "source_prompt": settings.source_prompt,
+        "style_direction": direction, "steps": steps,
+    })
+}
+
+/// Asserts that the replay fixture's `draws.json` at `path` holds the draws `ours` (from
+/// [`replay_draws`]): the same views and patches, the text direction within 1e-6. `regenerate`
+/// says how to write the fixture again when they changed.
+///
+/// # Panics
+/// When they differ, or the file cannot be read.
+pub fn assert_replay_draws(path: &Path, ours: &serde_json::Value, regenerate: &str) {
+    let text = std::fs::read_to_string(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let recorded: serde_json::Value = serde_json::from_str(&text).expect("draws.json is JSON");
+    assert_eq!(
+        ours["steps"], recorded["steps"],
+        "the run's view order or patch draws changed: {regenerate}"
+    );
+    let values = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array()
+            .expect("a direction")
+            .iter()
+            .map(|x| x.as_f64().expect("a number"))
+            .collect()
+    };
+    let (a, b) = (
+        values(&ours["style_direction"]),
+        values(&recorded["style_direction"]),
+    );
+    assert!(
+        a.len() == b.len() && a.iter().zip(&b).all(|(x, y)| (x - y).abs() < 1e-6),
+        "the run's text direction changed: {regenerate}"
+    );
+}
+
+/// `|ours - reference| / |reference - start|`: how far a parameter group of our run ends from a
+/// replay's, relative to the update the replay made.
+///
+/// # Panics
+/// If the lengths differ or the replay did not move the group.
+pub fn update_error(start: &[f32], ours: &[f32], reference: &[f64]) -> f64 {
+    assert!(start.len() == ours.len() && ours.len() == reference.len());
+    let norm = |v: &mut dyn Iterator<Item = f64>| v.map(|x| x * x).sum::<f64>().sqrt();
+    let diff = norm(&mut ours.iter().zip(reference).map(|(&o, r)| f64::from(o) - r));
+    let update = norm(&mut reference.iter().zip(start).map(|(r, &s)| r - f64::from(s)));
+    assert!(update > 0.0, "the replay did not move this group");
+    diff / update
 }
