@@ -107,8 +107,10 @@ pub fn replay_draws(
     let tokenizer = ClipTokenizer::from_file(&file(&settings.tokenizer)).expect("tokenizer");
     let prompt = settings.style_prompt.as_deref().expect("a style prompt");
     let direction = StyleDirection::from_text(&clip, &tokenizer, prompt, &settings.source_prompt)
-        .and_then(|d| Ok(d.as_tensor().to_vec1::<f32>()?))
-        .expect("the text direction");
+        .expect("the text direction")
+        .as_tensor()
+        .to_vec1::<f32>()
+        .expect("a vector");
     json!({
         "seed": settings.seed, "views": views, "width": width, "height": height,
         "patch_size": settings.patch_size, "num_patches": settings.num_patches,
