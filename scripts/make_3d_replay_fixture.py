@@ -50,9 +50,16 @@ from safetensors.torch import save_file
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from authors_loop import ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize  # noqa: E402
 
-OUT = ROOT / "crates" / "base-3dgs" / "tests" / "fixtures" / "authors_replay"
+FIXTURES = ROOT / "crates" / "base-3dgs" / "tests" / "fixtures"
 FOV_X = 0.9
 COUNT = 48
+# Each scene is a folder of its own, with its own draws.json. The second has odd sizes (partial
+# tiles), closer cameras, and two Gaussians in front of the first camera: one at depth 0.1
+# (inside INRIA's near plane 0.2: never drawn), one at depth 0.35 (drawn large).
+SCENES = [
+    dict(folder="authors_replay", seed=20, radius=3.2, near_camera=False),
+    dict(folder="authors_replay_odd", seed=40, radius=2.4, near_camera=True),
+]
 TRAIN_VIEWS, TEST_VIEWS = 3, 2
 # CLIPGaussian 3D/arguments/__init__.py (OptimizationParams) and INRIA's training_setup.
 LAMBDAS = dict(directional=5.0, patch=90.0, content=0.8, background=1000.0)
@@ -84,11 +91,11 @@ def look_at_c2w(eye):
     return c2w
 
 
-def camera_eyes():
+def camera_eyes(radius):
     eyes = []
     for k in range(TRAIN_VIEWS + TEST_VIEWS):
         a = 2 * math.pi * k / (TRAIN_VIEWS + TEST_VIEWS) + 0.3
-        eyes.append([3.2 * math.cos(a), 3.2 * math.sin(a), 0.4 + 0.5 * (k % 3)])
+        eyes.append([radius * math.cos(a), radius * math.sin(a), 0.4 + 0.5 * (k % 3)])
     return eyes
 
 
@@ -104,6 +111,21 @@ def random_gaussians(gen, count):
     )
     g["f_dc"][:8] = 3.0  # colour 0.5 + 0.85: renders above 1
     g["opacity"][8:16] = 6.0  # sigmoid 0.9975: alpha reaches the 0.99 cap near the centre
+    return g
+
+
+def scene_gaussians(scene, gen):
+    """The scene's model (f32 values, as its PLY holds them)."""
+    g = random_gaussians(gen, COUNT)
+    if scene["near_camera"]:
+        eye = np.array(camera_eyes(scene["radius"])[0])
+        forward = torch.from_numpy(-eye / np.linalg.norm(eye))
+        right = torch.from_numpy(np.cross(-eye / np.linalg.norm(eye), [0.0, 0.0, 1.0]))
+        for k, (depth, side) in enumerate([(0.1, 0.0), (0.35, 0.05)]):
+            g["xyz"][20 + k] = torch.from_numpy(eye) + depth * forward + side * right
+            # Anisotropic: an isotropic Gaussian's rotation gradient is pure rounding noise,
+            # which Adam's first steps turn into full steps of either sign.
+            g["scaling"][20 + k] = torch.log(torch.tensor([0.02, 0.035, 0.015], dtype=torch.float64))
     return {k: v.to(torch.float32).to(torch.float64) for k, v in g.items()}
 
 
@@ -121,16 +143,18 @@ def write_ply(path, g):
     path.write_bytes(header.encode("ascii") + data.tobytes())
 
 
-def write_scene(gen, draws):
+def write_scene(scene, draws):
     """The model, the pictures (renders of another random set, with alpha) and the json files."""
-    model = random_gaussians(gen, COUNT)
-    write_ply(OUT / "scene.ply", model)
-    target = random_gaussians(gen, COUNT)
+    out = FIXTURES / scene["folder"]
+    gen = torch.Generator().manual_seed(scene["seed"])
+    model = scene_gaussians(scene, gen)
+    write_ply(out / "scene.ply", model)
+    target = {k: v.to(torch.float32).to(torch.float64) for k, v in random_gaussians(gen, COUNT).items()}
     target["opacity"][:] = target["opacity"].clamp(max=2.0)
     width, height = draws["width"], draws["height"]
-    data = OUT / "data"
+    data = out / "data"
     splits = {"train": [], "test": []}
-    for k, eye in enumerate(camera_eyes()):
+    for k, eye in enumerate(camera_eyes(scene["radius"])):
         split = "train" if k < TRAIN_VIEWS else "test"
         name = f"r_{len(splits[split])}"
         c2w = look_at_c2w(eye)
@@ -150,13 +174,13 @@ def write_scene(gen, draws):
             json.dump(dict(camera_angle_x=FOV_X, frames=frames), f, indent=1)
 
 
-def read_views():
+def read_views(out):
     """Train then test frames (no --eval), each as INRIA reads it."""
     views = []
     for split in ("train", "test"):
-        meta = json.load(open(OUT / "data" / f"transforms_{split}.json"))
+        meta = json.load(open(out / "data" / f"transforms_{split}.json"))
         for frame in meta["frames"]:
-            path = OUT / "data" / (frame["file_path"] + ".png")
+            path = out / "data" / (frame["file_path"] + ".png")
             views.append(dict(path=path, c2w=frame["transform_matrix"]))
     return views
 
@@ -175,11 +199,11 @@ def expon_lr(step, lr_init, lr_final, max_steps):
     return float(np.exp(np.log(lr_init) * (1 - t) + np.log(lr_final) * t))
 
 
-def replay(variant, start, clip, vgg, draws, dtype):
+def replay(out, variant, start, clip, vgg, draws, dtype):
     """The loop in `dtype`: every parameter after update 1 and after the last."""
     background = torch.tensor([1.0, 1.0, 1.0] if variant["white_background"] else [0.0] * 3,
                               dtype=dtype)
-    views = read_views()
+    views = read_views(out)
     cameras = [inria_camera(v["c2w"], draws["width"], draws["height"], FOV_X) for v in views]
     extent = scene_extent(cameras)
     gts = [ground_truth(v["path"], variant["ground_truth"], background.double()) for v in views]
@@ -218,26 +242,28 @@ OUR_NAMES = dict(xyz="means", f_dc="sh_dc", f_rest="sh_rest", opacity="opacity_l
 
 def main():
     torch.manual_seed(0)
-    draws = json.load(open(OUT / "draws.json"))
-    write_scene(torch.Generator().manual_seed(20), draws)
-    start = random_gaussians(torch.Generator().manual_seed(20), COUNT)
     clip, vgg = load_tiny_models()
-    tensors, noise = {}, {}
-    for variant in VARIANTS:
-        exact = replay(variant, start, clip, vgg, draws, torch.float64)
-        single = replay(variant, start, clip, vgg, draws, torch.float32)
-        for iteration, params in exact.items():
-            key = f"{variant['name']}.after_{iteration}"
-            for k, v in params.items():
-                tensors[f"{key}.{OUR_NAMES[k]}"] = v.reshape(v.shape[0], -1)
-                update = (v - start[k]).norm().item()
-                noise[f"{key}.{OUR_NAMES[k]}"] = (single[iteration][k].double() - v).norm().item() / update
-    save_file({k: v.contiguous() for k, v in tensors.items()}, str(OUT / "reference.safetensors"))
-    with open(OUT / "replay.json", "w") as f:
-        json.dump(dict(variants=VARIANTS, tolerance=TOLERANCE, lambdas=LAMBDAS, rates=RATES,
-                       float32_replay_error=noise), f, indent=1)
-    total = sum(p.stat().st_size for p in OUT.rglob("*") if p.is_file())
-    print(f"wrote {OUT} ({total / 1e3:.0f} kB)")
+    for scene in SCENES:
+        out = FIXTURES / scene["folder"]
+        draws = json.load(open(out / "draws.json"))
+        write_scene(scene, draws)
+        start = scene_gaussians(scene, torch.Generator().manual_seed(scene["seed"]))
+        tensors, noise = {}, {}
+        for variant in VARIANTS:
+            exact = replay(out, variant, start, clip, vgg, draws, torch.float64)
+            single = replay(out, variant, start, clip, vgg, draws, torch.float32)
+            for iteration, params in exact.items():
+                key = f"{variant['name']}.after_{iteration}"
+                for k, v in params.items():
+                    tensors[f"{key}.{OUR_NAMES[k]}"] = v.reshape(v.shape[0], -1)
+                    update = (v - start[k]).norm().item()
+                    noise[f"{key}.{OUR_NAMES[k]}"] = (single[iteration][k].double() - v).norm().item() / update
+        save_file({k: v.contiguous() for k, v in tensors.items()}, str(out / "reference.safetensors"))
+        with open(out / "replay.json", "w") as f:
+            json.dump(dict(variants=VARIANTS, tolerance=TOLERANCE, lambdas=LAMBDAS, rates=RATES,
+                           float32_replay_error=noise), f, indent=1)
+        total = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+        print(f"wrote {out} ({total / 1e3:.0f} kB)")
 
 
 if __name__ == "__main__":
