@@ -115,6 +115,7 @@ fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
         background,
         ground_truth: config.ground_truth,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let data = nerf_synthetic::load(config.data.as_ref().unwrap(), Split::Train, &options).unwrap();
     let clip_config =

@@ -71,6 +71,10 @@ pub struct DynamicStylizeConfig {
     /// model records (our file's, or the authors' `cfg_args`), else white (CLIPGaussian's 4D
     /// examples).
     pub white_background: Option<bool>,
+    /// Pictures wider than this many pixels are shrunk to it, the cameras with them (Pillow's
+    /// bicubic of the 8-bit picture), as D-MiSo's loader does at its default `-r -1` (default
+    /// 1600); 0 keeps every picture at its size (D-MiSo's `-r 1`).
+    pub max_width: u32,
     /// Which splits train (and are fitted, when no model is given): `train_and_test` (D-MiSo's
     /// loader without `--eval`: the test frames after the training ones, the extent of both) or
     /// `train`. Unset (the default): as the authors' model folder's `cfg_args` says (`eval`
@@ -124,6 +128,7 @@ impl Default for DynamicStylizeConfig {
             iteration: None,
             out: None,
             white_background: None,
+            max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
             train_splits: None,
             batch_size: 4,
             alpha_lr: 1e-5,
@@ -298,14 +303,17 @@ pub struct DynamicSummary {
     pub wrote_mp4: bool,
 }
 
-/// The training and (when present) test splits of the D-NeRF scene in `data`.
+/// The training and (when present) test splits of the D-NeRF scene in `data`, pictures wider
+/// than `max_width` shrunk to it (0 keeps every size; see [`LoadOptions::max_width`]).
 pub fn load_scene(
     data: &Path,
     background: Background,
+    max_width: u32,
 ) -> Result<(Dataset, Option<Dataset>), DatasetError> {
     let options = LoadOptions {
         background,
         downscale: 1,
+        max_width,
         ..LoadOptions::default()
     };
     let train = load_with_times(data, Split::Train, &options)?;
@@ -393,7 +401,7 @@ pub fn run(
         Some(false) | None => TrainSplits::TrainAndTest,
     });
     let white = Some(background == Background::White);
-    let (mut train, test) = load_scene(data, background)?;
+    let (mut train, test) = load_scene(data, background, config.max_width)?;
     if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
         train.append(test.clone());
     }

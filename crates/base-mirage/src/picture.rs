@@ -5,8 +5,8 @@
 use std::f32::consts::PI;
 use std::path::Path;
 
+use gs_core::wide_pictures::shrink_wide;
 use gs_core::{GsError, Image};
-use gs_stylize::wide_pictures::shrink_wide;
 
 /// The smallest side, in pixels, of a picture that can be fitted: one 16x16 rasterizer tile.
 pub const MIN_SIDE: u32 = 16;
@@ -153,12 +153,8 @@ mod tests {
         .unwrap();
         let full = load_picture(&path, [0.0; 3], 0).unwrap();
         assert_eq!((full.width, full.height), (1650, 20));
-        let shrunk = load_picture(
-            &path,
-            [0.0; 3],
-            gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH,
-        )
-        .unwrap();
+        let shrunk =
+            load_picture(&path, [0.0; 3], gs_core::wide_pictures::AUTHORS_MAX_WIDTH).unwrap();
         // int(20 / (1650 / 1600)) = 19.
         assert_eq!((shrunk.width, shrunk.height), (1600, 19));
         assert_eq!(shrunk, shrink_wide(full, 1600));

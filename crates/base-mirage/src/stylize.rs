@@ -18,11 +18,11 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::backend::Backend;
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
-use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::{
     prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
 };

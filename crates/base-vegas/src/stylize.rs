@@ -33,11 +33,11 @@ use crate::fit::{fit, render_frames, training_targets, training_views, FitError,
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
 use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
     STYLIZED_MP4,
 };
-use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 
 /// The stylized model.
 pub const MODEL_PLY: &str = "model.ply";

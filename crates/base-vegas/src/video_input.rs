@@ -7,8 +7,8 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+use gs_core::wide_pictures::shrink_wide;
 use gs_core::{GsError, Image};
-use gs_stylize::wide_pictures::shrink_wide;
 use rayon::prelude::*;
 
 /// Frame rate given to a folder of frames when none is asked for, frames per second.

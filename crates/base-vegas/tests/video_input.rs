@@ -197,7 +197,7 @@ fn frames_wider_than_the_limit_are_shrunk_as_vegas_shrinks_them() {
     for (big, small) in full.frames.iter().zip(&shrunk.frames) {
         assert_eq!(
             *small,
-            gs_stylize::wide_pictures::shrink_wide(big.clone(), 1600)
+            gs_core::wide_pictures::shrink_wide(big.clone(), 1600)
         );
     }
 }

@@ -206,15 +206,21 @@ impl Camera {
     }
 
     /// The same camera for an image downscaled by `factor` (intrinsics and size divided, size
-    /// rounded as 3DGS's `-r` option does).
+    /// rounded as 3DGS's `-r` option does: Python's `round`, halves to even).
     pub fn downscaled(&self, factor: f64) -> Result<Self, GsError> {
         if !(factor.is_finite() && factor >= 1.0) {
             return Err(GsError::InvalidCamera(format!(
                 "the downscale factor is {factor}; it must be a finite number of at least 1"
             )));
         }
-        let width = (self.width as f64 / factor).round() as u32;
-        let height = (self.height as f64 / factor).round() as u32;
+        let width = (self.width as f64 / factor).round_ties_even() as u32;
+        let height = (self.height as f64 / factor).round_ties_even() as u32;
+        self.resized(width, height)
+    }
+
+    /// The same camera for the image resized to `width x height` (the field of view kept: the
+    /// intrinsics scaled by the ratio of the sizes on each axis).
+    pub fn resized(&self, width: u32, height: u32) -> Result<Self, GsError> {
         let sx = width as f64 / self.width as f64;
         let sy = height as f64 / self.height as f64;
         Self::new(

@@ -15,6 +15,8 @@
 //! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
 //! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
 //! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
+//! - [`pil_resize`] and [`wide_pictures`]: Pillow's bicubic resize of 8-bit pictures, bit for
+//!   bit, and the authors' loaders' shrinking of pictures wider than 1600 pixels.
 //! - [`backend`]: the device chosen at run time (`cpu|gpu|auto`), training and rendering on it.
 //! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
 //!
@@ -61,6 +63,7 @@ pub mod interpolate;
 pub mod mat;
 pub mod mirror_pair;
 pub mod model;
+pub mod pil_resize;
 pub mod plane_neighbours;
 pub mod ply;
 pub mod raster;
@@ -70,6 +73,7 @@ pub mod sh;
 pub mod train;
 #[cfg(feature = "wgpu")]
 pub mod wgpu;
+pub mod wide_pictures;
 
 pub use camera::Camera;
 pub use gaussians::{GaussianGrads, GaussianSet};

@@ -84,6 +84,7 @@ fn file_colour_keeps_the_stored_colours_whatever_the_alpha_and_background() {
         background: Background::White,
         ground_truth: GroundTruth::FileColour,
         downscale: 1,
+        ..LoadOptions::default()
     };
     let data = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
     let image = &data.images[0];
@@ -123,6 +124,7 @@ fn sixteen_bit_pictures_are_read_by_their_high_byte_as_pil_reads_them() {
             background: Background::White,
             ground_truth,
             downscale: 1,
+            ..LoadOptions::default()
         };
         let image = &nerf_synthetic::load(dir.path(), Split::Train, &options)
             .unwrap()

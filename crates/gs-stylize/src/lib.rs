@@ -14,7 +14,6 @@
 //! - [`picture`]: pictures as CLIP inputs (the style image).
 //! - [`progress`]: the progress of a long loop on stderr: a bar, or plain lines in a log.
 //! - [`weights`]: finding the CLIP, tokenizer and VGG-19 files, errors naming their flags.
-//! - [`wide_pictures`]: the authors' loaders' shrinking of pictures wider than 1600 pixels.
 //! - [`writable`]: checking before any work that every output can be written.
 
 pub mod animation;
@@ -31,7 +30,6 @@ pub mod run;
 #[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod weights;
-pub mod wide_pictures;
 pub mod writable;
 
 use std::path::PathBuf;

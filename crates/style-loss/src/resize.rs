@@ -6,6 +6,8 @@
 
 use candle_core::{Device, Tensor};
 
+use gs_core::pil_resize::antialias_taps_of;
+
 use crate::custom_grad::attach_input_gradient;
 use crate::error::{Result, StyleLossError};
 
@@ -34,71 +36,6 @@ fn cubic_far(x: f64) -> f64 {
 /// The triangle (bilinear) filter of PIL and of PyTorch's antialiased bilinear, support 1.
 fn triangle_filter(x: f64) -> f64 {
     (1.0 - x.abs()).max(0.0)
-}
-
-/// The bicubic filter of PIL and of PyTorch's antialiased bicubic: Keys' cubic with `a = -0.5`
-/// (not PyTorch's plain bicubic `a = -0.75`), support 2, written as Pillow's `bicubic_filter`.
-pub(crate) fn pil_bicubic_filter(x: f64) -> f64 {
-    const A: f64 = -0.5;
-    let x = x.abs();
-    if x < 1.0 {
-        ((A + 2.0) * x - (A + 3.0)) * x * x + 1.0
-    } else if x < 2.0 {
-        (((x - 5.0) * x + 8.0) * x - 4.0) * A
-    } else {
-        0.0
-    }
-}
-
-/// The taps of one output sample of an antialiased resize: the weights of the consecutive
-/// inputs `first..first + weights.len()`.
-#[derive(Clone, Debug, PartialEq)]
-pub(crate) struct AxisTaps {
-    pub(crate) first: usize,
-    pub(crate) weights: Vec<f64>,
-}
-
-/// Taps of output `i` of an antialiased resize of one axis (`scale = input / output`) with
-/// `filter` of half-width `support` (in input pixels at scale 1): Pillow's `precompute_coeffs`
-/// with the full box, which PyTorch's `antialias=True` kernels copy. The filter is stretched by
-/// the downscale factor, centred at `scale (i + 0.5)`, cut to `[center - support + 0.5,
-/// center + support + 0.5)` truncated toward zero (the C casts) and clamped to the image, and
-/// normalized to sum 1 (left as is when the sum is 0).
-fn antialias_taps_of(
-    filter: fn(f64) -> f64,
-    support: f64,
-    input: usize,
-    scale: f64,
-    i: usize,
-) -> AxisTaps {
-    let filter_scale = scale.max(1.0);
-    let support = support * filter_scale;
-    let inv_scale = 1.0 / filter_scale;
-    let center = scale * (i as f64 + 0.5);
-    let lo = ((center - support + 0.5) as i64).max(0) as usize;
-    let hi = ((center + support + 0.5) as i64).min(input as i64) as usize;
-    let mut weights: Vec<f64> = (lo..hi.max(lo))
-        .map(|j| filter((j as f64 - center + 0.5) * inv_scale))
-        .collect();
-    let total: f64 = weights.iter().sum();
-    if total != 0.0 {
-        weights.iter_mut().for_each(|w| *w /= total);
-    }
-    AxisTaps { first: lo, weights }
-}
-
-/// Taps of every output sample of an antialiased resize of one axis from `input` to `output`
-/// samples (see [`antialias_taps_of`]).
-pub(crate) fn antialias_taps(
-    filter: fn(f64) -> f64,
-    support: f64,
-    input: usize,
-    output: usize,
-) -> Vec<AxisTaps> {
-    let scale = input as f64 / output as f64;
-    (0..output)
-        .map(|i| antialias_taps_of(filter, support, input, scale, i))
-        .collect()
 }
 
 /// The `[output, input]` interpolation matrix (row-major) of one axis.

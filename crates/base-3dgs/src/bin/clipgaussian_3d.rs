@@ -6,6 +6,7 @@
 //! - `interpolate`: blends two PLY files of the same Gaussians.
 //! - `eval`: the paper's CLIP metrics of a folder of renders against its ground truths.
 
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -86,9 +87,13 @@ struct StylizeArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Resolution divisor of the dataset images (3DGS's -r; default 1, the images as they
-    /// are, or the configuration's `resolution`).
+    /// are up to --max-width, or the configuration's `resolution`).
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
+    /// With resolution 1, a picture wider than this is shrunk to it, pixels (Pillow's bicubic,
+    /// as INRIA's loader at its default -r -1; default 1600); 0 keeps every picture at its size.
+    #[arg(long)]
+    max_width: Option<u32>,
     /// The colour renders are composited over (default black, as the authors' commands, or
     /// the configuration's `white_background`).
     #[arg(long, value_enum)]
@@ -106,6 +111,7 @@ impl StylizeArgs {
             ("data", path_value(&self.data)),
             ("out", path_value(&self.out)),
             ("resolution", self.resolution.map(Into::into)),
+            ("max_width", self.max_width.map(Into::into)),
             (
                 "white_background",
                 self.background.map(|b| (b == BackgroundArg::White).into()),
@@ -141,6 +147,10 @@ struct RenderArgs {
     /// Resolution divisor of the dataset's cameras (3DGS's -r).
     #[arg(short = 'r', long, default_value_t = 1, requires = "data")]
     resolution: u32,
+    /// With resolution 1, a dataset camera wider than this is shrunk to it, pixels (as INRIA's
+    /// loader at its default -r -1); 0 keeps every camera at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH, requires = "data")]
+    max_width: u32,
     /// One camera as JSON, written to render.png. OpenCV axes (x right, y down, z forward),
     /// intrinsics in pixels, `world_to_camera` a rigid 4x4 transform, row-major:
     /// `{"width": 800, "height": 800, "fx": 1111.1, "fy": 1111.1, "cx": 400, "cy": 400,
@@ -209,6 +219,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
             let options = LoadOptions {
                 background: args.background.dataset(),
                 downscale: args.resolution,
+                max_width: args.max_width,
                 ..LoadOptions::default()
             };
             dataset_cameras(data, split, &options)?

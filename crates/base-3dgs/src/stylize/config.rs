@@ -23,7 +23,8 @@ pub enum BackgroundPixels {
 
 /// Everything a 3D stylization run needs. The defaults are the paper's
 /// ([`StyleSettings::paper_3d`]) and those of the authors' 3D code: rendering over black at
-/// full resolution, the stored colours as ground truth, the train and test views.
+/// full resolution up to 1600 pixels wide, the stored colours as ground truth, the train and
+/// test views.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StylizeConfig {
     /// The trained 3DGS scene (INRIA PLY).
@@ -32,8 +33,13 @@ pub struct StylizeConfig {
     pub data: Option<PathBuf>,
     /// The output folder.
     pub out: Option<PathBuf>,
-    /// Resolution divisor of the dataset images (3DGS's `-r`).
+    /// Resolution divisor of the dataset images (3DGS's `-r`): 1 keeps them (but see
+    /// `max_width`); `f > 1` divides their sizes by `f` (Python's rounding).
     pub resolution: u32,
+    /// With `resolution` 1, pictures wider than this many pixels are shrunk to it, the cameras
+    /// with them (Pillow's bicubic of the 8-bit picture), as INRIA's loader does at its default
+    /// `-r -1` (default 1600); 0 keeps every picture at its size (INRIA's `-r 1`).
+    pub max_width: u32,
     /// Render over white (else black, the default: the authors' commands pass no `-w`), and
     /// composite transparent pixels over it where `ground_truth` is `composited`.
     pub white_background: bool,
@@ -73,6 +79,7 @@ impl Default for StylizeConfig {
             data: None,
             out: None,
             resolution: 1,
+            max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
             white_background: false,
             ground_truth: GroundTruth::FileColour,
             object: false,

@@ -114,6 +114,7 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
         },
         ground_truth: config.ground_truth,
         downscale: config.resolution,
+        max_width: config.max_width,
     };
     let wrap = |e: DatasetError| StylizeError::Input(format!("dataset {}: {e}", data.display()));
     match Layout::detect(data) {

@@ -7,6 +7,7 @@
 //! - `interpolate`: blends two models of the same cores (Gaussians and network weights).
 //! - `eval`: the paper's CLIP metrics of rendered test views, in time order.
 
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
@@ -109,6 +110,10 @@ struct StylizeArgs {
     /// records, else white).
     #[arg(long, value_enum)]
     background: Option<BackgroundArg>,
+    /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
+    /// at its default -r -1; default 1600); 0 keeps every picture at its size.
+    #[arg(long)]
+    max_width: Option<u32>,
     /// Random starting points of the fit.
     #[arg(long)]
     points: Option<usize>,
@@ -160,6 +165,10 @@ struct FitArgs {
     /// The colour the pictures are composited over, white (D-MiSo's -w) or black.
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
+    /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
+    /// at its default -r -1); 0 keeps every picture at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
     /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -192,6 +201,10 @@ struct RenderArgs {
     /// Render over white or black (default: the background the model records, else white).
     #[arg(long, value_enum)]
     background: Option<BackgroundArg>,
+    /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
+    /// at its default -r -1); 0 keeps every picture at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
     /// Where to render: cpu, gpu, or auto.
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -233,6 +246,10 @@ struct EvalArgs {
     /// The colour the test pictures are composited over (that of the renders).
     #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
     background: BackgroundArg,
+    /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
+    /// at its default -r -1); 0 keeps every picture at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
     /// Where to write the scores as JSON (printed too).
     #[arg(long)]
     out: Option<PathBuf>,
@@ -261,6 +278,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("iteration", args.iteration.clone().map(Into::into)),
         ("out", path_value(&args.out)),
         ("batch_size", args.batch_size.map(Into::into)),
+        ("max_width", args.max_width.map(Into::into)),
         (
             "white_background",
             args.background.map(|b| (b == BackgroundArg::White).into()),
@@ -307,7 +325,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         ..FitSettings::default()
     };
     settings.check()?;
-    let (train, test) = load_scene(&args.data, bg)?;
+    let (train, test) = load_scene(&args.data, bg, args.max_width)?;
     let options = RunOptions {
         resume: false,
         progress: !args.quiet,
@@ -354,6 +372,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let options = LoadOptions {
         background: bg,
         downscale: 1,
+        max_width: args.max_width,
         ..LoadOptions::default()
     };
     let split = load_with_times(&args.data, args.split, &options)?;
@@ -431,6 +450,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     let options = LoadOptions {
         background: bg,
         downscale: 1,
+        max_width: args.max_width,
         ..LoadOptions::default()
     };
     let test = load_with_times(&args.data, Split::Test, &options)?;

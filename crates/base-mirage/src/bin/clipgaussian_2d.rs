@@ -23,10 +23,10 @@ use base_mirage::stylize::{
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
 use gs_stylize::interrupt::stop_on_ctrl_c;
-use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 

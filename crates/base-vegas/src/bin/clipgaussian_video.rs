@@ -21,13 +21,13 @@ use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::DeviceChoice;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
 use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
-use gs_stylize::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use serde::Serialize;

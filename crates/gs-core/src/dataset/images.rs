@@ -1,8 +1,9 @@
 //! Ground-truth image files: decoding, alpha compositing, background masks, size checks and
-//! resizing to a downscaled camera.
+//! resizing to a downscaled or shrunk camera (Pillow's bicubic resize of the 8-bit levels).
 
 use std::path::Path;
 
+use crate::pil_resize::{pil_bicubic_resize, pil_rgba_resize};
 use crate::Image;
 use image::imageops::FilterType;
 
@@ -98,8 +99,11 @@ pub fn composite_8bit(rgb: [u8; 3], alpha: u8, background: [f32; 3]) -> [u8; 3] 
 }
 
 /// Loads `path`, checks its size against `expected`, composites alpha over `background` as
-/// `composite` says, and resizes to `target` (bicubic, Catmull-Rom, as PIL's default resize that
-/// 3DGS uses) when it is given and differs from the file's size. The mask is present when the
+/// `composite` says, and resizes to `target` when it is given and differs from the file's size:
+/// 8-bit levels by Pillow's bicubic `Image.resize`, as INRIA 3DGS's `PILtoTorch` resizes
+/// ([`Composite::Stored`]: the RGBA picture, premultiplied as Pillow resizes RGBA;
+/// [`Composite::EightBit`]: the composited RGB picture, its alpha resized beside it for the
+/// mask); [`Composite::Float`] values with a Catmull-Rom filter. The mask is present when the
 /// file has alpha.
 pub(crate) fn load(
     path: &Path,
@@ -123,7 +127,8 @@ pub(crate) fn load(
         });
     }
     let has_alpha = decoded.color().has_alpha();
-    let mut rgba = match composite {
+    let resize_to = target.filter(|&t| t != found);
+    let rgba = match composite {
         Composite::Float => {
             let mut rgba = decoded.to_rgba32f();
             for p in rgba.pixels_mut() {
@@ -132,14 +137,26 @@ pub(crate) fn load(
                     p[c] = p[c] * a + background[c] * (1.0 - a);
                 }
             }
-            rgba
+            match resize_to {
+                Some((w, h)) => image::imageops::resize(&rgba, w, h, FilterType::CatmullRom),
+                None => rgba,
+            }
         }
-        Composite::EightBit => composited_8bit(&decoded, background),
-        Composite::Stored => stored_levels(&decoded),
+        Composite::EightBit => {
+            let levels = composited_levels(&decoded, background);
+            as_unit_values(&match resize_to {
+                Some(size) => pil_resize_planes(&levels, size),
+                None => levels,
+            })
+        }
+        Composite::Stored => {
+            let levels = pil_levels(&decoded);
+            as_unit_values(&match resize_to {
+                Some(size) => pil_resize_rgba(&levels, size),
+                None => levels,
+            })
+        }
     };
-    if let Some((w, h)) = target.filter(|&t| t != found) {
-        rgba = image::imageops::resize(&rgba, w, h, FilterType::CatmullRom);
-    }
     let (width, height) = rgba.dimensions();
     let mut data = Vec::with_capacity(width as usize * height as usize * 3);
     for p in rgba.pixels() {
@@ -161,6 +178,40 @@ pub(crate) fn load(
         },
         mask,
     ))
+}
+
+/// `levels` resized to `(width, height)` as Pillow resizes an RGBA picture (premultiplied).
+fn pil_resize_rgba(levels: &image::RgbaImage, (width, height): (u32, u32)) -> image::RgbaImage {
+    let input = (levels.height() as usize, levels.width() as usize);
+    let resized = pil_rgba_resize(levels.as_raw(), input, (height as usize, width as usize))
+        .expect("a non-empty picture to a non-empty size");
+    image::RgbaImage::from_raw(width, height, resized).expect("the resized size")
+}
+
+/// `levels` resized to `(width, height)` channel by channel, as Pillow resizes an RGB picture
+/// (and an `L` one for the alpha).
+fn pil_resize_planes(levels: &image::RgbaImage, (width, height): (u32, u32)) -> image::RgbaImage {
+    let (w, h) = (levels.width() as usize, levels.height() as usize);
+    let (ow, oh) = (width as usize, height as usize);
+    let mut planes = vec![0u8; 4 * w * h];
+    for (p, px) in levels.pixels().enumerate() {
+        for c in 0..4 {
+            planes[c * w * h + p] = px[c];
+        }
+    }
+    let resized = pil_bicubic_resize(&planes, 4, (h, w), (oh, ow))
+        .expect("a non-empty picture to a non-empty size");
+    image::RgbaImage::from_fn(width, height, |x, y| {
+        let p = y as usize * ow + x as usize;
+        image::Rgba([0, 1, 2, 3].map(|c| resized[c * ow * oh + p]))
+    })
+}
+
+/// 8-bit levels as values in `[0, 1]` (level / 255).
+fn as_unit_values(levels: &image::RgbaImage) -> image::Rgba32FImage {
+    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
+        image::Rgba(levels.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0))
+    })
 }
 
 /// The picture's 8-bit RGBA levels as PIL reads it: 8-bit files as they are; 16-bit RGB, RGBA
@@ -186,10 +237,19 @@ pub(crate) fn pil_levels(decoded: &image::DynamicImage) -> image::RgbaImage {
 
 /// The stored colours and alpha of `decoded` as PIL's levels ([`pil_levels`]) / 255.
 pub(crate) fn stored_levels(decoded: &image::DynamicImage) -> image::Rgba32FImage {
-    let levels = pil_levels(decoded);
-    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
-        image::Rgba(levels.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0))
-    })
+    as_unit_values(&pil_levels(decoded))
+}
+
+/// `decoded`'s levels as PIL reads them ([`pil_levels`]) composited over `background` by
+/// [`composite_8bit`], the file's alpha kept for the mask.
+fn composited_levels(decoded: &image::DynamicImage, background: [f32; 3]) -> image::RgbaImage {
+    let mut levels = pil_levels(decoded);
+    for p in levels.pixels_mut() {
+        let [r, g, b, a] = p.0;
+        let [r, g, b] = composite_8bit([r, g, b], a, background);
+        *p = image::Rgba([r, g, b, a]);
+    }
+    levels
 }
 
 /// `decoded` composited over `background` by [`composite_8bit`] from its levels as PIL reads
@@ -198,11 +258,5 @@ pub(crate) fn composited_8bit(
     decoded: &image::DynamicImage,
     background: [f32; 3],
 ) -> image::Rgba32FImage {
-    let levels = pil_levels(decoded);
-    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
-        let [r, g, b, a] = levels.get_pixel(x, y).0;
-        let rgb = composite_8bit([r, g, b], a, background);
-        let level = |v: u8| f32::from(v) / 255.0;
-        image::Rgba([level(rgb[0]), level(rgb[1]), level(rgb[2]), level(a)])
-    })
+    as_unit_values(&composited_levels(decoded, background))
 }

@@ -8,7 +8,8 @@ pub mod nerf_synthetic;
 use std::path::{Path, PathBuf};
 
 use crate::model::View;
-use crate::{GsError, Image};
+use crate::wide_pictures::shrunk_size;
+use crate::{Camera, GsError, Image};
 use serde::{Deserialize, Serialize};
 
 pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
@@ -85,10 +86,15 @@ pub struct LoadOptions {
     pub background: Background,
     /// How pictures with alpha become the ground truth.
     pub ground_truth: GroundTruth,
-    /// Resolution divisor, 3DGS's `-r`: 1 keeps the images as they are; `f > 1` divides the
-    /// width and height by `f` (rounded) and the intrinsics with them (see
-    /// [`crate::Camera::downscaled`]). COLMAP scenes use `images_<f>/` when it exists.
+    /// Resolution divisor, 3DGS's `-r`: 1 keeps the images as they are (but see `max_width`);
+    /// `f > 1` divides the width and height by `f` (rounded as Python's `round`) and the
+    /// intrinsics with them (see [`crate::Camera::downscaled`]). COLMAP scenes use
+    /// `images_<f>/` when it exists. Resized pictures go through Pillow's bicubic resize.
     pub downscale: u32,
+    /// With `downscale` 1, pictures wider than this many pixels are shrunk to it, the camera
+    /// with them, as INRIA 3DGS's (and D-MiSo's) loader does at its default `-r -1`
+    /// ([`crate::wide_pictures::shrunk_size`]; default 1600); 0 keeps every size (INRIA's `-r 1`).
+    pub max_width: u32,
 }
 
 impl Default for LoadOptions {
@@ -97,6 +103,7 @@ impl Default for LoadOptions {
             background: Background::Black,
             ground_truth: GroundTruth::Composited,
             downscale: 1,
+            max_width: crate::wide_pictures::AUTHORS_MAX_WIDTH,
         }
     }
 }
@@ -273,6 +280,22 @@ pub enum DatasetError {
     /// Options that cannot be used.
     #[error("invalid load options: {0}")]
     Options(String),
+}
+
+/// The camera the pictures of `full` are trained at: downscaled by `options.downscale`, or, at
+/// downscale 1, shrunk to `options.max_width` when wider (INRIA 3DGS's `loadCam`).
+pub(crate) fn training_camera(full: &Camera, options: &LoadOptions) -> Result<Camera, GsError> {
+    match options.downscale {
+        1 => {
+            let (w, h) = shrunk_size(full.width, full.height, options.max_width);
+            if (w, h) == (full.width, full.height) {
+                Ok(full.clone())
+            } else {
+                full.resized(w, h)
+            }
+        }
+        f => full.downscaled(f64::from(f)),
+    }
 }
 
 fn check_options(options: &LoadOptions) -> Result<(), DatasetError> {

@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::images::{self, Composite, ExpectedSize};
-use super::{check_options, Dataset, DatasetError, LoadOptions};
+use super::{check_options, training_camera, Dataset, DatasetError, LoadOptions};
 
 /// Which transforms file to load.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -189,10 +189,7 @@ fn load_split(
         .enumerate()
         .map(|(i, frame)| {
             let camera = Camera::from_nerf(frame.transform_matrix, fov, size.0, size.1)
-                .and_then(|c| match options.downscale {
-                    1 => Ok(c),
-                    f => c.downscaled(f as f64),
-                })
+                .and_then(|c| training_camera(&c, options))
                 .map_err(|source| DatasetError::Camera {
                     context: format!("{} frame {i}", json_path.display()),
                     source,

@@ -15,7 +15,7 @@ use crate::Camera;
 use rayon::prelude::*;
 
 use super::images::{self, Composite, ExpectedSize};
-use super::{check_options, Dataset, DatasetError, LoadOptions, PointCloud};
+use super::{check_options, training_camera, Dataset, DatasetError, LoadOptions, PointCloud};
 
 /// COLMAP's camera models by id: name and number of parameters.
 const CAMERA_MODELS: [(&str, usize); 12] = [
@@ -213,10 +213,7 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
             let (w, h) = (colmap_camera.width, colmap_camera.height);
             let full =
                 Camera::from_colmap(img.qvec, img.tvec, intrinsics, w, h).map_err(camera_error)?;
-            let scaled = match options.downscale {
-                1 => full.clone(),
-                f => full.downscaled(f as f64).map_err(camera_error)?,
-            };
+            let scaled = training_camera(&full, options).map_err(camera_error)?;
             let path = folder.join(&img.name);
             let (camera, image, mask) = if prescaled {
                 let (image, mask) = images::load(

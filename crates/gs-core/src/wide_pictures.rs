@@ -2,8 +2,8 @@
 //! default resolution (`-r -1`), which VeGaS, MiraGe and D-MiSo copy, shrinks a picture wider
 //! than 1600 pixels to 1600 pixels wide with PIL's `Image.resize` (bicubic) of its 8-bit levels.
 
-use gs_core::Image;
-use style_loss::pil_resize::pil_bicubic_resize;
+use crate::pil_resize::pil_bicubic_resize;
+use crate::Image;
 
 /// Width beyond which the authors' loaders shrink a picture, pixels.
 pub const AUTHORS_MAX_WIDTH: u32 = 1600;
