@@ -1,5 +1,7 @@
 //! Fitting a dynamic scene (CLIPGaussian stage 1 for 4D), in D-MiSo's three stages, each a
-//! run of gs-core's trainer with `(1 - 0.2) L1 + 0.2 D-SSIM` over batches of views:
+//! run of gs-core's trainer with `(1 - 0.2) L1 + 0.2 D-SSIM` over batches of views drawn as
+//! D-MiSo's `train.py` draws them (runs of the views left this epoch from a uniform start, in an
+//! order shuffled once: [`BatchOrder::ConsecutiveShuffledOnce`]):
 //!
 //! 1. warm-up (`warm_up` steps): the cores, static (the network is not called);
 //! 2. deformation: the cores and the network;
@@ -52,7 +54,8 @@ pub struct FitSettings {
     pub sub_cores: usize,
     /// Sub-Gaussians per core (D-MiSo's `num_splat`).
     pub subs_per_core: usize,
-    /// Views per step, their losses averaged.
+    /// Views per step, their losses summed and divided by this size (also for the epoch's
+    /// shorter last batch, as D-MiSo's `batch_loss / BATCH_SIZE`).
     pub batch: usize,
     /// Width of the deformation network.
     pub deform_width: usize,
@@ -218,7 +221,12 @@ where
         lambda: settings.lambda_dssim,
     };
     let batch = settings.batch.min(views.len());
-    let mut sampler = ViewSampler::batches(views.len(), batch, BatchOrder::Shuffled, settings.seed);
+    let mut sampler = ViewSampler::batches(
+        views.len(),
+        batch,
+        BatchOrder::ConsecutiveShuffledOnce,
+        settings.seed,
+    );
     let stages = [
         (Stage::WarmUp, 0, settings.warm_up),
         (Stage::Deformation, settings.warm_up, settings.subs_from),

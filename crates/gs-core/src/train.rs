@@ -26,6 +26,10 @@ pub enum BatchOrder {
     /// still divided by `B`, as the authors' `batch_loss / BATCH_SIZE`). The list refills when
     /// empty.
     Consecutive,
+    /// D-MiSo's fit: the [`BatchOrder::Consecutive`] rule over the views in an order shuffled
+    /// once, when the sampler is made (its `Scene(..., shuffle=True)` shuffles the camera list
+    /// at load), the same order every epoch.
+    ConsecutiveShuffledOnce,
 }
 
 /// Draws the views of each training step: batches of `batch` view indices in a
@@ -36,6 +40,8 @@ pub struct ViewSampler {
     count: usize,
     batch: usize,
     order: BatchOrder,
+    /// The views of an epoch in the order runs are cut from (consecutive orders).
+    epoch: Vec<usize>,
     pending: Vec<usize>,
 }
 
@@ -55,11 +61,17 @@ impl ViewSampler {
     pub fn batches(count: usize, batch: usize, order: BatchOrder, seed: u64) -> Self {
         assert!(count > 0, "a view sampler needs at least one view");
         assert!(batch > 0, "a batch holds at least one view");
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut epoch: Vec<usize> = (0..count).collect();
+        if order == BatchOrder::ConsecutiveShuffledOnce {
+            epoch.shuffle(&mut rng);
+        }
         Self {
-            rng: ChaCha8Rng::seed_from_u64(seed),
+            rng,
             count,
             batch,
             order,
+            epoch,
             pending: Vec::new(),
         }
     }
@@ -102,9 +114,9 @@ impl ViewSampler {
     pub fn next_batch(&mut self) -> Vec<usize> {
         match self.order {
             BatchOrder::Shuffled => (0..self.batch).map(|_| self.next_view()).collect(),
-            BatchOrder::Consecutive => {
+            BatchOrder::Consecutive | BatchOrder::ConsecutiveShuffledOnce => {
                 if self.pending.is_empty() {
-                    self.pending = (0..self.count).collect();
+                    self.pending = self.epoch.clone();
                 }
                 let left = self.pending.len();
                 let start = self.rng.random_range(0..=left.saturating_sub(self.batch));
@@ -764,6 +776,19 @@ mod tests {
             .map(|seed| ViewSampler::batches(7, 3, BatchOrder::Consecutive, seed).next_batch()[0])
             .collect();
         assert_eq!(starts.into_iter().collect::<Vec<_>>(), vec![0, 1, 2, 3, 4]);
+        // Shuffled once: the same runs rule over one fixed permutation, every epoch.
+        let mut once = ViewSampler::batches(7, 3, BatchOrder::ConsecutiveShuffledOnce, 1);
+        let order = once.epoch.clone();
+        assert_ne!(order, (0..7).collect::<Vec<_>>());
+        for _ in 0..5 {
+            let mut left = order.clone();
+            while !left.is_empty() {
+                let batch = once.next_batch();
+                let start = left.iter().position(|&v| v == batch[0]).unwrap();
+                assert_eq!(batch, left[start..start + batch.len()], "runs of {left:?}");
+                left.drain(start..start + batch.len());
+            }
+        }
         let mut shuffled = ViewSampler::batches(4, 2, BatchOrder::Shuffled, 2);
         let mut epoch: Vec<usize> = (0..2).flat_map(|_| shuffled.next_batch()).collect();
         epoch.sort_unstable();
