@@ -13,6 +13,7 @@
 //! ReLU convention: no gradient where the pre-activation is exactly 0.
 
 use candle_core::{DType, Device, Tensor};
+use style_loss::matmul::checked_matmul;
 
 use crate::encoding::{TIME_ENCODING, VERTEX_ENCODING};
 
@@ -141,7 +142,7 @@ pub struct NetTape {
 
 /// `x W^T + b`.
 fn linear(x: &Tensor, w: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
-    x.matmul(&w.t()?)?.broadcast_add(b)
+    checked_matmul(x, &w.t()?)?.broadcast_add(b)
 }
 
 /// The network's outputs `[G, 13]` for `encodings` (`[G, 63]`, row-major) at the time
@@ -214,11 +215,12 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
     let mut g_h: Option<Tensor> = None;
     let mut start = 0;
     for (k, (_, n)) in HEADS.iter().enumerate() {
-        let g = g_out.narrow(1, start, *n)?;
+        // A column slice of the `[G, 13]` gradient: made dense, as cuBLAS reads no other.
+        let g = g_out.narrow(1, start, *n)?.contiguous()?;
         start += n;
         let (w, _) = tape.weights.layer(head(k));
-        grads[head(k)] = Some((g.t()?.matmul(&tape.last)?, g.sum(0)?));
-        let g_in = g.matmul(w)?;
+        grads[head(k)] = Some((checked_matmul(&g.t()?, &tape.last)?, g.sum(0)?));
+        let g_in = checked_matmul(&g, w)?;
         g_h = Some(match g_h {
             Some(s) => s.add(&g_in)?,
             None => g_in,
@@ -234,8 +236,11 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
         }
         let g_z = relu_backward(&g_h, &tape.trunk_pre[i])?;
         let (w, _) = tape.weights.layer(trunk(i));
-        grads[trunk(i)] = Some((g_z.t()?.matmul(&tape.trunk_inputs[i])?, g_z.sum(0)?));
-        g_h = g_z.matmul(w)?;
+        grads[trunk(i)] = Some((
+            checked_matmul(&g_z.t()?, &tape.trunk_inputs[i])?,
+            g_z.sum(0)?,
+        ));
+        g_h = checked_matmul(&g_z, w)?;
     }
     let g_x0 = g_h.add(&g_x0.expect("the skip layer"))?;
     // The time embedding is broadcast to every core: its gradient is the sum over cores.
@@ -244,9 +249,12 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
         .sum_keepdim(0)?;
     let hidden = tape.time_hidden.relu()?;
     let (w, _) = tape.weights.layer(1);
-    grads[1] = Some((g_t_emb.t()?.matmul(&hidden)?, g_t_emb.sum(0)?));
-    let g_hidden = relu_backward(&g_t_emb.matmul(w)?, &tape.time_hidden)?;
-    grads[0] = Some((g_hidden.t()?.matmul(&tape.time)?, g_hidden.sum(0)?));
+    grads[1] = Some((checked_matmul(&g_t_emb.t()?, &hidden)?, g_t_emb.sum(0)?));
+    let g_hidden = relu_backward(&checked_matmul(&g_t_emb, w)?, &tape.time_hidden)?;
+    grads[0] = Some((
+        checked_matmul(&g_hidden.t()?, &tape.time)?,
+        g_hidden.sum(0)?,
+    ));
     let mut flat = Vec::new();
     for g in grads {
         let (gw, gb) = g.expect("every layer has a gradient");
@@ -254,4 +262,45 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
         flat.extend(gb.flatten_all()?.to_vec1::<f32>()?);
     }
     Ok(flat)
+}
+
+#[cfg(test)]
+mod tests {
+    use rand::{Rng, SeedableRng};
+
+    use super::*;
+    use crate::init::default_network;
+
+    /// Forward and backward run every product through `checked_matmul`, which refuses the
+    /// layouts candle's CUDA backend refuses (the heads' gradients are column slices of the
+    /// `[G, 13]` gradient: made dense, else this fails as a CUDA step would). The values are the
+    /// authors' (`tests/authors_fixture.rs` compares both passes with PyTorch).
+    #[test]
+    fn cuda_layout_network_forward_and_backward() {
+        let shape = NetShape { width: 16 };
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
+        let weights = default_network(&shape, &mut rng);
+        let cores = 7;
+        let enc: Vec<f32> = (0..cores * VERTEX_ENCODING)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let probe: Vec<f32> = (0..cores * OUTPUTS)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let time = [0.3f32; TIME_ENCODING];
+        let (out, tape) = forward(&shape, &weights, &enc, &time, &Device::Cpu).unwrap();
+        assert_eq!(out.len(), cores * OUTPUTS);
+        let grad = backward(tape, &probe).unwrap();
+        assert_eq!(grad.len(), weights.len());
+        assert!(grad.iter().all(|g| g.is_finite()));
+        // Every head's weights get a gradient (its slice of the upstream gradient reached it).
+        let mut offset = 0;
+        for (name, dims) in shape.tensors() {
+            let n: usize = dims.iter().product();
+            if name.starts_with("gaussian_") {
+                assert!(grad[offset..offset + n].iter().any(|&g| g != 0.0), "{name}");
+            }
+            offset += n;
+        }
+    }
 }

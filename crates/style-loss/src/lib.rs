@@ -18,6 +18,7 @@ pub mod error;
 mod fused_cpu;
 pub mod image_layout;
 pub mod losses;
+pub mod matmul;
 pub mod memory;
 pub mod metrics;
 pub mod nn;

@@ -11,6 +11,7 @@ use serde::Deserialize;
 use crate::cpu_elements::is_cpu_f32;
 use crate::custom_grad::attach_input_gradient;
 use crate::fused_cpu::{LayerNormOp, QuickGeluOp, SoftmaxOp};
+use crate::matmul::checked_matmul;
 
 /// Floor of the norm in [`l2_normalize`], as in `torch.nn.functional.normalize`.
 pub const NORMALIZE_EPS: f64 = 1e-12;
@@ -44,12 +45,14 @@ impl Linear {
             None => candle_core::bail!("Linear: scalar input"),
         };
         let flat = x.reshape((rows, in_features))?;
-        let mut value = flat.detach().contiguous()?.matmul(&self.weight_t)?;
+        let mut value = checked_matmul(&flat.detach().contiguous()?, &self.weight_t)?;
         if let Some(bias) = &self.bias {
             value = value.broadcast_add(bias)?;
         }
         let weight = self.weight.clone();
-        let y = attach_input_gradient(&value, &flat, move |g| g.matmul(&weight))?;
+        let y = attach_input_gradient(&value, &flat, move |g| {
+            checked_matmul(&g.contiguous()?, &weight)
+        })?;
         let mut out_dims = dims;
         if let Some(last) = out_dims.last_mut() {
             *last = self.weight.dim(0)?;

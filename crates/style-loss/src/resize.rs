@@ -10,6 +10,7 @@ use gs_core::pil_resize::antialias_taps_of;
 
 use crate::custom_grad::attach_input_gradient;
 use crate::error::{Result, StyleLossError};
+use crate::matmul::checked_matmul;
 
 /// Keys' cubic convolution parameter used by PyTorch.
 const CUBIC_A: f64 = -0.75;
@@ -73,15 +74,13 @@ pub fn resize_matrix(kernel: ResizeKernel, input: usize, output: usize) -> Vec<f
 fn sandwich(x: &Tensor, left: &Tensor, right: &Tensor) -> candle_core::Result<Tensor> {
     let (batch, h, w) = x.dims3()?;
     let (oh, ow) = (left.dim(1)?, right.dim(1)?);
-    let cols = x
-        .contiguous()?
-        .reshape((batch * h, w))?
-        .matmul(right)?
+    let cols = checked_matmul(&x.contiguous()?.reshape((batch * h, w))?, right)?
         .reshape((batch, h, ow))?;
-    cols.transpose(1, 2)?
+    let rows = cols
+        .transpose(1, 2)?
         .contiguous()?
-        .reshape((batch * ow, h))?
-        .matmul(left)?
+        .reshape((batch * ow, h))?;
+    checked_matmul(&rows, left)?
         .reshape((batch, ow, oh))?
         .transpose(1, 2)?
         .contiguous()

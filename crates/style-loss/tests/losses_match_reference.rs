@@ -6,7 +6,7 @@
 mod common;
 
 use candle_core::{DType, Device, Tensor};
-use common::{fixture, load, load_json, relative_error};
+use common::{fixture, load, load_json, relative_error, values};
 use style_loss::clip::{ClipConfig, ClipModel};
 use style_loss::perspective::Corners;
 use style_loss::{
@@ -339,4 +339,16 @@ fn reduced_precision_clip_stays_within_its_recorded_error() {
             "{precision}: content uses no CLIP"
         );
     }
+}
+
+/// Every matrix product of the loss (CLIP's attention and linear layers, the resizes), forward
+/// and backward, goes through `style_loss::matmul::checked_matmul`, which refuses on the CPU the
+/// operand layouts candle's CUDA backend refuses: the paper's step with all four terms runs.
+#[test]
+fn cuda_layout_the_whole_step_runs_through_checked_products() {
+    let s = setup();
+    let out = paper_step(&s);
+    assert!(out.total.is_finite());
+    let grad = values(&out.grad);
+    assert!(grad.iter().all(|g| g.is_finite()) && grad.iter().any(|&g| g != 0.0));
 }

@@ -3,6 +3,7 @@
 use candle_core::{DType, Tensor};
 
 use crate::error::Result;
+use crate::matmul::checked_matmul;
 use crate::nn::{softmax_last_dim, Activation, LayerNorm, Linear};
 use crate::tensor_file::NamedTensors;
 
@@ -82,11 +83,11 @@ impl Attention {
         let q = split((self.q.forward(x)? * scale)?)?;
         let k = split(self.k.forward(x)?)?;
         let v = split(self.v.forward(x)?)?;
-        let mut logits = q.matmul(&k.t()?.contiguous()?)?;
+        let mut logits = checked_matmul(&q, &k.t()?.contiguous()?)?;
         if let Some(mask) = mask {
             logits = logits.broadcast_add(&mask.to_dtype(logits.dtype())?)?;
         }
-        let context = softmax_last_dim(&logits)?.matmul(&v)?;
+        let context = checked_matmul(&softmax_last_dim(&logits)?, &v)?;
         let context = context.transpose(1, 2)?.reshape((batch, tokens, hidden))?;
         Ok(self.out.forward(&context)?)
     }
