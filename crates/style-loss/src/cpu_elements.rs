@@ -1,10 +1,44 @@
 //! The f32 elements of candle CPU storage, as this crate's custom CPU kernels read them.
 
+use std::cell::Cell;
+
 use candle_core::{CpuStorage, DType, Layout, Tensor};
 
-/// Whether `x` can go to this crate's CPU kernels: f32 on the CPU.
+thread_local! {
+    /// Whether this thread runs the generic composition on the CPU too ([`GenericPath`]).
+    static GENERIC_PATH: Cell<bool> = const { Cell::new(false) };
+}
+
+/// Whether `x` can go to this crate's CPU kernels: f32 on the CPU, unless this thread holds a
+/// [`GenericPath`].
 pub(crate) fn is_cpu_f32(x: &Tensor) -> bool {
-    x.device().is_cpu() && x.dtype() == DType::F32
+    !GENERIC_PATH.get() && x.device().is_cpu() && x.dtype() == DType::F32
+}
+
+/// While it lives, the thread that made it runs the composition of candle ops that a CUDA or
+/// Metal device runs also on the CPU: every CPU fast path of this crate is off (the fused layer
+/// norm, softmax and GELU kernels, the channels-last VGG convolutions, the max-pool routing
+/// kernel). Models built while it lives keep the generic layers. For tests (the generic path
+/// proven on the CPU, `generic_path` tests) and for comparing a GPU run with the same
+/// composition on the CPU.
+#[derive(Debug)]
+pub struct GenericPath {
+    previous: bool,
+}
+
+impl GenericPath {
+    /// Turns the CPU fast paths off on this thread until the returned value is dropped.
+    pub fn on() -> Self {
+        Self {
+            previous: GENERIC_PATH.replace(true),
+        }
+    }
+}
+
+impl Drop for GenericPath {
+    fn drop(&mut self) {
+        GENERIC_PATH.set(self.previous);
+    }
 }
 
 /// The elements of a contiguous f32 tensor, in order (bails on a strided layout or another

@@ -39,10 +39,11 @@ pub mod vgg;
 mod vgg_channels_last;
 pub mod weight_resolution;
 
-/// The candle this crate is built on: images and gradients cross as its tensors, so callers
-/// use this one rather than pinning their own.
 pub use candle_core;
 pub use clip::{ClipConfig, ClipModel, ClipPrecision};
+/// The candle this crate is built on: images and gradients cross as its tensors, so callers
+/// use this one rather than pinning their own.
+pub use cpu_elements::GenericPath;
 pub use error::{Result, StyleLossError};
 pub use losses::{
     background_mask_from_color, LossTerms, LossWeights, StyleLoss, StyleLossOutput, ViewCache,

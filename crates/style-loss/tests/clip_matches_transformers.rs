@@ -192,3 +192,20 @@ fn wrong_config_names_file_and_tensor() {
         "{err}"
     );
 }
+
+/// The towers as a CUDA or Metal device composes them (no fused CPU kernel), on the CPU: image
+/// and text embeddings and the template mean (the text style), against transformers.
+#[test]
+fn generic_path_towers_match_transformers() {
+    let _generic = style_loss::GenericPath::on();
+    let model = tiny_clip();
+    let r = load("clip_reference.safetensors");
+    let image = l2_normalize(&model.encode_pixels(&r["pixel_values"]).unwrap()).unwrap();
+    assert_rows_cosine(&image, &r["image_embeds"]);
+    let text = model.encode_token_ids(&id_rows(&r["input_ids"])).unwrap();
+    assert_rows_cosine(&l2_normalize(&text).unwrap(), &r["text_embeds"]);
+    let style = mean_text_embedding(&model, &id_rows(&r["style_ids"])).unwrap();
+    let source = mean_text_embedding(&model, &id_rows(&r["source_ids"])).unwrap();
+    let direction = StyleDirection::from_embeddings(&style, &source).unwrap();
+    assert!(cosine(direction.as_tensor(), &r["style_direction"]) > 0.99999);
+}

@@ -352,3 +352,41 @@ fn cuda_layout_the_whole_step_runs_through_checked_products() {
     let grad = values(&out.grad);
     assert!(grad.iter().all(|g| g.is_finite()) && grad.iter().any(|&g| g != 0.0));
 }
+
+/// The whole step (four terms, patches) as a CUDA or Metal device composes it (no fused CPU
+/// kernel, channels-first VGG, the max-pool routing made of tensor ops), on the CPU: the
+/// authors' values and gradient, and the fast path's.
+#[test]
+fn generic_path_total_loss_and_gradient_match() {
+    let fast = paper_step(&setup());
+    let generic = {
+        let _generic = style_loss::GenericPath::on();
+        paper_step(&setup())
+    };
+    let v = &reference_values();
+    for (ours, key) in [
+        (generic.terms.directional, "directional"),
+        (generic.terms.patch, "patch"),
+        (generic.terms.content, "content"),
+        (generic.terms.background, "background"),
+        (generic.total, "total"),
+    ] {
+        let reference = v[key].as_f64().unwrap();
+        assert!(
+            (ours - reference).abs() <= 1e-4 * reference.abs().max(1e-3),
+            "{key}: {ours} vs {reference}"
+        );
+    }
+    let s = setup();
+    let err = relative_error(&generic.grad, &s.tensors["grad.total"]);
+    assert!(err < 1e-3, "generic path: gradient relative error {err}");
+    let err = relative_error(&generic.grad, &fast.grad);
+    assert!(err < 1e-4, "generic vs fast path: {err}");
+    // Other kernels sum in other orders: equal bits would mean the switch changed nothing.
+    assert!(err > 0.0, "the generic path ran the fast kernels");
+}
+
+/// The fixture's reference values of the terms and the total.
+fn reference_values() -> serde_json::Value {
+    load_json("loss_reference.json")["values"].clone()
+}
