@@ -5,7 +5,15 @@
 # (libcuda.so.1) is only needed to run, so the link uses a stub of it, as the CUDA toolkit's
 # own lib/stubs/libcuda.so.
 #
-#   scripts/build_cuda.sh     # compute capability 9.0 (H100); CUDA_COMPUTE_CAP=89 for an RTX 4090
+#   scripts/build_cuda.sh             # for the GPU nvidia-smi reports, else PTX for 8.0 (Ampere)
+#   CUDA_COMPUTE_CAP=89 scripts/build_cuda.sh    # for one compute capability (here an RTX 4090)
+#   scripts/build_cuda.sh --dry-run   # says what it would build, fetches and builds nothing
+#
+# The compute capability: CUDA_COMPUTE_CAP when set; else that of the first GPU nvidia-smi lists;
+# else 80, whose PTX the driver compiles for every GPU from Ampere (8.0) on, newer ones included.
+# The binaries carry an RPATH to the libraries fetched here, so they run on this machine without
+# LD_LIBRARY_PATH; elsewhere, point the loader at CUDA 13 libraries (see below). CUDA 13 needs an
+# NVIDIA driver 580 or newer.
 #
 # Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d and clipgaussian-4d (whose
 # deformation network runs on the CUDA device too), and the timing examples
@@ -17,8 +25,40 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
+dry_run=false
+case "${1:-}" in
+    --dry-run) dry_run=true ;;
+    "") ;;
+    *) echo "usage: scripts/build_cuda.sh [--dry-run]" >&2; exit 2 ;;
+esac
+
 cuda_version=13.0
 toolkit=$PWD/target/cuda-toolkit
+if [ -z "${CUDA_COMPUTE_CAP:-}" ]; then
+    found=""
+    if command -v nvidia-smi >/dev/null 2>&1; then
+        found=$(nvidia-smi --query-gpu=compute_cap --format=csv,noheader 2>/dev/null | head -n 1 | tr -d ' .' || true)
+    fi
+    if [[ "$found" =~ ^[0-9]+$ ]]; then
+        CUDA_COMPUTE_CAP=$found
+        why="the GPU nvidia-smi reports"
+    else
+        CUDA_COMPUTE_CAP=80
+        why="no GPU found: PTX for 8.0, which the driver compiles for every GPU from Ampere on"
+    fi
+else
+    why="CUDA_COMPUTE_CAP"
+fi
+if ! [[ "$CUDA_COMPUTE_CAP" =~ ^[0-9]+$ ]]; then
+    echo "CUDA_COMPUTE_CAP=$CUDA_COMPUTE_CAP: give the compute capability as digits, e.g. 89 for 8.9" >&2
+    exit 2
+fi
+export CUDA_COMPUTE_CAP
+echo "CUDA $cuda_version, compute capability $CUDA_COMPUTE_CAP ($why), toolkit in $toolkit"
+if $dry_run; then
+    echo "dry run: would fetch the toolkit (unless $toolkit/ready exists) and build into ${CARGO_TARGET_DIR:-target/cuda}"
+    exit 0
+fi
 if [ ! -e "$toolkit/ready" ]; then
     rm -rf "$toolkit"
     python3 -m venv "$toolkit/venv"
@@ -48,8 +88,10 @@ print(next(os.path.dirname(p["manifest_path"]) for p in json.load(sys.stdin)["pa
 fi
 export CUDA_PATH="$toolkit" CUDA_ROOT="$toolkit" CUDA_HOME="$toolkit"
 export PATH="$toolkit/bin:$PATH"
-export CUDA_COMPUTE_CAP=${CUDA_COMPUTE_CAP:-90}
 nvcc --version | tail -n 2
+# Where the fetched libraries really are (the wheels' folder), for the binaries' RPATH.
+libs=$(dirname "$(readlink -f "$toolkit/lib/libcublas.so")")
+export RUSTFLAGS="${RUSTFLAGS:-} -C link-arg=-Wl,-rpath,$libs"
 
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-target/cuda}
 cargo build --release \

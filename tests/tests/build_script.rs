@@ -1,0 +1,72 @@
+//! `scripts/build_cuda.sh` parses, and its dry run picks the compute capability as documented:
+//! `CUDA_COMPUTE_CAP` when set, else the GPU `nvidia-smi` reports, else 8.0 (PTX that runs on
+//! every GPU from Ampere on); a malformed value is refused. Nothing is fetched or built.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn script() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/build_cuda.sh")
+}
+
+/// A folder holding an `nvidia-smi` that prints `compute_cap` (or fails when `None`).
+fn fake_nvidia_smi(dir: &Path, compute_cap: Option<&str>) {
+    let body = match compute_cap {
+        Some(cap) => format!("#!/bin/sh\necho {cap}\n"),
+        None => "#!/bin/sh\necho 'NVIDIA-SMI has failed' >&2\nexit 9\n".to_string(),
+    };
+    let path = dir.join("nvidia-smi");
+    std::fs::write(&path, body).unwrap();
+    let mut permissions = std::fs::metadata(&path).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&path, permissions).unwrap();
+}
+
+/// The dry run's status and output, `nvidia-smi` faked in front of the system's.
+fn dry_run(compute_cap_env: Option<&str>, smi: Option<&str>) -> (bool, String) {
+    let dir = tempfile::tempdir().unwrap();
+    fake_nvidia_smi(dir.path(), smi);
+    let path = format!(
+        "{}:{}",
+        dir.path().display(),
+        std::env::var("PATH").unwrap()
+    );
+    let mut cmd = Command::new("bash");
+    cmd.arg(script()).arg("--dry-run").env("PATH", path);
+    match compute_cap_env {
+        Some(cap) => cmd.env("CUDA_COMPUTE_CAP", cap),
+        None => cmd.env_remove("CUDA_COMPUTE_CAP"),
+    };
+    let out = cmd.output().unwrap();
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
+    (out.status.success(), text)
+}
+
+#[test]
+fn the_cuda_build_script_parses_and_picks_the_compute_capability() {
+    let syntax = Command::new("bash")
+        .arg("-n")
+        .arg(script())
+        .status()
+        .unwrap();
+    assert!(syntax.success());
+    let (ok, text) = dry_run(None, None);
+    assert!(
+        ok && text.contains("compute capability 80 (no GPU found"),
+        "{text}"
+    );
+    assert!(text.contains("dry run"), "{text}");
+    let (ok, text) = dry_run(None, Some("8.6"));
+    assert!(
+        ok && text.contains("compute capability 86 (the GPU"),
+        "{text}"
+    );
+    let (ok, text) = dry_run(Some("89"), Some("8.6"));
+    assert!(
+        ok && text.contains("compute capability 89 (CUDA_COMPUTE_CAP)"),
+        "{text}"
+    );
+    let (ok, text) = dry_run(Some("8.9"), None);
+    assert!(!ok && text.contains("as digits"), "{text}");
+}
