@@ -118,12 +118,28 @@ fn open_gpu(software: bool) -> Result<Backend, DeviceError> {
     };
     match GpuContext::new(choice) {
         Ok(ctx) => Ok(Backend::Gpu(Arc::new(ctx))),
-        Err(GpuError::NoAdapter { seen, .. }) => Err(DeviceError::NoGpu(format!(
-            "no GPU adapter (adapters seen: {seen}); software devices such as lavapipe are for \
-             tests and need {ALLOW_SOFTWARE_GPU}=1; use --device cpu or auto to run on the cpu"
-        ))),
+        Err(GpuError::NoAdapter { seen, .. }) => Err(DeviceError::NoGpu(no_adapter_message(&seen))),
         Err(e) => Err(e.into()),
     }
+}
+
+/// Why `--device gpu` found no adapter, from the adapters wgpu saw (`"none"` when it saw none):
+/// with none, what is missing (a Vulkan loader and driver; in a container, the driver's graphics
+/// capability), else that only software devices were there.
+#[cfg(feature = "wgpu")]
+fn no_adapter_message(seen: &str) -> String {
+    let missing = if seen == "none" {
+        "wgpu sees no Vulkan, Metal or DX12 device at all: on Linux the Vulkan loader (libvulkan1) \
+         and the GPU's Vulkan driver are needed (NVIDIA: its driver's Vulkan ICD; in a container, \
+         NVIDIA_DRIVER_CAPABILITIES must include graphics; AMD and Intel: mesa-vulkan-drivers)"
+            .to_string()
+    } else {
+        format!(
+            "adapters seen: {seen}; software devices such as lavapipe are for tests and need \
+             {ALLOW_SOFTWARE_GPU}=1"
+        )
+    };
+    format!("no GPU adapter ({missing}); use --device cpu or auto to run on the cpu")
 }
 
 /// Built without the wgpu backend: `gpu` is an error.
@@ -503,6 +519,22 @@ impl<M: BaseModel> Trainer<M> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[cfg(feature = "wgpu")]
+    #[test]
+    fn no_adapter_says_what_is_missing() {
+        let none = no_adapter_message("none");
+        assert!(
+            none.contains("libvulkan1") && none.contains("NVIDIA_DRIVER_CAPABILITIES"),
+            "{none}"
+        );
+        let software = no_adapter_message("llvmpipe (Cpu, Vulkan)");
+        assert!(
+            software.contains("llvmpipe") && software.contains(ALLOW_SOFTWARE_GPU),
+            "{software}"
+        );
+        assert!(none.ends_with("use --device cpu or auto to run on the cpu"));
+    }
 
     #[test]
     fn device_names_parse_and_print_back() {

@@ -2,20 +2,62 @@
 //! `cuda`) or Metal (feature `metal`) backend. Only the image and its gradient cross between
 //! this device and the rasterizer's, once each per step ([`crate::StyleObjective`]).
 
-use candle_core::Device;
+use candle_core::{Device, Tensor};
 use gs_core::backend::DeviceChoice;
 
+use crate::matmul::checked_matmul;
+
 /// A GPU for the style loss: `Ok(None)` when this build has neither the `cuda` nor the `metal`
-/// feature, an error when it has one and the device does not open (no driver, no GPU).
+/// feature, an error when it has one and the device does not open (no driver, no GPU) or fails
+/// its [`self_check`].
 pub fn open_gpu() -> Result<Option<Device>, String> {
-    open_built_gpu()
+    match open_built_gpu()? {
+        Some(device) => self_check(&device).map(|()| Some(device)),
+        None => Ok(None),
+    }
+}
+
+/// Runs a small elementwise kernel, a reduction and a matrix product on `device` and checks
+/// their values. A device can open and still not run this build's kernels (built for another
+/// compute capability, a driver older than the toolkit): that fails here, named, instead of in
+/// the first step.
+pub fn self_check(device: &Device) -> Result<(), String> {
+    let run = || -> candle_core::Result<(f32, Vec<Vec<f32>>)> {
+        let x = Tensor::arange(0f32, 6f32, device)?.reshape((2, 3))?;
+        let y = Tensor::arange(0f32, 6f32, device)?.reshape((3, 2))?;
+        let sum = x.affine(2.0, 1.0)?.sum_all()?.to_scalar::<f32>()?;
+        Ok((sum, checked_matmul(&x, &y)?.to_vec2::<f32>()?))
+    };
+    let name = describe(device);
+    match run() {
+        Ok((sum, product)) if sum == 36.0 && product == [[10.0, 13.0], [28.0, 40.0]] => Ok(()),
+        Ok((sum, product)) => Err(format!(
+            "{name}: the self-check computed wrong values (sum {sum}, product {product:?}){}",
+            build_note()
+        )),
+        Err(e) => Err(format!(
+            "{name}: the kernels do not run ({e}){}",
+            build_note()
+        )),
+    }
+}
+
+/// What this build was made for, for the self-check's errors.
+fn build_note() -> String {
+    match option_env!("CUDA_COMPUTE_CAP") {
+        Some(cap) if cfg!(feature = "cuda") => format!(
+            "; this build's kernels are for compute capability {cap} (scripts/build_cuda.sh \
+             builds for the GPU it finds) and CUDA 13, which needs an NVIDIA driver 580 or newer"
+        ),
+        _ => String::new(),
+    }
 }
 
 #[cfg(feature = "cuda")]
 fn open_built_gpu() -> Result<Option<Device>, String> {
     Device::new_cuda(0)
         .map(Some)
-        .map_err(|e| format!("CUDA device 0 does not open: {e}"))
+        .map_err(|e| format!("CUDA device 0 does not open: {e}{}", build_note()))
 }
 
 #[cfg(all(feature = "metal", not(feature = "cuda")))]
@@ -39,8 +81,16 @@ pub fn open_for(choice: DeviceChoice) -> Result<(Device, String), String> {
     if choice == DeviceChoice::Cpu {
         return Ok((Device::Cpu, String::new()));
     }
+    choose(choice, open_gpu())
+}
+
+/// [`open_for`] given what opening the GPU gave.
+fn choose(
+    choice: DeviceChoice,
+    opened: Result<Option<Device>, String>,
+) -> Result<(Device, String), String> {
     let cpu = |note: &str| (Device::Cpu, note.to_string());
-    match (choice, open_gpu()) {
+    match (choice, opened) {
         (_, Ok(Some(gpu))) => Ok((gpu, String::new())),
         (DeviceChoice::Gpu, Ok(None)) => Ok(cpu(
             " (this build has neither the cuda nor the metal feature: scripts/build_cuda.sh \
@@ -87,5 +137,22 @@ mod tests {
             let (device, note) = open_for(DeviceChoice::Auto).unwrap();
             assert!(device.is_cpu() && note.is_empty());
         }
+    }
+
+    #[test]
+    fn the_self_check_passes_on_the_cpu_and_its_failure_is_named() {
+        self_check(&Device::Cpu).unwrap();
+        // A GPU that opened but whose kernels do not load: auto falls back saying why, gpu stops.
+        let why = "cuda:0: the kernels do not run (CUDA_ERROR_NO_BINARY_FOR_GPU)".to_string();
+        let (device, note) = choose(DeviceChoice::Auto, Err(why.clone())).unwrap();
+        assert!(
+            device.is_cpu() && note.contains("CUDA_ERROR_NO_BINARY_FOR_GPU"),
+            "{note}"
+        );
+        let e = choose(DeviceChoice::Gpu, Err(why)).unwrap_err();
+        assert!(
+            e.contains("--device gpu") && e.contains("kernels do not run") && e.contains("auto"),
+            "{e}"
+        );
     }
 }
