@@ -372,25 +372,18 @@ impl StyleLoss {
         let batched = as_batch_of_one(image, "image")?;
         let w = &self.weights;
         let weights = [w.directional, w.patch, w.content, w.background];
-        let mut values = [0f64; 4];
-        let (total, grad) = terms::value_and_grad(&batched, |x| {
+        // The terms that are on, left on the device until the one read below.
+        let mut present: Vec<(usize, Tensor)> = Vec::with_capacity(4);
+        let (total, grad) = terms::value_tensor_and_grad(&batched, |x| {
             let terms = self.term_tensors(x, cache, patches)?;
             let mut total: Option<Tensor> = None;
-            for ((term, weight), value) in terms.iter().zip(weights).zip(values.iter_mut()) {
+            for (i, (term, weight)) in terms.iter().zip(weights).enumerate() {
                 if let Some(term) = term {
-                    *value = scalar(term)?;
+                    present.push((i, term.detach()));
                     let weighted = (term * weight)?;
                     total = Some(match total {
                         Some(t) => (t + weighted)?,
                         None => weighted,
-                    });
-                }
-            }
-            let names = ["directional", "patch", "content", "background"];
-            for (name, value) in names.iter().zip(values) {
-                if !value.is_finite() {
-                    return Err(StyleLossError::NonFinite {
-                        what: format!("the {name} loss ({value})"),
                     });
                 }
             }
@@ -400,7 +393,27 @@ impl StyleLoss {
                 None => Ok(Tensor::zeros((), DType::F32, x.device())?),
             }
         })?;
-        let grad_norm = scalar(&grad.sqr()?.sum_all()?)?;
+        // One transfer for the step: the terms, the total and the gradient's squared norm.
+        let mut parts = present
+            .iter()
+            .map(|(_, t)| t.to_dtype(DType::F32)?.reshape(1))
+            .collect::<candle_core::Result<Vec<_>>>()?;
+        parts.push(total.to_dtype(DType::F32)?.reshape(1)?);
+        parts.push(grad.sqr()?.sum_all()?.to_dtype(DType::F32)?.reshape(1)?);
+        let read = Tensor::cat(&parts, 0)?
+            .to_dtype(DType::F64)?
+            .to_vec1::<f64>()?;
+        let mut values = [0f64; 4];
+        let names = ["directional", "patch", "content", "background"];
+        for ((i, _), &value) in present.iter().zip(&read) {
+            if !value.is_finite() {
+                return Err(StyleLossError::NonFinite {
+                    what: format!("the {} loss ({value})", names[*i]),
+                });
+            }
+            values[*i] = value;
+        }
+        let (total, grad_norm) = (read[read.len() - 2], read[read.len() - 1]);
         if !grad_norm.is_finite() {
             return Err(StyleLossError::NonFinite {
                 what: "the image gradient".into(),

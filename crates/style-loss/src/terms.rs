@@ -83,6 +83,16 @@ pub fn value_and_grad(
     image: &Tensor,
     term: impl FnOnce(&Tensor) -> Result<Tensor>,
 ) -> Result<(f64, Tensor)> {
+    let (value, grad) = value_tensor_and_grad(image, term)?;
+    Ok((value.to_dtype(DType::F64)?.to_scalar::<f64>()?, grad))
+}
+
+/// [`value_and_grad`] with the value left on its device (detached), so that a caller can read
+/// it with others in one transfer.
+pub fn value_tensor_and_grad(
+    image: &Tensor,
+    term: impl FnOnce(&Tensor) -> Result<Tensor>,
+) -> Result<(Tensor, Tensor)> {
     let var = Var::from_tensor(&image.detach())?;
     let value = term(var.as_tensor())?;
     let grads = value.backward()?;
@@ -90,5 +100,5 @@ pub fn value_and_grad(
         Some(g) => g.clone(),
         None => var.as_tensor().zeros_like()?,
     };
-    Ok((value.to_dtype(DType::F64)?.to_scalar::<f64>()?, grad))
+    Ok((value.detach(), grad))
 }

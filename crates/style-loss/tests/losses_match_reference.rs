@@ -390,3 +390,27 @@ fn generic_path_total_loss_and_gradient_match() {
 fn reference_values() -> serde_json::Value {
     load_json("loss_reference.json")["values"].clone()
 }
+
+/// A render with a NaN pixel: the step is refused, naming the first term that is not finite
+/// (the values are read once, after the backward, with the gradient's norm).
+#[test]
+fn a_nan_render_is_refused_by_name() {
+    let s = setup();
+    let loss = style_loss(&s, s.weights);
+    let cache = loss
+        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
+        .unwrap();
+    let mut pixels = values(&s.tensors["render"]);
+    pixels[1234] = f64::NAN;
+    let render = Tensor::from_vec(
+        pixels.iter().map(|&v| v as f32).collect::<Vec<f32>>(),
+        s.tensors["render"].dims(),
+        &Device::Cpu,
+    )
+    .unwrap();
+    let e = loss
+        .loss_and_grad_with_patches(&render, &cache, &s.patches)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("the directional loss (NaN)"), "{e}");
+}
