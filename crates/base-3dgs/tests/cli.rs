@@ -648,3 +648,18 @@ fn stylize_renders_over_black_unless_background_white_is_asked() {
         assert_eq!(config["steps"], 1);
     }
 }
+
+#[test]
+fn selftest_on_the_cpu_prints_every_part_and_passes() {
+    let out = cli(&["selftest", "--device", "cpu"]);
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{table}\n{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        table.contains("| loss gradient (four terms) |") && !table.contains("MISMATCH"),
+        "{table}"
+    );
+}

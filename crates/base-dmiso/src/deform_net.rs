@@ -264,6 +264,40 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
     Ok(flat)
 }
 
+/// The `selftest` part of the network: forward and backward of a seeded network of width 32 on
+/// seven cores, on `device` against the cpu (the largest output or gradient difference,
+/// relative to the cpu's largest value).
+pub fn self_check(device: &Device) -> Result<gs_stylize::selftest::Check, String> {
+    use rand::{Rng, SeedableRng};
+    let shape = NetShape { width: 32 };
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
+    let weights = crate::init::default_network(&shape, &mut rng);
+    let cores = 7;
+    let enc: Vec<f32> = (0..cores * VERTEX_ENCODING)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let probe: Vec<f32> = (0..cores * OUTPUTS)
+        .map(|_| rng.random_range(-1.0..1.0))
+        .collect();
+    let time = [0.4f32; TIME_ENCODING];
+    let run = |device: &Device| -> candle_core::Result<Vec<f32>> {
+        let (mut out, tape) = forward(&shape, &weights, &enc, &time, device)?;
+        out.extend(backward(tape, &probe)?);
+        Ok(out)
+    };
+    let start = std::time::Instant::now();
+    let ours = run(device).map_err(|e| format!("the deformation network: {e}"))?;
+    let seconds = start.elapsed().as_secs_f64();
+    let cpu = run(&Device::Cpu).map_err(|e| format!("the deformation network: {e}"))?;
+    Ok(gs_stylize::selftest::Check {
+        part: "deformation network and its backward".into(),
+        device: format!("{} vs cpu", style_loss::compute_device::describe(device)),
+        error: gs_stylize::selftest::relative_max_error(&ours, &cpu),
+        tolerance: 1e-4,
+        seconds,
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use rand::{Rng, SeedableRng};

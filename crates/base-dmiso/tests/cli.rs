@@ -405,3 +405,13 @@ fn help_configs_and_eval() {
     );
     assert!(e.contains("00002.png"), "{e}");
 }
+
+#[test]
+fn selftest_on_the_cpu_checks_the_network_too() {
+    let out = run(bin().args(["selftest", "--device", "cpu"]));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("| deformation network and its backward |") && !table.contains("MISMATCH"),
+        "{table}"
+    );
+}

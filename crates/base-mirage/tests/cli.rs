@@ -709,3 +709,13 @@ fn stylize_help_lists_every_file_it_writes() {
         "{help}"
     );
 }
+
+#[test]
+fn selftest_on_the_cpu_prints_every_part_and_passes() {
+    let out = run(bin().args(["selftest", "--device", "cpu"]));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("| render and its backward |") && !table.contains("MISMATCH"),
+        "{table}"
+    );
+}

@@ -382,3 +382,13 @@ fn render_follows_the_record_and_refuses_what_does_not_fit_it() {
     );
     assert!(e.contains("--fps 0 must be positive"), "{e}");
 }
+
+#[test]
+fn selftest_on_the_cpu_prints_every_part_and_passes() {
+    let out = run(bin().args(["selftest", "--device", "cpu"]));
+    let table = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        table.contains("| three Adam steps |") && !table.contains("MISMATCH"),
+        "{table}"
+    );
+}

@@ -228,6 +228,34 @@ impl InterpolateArgs {
     }
 }
 
+/// Arguments of the `selftest` subcommand every binary has.
+#[derive(clap::Args, Debug)]
+pub struct SelftestArgs {
+    /// Where to run the parts: cpu, gpu (wgpu for the rasterizer and Adam, CUDA or Metal for the
+    /// loss when built with them) or auto (a GPU when there is one, else the cpu).
+    #[arg(long, default_value = "auto")]
+    pub device: DeviceChoice,
+}
+
+impl SelftestArgs {
+    /// Runs every part ([`crate::selftest::run_selftest`]) and the modality's `extra` ones on
+    /// the device, prints the table, and fails naming the parts that differ from the cpu.
+    pub fn run(&self, extra: Vec<crate::selftest::ExtraCheck>) -> Result<(), Box<dyn Error>> {
+        let checks = crate::selftest::run_selftest(self.device, extra)?;
+        print!("{}", crate::selftest::table(&checks));
+        let failed: Vec<&str> = checks
+            .iter()
+            .filter(|c| !c.passed())
+            .map(|c| c.part.as_str())
+            .collect();
+        if failed.is_empty() {
+            Ok(())
+        } else {
+            Err(format!("selftest: {} differ from the cpu", failed.join(", ")).into())
+        }
+    }
+}
+
 /// A subcommand's result as the process's exit: nothing more on success; on failure the error
 /// on one `error: ...` line (and the lines of [`StylizeError::Several`]) and exit code
 /// [`INTERRUPTED_EXIT`] when the run was stopped by Ctrl-C (a [`StylizeError::Interrupted`]

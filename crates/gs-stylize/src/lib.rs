@@ -6,6 +6,7 @@
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
+//! - [`selftest`]: the `selftest` subcommand: each part on the chosen device against the cpu.
 //! - [`evaluation`]: the paper's CLIP metrics of renders against ground truths (`eval`).
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
@@ -27,6 +28,7 @@ pub mod picture;
 pub mod plot;
 pub mod progress;
 pub mod run;
+pub mod selftest;
 #[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod weights;

@@ -49,7 +49,9 @@ impl NamedTensors {
         }
     }
 
-    /// Random weights for any model, on `device`, for shape tests and timing (not seeded).
+    /// Random weights for any model, on `device`, for shape tests, timing and self-checks:
+    /// drawn on the host from a stream seeded by the tensor's name, so every device gets the
+    /// same values.
     ///
     /// A tensor of two or more dimensions is uniform with variance `1 / fan_in` (fan_in = the
     /// product of all but the first dimension); a vector whose name ends in `.weight` (a norm
@@ -93,13 +95,22 @@ impl NamedTensors {
 
 /// See [`NamedTensors::random`].
 fn random_tensor(name: &str, shape: &[usize], device: &Device) -> candle_core::Result<Tensor> {
-    match shape {
-        [_] if name.ends_with(".weight") => Tensor::rand(0.9f32, 1.1f32, shape, device),
-        [_] | [] => Tensor::rand(-0.1f32, 0.1f32, shape, device),
+    use rand::{Rng, SeedableRng};
+    let (lo, hi) = match shape {
+        [_] if name.ends_with(".weight") => (0.9f32, 1.1f32),
+        [_] | [] => (-0.1, 0.1),
         [_, rest @ ..] => {
             let fan_in = rest.iter().product::<usize>().max(1) as f32;
             let bound = (3.0 / fan_in).sqrt();
-            Tensor::rand(-bound, bound, shape, device)
+            (-bound, bound)
         }
-    }
+    };
+    // FNV-1a of the name: the same stream for the same tensor on every device and run.
+    let seed = name.bytes().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3)
+    });
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let count = shape.iter().product::<usize>();
+    let values: Vec<f32> = (0..count).map(|_| rng.random_range(lo..hi)).collect();
+    Tensor::from_vec(values, shape, device)
 }

@@ -20,7 +20,7 @@ use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
 use gs_core::ply::read_ply;
 use gs_stylize::cli::{
-    exit_code, path_value, BackgroundArg, EvalStyleArgs, InterpolateArgs, StyleArgs,
+    exit_code, path_value, BackgroundArg, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::open_device;
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -69,6 +69,13 @@ enum Command {
     /// JSON. Pictures (.png, .jpg, .jpeg) are paired by file name and taken in
     /// file-name order: CLIP-CONS and CLIP-F compare consecutive pictures in that order.
     Eval(EvalArgs),
+    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
+    ///
+    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
+    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
+    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
+    /// tolerance, time) and exits with an error when a part differs.
+    Selftest(SelftestArgs),
 }
 
 /// Arguments of `stylize`.
@@ -274,6 +281,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render(args),
         Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
         Command::Eval(args) => eval(args),
+        Command::Selftest(args) => args.run(Vec::new()),
     };
     exit_code(result, |_| false)
 }

@@ -27,7 +27,9 @@ use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_core::Image;
 use gs_stylize::animation::{write_frames, write_mp4, FRAMES_DIR};
-use gs_stylize::cli::{exit_code, path_value, BackgroundArg, EvalStyleArgs, StyleArgs};
+use gs_stylize::cli::{
+    exit_code, path_value, BackgroundArg, EvalStyleArgs, SelftestArgs, StyleArgs,
+};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -80,6 +82,13 @@ enum Command {
     /// Score rendered test views against the dataset's test pictures: CLIP-S, CLIP-SIM,
     /// CLIP-CONS and CLIP-F over the views in time order (CLIP ViT-L/14, x100).
     Eval(EvalArgs),
+    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
+    ///
+    /// Runs the render and its backward, Adam, each loss term and the loss gradient, and the deformation network forward and backward on
+    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
+    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
+    /// tolerance, time) and exits with an error when a part differs.
+    Selftest(SelftestArgs),
 }
 
 /// Arguments of `stylize`.
@@ -511,6 +520,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render(args),
         Command::Interpolate(args) => interpolate_models(args),
         Command::Eval(args) => eval(args),
+        Command::Selftest(args) => args.run(vec![Box::new(base_dmiso::deform_net::self_check)]),
     };
     exit_code(result, |e| {
         matches!(

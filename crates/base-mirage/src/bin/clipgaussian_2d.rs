@@ -25,7 +25,7 @@ use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
-use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, StyleArgs};
+use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, SelftestArgs, StyleArgs};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
@@ -75,6 +75,13 @@ enum Command {
     /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
     /// normalized), e.g. between two stylizations of one fit.
     Interpolate(InterpolateArgs),
+    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
+    ///
+    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
+    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
+    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
+    /// tolerance, time) and exits with an error when a part differs.
+    Selftest(SelftestArgs),
 }
 
 /// Arguments of `stylize`.
@@ -324,6 +331,7 @@ fn main() -> ExitCode {
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
         Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
+        Command::Selftest(args) => args.run(Vec::new()),
     };
     exit_code(result, |e| {
         matches!(

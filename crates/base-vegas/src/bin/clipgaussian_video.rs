@@ -25,7 +25,7 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
-use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, StyleArgs};
+use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -78,6 +78,13 @@ enum Command {
     /// and of the original video. The paper warps frames along the optical flow before the
     /// RMSE; these are unwarped (see docs), to be compared with the original's.
     Eval(EvalArgs),
+    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
+    ///
+    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
+    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
+    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
+    /// tolerance, time) and exits with an error when a part differs.
+    Selftest(SelftestArgs),
 }
 
 /// Arguments of `stylize`.
@@ -463,6 +470,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render(args),
         Command::Interpolate(args) => interpolate_models(args),
         Command::Eval(args) => eval(args),
+        Command::Selftest(args) => args.run(Vec::new()),
     };
     exit_code(result, |e| {
         matches!(
