@@ -1,6 +1,7 @@
-//! `scripts/build_cuda.sh` parses, and its dry run picks the compute capability as documented:
-//! `CUDA_COMPUTE_CAP` when set, else the GPU `nvidia-smi` reports, else 8.0 (PTX that runs on
-//! every GPU from Ampere on); a malformed value is refused. Nothing is fetched or built.
+//! The scripts for a GPU machine, parsed and dry-run (nothing is fetched, built or timed):
+//! `scripts/build_cuda.sh` picks the compute capability as documented (`CUDA_COMPUTE_CAP` when
+//! set, else the GPU `nvidia-smi` reports, else 8.0, PTX that runs on every GPU from Ampere on;
+//! a malformed value is refused); `scripts/gpu_check.sh` lists every part it would run.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -69,4 +70,46 @@ fn the_cuda_build_script_parses_and_picks_the_compute_capability() {
     );
     let (ok, text) = dry_run(Some("8.9"), None);
     assert!(!ok && text.contains("as digits"), "{text}");
+}
+
+#[test]
+fn the_gpu_check_parses_and_its_dry_run_lists_every_part() {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/gpu_check.sh");
+    let syntax = Command::new("bash")
+        .arg("-n")
+        .arg(&script)
+        .status()
+        .unwrap();
+    assert!(syntax.success());
+    let out = Command::new("bash")
+        .arg(&script)
+        .args(["--dry-run", "--bin", "some/dir"])
+        .output()
+        .unwrap();
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{text}");
+    for binary in [
+        "clipgaussian-2d",
+        "clipgaussian-3d",
+        "clipgaussian-video",
+        "clipgaussian-4d",
+    ] {
+        assert!(
+            text.contains(&format!("some/dir/{binary} selftest --device gpu")),
+            "{text}"
+        );
+    }
+    for part in [
+        "step_timing 300000 gpu 3 f16 800x800",
+        "benchmark_4d",
+        "cuda f16",
+    ] {
+        assert!(text.contains(part), "{part}: {text}");
+    }
+    let bad = Command::new("bash")
+        .arg(&script)
+        .arg("--nonsense")
+        .output()
+        .unwrap();
+    assert_eq!(bad.status.code(), Some(2));
 }

@@ -1,0 +1,118 @@
+#!/usr/bin/env bash
+# One command for a machine with an NVIDIA GPU: proves and times the GPU path from binaries built
+# elsewhere by scripts/build_cuda.sh (no Rust toolchain, no network needed here).
+#
+#   scripts/gpu_check.sh [--bin DIR] [--out FILE] [--dry-run]
+#
+# DIR holds the binaries (default target/cuda/dist, what build_cuda.sh writes: clipgaussian-2d,
+# -3d, -4d, and the examples step_timing, style_loss_timing, benchmark_4d); FILE is the markdown
+# report (default gpu_check.md). In order, each part's command, exit status and output go into
+# the report:
+#   1. the GPU and driver (nvidia-smi);
+#   2. `selftest --device gpu` of every binary in DIR (each part against the cpu);
+#   3. the 3D step timing (300,000 Gaussians of SH degree 3, 800x800, 64 patches of 128), with
+#      CLIP in f32 and in f16;
+#   4. the style loss alone (style_loss_timing), and benchmark_4d: the small scene's fit (200
+#      steps), a few steps of each stage of a D-NeRF-sized fit, one stylization step at a batch
+#      of 4;
+#   5. the authors' PyTorch loss on the same GPU (scripts/time_style_loss_torch.py cuda f16) when
+#      the python3 on the PATH has torch and transformers.
+# A part that fails is recorded and the others still run; the exit status is that of the worst.
+# The binaries need CUDA 13's libraries on the loader path: when LD_LIBRARY_PATH does not have
+# them, the ones of the python3's nvidia wheels (PyTorch's) are added. --dry-run prints the
+# commands and runs none.
+set -uo pipefail
+cd "$(dirname "$0")/.."
+
+bin=target/cuda/dist
+out=gpu_check.md
+dry_run=false
+while [ $# -gt 0 ]; do
+    case "$1" in
+        --bin) bin=$2; shift 2 ;;
+        --out) out=$2; shift 2 ;;
+        --dry-run) dry_run=true; shift ;;
+        *) echo "usage: scripts/gpu_check.sh [--bin DIR] [--out FILE] [--dry-run]" >&2; exit 2 ;;
+    esac
+done
+
+# CUDA 13's libraries from the python3's nvidia wheels, when the loader does not have them.
+if ! $dry_run && command -v python3 >/dev/null 2>&1; then
+    wheels=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))' 2>/dev/null || true)
+    if [ -n "$wheels" ] && [ -d "$wheels" ]; then
+        export LD_LIBRARY_PATH="$wheels${LD_LIBRARY_PATH:+:$LD_LIBRARY_PATH}"
+    fi
+fi
+
+status=0
+if ! $dry_run; then
+    {
+        echo "# GPU check ($(date -u +%Y-%m-%d\ %H:%M\ UTC))"
+        echo
+        echo "Binaries from \`$bin\`."
+    } > "$out"
+fi
+
+# part TITLE COMMAND...: runs COMMAND, appends its title, command, status and output to the report.
+part() {
+    local title=$1
+    shift
+    if $dry_run; then
+        echo "$title: $*"
+        return
+    fi
+    echo "== $title" >&2
+    local log
+    log=$(mktemp)
+    "$@" > "$log" 2>&1
+    local rc=$?
+    {
+        echo
+        echo "## $title"
+        echo
+        echo "\`$*\`: exit $rc"
+        echo
+        if grep -q '^|' "$log"; then
+            grep '^|' "$log"
+            echo
+            echo '<details><summary>other output</summary>'
+            echo
+            echo '```'
+            grep -v '^|' "$log" | tail -n 40
+            echo '```'
+            echo '</details>'
+        else
+            echo '```'
+            tail -n 60 "$log"
+            echo '```'
+        fi
+    } >> "$out"
+    rm -f "$log"
+    if [ $rc -ne 0 ]; then
+        status=$rc
+    fi
+}
+
+if command -v nvidia-smi >/dev/null 2>&1; then
+    part "GPU" nvidia-smi --query-gpu=name,driver_version,compute_cap,memory.total --format=csv
+else
+    part "GPU" echo "nvidia-smi not found"
+fi
+for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d; do
+    if [ -x "$bin/$binary" ] || $dry_run; then
+        part "$binary selftest" "$bin/$binary" selftest --device gpu
+    fi
+done
+part "3D step, CLIP f32" "$bin/step_timing" 300000 gpu 3 f32 800x800
+part "3D step, CLIP f16" "$bin/step_timing" 300000 gpu 3 f16 800x800
+part "style loss" "$bin/style_loss_timing" 3
+part "4D fits and one stylization step at a batch of 4" "$bin/benchmark_4d" 200
+if $dry_run || python3 -c 'import torch, transformers' >/dev/null 2>&1; then
+    part "the authors' loss in PyTorch, cuda f16" python3 scripts/time_style_loss_torch.py 16 3 cuda f16
+else
+    part "the authors' loss in PyTorch" echo "python3 has no torch or transformers: skipped"
+fi
+if ! $dry_run; then
+    echo "wrote $out (exit $status)"
+fi
+exit $status
