@@ -15,11 +15,11 @@
 # LD_LIBRARY_PATH; elsewhere, point the loader at CUDA 13 libraries (see below). CUDA 13 needs an
 # NVIDIA driver 580 or newer.
 #
-# Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d and clipgaussian-4d (whose
-# deformation network runs on the CUDA device too), and the timing examples
-# target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped copies of
-# all six (52-67 MB each, without the debug information; each under the device's 64 MiB carry
-# limit, so one a call) in target/cuda/dist. To run them, the loader needs the
+# Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d, clipgaussian-video and
+# clipgaussian-4d (whose deformation network runs on the CUDA device too), and the timing
+# examples target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped
+# copies of all seven (52-67 MB each, without the debug information) in target/cuda/dist, which
+# scripts/gpu_check.sh runs. To run them, the loader needs the
 # NVIDIA driver and CUDA 13's cuBLAS, cuRAND and NVRTC, for example those of PyTorch's wheels:
 #   export LD_LIBRARY_PATH=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))'):$LD_LIBRARY_PATH
 set -euo pipefail
@@ -95,12 +95,12 @@ export RUSTFLAGS="${RUSTFLAGS:-} -C link-arg=-Wl,-rpath,$libs"
 
 export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-target/cuda}
 cargo build --release \
-    -p base-mirage -p base-3dgs -p base-dmiso -p integration-tests -p style-loss \
-    --features base-mirage/cuda,base-3dgs/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
+    -p base-mirage -p base-3dgs -p base-vegas -p base-dmiso -p integration-tests -p style-loss \
+    --features base-mirage/cuda,base-3dgs/cuda,base-vegas/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
     --bins --example step_timing --example style_loss_timing --example benchmark_4d
 mkdir -p "$CARGO_TARGET_DIR/dist"
-for binary in clipgaussian-2d clipgaussian-3d clipgaussian-4d examples/step_timing \
-    examples/style_loss_timing examples/benchmark_4d; do
+for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d \
+    examples/step_timing examples/style_loss_timing examples/benchmark_4d; do
     strip -o "$CARGO_TARGET_DIR/dist/$(basename "$binary")" "$CARGO_TARGET_DIR/release/$binary"
 done
 echo "built with CUDA $cuda_version (compute capability $CUDA_COMPUTE_CAP) in $CARGO_TARGET_DIR/release"
