@@ -101,8 +101,8 @@ fn the_gpu_check_parses_and_its_dry_run_lists_every_part() {
     }
     for part in [
         "step_timing 300000 gpu 3 f16 800x800",
-        "benchmark_4d",
-        "cuda f16",
+        "STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=f16 some/dir/style_loss_timing 3",
+        "time_style_loss_torch.py 16 3 cuda f16",
     ] {
         assert!(text.contains(part), "{part}: {text}");
     }
