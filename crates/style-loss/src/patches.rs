@@ -149,7 +149,7 @@ pub fn warped_patches(
         .reshape((channels, patches.len(), patch_size, patch_size))?
         .transpose(0, 1)?
         .contiguous()?;
-    let resize = Resize::new(
+    let resize = Resize::cached(
         ResizeKernel::BilinearAntialias,
         (patch_size, patch_size),
         (output, output),

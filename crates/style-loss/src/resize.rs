@@ -150,8 +150,84 @@ impl Resize {
     }
 }
 
-/// Resizes `[n, c, h, w]` to `[n, c, out_h, out_w]` with `kernel` (builds a [`Resize`]).
+/// Resizes `[n, c, h, w]` to `[n, c, out_h, out_w]` with `kernel` ([`Resize::cached`]).
 pub fn resize(images: &Tensor, output: (usize, usize), kernel: ResizeKernel) -> Result<Tensor> {
     let (_, _, h, w) = images.dims4()?;
-    Resize::new(kernel, (h, w), output, images.device())?.apply(images)
+    Resize::cached(kernel, (h, w), output, images.device())?.apply(images)
+}
+
+/// The resizes a process made, with the device their matrices are on: a step makes the same
+/// few (the patches' and CLIP's input), so their matrices are built and uploaded once, not every
+/// step. Bounded: the oldest goes when it holds [`CACHED_RESIZES`].
+type ResizeCache = Vec<(ResizeKernel, Device, Resize)>;
+
+/// How many resizes [`Resize::cached`] keeps.
+const CACHED_RESIZES: usize = 16;
+
+static RESIZES: std::sync::Mutex<ResizeCache> = std::sync::Mutex::new(Vec::new());
+
+impl Resize {
+    /// [`Resize::new`], the matrices built and uploaded once per kernel, sizes and device in a
+    /// process (later calls clone the cached tensors, which share their storage).
+    pub fn cached(
+        kernel: ResizeKernel,
+        input: (usize, usize),
+        output: (usize, usize),
+        device: &Device,
+    ) -> Result<Self> {
+        let mut cache = RESIZES
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let hit = cache.iter().find(|(k, d, r)| {
+            *k == kernel && r.input == input && r.output == output && d.same_device(device)
+        });
+        if let Some((_, _, resize)) = hit {
+            return Ok(resize.clone());
+        }
+        let resize = Self::new(kernel, input, output, device)?;
+        if cache.len() >= CACHED_RESIZES {
+            cache.remove(0);
+        }
+        cache.push((kernel, device.clone(), resize.clone()));
+        Ok(resize)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn cached_resizes_share_their_matrices_and_resize_alike() {
+        let device = Device::Cpu;
+        let kernel = ResizeKernel::Bicubic;
+        let a = Resize::cached(kernel, (13, 17), (7, 9), &device).unwrap();
+        let b = Resize::cached(kernel, (13, 17), (7, 9), &device).unwrap();
+        // The same tensors (no second build or upload), for the forward and the backward.
+        assert_eq!(a.forward.0.id(), b.forward.0.id());
+        assert_eq!(a.backward.1.id(), b.backward.1.id());
+        let other = Resize::cached(kernel, (13, 17), (7, 10), &device).unwrap();
+        assert_ne!(other.forward.1.id(), a.forward.1.id());
+        let bilinear =
+            Resize::cached(ResizeKernel::BilinearAntialias, (13, 17), (7, 9), &device).unwrap();
+        assert_ne!(bilinear.forward.0.id(), a.forward.0.id());
+        let image = Tensor::rand(0f32, 1f32, (1, 3, 13, 17), &device).unwrap();
+        let fresh = Resize::new(kernel, (13, 17), (7, 9), &device).unwrap();
+        let (x, y) = (
+            a.apply(&image)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap(),
+            fresh
+                .apply(&image)
+                .unwrap()
+                .flatten_all()
+                .unwrap()
+                .to_vec1::<f32>()
+                .unwrap(),
+        );
+        assert_eq!(x, y);
+    }
 }
