@@ -9,7 +9,8 @@
 //! `dv1 (3), dv2 (3), dv3 (3), rot (4)`, concatenated as the 13 outputs of a core.
 //!
 //! The weights are one flat `f32` parameter group in the order of the PyTorch `state_dict`
-//! ([`NetShape::tensors`]), copied to the device at each call. The backward follows PyTorch's
+//! ([`NetShape::tensors`]), copied to the device in one transfer at each call; the gradients
+//! come back in one. The backward follows PyTorch's
 //! ReLU convention: no gradient where the pre-activation is exactly 0.
 
 use candle_core::{DType, Device, Tensor};
@@ -96,16 +97,14 @@ struct Weights {
 }
 
 impl Weights {
+    /// The weights of `flat` on `device`, uploaded in one transfer and viewed per tensor.
     fn load(shape: &NetShape, flat: &[f32], device: &Device) -> candle_core::Result<Self> {
+        let all = Tensor::from_slice(flat, flat.len(), device)?;
         let mut offset = 0;
         let mut tensors = Vec::new();
         for (_, dims) in shape.tensors() {
             let n: usize = dims.iter().product();
-            tensors.push(Tensor::from_slice(
-                &flat[offset..offset + n],
-                dims.as_slice(),
-                device,
-            )?);
+            tensors.push(all.narrow(0, offset, n)?.reshape(dims.as_slice())?);
             offset += n;
         }
         Ok(Self { tensors })
@@ -255,13 +254,14 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
         checked_matmul(&g_hidden.t()?, &tape.time)?,
         g_hidden.sum(0)?,
     ));
-    let mut flat = Vec::new();
+    // Every gradient in `state_dict` order, read back in one transfer.
+    let mut parts = Vec::with_capacity(2 * layers);
     for g in grads {
         let (gw, gb) = g.expect("every layer has a gradient");
-        flat.extend(gw.flatten_all()?.to_vec1::<f32>()?);
-        flat.extend(gb.flatten_all()?.to_vec1::<f32>()?);
+        parts.push(gw.flatten_all()?);
+        parts.push(gb.flatten_all()?);
     }
-    Ok(flat)
+    Tensor::cat(&parts, 0)?.to_vec1::<f32>()
 }
 
 /// The `selftest` part of the network: forward and backward of a seeded network of width 32 on
