@@ -94,7 +94,7 @@ fn first_maximum_mask(windows: &Tensor, pooled: &Tensor) -> candle_core::Result<
 
 /// The gradient of a 2x2 max pool of `x` (`[n, c, h, w]`, f32 on the cpu) given `g`, the
 /// gradient of its output (`[n, c, h / 2, w / 2]`): each window's value goes to the element
-/// PyTorch's `max_pool2d` picks ([`first_maximum`]); the rest, and a dropped last odd row or
+/// PyTorch's `max_pool2d` picks (its first maximum); the rest, and a dropped last odd row or
 /// column, get 0.
 pub fn route_to_first_maximum(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
     let (n, c, h, w) = x.dims4()?;

@@ -84,7 +84,7 @@ impl Composite {
     }
 }
 
-/// One pixel of 8-bit levels (as PIL reads every file, [`pil_levels`]) composited as INRIA
+/// One pixel of 8-bit levels (as PIL reads every file) composited as INRIA
 /// 3DGS's `readCamerasFromTransforms` does it: `arr = (c / 255) (a / 255) + bg (1 - a / 255)` in
 /// `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
 /// `floor(arr * 255)`, a whole level in `0..=255`.
