@@ -15,6 +15,7 @@
 
 use candle_core::{DType, Device, Tensor};
 use style_loss::matmul::checked_matmul;
+use style_loss::transfers::{record_read, record_upload};
 
 use crate::encoding::{TIME_ENCODING, VERTEX_ENCODING};
 
@@ -100,6 +101,7 @@ impl Weights {
     /// The weights of `flat` on `device`, uploaded in one transfer and viewed per tensor.
     fn load(shape: &NetShape, flat: &[f32], device: &Device) -> candle_core::Result<Self> {
         let all = Tensor::from_slice(flat, flat.len(), device)?;
+        record_upload(std::mem::size_of_val(flat));
         let mut offset = 0;
         let mut tensors = Vec::new();
         for (_, dims) in shape.tensors() {
@@ -157,6 +159,8 @@ pub fn forward(
     let weights = Weights::load(shape, weights, device)?;
     let h1 = Tensor::from_slice(encodings, (cores, VERTEX_ENCODING), device)?;
     let time = Tensor::from_slice(time.as_slice(), (1, TIME_ENCODING), device)?;
+    record_upload(std::mem::size_of_val(encodings));
+    record_upload(4 * TIME_ENCODING);
     let (w, b) = weights.layer(0);
     let time_hidden = linear(&time, w, b)?;
     let (w, b) = weights.layer(1);
@@ -183,6 +187,7 @@ pub fn forward(
         .collect::<candle_core::Result<Vec<_>>>()?;
     let out = Tensor::cat(&heads, 1)?;
     let values = out.flatten_all()?.to_vec1::<f32>()?;
+    record_read(std::mem::size_of_val(values.as_slice()));
     Ok((
         values,
         NetTape {
@@ -208,6 +213,7 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
     let device = tape.x0.device().clone();
     let cores = tape.x0.dim(0)?;
     let g_out = Tensor::from_slice(grad_out, (cores, OUTPUTS), &device)?;
+    record_upload(std::mem::size_of_val(grad_out));
     let layers = 2 + DEPTH + HEADS.len();
     let mut grads: Vec<Option<(Tensor, Tensor)>> = (0..layers).map(|_| None).collect();
     // The heads.
@@ -261,7 +267,9 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
         parts.push(gw.flatten_all()?);
         parts.push(gb.flatten_all()?);
     }
-    Tensor::cat(&parts, 0)?.to_vec1::<f32>()
+    let flat = Tensor::cat(&parts, 0)?.to_vec1::<f32>()?;
+    record_read(std::mem::size_of_val(flat.as_slice()));
+    Ok(flat)
 }
 
 /// The `selftest` part of the network: forward and backward of a seeded network of width 32 on
@@ -322,9 +330,17 @@ mod tests {
             .map(|_| rng.random_range(-1.0..1.0))
             .collect();
         let time = [0.3f32; TIME_ENCODING];
+        let before = style_loss::transfers::snapshot();
         let (out, tape) = forward(&shape, &weights, &enc, &time, &Device::Cpu).unwrap();
         assert_eq!(out.len(), cores * OUTPUTS);
         let grad = backward(tape, &probe).unwrap();
+        // Weights, encodings, time and the output gradient up; outputs and gradients back.
+        let moved = style_loss::transfers::snapshot() - before;
+        assert_eq!((moved.uploads, moved.reads), (4, 2));
+        assert_eq!(
+            moved.read_bytes,
+            4 * (cores * OUTPUTS + weights.len()) as u64
+        );
         assert_eq!(grad.len(), weights.len());
         assert!(grad.iter().all(|g| g.is_finite()));
         // Every head's weights get a gradient (its slice of the upstream gradient reached it).

@@ -22,6 +22,7 @@ pub fn hwc_to_tensor(
         });
     }
     let hwc = Tensor::from_slice(pixels, (height, width, 3), device)?;
+    crate::transfers::record_upload(std::mem::size_of_val(pixels));
     Ok(hwc.permute((2, 0, 1))?.contiguous()?.unsqueeze(0)?)
 }
 
@@ -38,9 +39,11 @@ pub fn tensor_to_hwc(image: &Tensor) -> Result<Vec<f32>> {
             reason: format!("shape {:?}, expected 3 channels", image.dims()),
         });
     }
-    Ok(chw
+    let values = chw
         .permute((1, 2, 0))?
         .flatten_all()?
         .to_dtype(candle_core::DType::F32)?
-        .to_vec1::<f32>()?)
+        .to_vec1::<f32>()?;
+    crate::transfers::record_read(std::mem::size_of_val(values.as_slice()));
+    Ok(values)
 }

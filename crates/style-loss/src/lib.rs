@@ -35,6 +35,7 @@ pub mod terms;
 pub mod test_models;
 pub mod tokenizer;
 pub mod torch_ties;
+pub mod transfers;
 pub mod vgg;
 mod vgg_channels_last;
 pub mod weight_resolution;

@@ -403,6 +403,7 @@ impl StyleLoss {
         let read = Tensor::cat(&parts, 0)?
             .to_dtype(DType::F64)?
             .to_vec1::<f64>()?;
+        crate::transfers::record_read(std::mem::size_of_val(read.as_slice()));
         let mut values = [0f64; 4];
         let names = ["directional", "patch", "content", "background"];
         for ((i, _), &value) in present.iter().zip(&read) {

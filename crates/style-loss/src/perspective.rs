@@ -146,6 +146,8 @@ pub fn gather_taps(source: &candle_core::Tensor, taps: &Taps) -> Result<candle_c
     let device = source.device();
     let index = candle_core::Tensor::from_slice(&taps.index, count, device)?;
     let weight = candle_core::Tensor::from_slice(&taps.weight, (1, count), device)?;
+    crate::transfers::record_upload(std::mem::size_of_val(taps.index.as_slice()));
+    crate::transfers::record_upload(std::mem::size_of_val(taps.weight.as_slice()));
     let sampled = source.index_select(&index, 1)?.broadcast_mul(&weight)?;
     Ok(sampled.reshape((channels, count / 4, 4))?.sum(2)?)
 }

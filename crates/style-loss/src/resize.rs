@@ -121,6 +121,8 @@ impl Resize {
             (output.1, input.1),
             device,
         )?;
+        crate::transfers::record_upload(4 * output.0 * input.0);
+        crate::transfers::record_upload(4 * output.1 * input.1);
         Ok(Self {
             forward: (rows.t()?.contiguous()?, cols.t()?.contiguous()?),
             backward: (rows, cols),

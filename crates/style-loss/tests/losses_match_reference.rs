@@ -414,3 +414,45 @@ fn a_nan_render_is_refused_by_name() {
         .to_string();
     assert!(e.contains("the directional loss (NaN)"), "{e}");
 }
+
+/// What one step of the objective moves between the host and the loss device: the render and
+/// the patches' taps (indices and weights) up; the step's values (four terms, total, gradient
+/// norm: one read) and the image gradient back. The resize matrices go up once per process.
+#[test]
+fn one_step_moves_the_render_the_taps_and_two_reads() {
+    use gs_core::train::Objective;
+    use style_loss::image_layout::tensor_to_hwc;
+    use style_loss::transfers::snapshot;
+    let s = setup();
+    let gt = &s.tensors["gt"];
+    let (_, _, h, w) = gt.dims4().unwrap();
+    let target = gs_core::Image {
+        width: w as u32,
+        height: h as u32,
+        data: tensor_to_hwc(gt).unwrap(),
+    };
+    let mask: Vec<f32> = white_mask(&s).flatten_all().unwrap().to_vec1().unwrap();
+    let mut objective = style_loss::StyleObjective::new(
+        style_loss(&s, s.weights),
+        std::slice::from_ref(&target),
+        Some(&[mask]),
+        3,
+        &Device::Cpu,
+    )
+    .unwrap();
+    let render = gs_core::Image {
+        width: w as u32,
+        height: h as u32,
+        data: tensor_to_hwc(&s.tensors["render"]).unwrap(),
+    };
+    objective.evaluate(0, &render).unwrap();
+    let before = snapshot();
+    objective.evaluate(0, &render).unwrap();
+    let step = snapshot() - before;
+    let image_bytes = (3 * h * w * 4) as u64;
+    let taps = (4 * s.settings.num_patches * s.settings.patch_size * s.settings.patch_size) as u64;
+    assert_eq!(step.uploads, 3, "{step:?}");
+    assert_eq!(step.uploaded_bytes, image_bytes + 8 * taps, "{step:?}");
+    assert_eq!(step.reads, 2, "{step:?}");
+    assert_eq!(step.read_bytes, image_bytes + 6 * 8, "{step:?}");
+}
