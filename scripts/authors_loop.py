@@ -71,6 +71,17 @@ def ground_truth(path, rule, background, mirror=False):
     return torch.from_numpy(levels.copy()).permute(2, 0, 1).double() / 255.0
 
 
+def save_rgba_picture(rgb, alpha, path):
+    """Saves a render over black (`[3, H, W]` premultiplied colour, `[H, W]` alpha) as an 8-bit
+    RGBA PNG with straight colours, as Blender writes NeRF-synthetic pictures: transparent pixels
+    stored black."""
+    straight = (rgb / alpha.clamp(min=1e-12)).clamp(0, 1)
+    a8 = torch.round(alpha * 255)
+    rgb8 = torch.where(a8 > 0, torch.round(straight * 255), torch.zeros_like(straight))
+    rgba = torch.cat([rgb8, a8[None]], dim=0).permute(1, 2, 0).numpy().astype(np.uint8)
+    Image.fromarray(rgba, "RGBA").save(path)
+
+
 # --------------------------------------------------------------------------------------------
 # INRIA's rasterizer (diff-gaussian-rasterization), dense
 # --------------------------------------------------------------------------------------------

@@ -44,11 +44,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 from safetensors.torch import save_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from authors_loop import ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize  # noqa: E402
+from authors_loop import (  # noqa: E402
+    ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize, save_rgba_picture,
+)
 
 FIXTURES = ROOT / "crates" / "base-3dgs" / "tests" / "fixtures"
 FOV_X = 0.9
@@ -161,12 +162,8 @@ def write_scene(scene, draws):
         camera = inria_camera(c2w, width, height, FOV_X)
         with torch.no_grad():
             rgb, alpha = rasterize(target, camera, torch.zeros(3, dtype=torch.float64))
-        straight = (rgb / alpha.clamp(min=1e-12)).clamp(0, 1)
-        a8 = torch.round(alpha * 255)
-        rgb8 = torch.where(a8 > 0, torch.round(straight * 255), torch.zeros_like(straight))
-        rgba = torch.cat([rgb8, a8[None]], dim=0).permute(1, 2, 0).numpy().astype(np.uint8)
         (data / split).mkdir(parents=True, exist_ok=True)
-        Image.fromarray(rgba, "RGBA").save(data / split / f"{name}.png")
+        save_rgba_picture(rgb, alpha, data / split / f"{name}.png")
         splits[split].append(dict(file_path=f"./{split}/{name}", rotation=0.0,
                                   transform_matrix=c2w.tolist()))
     for split, frames in splits.items():

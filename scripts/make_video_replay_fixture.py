@@ -40,11 +40,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from PIL import Image
 from safetensors.torch import save_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from authors_loop import ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize  # noqa: E402
+from authors_loop import (  # noqa: E402
+    ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize, save_rgba_picture,
+)
 
 OUT = ROOT / "crates" / "base-vegas" / "tests" / "fixtures" / "authors_replay"
 CAMERA_ANGLE_X = 0.6911112070083618
@@ -146,11 +147,7 @@ def write_scene(draws):
     for f in range(FRAMES):
         with torch.no_grad():
             rgb, alpha = rasterize(frame_gaussians(target, f), camera, torch.zeros(3, dtype=torch.float64))
-        straight = (rgb / alpha.clamp(min=1e-12)).clamp(0, 1)
-        a8 = torch.round(alpha * 255)
-        rgb8 = torch.where(a8 > 0, torch.round(straight * 255), torch.zeros_like(straight))
-        rgba = torch.cat([rgb8, a8[None]], dim=0).permute(1, 2, 0).numpy().astype(np.uint8)
-        Image.fromarray(rgba, "RGBA").save(OUT / "frames" / f"{f:04d}.png")
+        save_rgba_picture(rgb, alpha, OUT / "frames" / f"{f:04d}.png")
     return model
 
 

@@ -16,10 +16,11 @@ use std::path::{Path, PathBuf};
 use base_3dgs::stylize::{run, RunOptions, StyleSettings, StylizeConfig};
 use candle_core::{DType, Device, Tensor};
 use common::TempDir;
-use gs_core::backend::DeviceChoice;
 use gs_core::dataset::GroundTruth;
 use gs_core::GaussianSet;
-use gs_stylize::test_support::{assert_replay_draws, replay_draws, update_error};
+use gs_stylize::test_support::{
+    assert_replay_draws, replay_draws, replay_settings, save_replay_draws, update_error,
+};
 use serde_json::Value;
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 
@@ -39,21 +40,7 @@ fn replay_dir(folder: &str) -> PathBuf {
 }
 
 fn settings(tiny: &TinyModelFiles) -> StyleSettings {
-    StyleSettings {
-        style_prompt: Some("fire".into()),
-        steps: UPDATES,
-        seed: SEED,
-        device: DeviceChoice::Cpu,
-        patch_size: 32,
-        num_patches: 4,
-        checkpoint_every: 0,
-        clip_config: Some(tiny.clip_config.clone()),
-        clip_weights: Some(tiny.clip_weights.clone()),
-        tokenizer: Some(tiny.tokenizer.clone()),
-        vgg_weights: Some(tiny.vgg_weights.clone()),
-        vgg_widths: tiny.vgg_widths.0,
-        ..StyleSettings::paper_3d()
-    }
+    replay_settings(StyleSettings::paper_3d(), tiny, SEED, UPDATES)
 }
 
 /// Writes each scene's `draws.json`, the input of `scripts/make_3d_replay_fixture.py`; run it
@@ -65,9 +52,7 @@ fn write_replay_draws() {
     let tiny = write_tiny_models(dir.path());
     for (folder, width, height) in SCENES {
         let draws = replay_draws(&settings(&tiny), VIEWS, height, width);
-        std::fs::create_dir_all(replay_dir(folder)).unwrap();
-        let text = serde_json::to_string_pretty(&draws).unwrap();
-        std::fs::write(replay_dir(folder).join("draws.json"), text + "\n").unwrap();
+        save_replay_draws(&replay_dir(folder), &draws);
     }
 }
 

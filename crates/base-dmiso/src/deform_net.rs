@@ -272,21 +272,25 @@ pub fn backward(tape: NetTape, grad_out: &[f32]) -> candle_core::Result<Vec<f32>
     Ok(flat)
 }
 
+/// A network of `shape` as PyTorch initialises it, encodings of `cores` cores and a gradient of
+/// their outputs, all uniform in `[-1, 1)` from `seed`: `(weights, encodings, output gradient)`.
+fn seeded_inputs(shape: &NetShape, cores: usize, seed: u64) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    use rand::{Rng, SeedableRng};
+    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+    let weights = crate::init::default_network(shape, &mut rng);
+    let mut uniform =
+        |n: usize| -> Vec<f32> { (0..n).map(|_| rng.random_range(-1.0..1.0)).collect() };
+    let encodings = uniform(cores * VERTEX_ENCODING);
+    let probe = uniform(cores * OUTPUTS);
+    (weights, encodings, probe)
+}
+
 /// The `selftest` part of the network: forward and backward of a seeded network of width 32 on
 /// seven cores, on `device` against the cpu (the largest output or gradient difference,
 /// relative to the cpu's largest value).
 pub fn self_check(device: &Device) -> Result<gs_stylize::selftest::Check, String> {
-    use rand::{Rng, SeedableRng};
     let shape = NetShape { width: 32 };
-    let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(9);
-    let weights = crate::init::default_network(&shape, &mut rng);
-    let cores = 7;
-    let enc: Vec<f32> = (0..cores * VERTEX_ENCODING)
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let probe: Vec<f32> = (0..cores * OUTPUTS)
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
+    let (weights, enc, probe) = seeded_inputs(&shape, 7, 9);
     let time = [0.4f32; TIME_ENCODING];
     let run = |device: &Device| -> candle_core::Result<Vec<f32>> {
         let (mut out, tape) = forward(&shape, &weights, &enc, &time, device)?;
@@ -308,10 +312,7 @@ pub fn self_check(device: &Device) -> Result<gs_stylize::selftest::Check, String
 
 #[cfg(test)]
 mod tests {
-    use rand::{Rng, SeedableRng};
-
     use super::*;
-    use crate::init::default_network;
 
     /// Forward and backward run every product through `checked_matmul`, which refuses the
     /// layouts candle's CUDA backend refuses (the heads' gradients are column slices of the
@@ -320,15 +321,8 @@ mod tests {
     #[test]
     fn cuda_layout_network_forward_and_backward() {
         let shape = NetShape { width: 16 };
-        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(5);
-        let weights = default_network(&shape, &mut rng);
         let cores = 7;
-        let enc: Vec<f32> = (0..cores * VERTEX_ENCODING)
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect();
-        let probe: Vec<f32> = (0..cores * OUTPUTS)
-            .map(|_| rng.random_range(-1.0..1.0))
-            .collect();
+        let (weights, enc, probe) = seeded_inputs(&shape, cores, 5);
         let time = [0.3f32; TIME_ENCODING];
         let before = style_loss::transfers::snapshot();
         let (out, tape) = forward(&shape, &weights, &enc, &time, &Device::Cpu).unwrap();

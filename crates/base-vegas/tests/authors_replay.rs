@@ -15,8 +15,9 @@ use base_vegas::folded::FoldedGaussians;
 use base_vegas::model_file::read_model;
 use base_vegas::stylize::{run, VideoStylizeConfig};
 use candle_core::{DType, Device};
-use gs_core::backend::DeviceChoice;
-use gs_stylize::test_support::{assert_replay_draws, replay_draws, update_error};
+use gs_stylize::test_support::{
+    assert_replay_draws, replay_draws, replay_settings, save_replay_draws, update_error,
+};
 use gs_stylize::{RunOptions, StyleSettings};
 use serde_json::Value;
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
@@ -34,21 +35,7 @@ fn replay_dir() -> PathBuf {
 }
 
 fn settings(tiny: &TinyModelFiles) -> StyleSettings {
-    StyleSettings {
-        style_prompt: Some("fire".into()),
-        steps: UPDATES,
-        seed: SEED,
-        device: DeviceChoice::Cpu,
-        patch_size: 32,
-        num_patches: 4,
-        checkpoint_every: 0,
-        clip_config: Some(tiny.clip_config.clone()),
-        clip_weights: Some(tiny.clip_weights.clone()),
-        tokenizer: Some(tiny.tokenizer.clone()),
-        vgg_weights: Some(tiny.vgg_weights.clone()),
-        vgg_widths: tiny.vgg_widths.0,
-        ..StyleSettings::paper_video()
-    }
+    replay_settings(StyleSettings::paper_video(), tiny, SEED, UPDATES)
 }
 
 /// Writes `draws.json`, the input of `scripts/make_video_replay_fixture.py`; run it (with
@@ -63,9 +50,7 @@ fn write_replay_draws() {
         HEIGHT,
         WIDTH,
     );
-    std::fs::create_dir_all(replay_dir()).unwrap();
-    let text = serde_json::to_string_pretty(&draws).unwrap();
-    std::fs::write(replay_dir().join("draws.json"), text + "\n").unwrap();
+    save_replay_draws(&replay_dir(), &draws);
 }
 
 #[test]

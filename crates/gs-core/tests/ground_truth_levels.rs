@@ -3,6 +3,8 @@
 //! `fixtures/composite_8bit.bin`, written by `scripts/make_composite_fixture.py` with the
 //! loader's own numpy lines, for every colour level and alpha over black and over white.
 
+mod common;
+
 use gs_core::dataset::nerf_synthetic::{self, Split};
 use gs_core::dataset::{composite_8bit, Background, GroundTruth, LoadOptions};
 
@@ -41,12 +43,7 @@ fn write_scene(root: &std::path::Path) {
         image::Rgba([c, c, c, a])
     });
     picture.save(root.join("r_0.png")).unwrap();
-    let json = serde_json::json!({
-        "camera_angle_x": 0.7,
-        "frames": [{"file_path": "./r_0",
-                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]
-    });
-    std::fs::write(root.join("transforms_train.json"), json.to_string()).unwrap();
+    common::write_one_frame_transforms(root);
 }
 
 #[test]
@@ -113,12 +110,7 @@ fn sixteen_bit_pictures_are_read_by_their_high_byte_as_pil_reads_them() {
         image::Rgba([v, v, v, a])
     });
     picture.save(dir.path().join("r_0.png")).unwrap();
-    let json = serde_json::json!({
-        "camera_angle_x": 0.7,
-        "frames": [{"file_path": "./r_0",
-                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]
-    });
-    std::fs::write(dir.path().join("transforms_train.json"), json.to_string()).unwrap();
+    common::write_one_frame_transforms(dir.path());
     for ground_truth in [GroundTruth::Composited, GroundTruth::FileColour] {
         let options = LoadOptions {
             background: Background::White,

@@ -5,6 +5,8 @@
 //! resize differs most from resizing the stored colours. And the NeRF-synthetic loader shrinks a
 //! picture wider than `max_width` as INRIA 3DGS's `loadCam` does: its size rule, then Pillow.
 
+mod common;
+
 use std::path::PathBuf;
 
 use gs_core::dataset::nerf_synthetic::{self, Split};
@@ -93,12 +95,7 @@ fn a_wide_picture_is_shrunk_as_inrias_loader_shrinks_it() {
             .unwrap();
     let dir = tempfile::tempdir().unwrap();
     picture.save(dir.path().join("r_0.png")).unwrap();
-    let json = serde_json::json!({
-        "camera_angle_x": 0.7,
-        "frames": [{"file_path": "./r_0",
-                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]
-    });
-    std::fs::write(dir.path().join("transforms_train.json"), json.to_string()).unwrap();
+    common::write_one_frame_transforms(dir.path());
     let load = |max_width: u32, downscale: u32| {
         let options = LoadOptions {
             ground_truth: GroundTruth::FileColour,

@@ -56,6 +56,54 @@ pub fn tiny_style_flags(cmd: &mut Command, models: &TinyModelFiles) {
         .args(["--style-prompt", "a red fire"]);
 }
 
+/// The settings of a replayed run: `preset` with the style prompt "fire", `seed`, `steps`
+/// updates on the cpu, 4 patches of 32 pixels, no checkpoints, and the tiny models of `models`.
+pub fn replay_settings(
+    preset: crate::StyleSettings,
+    models: &TinyModelFiles,
+    seed: u64,
+    steps: u64,
+) -> crate::StyleSettings {
+    crate::StyleSettings {
+        style_prompt: Some("fire".into()),
+        steps,
+        seed,
+        device: gs_core::backend::DeviceChoice::Cpu,
+        patch_size: 32,
+        num_patches: 4,
+        checkpoint_every: 0,
+        clip_config: Some(models.clip_config.clone()),
+        clip_weights: Some(models.clip_weights.clone()),
+        tokenizer: Some(models.tokenizer.clone()),
+        vgg_weights: Some(models.vgg_weights.clone()),
+        vgg_widths: models.vgg_widths.0,
+        ..preset
+    }
+}
+
+/// Writes `draws` (from [`replay_draws`]) as the replay fixture's `draws.json` in `folder`
+/// (created when absent).
+///
+/// # Panics
+/// If the folder or the file cannot be written.
+pub fn save_replay_draws(folder: &Path, draws: &serde_json::Value) {
+    std::fs::create_dir_all(folder).expect("create the fixture folder");
+    let text = serde_json::to_string_pretty(draws).expect("draws serialize");
+    std::fs::write(folder.join("draws.json"), text + "\n").expect("write draws.json");
+}
+
+/// Runs `binary selftest --device cpu`, asserting that it succeeds and that no part differs;
+/// its table.
+///
+/// # Panics
+/// If the binary cannot be started, fails, or reports a mismatch.
+pub fn cpu_selftest_table(binary: &Path) -> String {
+    let out = succeeds(Command::new(binary).args(["selftest", "--device", "cpu"]));
+    let table = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(!table.contains("MISMATCH"), "{table}");
+    table
+}
+
 /// The random draws of a stylization run with `settings` on `views` views of `height x width`:
 /// the view and the patch crops and warps of each of its `settings.steps` updates, and its text
 /// direction (from `settings.style_prompt` with its model files), as the JSON a replay of the

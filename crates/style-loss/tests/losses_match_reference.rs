@@ -101,12 +101,17 @@ fn white_mask(s: &Setup) -> Tensor {
 
 /// The fixture's training step with its weights, white background mask and patches.
 fn paper_step(s: &Setup) -> style_loss::StyleLossOutput {
+    paper_step_on(s, &s.tensors["render"]).unwrap()
+}
+
+/// [`paper_step`] on another render; its error as text.
+fn paper_step_on(s: &Setup, render: &Tensor) -> Result<style_loss::StyleLossOutput, String> {
     let loss = style_loss(s, s.weights);
     let cache = loss
         .cache_view(&s.tensors["gt"], Some(&white_mask(s)))
         .unwrap();
-    loss.loss_and_grad_with_patches(&s.tensors["render"], &cache, &s.patches)
-        .unwrap()
+    loss.loss_and_grad_with_patches(render, &cache, &s.patches)
+        .map_err(|e| e.to_string())
 }
 
 #[test]
@@ -396,10 +401,6 @@ fn reference_values() -> serde_json::Value {
 #[test]
 fn a_nan_render_is_refused_by_name() {
     let s = setup();
-    let loss = style_loss(&s, s.weights);
-    let cache = loss
-        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
-        .unwrap();
     let mut pixels = values(&s.tensors["render"]);
     pixels[1234] = f64::NAN;
     let render = Tensor::from_vec(
@@ -408,10 +409,7 @@ fn a_nan_render_is_refused_by_name() {
         &Device::Cpu,
     )
     .unwrap();
-    let e = loss
-        .loss_and_grad_with_patches(&render, &cache, &s.patches)
-        .unwrap_err()
-        .to_string();
+    let e = paper_step_on(&s, &render).unwrap_err();
     assert!(e.contains("the directional loss (NaN)"), "{e}");
 }
 

@@ -201,3 +201,15 @@ pub fn poisoned_scene() -> GaussianSet {
     g.opacity_logits[9] = -1e30;
     g
 }
+
+/// Writes the `transforms_train.json` of a NeRF-synthetic scene of one frame, `./r_0` (its
+/// picture, `r_0.png`, is the caller's), seen from 4 units along +z with a horizontal field of
+/// view of 0.7 rad.
+pub fn write_one_frame_transforms(root: &std::path::Path) {
+    let json = serde_json::json!({
+        "camera_angle_x": 0.7,
+        "frames": [{"file_path": "./r_0",
+                    "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]
+    });
+    std::fs::write(root.join("transforms_train.json"), json.to_string()).unwrap();
+}
