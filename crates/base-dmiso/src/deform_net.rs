@@ -9,7 +9,8 @@
 //! `dv1 (3), dv2 (3), dv3 (3), rot (4)`, concatenated as the 13 outputs of a core.
 //!
 //! The weights are one flat `f32` parameter group in the order of the PyTorch `state_dict`
-//! ([`NetShape::tensors`]), copied to the device in one transfer at each call; the gradients
+//! ([`NetShape::tensors`]), copied to the device in one transfer when they changed since the
+//! last call ([`ResidentWeights`]: once per optimizer step, not once per view); the gradients
 //! come back in one. The backward follows PyTorch's
 //! ReLU convention: no gradient where the pre-activation is exactly 0.
 
@@ -93,6 +94,7 @@ impl NetShape {
 }
 
 /// The network's weights on a device, one tensor per `state_dict` entry.
+#[derive(Clone, Debug)]
 struct Weights {
     tensors: Vec<Tensor>,
 }
@@ -116,6 +118,46 @@ impl Weights {
     /// timenet.2 is 1, linear.i is 2 + i, the heads follow).
     fn layer(&self, index: usize) -> (&Tensor, &Tensor) {
         (&self.tensors[2 * index], &self.tensors[2 * index + 1])
+    }
+}
+
+/// The network's weights kept on its device between calls: uploaded again only when the host
+/// values differ (bit for bit) from the ones uploaded last, or the device changed. The views
+/// of one optimizer step share one upload, and a frozen network is uploaded once.
+#[derive(Debug, Default)]
+pub struct ResidentWeights {
+    /// The host values last uploaded, their device and their tensors there.
+    last: std::sync::Mutex<Option<(Vec<f32>, Device, Weights)>>,
+}
+
+impl Clone for ResidentWeights {
+    /// A clone starts empty: its first call uploads.
+    fn clone(&self) -> Self {
+        Self::default()
+    }
+}
+
+impl ResidentWeights {
+    /// The weights `flat` on `device`: the resident tensors when they hold these values, else
+    /// a fresh upload that becomes resident.
+    fn get(&self, shape: &NetShape, flat: &[f32], device: &Device) -> candle_core::Result<Weights> {
+        let mut last = self
+            .last
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        if let Some((values, on, weights)) = last.as_ref() {
+            let same = values.len() == flat.len()
+                && values
+                    .iter()
+                    .zip(flat)
+                    .all(|(a, b)| a.to_bits() == b.to_bits());
+            if same && on.same_device(device) {
+                return Ok(weights.clone());
+            }
+        }
+        let weights = Weights::load(shape, flat, device)?;
+        *last = Some((flat.to_vec(), device.clone(), weights.clone()));
+        Ok(weights)
     }
 }
 
@@ -147,16 +189,18 @@ fn linear(x: &Tensor, w: &Tensor, b: &Tensor) -> candle_core::Result<Tensor> {
 }
 
 /// The network's outputs `[G, 13]` for `encodings` (`[G, 63]`, row-major) at the time
-/// encoding `time` (13 values), and the tape of the call.
+/// encoding `time` (13 values), and the tape of the call. The weights `weights` go to the
+/// device through `resident`.
 pub fn forward(
     shape: &NetShape,
     weights: &[f32],
+    resident: &ResidentWeights,
     encodings: &[f32],
     time: &[f32; TIME_ENCODING],
     device: &Device,
 ) -> candle_core::Result<(Vec<f32>, NetTape)> {
     let cores = encodings.len() / VERTEX_ENCODING;
-    let weights = Weights::load(shape, weights, device)?;
+    let weights = resident.get(shape, weights, device)?;
     let h1 = Tensor::from_slice(encodings, (cores, VERTEX_ENCODING), device)?;
     let time = Tensor::from_slice(time.as_slice(), (1, TIME_ENCODING), device)?;
     record_upload(std::mem::size_of_val(encodings));
@@ -293,7 +337,14 @@ pub fn self_check(device: &Device) -> Result<gs_stylize::selftest::Check, String
     let (weights, enc, probe) = seeded_inputs(&shape, 7, 9);
     let time = [0.4f32; TIME_ENCODING];
     let run = |device: &Device| -> candle_core::Result<Vec<f32>> {
-        let (mut out, tape) = forward(&shape, &weights, &enc, &time, device)?;
+        let (mut out, tape) = forward(
+            &shape,
+            &weights,
+            &ResidentWeights::default(),
+            &enc,
+            &time,
+            device,
+        )?;
         out.extend(backward(tape, &probe)?);
         Ok(out)
     };
@@ -325,7 +376,15 @@ mod tests {
         let (weights, enc, probe) = seeded_inputs(&shape, cores, 5);
         let time = [0.3f32; TIME_ENCODING];
         let before = style_loss::transfers::snapshot();
-        let (out, tape) = forward(&shape, &weights, &enc, &time, &Device::Cpu).unwrap();
+        let (out, tape) = forward(
+            &shape,
+            &weights,
+            &ResidentWeights::default(),
+            &enc,
+            &time,
+            &Device::Cpu,
+        )
+        .unwrap();
         assert_eq!(out.len(), cores * OUTPUTS);
         let grad = backward(tape, &probe).unwrap();
         // Weights, encodings, time and the output gradient up; outputs and gradients back.
@@ -346,5 +405,38 @@ mod tests {
             }
             offset += n;
         }
+    }
+
+    /// The weights stay on the device between calls: a second forward at the same values
+    /// uploads only its encodings and time, a changed value (one bit of one weight) uploads the
+    /// weights again, and the outputs follow the values.
+    #[test]
+    fn weights_stay_resident_until_they_change() {
+        let shape = NetShape { width: 8 };
+        let (mut weights, enc, _) = seeded_inputs(&shape, 3, 9);
+        let time = [0.1f32; TIME_ENCODING];
+        let resident = ResidentWeights::default();
+        let run = |weights: &[f32]| {
+            let before = style_loss::transfers::snapshot();
+            let (out, _) = forward(&shape, weights, &resident, &enc, &time, &Device::Cpu).unwrap();
+            (out, style_loss::transfers::snapshot() - before)
+        };
+        let weight_bytes = 4 * weights.len() as u64;
+        let (first, moved) = run(&weights);
+        assert_eq!(moved.uploads, 3);
+        let inputs = moved.uploaded_bytes - weight_bytes;
+        let (again, moved) = run(&weights);
+        assert_eq!((moved.uploads, moved.uploaded_bytes), (2, inputs));
+        assert_eq!(first, again);
+        // The last bias of the rotation head: one output column moves.
+        let last = weights.len() - 1;
+        weights[last] = f32::from_bits(weights[last].to_bits() + 1);
+        let (changed, moved) = run(&weights);
+        assert_eq!(
+            (moved.uploads, moved.uploaded_bytes),
+            (3, inputs + weight_bytes)
+        );
+        assert_ne!(first, changed);
+        assert_eq!(run(&weights).1.uploads, 2);
     }
 }

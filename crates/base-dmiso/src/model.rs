@@ -96,6 +96,8 @@ pub struct Dmiso {
     pub deformation: bool,
     params: DmisoParams,
     device: Device,
+    /// The network's weights on `device`, kept between calls.
+    resident: deform_net::ResidentWeights,
 }
 
 impl PartialEq for Dmiso {
@@ -153,6 +155,7 @@ impl Dmiso {
             deformation,
             params,
             device,
+            resident: deform_net::ResidentWeights::default(),
         })
     }
 
@@ -212,6 +215,7 @@ impl Dmiso {
         let (out, tape) = deform_net::forward(
             &self.net,
             &self.params.groups[group::DEFORM],
+            &self.resident,
             &encodings,
             &time_encoding(t as f32),
             &self.device,

@@ -39,6 +39,7 @@ pub mod transfers;
 pub mod vgg;
 mod vgg_channels_last;
 pub mod weight_resolution;
+pub mod window_warp;
 
 pub use candle_core;
 pub use clip::{ClipConfig, ClipModel, ClipPrecision};

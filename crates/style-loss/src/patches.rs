@@ -5,11 +5,13 @@
 use candle_core::Tensor;
 use rand::{Rng, SeedableRng};
 
+use crate::cpu_elements::is_cpu_f32;
 use crate::error::{Result, StyleLossError};
 use crate::perspective::{
     gather_taps, image_corners, perspective_coefficients, Corners, SourceWindow, Taps,
 };
 use crate::resize::{Resize, ResizeKernel};
+use crate::window_warp::{warp_windows, WindowWarp};
 
 /// The random source of the patch augmentation: a seeded stream repeats a run exactly.
 pub type StyleRng = rand_chacha::ChaCha8Rng;
@@ -106,7 +108,8 @@ impl PatchSettings {
 
 /// Crops, warps and resizes patches of `image` `[1, 3, h, w]`: `[n, 3, output, output]`,
 /// differentiable in `image`. Warps are bilinear with fill 0; the resize is torchvision's
-/// `Resize` (bilinear, antialias).
+/// `Resize` (bilinear, antialias). Off the CPU (and under [`crate::GenericPath`]) the warp runs
+/// as [`crate::window_warp`]: taps computed on the device, backward a gather.
 pub fn warped_patches(
     image: &Tensor,
     patches: &[PatchAugmentation],
@@ -120,8 +123,6 @@ pub fn warped_patches(
             reason: format!("batch of {batch}, expected 1"),
         });
     }
-    let start = image_corners(patch_size, patch_size);
-    let mut taps = Taps::default();
     for (i, p) in patches.iter().enumerate() {
         if p.top + patch_size > height || p.left + patch_size > width {
             return Err(StyleLossError::Input {
@@ -132,23 +133,44 @@ pub fn warped_patches(
                 ),
             });
         }
-        let coeffs = perspective_coefficients(&start, &p.corners)?;
-        taps.push_perspective(
-            &coeffs,
-            SourceWindow {
-                width: patch_size,
-                height: patch_size,
+    }
+    let start = image_corners(patch_size, patch_size);
+    let coeffs = patches
+        .iter()
+        .map(|p| perspective_coefficients(&start, &p.corners))
+        .collect::<Result<Vec<_>>>()?;
+    let warped = if is_cpu_f32(image) {
+        // On the CPU the taps are built here and the backward is a serial scatter-add.
+        let mut taps = Taps::default();
+        for (p, coeffs) in patches.iter().zip(&coeffs) {
+            taps.push_perspective(
+                coeffs,
+                SourceWindow {
+                    width: patch_size,
+                    height: patch_size,
+                    left: p.left,
+                    top: p.top,
+                    source_width: width,
+                },
+            );
+        }
+        let flat = image.reshape((channels, height * width))?;
+        gather_taps(&flat, &taps)?
+            .reshape((channels, patches.len(), patch_size, patch_size))?
+            .transpose(0, 1)?
+            .contiguous()?
+    } else {
+        let warps: Vec<WindowWarp> = patches
+            .iter()
+            .zip(coeffs)
+            .map(|(p, coeffs)| WindowWarp {
                 left: p.left,
                 top: p.top,
-                source_width: width,
-            },
-        );
-    }
-    let flat = image.reshape((channels, height * width))?;
-    let warped = gather_taps(&flat, &taps)?
-        .reshape((channels, patches.len(), patch_size, patch_size))?
-        .transpose(0, 1)?
-        .contiguous()?;
+                coeffs,
+            })
+            .collect();
+        warp_windows(&image.squeeze(0)?, &warps, patch_size, patch_size)?
+    };
     let resize = Resize::cached(
         ResizeKernel::BilinearAntialias,
         (patch_size, patch_size),

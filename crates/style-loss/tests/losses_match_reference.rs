@@ -416,12 +416,12 @@ fn a_nan_render_is_refused_by_name() {
 /// What one step of the objective moves between the host and the loss device: the render and
 /// the patches' taps (indices and weights) up; the step's values (four terms, total, gradient
 /// norm: one read) and the image gradient back. The resize matrices go up once per process.
-#[test]
-fn one_step_moves_the_render_the_taps_and_two_reads() {
+/// The transfers of the second of two objective steps on the fixture's render (the first
+/// fills the per-view cache).
+fn second_step_transfers(s: &Setup) -> style_loss::transfers::Transfers {
     use gs_core::train::Objective;
     use style_loss::image_layout::tensor_to_hwc;
     use style_loss::transfers::snapshot;
-    let s = setup();
     let gt = &s.tensors["gt"];
     let (_, _, h, w) = gt.dims4().unwrap();
     let target = gs_core::Image {
@@ -429,9 +429,9 @@ fn one_step_moves_the_render_the_taps_and_two_reads() {
         height: h as u32,
         data: tensor_to_hwc(gt).unwrap(),
     };
-    let mask: Vec<f32> = white_mask(&s).flatten_all().unwrap().to_vec1().unwrap();
+    let mask: Vec<f32> = white_mask(s).flatten_all().unwrap().to_vec1().unwrap();
     let mut objective = style_loss::StyleObjective::new(
-        style_loss(&s, s.weights),
+        style_loss(s, s.weights),
         std::slice::from_ref(&target),
         Some(&[mask]),
         3,
@@ -446,11 +446,38 @@ fn one_step_moves_the_render_the_taps_and_two_reads() {
     objective.evaluate(0, &render).unwrap();
     let before = snapshot();
     objective.evaluate(0, &render).unwrap();
-    let step = snapshot() - before;
+    snapshot() - before
+}
+
+#[test]
+fn one_step_moves_the_render_the_taps_and_two_reads() {
+    let s = setup();
+    let step = second_step_transfers(&s);
+    let (_, _, h, w) = s.tensors["gt"].dims4().unwrap();
     let image_bytes = (3 * h * w * 4) as u64;
     let taps = (4 * s.settings.num_patches * s.settings.patch_size * s.settings.patch_size) as u64;
     assert_eq!(step.uploads, 3, "{step:?}");
     assert_eq!(step.uploaded_bytes, image_bytes + 8 * taps, "{step:?}");
+    assert_eq!(step.reads, 2, "{step:?}");
+    assert_eq!(step.read_bytes, image_bytes + 6 * 8, "{step:?}");
+}
+
+/// In the form a GPU runs, the warp's taps are computed on the device: a step uploads the
+/// render and one block of per-window numbers, pixel centres and candidate offsets.
+#[test]
+fn generic_path_step_moves_the_render_and_the_window_numbers() {
+    let _generic = style_loss::GenericPath::on();
+    let s = setup();
+    let step = second_step_transfers(&s);
+    let (_, _, h, w) = s.tensors["gt"].dims4().unwrap();
+    let image_bytes = (3 * h * w * 4) as u64;
+    let (n, size) = (s.settings.num_patches as u64, s.settings.patch_size as u64);
+    // 18 numbers per window and its place in the caller's order; two centres per pixel; at
+    // most two 8x8 candidate squares' offsets per distinct side.
+    let bound = 4 * (19 * n + 2 * size * size + 6 * 2 * 64);
+    assert_eq!(step.uploads, 2, "{step:?}");
+    assert!(step.uploaded_bytes > image_bytes, "{step:?}");
+    assert!(step.uploaded_bytes - image_bytes <= bound, "{step:?}: bound {bound}");
     assert_eq!(step.reads, 2, "{step:?}");
     assert_eq!(step.read_bytes, image_bytes + 6 * 8, "{step:?}");
 }

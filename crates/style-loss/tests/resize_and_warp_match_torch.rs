@@ -9,6 +9,7 @@ use style_loss::perspective::{
     gather_taps, image_corners, perspective_coefficients, Corners, SourceWindow, Taps,
 };
 use style_loss::resize::{resize, resize_matrix, ResizeKernel};
+use style_loss::window_warp::{warp_windows, WindowWarp};
 
 /// Output and gradient of `sum(f(x) * upstream)` for the fixture case `name`.
 fn run_case(
@@ -101,6 +102,32 @@ fn perspective_matches_torchvision_forward_and_backward() {
                 .unwrap()
                 .reshape((1, c, h, w))
                 .unwrap()
+        });
+        let out_err = max_abs_diff(&y, &r[&format!("{name}.output")]);
+        let grad_err = relative_error(&grad, &r[&format!("{name}.grad")]);
+        assert!(out_err < 1e-5, "{name}: output max error {out_err}");
+        assert!(
+            grad_err < 1e-5,
+            "{name}: gradient relative error {grad_err}"
+        );
+    }
+}
+
+/// The device form of the warp (taps computed as tensors, backward a gather) on the same cases.
+#[test]
+fn window_warp_matches_torchvision_forward_and_backward() {
+    let r = load("perspective_reference.safetensors");
+    let cases = load_json("perspective_reference.json");
+    for (name, end) in cases.as_object().unwrap() {
+        let end: Corners = serde_json::from_value(end.clone()).unwrap();
+        let (_, _, h, w) = r[&format!("{name}.input")].dims4().unwrap();
+        let warp = WindowWarp {
+            left: 0,
+            top: 0,
+            coeffs: perspective_coefficients(&image_corners(w, h), &end).unwrap(),
+        };
+        let (y, grad) = run_case(&r, name, |x| {
+            warp_windows(&x.squeeze(0).unwrap(), &[warp], w, h).unwrap()
         });
         let out_err = max_abs_diff(&y, &r[&format!("{name}.output")]);
         let grad_err = relative_error(&grad, &r[&format!("{name}.grad")]);
