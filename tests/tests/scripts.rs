@@ -1,7 +1,8 @@
 //! The scripts for a GPU machine, parsed and dry-run (nothing is fetched, built or timed):
 //! `scripts/build_cuda.sh` picks the compute capability as documented (`CUDA_COMPUTE_CAP` when
 //! set, else the GPU `nvidia-smi` reports, else 8.0, PTX that runs on every GPU from Ampere on;
-//! a malformed value is refused); `scripts/gpu_check.sh` lists every part it would run.
+//! a malformed value is refused) and CUDA 13 or, on request, 12; `scripts/gpu_check.sh` lists
+//! every part it would run.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -70,6 +71,86 @@ fn the_cuda_build_script_parses_and_picks_the_compute_capability() {
     );
     let (ok, text) = dry_run(Some("8.9"), None);
     assert!(!ok && text.contains("as digits"), "{text}");
+}
+
+/// A folder laid out as a CUDA toolkit whose `nvcc` reports `release`.
+fn fake_toolkit(dir: &Path, release: &str) {
+    std::fs::create_dir_all(dir.join("bin")).unwrap();
+    let nvcc = dir.join("bin/nvcc");
+    let body =
+        format!("#!/bin/sh\necho 'Cuda compilation tools, release {release}, V{release}.1'\n");
+    std::fs::write(&nvcc, body).unwrap();
+    let mut permissions = std::fs::metadata(&nvcc).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&nvcc, permissions).unwrap();
+}
+
+#[test]
+fn the_cuda_build_script_builds_cuda_12_with_an_installed_toolkit() {
+    let run = |args: &[&str], cuda_home: Option<&Path>| {
+        let mut cmd = Command::new("bash");
+        cmd.arg(script())
+            .args(args)
+            .env_remove("CARGO_TARGET_DIR")
+            .env_remove("CUDA_PATH")
+            .env("CUDA_COMPUTE_CAP", "86");
+        match cuda_home {
+            Some(home) => cmd.env("CUDA_HOME", home),
+            None => cmd.env_remove("CUDA_HOME"),
+        };
+        let out = cmd.output().unwrap();
+        let text = String::from_utf8_lossy(&out.stdout).into_owned()
+            + &String::from_utf8_lossy(&out.stderr);
+        (out.status.code(), text)
+    };
+    let dir = tempfile::tempdir().unwrap();
+    let (twelve, twelve_four, thirteen) = (
+        dir.path().join("12.0"),
+        dir.path().join("12.4"),
+        dir.path().join("13.0"),
+    );
+    fake_toolkit(&twelve, "12.0");
+    fake_toolkit(&twelve_four, "12.4");
+    fake_toolkit(&thirteen, "13.0");
+    let (code, text) = run(&["--cuda", "12", "--dry-run"], Some(&twelve));
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("CUDA 12.0, compute capability 86"), "{text}");
+    assert!(text.contains("installed toolkit into target/cuda12"), "{text}");
+    assert!(!text.contains("note:"), "{text}");
+    let (code, text) = run(&["--cuda", "12", "--dry-run"], Some(&twelve_four));
+    assert_eq!(code, Some(0), "{text}");
+    assert!(text.contains("drivers of CUDA 12.4 or newer"), "{text}");
+    let (code, text) = run(&["--dry-run"], Some(&twelve));
+    assert_eq!(code, Some(0), "{text}");
+    assert!(
+        text.contains("CUDA 13.0") && text.contains("build into target/cuda\n"),
+        "{text}"
+    );
+    let (code, text) = run(&["--cuda", "11", "--dry-run"], None);
+    assert_eq!(code, Some(2), "{text}");
+    assert!(
+        text.contains("give 13 (NVIDIA driver 580 or newer) or 12"),
+        "{text}"
+    );
+    // Without a CUDA 12 toolkit (a CUDA 13 one is not taken), when this machine has none in
+    // the usual places either.
+    let installed = ["/usr/local/cuda", "/opt/cuda"]
+        .iter()
+        .any(|p| Path::new(p).exists())
+        || std::fs::read_dir("/usr/local")
+            .map(|d| {
+                d.flatten()
+                    .any(|e| e.file_name().to_string_lossy().starts_with("cuda-12"))
+            })
+            .unwrap_or(false);
+    if !installed {
+        let (code, text) = run(&["--cuda", "12", "--dry-run"], Some(&thirteen));
+        assert_eq!(code, Some(2), "{text}");
+        assert!(
+            text.contains("PyPI has no CUDA 12 nvcc") && text.contains("set CUDA_HOME"),
+            "{text}"
+        );
+    }
 }
 
 #[test]

@@ -477,7 +477,10 @@ fn generic_path_step_moves_the_render_and_the_window_numbers() {
     let bound = 4 * (19 * n + 2 * size * size + 6 * 2 * 64);
     assert_eq!(step.uploads, 2, "{step:?}");
     assert!(step.uploaded_bytes > image_bytes, "{step:?}");
-    assert!(step.uploaded_bytes - image_bytes <= bound, "{step:?}: bound {bound}");
+    assert!(
+        step.uploaded_bytes - image_bytes <= bound,
+        "{step:?}: bound {bound}"
+    );
     assert_eq!(step.reads, 2, "{step:?}");
     assert_eq!(step.read_bytes, image_bytes + 6 * 8, "{step:?}");
 }
