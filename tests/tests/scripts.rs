@@ -115,7 +115,10 @@ fn the_cuda_build_script_builds_cuda_12_with_an_installed_toolkit() {
     let (code, text) = run(&["--cuda", "12", "--dry-run"], Some(&twelve));
     assert_eq!(code, Some(0), "{text}");
     assert!(text.contains("CUDA 12.0, compute capability 86"), "{text}");
-    assert!(text.contains("installed toolkit into target/cuda12"), "{text}");
+    assert!(
+        text.contains("installed toolkit into target/cuda12"),
+        "{text}"
+    );
     assert!(!text.contains("note:"), "{text}");
     let (code, text) = run(&["--cuda", "12", "--dry-run"], Some(&twelve_four));
     assert_eq!(code, Some(0), "{text}");

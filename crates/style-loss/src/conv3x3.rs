@@ -7,6 +7,15 @@
 //! with `[3 * cin, cout]` kernel slices, accumulated into `[h * (w + 2), cout]`, with no im2col
 //! copy. The two extra columns per output row are padding positions; they are dropped when the
 //! rows are compacted. The products run in `gemm`, candle's own matrix-product crate.
+//!
+//! A forward convolution whose gradient is taken ([`Epilogue::ExactBiasRelu`]) accumulates in f64
+//! and rounds once: its outputs are the correctly rounded values of the exact sums, so a
+//! pre-activation a hair from 0 gets the ReLU decision of the exact network, not one that f32
+//! summation order picks (PyTorch's f32 picks its own; where the two disagree, one unit's
+//! decision moves the content gradient by 1e-3 relative or more). It costs twice the products.
+//! A forward without gradient (the ground truth's features: its decisions route nothing, they
+//! move values by a rounding) and the backward (the adjoint on the gradient, which decides
+//! nothing) stay in f32.
 #![allow(unsafe_code)]
 
 use rayon::prelude::*;
@@ -62,8 +71,11 @@ impl PackedKernel {
 /// What is applied to each output value after the products.
 #[derive(Clone, Copy, Debug)]
 pub(crate) enum Epilogue<'a> {
-    /// `relu(v + bias[channel])`, NaN kept (PyTorch's `relu`).
+    /// `relu(v + bias[channel])`, NaN kept (PyTorch's `relu`), in f32.
     BiasRelu(&'a [f32]),
+    /// The same with the products accumulated in f64, the bias added and the ReLU decided
+    /// there, and the result rounded once to f32.
+    ExactBiasRelu(&'a [f32]),
     /// The value as it is.
     Identity,
 }
@@ -83,7 +95,7 @@ pub(crate) struct ImageShape {
 /// `[images, h, w, kernel.cout()]`. With `input_gate`, an input value counts only where the gate
 /// (same shape as `input`) is above 0, and as 0 elsewhere (the ReLU mask of a backward pass;
 /// NaN in the gate passes, as PyTorch's `threshold_backward`). `scratch` holds the padded
-/// image; it is reused across calls.
+/// image; it is reused across calls. [`Epilogue::ExactBiasRelu`] takes no gate.
 pub(crate) fn conv3x3(
     input: &[f32],
     shape: ImageShape,
@@ -97,6 +109,14 @@ pub(crate) fn conv3x3(
     let (in_len, out_len) = (h * w * cin, h * w * cout);
     assert_eq!(input.len(), images * in_len, "conv3x3: input size");
     assert!(input_gate.is_none_or(|g| g.len() == input.len()));
+    if let Epilogue::ExactBiasRelu(bias) = epilogue {
+        assert!(
+            input_gate.is_none(),
+            "conv3x3: a forward convolution has no gate"
+        );
+        let band = band_rows(w, cin.max(cout));
+        return conv3x3_bias_relu_f64(input, shape, kernel, bias, band);
+    }
     let padded_w = w + 2;
     let rows = h * padded_w;
     // Two more padded pixels than the image: the products' last rows read up to
@@ -156,6 +176,104 @@ pub(crate) fn conv3x3(
     out
 }
 
+/// Output rows per band of [`conv3x3_bias_relu_f64`]: about 2M f64 values (16 MB) in each of its
+/// two buffers.
+fn band_rows(w: usize, channels: usize) -> usize {
+    (2_000_000 / ((w + 2) * channels).max(1)).max(1)
+}
+
+/// [`conv3x3`] without a gate and with [`Epilogue::ExactBiasRelu`]: the same three
+/// products per band of output rows, on f64 copies of the band's padded input and of the kernel,
+/// then `relu(sum + bias)` decided in f64 and rounded once to f32. `band` output rows at a time.
+fn conv3x3_bias_relu_f64(
+    input: &[f32],
+    shape: ImageShape,
+    kernel: &PackedKernel,
+    bias: &[f32],
+    band: usize,
+) -> Vec<f32> {
+    let ImageShape { images, h, w } = shape;
+    let (cin, cout) = (kernel.cin, kernel.cout);
+    let (in_len, out_len) = (h * w * cin, h * w * cout);
+    let taps: Vec<f64> = kernel.data.par_iter().map(|&v| v as f64).collect();
+    let padded_w = w + 2;
+    let band = band.clamp(1, h.max(1));
+    let mut out = vec![0f32; images * out_len];
+    let mut padded: Vec<f64> = Vec::new();
+    let mut dst: Vec<f64> = Vec::new();
+    for image in 0..images {
+        let src = &input[image * in_len..(image + 1) * in_len];
+        for y0 in (0..h).step_by(band) {
+            let rows_here = band.min(h - y0);
+            // Padded rows y0 - 1 ..= y0 + rows_here, and two spare pixels the last product reads.
+            let row_len = padded_w * cin;
+            padded.clear();
+            padded.resize((rows_here + 2) * row_len + 2 * cin, 0.0);
+            padded[..(rows_here + 2) * row_len]
+                .par_chunks_mut(row_len)
+                .enumerate()
+                .for_each(|(r, row)| {
+                    let Some(y) = (y0 + r).checked_sub(1).filter(|&y| y < h) else {
+                        return;
+                    };
+                    let from = &src[y * w * cin..(y + 1) * w * cin];
+                    for (d, &v) in row[cin..(w + 1) * cin].iter_mut().zip(from) {
+                        *d = v as f64;
+                    }
+                });
+            let m = rows_here * padded_w;
+            dst.clear();
+            dst.resize(m * cout, 0.0);
+            for dy in 0..3 {
+                let lhs = &padded[dy * row_len..];
+                let rhs = &taps[dy * 3 * cin * cout..(dy + 1) * 3 * cin * cout];
+                debug_assert!((m - 1) * cin + 3 * cin <= lhs.len());
+                // SAFETY: as in `conv3x3`: `dst` holds `m x cout` row-major; `lhs` is read as
+                // `m x 3cin` with row stride `cin`, its last element `(m - 1) * cin + 3cin - 1`
+                // inside `lhs` (the band's buffer has two spare pixels); `rhs` is `3cin x cout`
+                // row-major, exactly its length; the three are distinct buffers.
+                unsafe {
+                    gemm::gemm(
+                        m,
+                        cout,
+                        3 * cin,
+                        dst.as_mut_ptr(),
+                        1,
+                        cout as isize,
+                        dy > 0,
+                        lhs.as_ptr(),
+                        1,
+                        cin as isize,
+                        rhs.as_ptr(),
+                        1,
+                        cout as isize,
+                        1.0,
+                        1.0,
+                        false,
+                        false,
+                        false,
+                        gemm::Parallelism::Rayon(0),
+                    );
+                }
+            }
+            let first = image * out_len + y0 * w * cout;
+            out[first..first + rows_here * w * cout]
+                .par_chunks_mut(w * cout)
+                .zip(dst.par_chunks(padded_w * cout))
+                .for_each(|(row, sums)| {
+                    for (pixel, sums) in row.chunks_exact_mut(cout).zip(sums.chunks_exact(cout)) {
+                        for ((v, &sum), &b) in pixel.iter_mut().zip(sums).zip(bias) {
+                            let x = sum + b as f64;
+                            // PyTorch's relu: NaN kept.
+                            *v = if x < 0.0 { 0.0 } else { x as f32 };
+                        }
+                    }
+                });
+        }
+    }
+    out
+}
+
 /// Writes `image` (`[h, w, cin]`, gated) into `padded` as `[(h + 2) * (w + 2) + 2, cin]` with
 /// zeros around it.
 fn pad(
@@ -190,7 +308,7 @@ fn pad(
 }
 
 /// Moves the `h` output rows of `w + 2` pixels to rows of `w` pixels (dropping the two padding
-/// positions of each) and applies `epilogue`.
+/// positions of each) and applies `epilogue` ([`Epilogue::BiasRelu`] or none).
 fn compact_rows(out: &mut [f32], h: usize, w: usize, cout: usize, epilogue: Epilogue<'_>) {
     for y in 0..h {
         let src = y * (w + 2) * cout;
@@ -346,5 +464,76 @@ mod tests {
             &mut Vec::new(),
         );
         assert_eq!(gated, [0.0, 0.0, 3.0, 4.0]);
+    }
+
+    /// The exact sum 2^-25 of `1 + 2^-25 - 1` survives the exact ReLU (summed in f32 from the
+    /// left, `1 + 2^-25` rounds to 1 and the gate closes), and `1 - 2^-25 - 1` does not.
+    #[test]
+    fn a_pre_activation_a_hair_above_zero_passes_the_relu() {
+        let mut weight = vec![0f32; 3 * 9];
+        for i in 0..3 {
+            weight[i * 9 + 4] = 1.0;
+        }
+        let kernel = PackedKernel::forward(&weight, 1, 3);
+        let tiny = 2f32.powi(-25);
+        let shape = ImageShape {
+            images: 1,
+            h: 1,
+            w: 1,
+        };
+        let out = conv3x3(
+            &[1.0, tiny, -1.0],
+            shape,
+            &kernel,
+            None,
+            Epilogue::ExactBiasRelu(&[0.0]),
+            &mut Vec::new(),
+        );
+        assert_eq!(out, [tiny]);
+        let out = conv3x3(
+            &[1.0, -tiny, -1.0],
+            shape,
+            &kernel,
+            None,
+            Epilogue::ExactBiasRelu(&[0.0]),
+            &mut Vec::new(),
+        );
+        assert_eq!(out, [0.0]);
+    }
+
+    /// The f64 forward equals the f64 direct convolution rounded once, in one band or many.
+    #[test]
+    fn the_forward_is_the_rounded_exact_sum_in_any_band() {
+        let (h, w, cin, cout) = (7, 5, 6, 4);
+        let input = values(2 * h * w * cin, 4);
+        let weight = values(cout * cin * 9, 9);
+        let bias = [0.3f32, -0.2, 0.0, 0.01];
+        let kernel = PackedKernel::forward(&weight, cout, cin);
+        let shape = ImageShape { images: 2, h, w };
+        let whole = conv3x3_bias_relu_f64(&input, shape, &kernel, &bias, h);
+        for band in [1, 2, 3] {
+            let banded = conv3x3_bias_relu_f64(&input, shape, &kernel, &bias, band);
+            assert_eq!(banded, whole, "band {band}");
+        }
+        for image in 0..2 {
+            let len = h * w * cin;
+            let exact = direct(
+                &input[image * len..(image + 1) * len],
+                h,
+                w,
+                &weight,
+                cout,
+                cin,
+            );
+            let got = &whole[image * h * w * cout..(image + 1) * h * w * cout];
+            for (k, (g, e)) in got.iter().zip(&exact).enumerate() {
+                let x = e + bias[k % cout] as f64;
+                let expected = if x < 0.0 { 0.0 } else { x as f32 };
+                assert!(
+                    (g - expected).abs() <= 1e-7 * expected.abs(),
+                    "{g} vs {expected}"
+                );
+            }
+        }
     }
 }

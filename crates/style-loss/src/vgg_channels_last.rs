@@ -36,11 +36,13 @@ impl ConvReluChannelsLast {
 
     /// `relu(conv(x) + bias)` of `x` `[n, h, w, cin]`. The input gradient is the adjoint
     /// convolution of the upstream gradient where the output is not `<= 0` (PyTorch's ReLU:
-    /// 0 at an exact 0).
+    /// 0 at an exact 0). When a gradient is taken through `x`, the sums are exact before their
+    /// ReLU decides ([`Epilogue::ExactBiasRelu`]); else f32.
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
         x.contiguous()?.apply_op1(ConvOp {
             kernel: self.kernel.clone(),
             epilogue_bias: Some(self.bias.clone()),
+            exact: x.track_op(),
             adjoint: Some(self.adjoint.clone()),
             scratch: scratch.clone(),
         })
@@ -53,6 +55,8 @@ impl ConvReluChannelsLast {
 struct ConvOp {
     kernel: Arc<PackedKernel>,
     epilogue_bias: Option<Arc<Vec<f32>>>,
+    /// Whether the bias and ReLU follow exact sums ([`Epilogue::ExactBiasRelu`]).
+    exact: bool,
     adjoint: Option<Arc<PackedKernel>>,
     scratch: Scratch,
 }
@@ -78,9 +82,10 @@ impl ConvOp {
             }
             None => (elements(input.0, layout)?, None),
         };
-        let epilogue = match &self.epilogue_bias {
-            Some(bias) => Epilogue::BiasRelu(bias),
-            None => Epilogue::Identity,
+        let epilogue = match (&self.epilogue_bias, self.exact) {
+            (Some(bias), true) => Epilogue::ExactBiasRelu(bias),
+            (Some(bias), false) => Epilogue::BiasRelu(bias),
+            (None, _) => Epilogue::Identity,
         };
         let mut scratch = self
             .scratch
@@ -122,6 +127,7 @@ impl CustomOp1 for ConvOp {
         let adjoint = ConvOp {
             kernel: adjoint.clone(),
             epilogue_bias: None,
+            exact: false,
             adjoint: None,
             scratch: self.scratch.clone(),
         };

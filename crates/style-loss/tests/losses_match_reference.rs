@@ -271,7 +271,9 @@ fn render_equal_to_gt_stays_finite() {
         "{:?}",
         out.terms
     );
-    assert_eq!(out.terms.content, 0.0);
+    // The render's features are the exact network's rounded once per layer (its ReLUs route
+    // the gradient); the ground truth's are summed in f32: they differ by rounding only.
+    assert!(out.terms.content < 1e-9, "{:?}", out.terms);
     assert!(common::values(&out.grad).iter().all(|v| v.is_finite()));
 }
 

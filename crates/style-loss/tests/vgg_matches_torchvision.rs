@@ -90,6 +90,32 @@ fn content_gradient_matches_at_ties_and_zeros() {
     }
 }
 
+/// Near every border, flat regions whose conv1_1 pre-activation is, exactly, a hair from 0
+/// (`scripts/make_vgg_border_ties_fixture.py`): the ReLU must decide as the exact sum does, as
+/// PyTorch's float32 does on these cases, or whole regions open or close and the gradient moves
+/// by 1e-2.
+#[test]
+fn content_gradient_matches_where_relus_sit_a_hair_from_zero() {
+    let vgg = Vgg19Features::load(
+        &fixture("tiny_vgg19_torchvision_init.safetensors"),
+        TINY_WIDTHS,
+        &Device::Cpu,
+    )
+    .unwrap();
+    let r = load("vgg_border_ties_reference.safetensors");
+    for name in ["128x96", "61x45", "97x131"] {
+        let t = |what: &str| r[&format!("{name}.{what}")].clone();
+        let (loss, grad) = content_loss_and_grad(&vgg, &t("render"), &t("gt"));
+        let reference = values(&t("loss"))[0];
+        assert!(
+            (loss - reference).abs() <= 1e-5 * reference.abs(),
+            "{name}: loss {loss} vs {reference}"
+        );
+        let err = relative_error(&grad, &t("grad"));
+        assert!(err < 1e-4, "{name}: gradient relative error {err}");
+    }
+}
+
 #[test]
 fn wrong_widths_name_the_tensor() {
     let err = Vgg19Features::load(
