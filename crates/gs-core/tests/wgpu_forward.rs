@@ -51,7 +51,7 @@ fn check(case: &str, g: &GaussianSet, cam: &Camera, background: [f32; 3], ctx: &
 
 #[test]
 fn random_scenes_every_degree() {
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     for degree in 0..=3 {
         let g = random_scene::<f32>(70 + degree as u64, 60, degree);
         let case = format!("degree {degree}");
@@ -63,7 +63,7 @@ fn random_scenes_every_degree() {
 #[test]
 fn many_gaussians_span_several_sort_and_prefix_sum_blocks() {
     // 3000 Gaussians and their tile pairs exceed one 1024-item block of every GPU pass.
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     let mut g = random_scene::<f32>(5, 3000, 1);
     for v in &mut g.log_scales {
         *v -= 1.0;
@@ -80,10 +80,12 @@ fn many_gaussians_span_several_sort_and_prefix_sum_blocks() {
 #[test]
 fn dispatches_split_past_the_workgroup_limit() {
     // With at most 3 workgroups per dimension, every per-item dispatch is split over y.
-    let ctx = gpu_with(GpuOptions {
+    let Some(ctx) = gpu_with(GpuOptions {
         max_workgroups_per_dimension: Some(3),
         ..GpuOptions::default()
-    });
+    }) else {
+        return;
+    };
     let g = random_scene::<f32>(6, 2500, 2);
     check(
         "split dispatches",
@@ -99,10 +101,12 @@ fn arrays_past_the_binding_limit_are_bound_in_chunks_and_parts() {
     // Under a 64 KiB binding limit, 3000 Gaussians of degree 3 (180 bytes of sh_rest each)
     // project in 12 chunks of 256, and their splats (64 bytes each) are bound as 3 parts of
     // 1024: as 5M Gaussians are on an adapter whose bindings hold 128 MiB.
-    let ctx = gpu_with(GpuOptions {
+    let Some(ctx) = gpu_with(GpuOptions {
         max_binding_bytes: Some(SMALL_BINDING),
         ..GpuOptions::default()
-    });
+    }) else {
+        return;
+    };
     let mut g = random_scene::<f32>(9, 3000, 3);
     for v in &mut g.log_scales {
         *v -= 1.0;
@@ -113,10 +117,12 @@ fn arrays_past_the_binding_limit_are_bound_in_chunks_and_parts() {
 #[test]
 fn a_scene_past_every_part_is_refused_naming_its_splats() {
     // 16 KiB bindings hold 256 splats: four parts hold 1024, not 1100.
-    let ctx = gpu_with(GpuOptions {
+    let Some(ctx) = gpu_with(GpuOptions {
         max_binding_bytes: Some(16 * 1024),
         ..GpuOptions::default()
-    });
+    }) else {
+        return;
+    };
     let g = random_scene::<f32>(10, 1100, 0);
     let gg = GpuGaussians::upload(&ctx, &g).expect("upload");
     match gpu_backend::render(&ctx, &gg, &oblique_camera(16, 16), [0.0; 3]) {
@@ -134,14 +140,14 @@ fn a_scene_past_every_part_is_refused_naming_its_splats() {
 
 #[test]
 fn empty_scene_renders_the_exact_background() {
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     let g = GaussianSet::zeros(0, 3);
     check("empty", &g, &oblique_camera(33, 20), [0.1, 0.2, 0.3], ctx);
 }
 
 #[test]
 fn degenerate_cases_match_the_cpu() {
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     let cam = front_camera(24, 24);
     for (name, g) in degenerate_cases() {
         let g = g.cast();
@@ -155,14 +161,14 @@ fn degenerate_cases_match_the_cpu() {
 
 #[test]
 fn pixels_that_stop_early() {
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     let g = stacked_scene();
     check("stacked", &g, &front_camera(24, 24), [0.0; 3], ctx);
 }
 
 #[test]
 fn non_finite_and_extreme_parameters_are_culled() {
-    let ctx = gpu();
+    let Some(ctx) = gpu() else { return };
     let g = poisoned_scene();
     check("non-finite", &g, &oblique_camera(48, 40), [0.5; 3], ctx);
 }

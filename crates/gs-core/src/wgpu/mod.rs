@@ -13,6 +13,8 @@
 //!   GPU twins; [`host_forward`] and [`host_backward`] are the provided ones).
 //! - [`train`](fn@train): the training loop of [`crate::train`] with all of the above.
 //! - [`training_bytes`]: the GPU memory a training run needs, reported when an allocation fails.
+//! - [`test_context`]: a context for tests, skipped (or failed, with [`REQUIRE_GPU_TESTS`]) on
+//!   a machine without an adapter.
 //! - [`KernelSource`]: WGSL kernels of other crates (a base model's own construction), with
 //!   the same `//#import` of gs-core's shader files.
 //!
@@ -32,6 +34,7 @@ mod model;
 mod scan;
 mod shaders;
 mod sort;
+mod test_gpu;
 mod train;
 
 pub use adam::GpuAdam;
@@ -43,5 +46,6 @@ pub use memory::training_bytes;
 pub(crate) use model::gaussians_for_view;
 pub use model::{host_backward, host_forward, GpuForward, GpuParams, GpuScratch, GpuStep};
 pub use shaders::{Access, KernelSource};
+pub use test_gpu::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
 pub use train::train;
 pub use wgpu::Buffer;
