@@ -658,3 +658,48 @@ fn selftest_on_the_cpu_prints_every_part_and_passes() {
     let table = cpu_selftest_table(Path::new(env!("CARGO_BIN_EXE_clipgaussian-3d")));
     assert!(table.contains("| loss gradient (four terms) |"), "{table}");
 }
+
+/// A model of another modality is refused naming the binary that opens it, by `render` and
+/// `stylize` (through `--model` and its alias `--ply`) and by `interpolate`.
+#[test]
+fn a_model_of_another_modality_names_its_binary() {
+    use gs_stylize::model_kind::Binary;
+    use gs_stylize::test_support::assert_foreign_models_refused;
+    let dir = TempDir::new("cli-foreign-models");
+    let run = |args: &[&str]| {
+        Command::new(env!("CARGO_BIN_EXE_clipgaussian-3d"))
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let out = dir.path().join("out");
+    assert_foreign_models_refused(Binary::Scene, dir.path(), |model| {
+        run(&[
+            "render",
+            "--model",
+            s(model),
+            "--camera",
+            "c.json",
+            "--out",
+            s(&out),
+        ])
+    });
+    assert_foreign_models_refused(Binary::Scene, dir.path(), |model| {
+        run(&["stylize", "--ply", s(model), "--out", s(&out)])
+    });
+    assert_foreign_models_refused(Binary::Scene, dir.path(), |model| {
+        let blend = out.join("blend.ply");
+        run(&[
+            "interpolate",
+            "--a",
+            s(model),
+            "--b",
+            s(model),
+            "--t",
+            "0.5",
+            "--out",
+            s(&blend),
+        ])
+    });
+    assert!(!out.exists(), "nothing was written");
+}

@@ -724,3 +724,46 @@ fn selftest_on_the_cpu_prints_every_part_and_passes() {
     let table = cpu_selftest_table(Path::new(env!("CARGO_BIN_EXE_clipgaussian-2d")));
     assert!(table.contains("| render and its backward |"), "{table}");
 }
+
+/// A model of another modality is refused naming the binary that opens it, by `render`,
+/// `stylize` and `interpolate`.
+#[test]
+fn a_model_of_another_modality_names_its_binary() {
+    use gs_stylize::model_kind::Binary;
+    use gs_stylize::test_support::assert_foreign_models_refused;
+    let dir = TempDir::new().unwrap();
+    let out = dir.path().join("out");
+    let run = |args: &[&str]| bin().args(args).output().unwrap();
+    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
+        let png = out.join("r.png");
+        run(&[
+            "render",
+            "--model",
+            s(model),
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "--out",
+            s(&png),
+        ])
+    });
+    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
+        run(&["stylize", "--model", s(model), "--out", s(&out)])
+    });
+    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
+        let blend = out.join("blend.ply");
+        run(&[
+            "interpolate",
+            "--a",
+            s(model),
+            "--b",
+            s(model),
+            "--t",
+            "0.5",
+            "--out",
+            s(&blend),
+        ])
+    });
+    assert!(!out.exists(), "nothing was written");
+}

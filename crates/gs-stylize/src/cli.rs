@@ -18,6 +18,7 @@ use serde_json::Value;
 
 use crate::evaluation::{ClipFiles, Style};
 use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
+use crate::model_kind::{check_model, Binary};
 use crate::writable::check_output_file;
 use crate::{Override, RunOptions, StylizeError};
 
@@ -211,8 +212,11 @@ pub struct InterpolateArgs {
 
 impl InterpolateArgs {
     /// Writes `(1 - t) A + t B` to `out` (checked first: [`check_output_file`]) and returns a
-    /// line saying what was written.
-    pub fn run(&self) -> Result<String, Box<dyn Error>> {
+    /// line saying what was written. A model that another binary than `binary` opens is
+    /// refused naming that binary ([`check_model`]).
+    pub fn run(&self, binary: Binary) -> Result<String, Box<dyn Error>> {
+        check_model(binary, "--a", &self.a)?;
+        check_model(binary, "--b", &self.b)?;
         check_output_file(&self.out)?;
         let (a, format) = read_ply_with_format(&self.a)?;
         let b = read_ply(&self.b)?;

@@ -11,6 +11,7 @@
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
 //! - [`interrupt`]: Ctrl-C as a request to stop after the current step.
+//! - [`model_kind`]: which binary opens a model file; the wrong binary refuses it by name.
 //! - [`plot`]: line charts as pictures: the loss curves (`losses.png`), a fit's PSNR.
 //! - [`picture`]: pictures as CLIP inputs (the style image).
 //! - [`progress`]: the progress of a long loop on stderr: a bar, or plain lines in a log.
@@ -23,6 +24,7 @@ pub mod cli;
 pub mod config;
 pub mod evaluation;
 pub mod interrupt;
+pub mod model_kind;
 pub mod outputs;
 pub mod picture;
 pub mod plot;

@@ -3,6 +3,8 @@
 //! (`style_loss::test_models`), and the draws and errors of the replays of the authors' loops.
 
 use std::path::Path;
+
+use crate::model_kind::Binary;
 use std::process::{Command, Output};
 
 use style_loss::test_models::TinyModelFiles;
@@ -209,4 +211,67 @@ pub fn update_error(start: &[f32], ours: &[f32], reference: &[f64]) -> f64 {
     let update = norm(&mut reference.iter().zip(start).map(|(r, &s)| r - f64::from(s)));
     assert!(update > 0.0, "the replay did not move this group");
     diff / update
+}
+
+/// One small file of each model kind the binaries open, in `dir` (headers only: enough to be
+/// recognized by [`crate::model_kind`], not to load): the binary that opens it, and its path.
+pub fn model_of_each_binary(dir: &Path) -> Vec<(Binary, std::path::PathBuf)> {
+    let ply = |extra: &str| {
+        format!(
+            "ply\nformat binary_little_endian 1.0\n{extra}element vertex 1\nproperty float x\n\
+             end_header\n"
+        )
+        .into_bytes()
+    };
+    let header = r#"{"__metadata__":{"format":"clipgaussian-dmiso"}}"#;
+    let mut safetensors = (header.len() as u64).to_le_bytes().to_vec();
+    safetensors.extend(header.as_bytes());
+    let files = [
+        (
+            Binary::Picture,
+            "picture.ply",
+            ply("comment clipgaussian-2d picture 8x8 distance 1\n"),
+        ),
+        (Binary::Scene, "scene.ply", ply("")),
+        (
+            Binary::Video,
+            "video.ply",
+            ply("element time 1\nproperty float time_func_0\n"),
+        ),
+        (Binary::DynamicScene, "dynamic.safetensors", safetensors),
+    ];
+    files
+        .into_iter()
+        .map(|(binary, name, bytes)| {
+            let path = dir.join(name);
+            std::fs::write(&path, bytes).expect("a model file in the test folder");
+            (binary, path)
+        })
+        .collect()
+}
+
+/// Runs `run` (the binary `binary` given a model file) on a model of every other binary (a
+/// plain Gaussian PLY is left out for 2D, which reads MiraGe's own) and asserts that each run
+/// fails naming the binary that opens it.
+///
+/// # Panics
+/// When a run succeeds or its error does not name the right binary.
+pub fn assert_foreign_models_refused(
+    binary: Binary,
+    dir: &Path,
+    run: impl Fn(&Path) -> std::process::Output,
+) {
+    for (opens, path) in model_of_each_binary(dir) {
+        if opens == binary || (binary == Binary::Picture && opens == Binary::Scene) {
+            continue;
+        }
+        let out = run(&path);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(!out.status.success(), "{}: accepted", path.display());
+        assert!(
+            stderr.contains(&format!("use {}", opens.name())),
+            "{}: {stderr}",
+            path.display()
+        );
+    }
 }

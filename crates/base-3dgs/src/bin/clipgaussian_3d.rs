@@ -22,6 +22,7 @@ use gs_core::ply::read_ply;
 use gs_stylize::cli::{
     exit_code, path_value, BackgroundArg, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
+use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 
@@ -84,8 +85,8 @@ struct StylizeArgs {
     /// JSON configuration (configs/3d.json, configs/3d-light.json).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// The trained scene, INRIA PLY.
-    #[arg(long)]
+    /// The trained scene, INRIA PLY (`--ply` is the same flag).
+    #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: Option<PathBuf>,
     /// The dataset folder (NeRF-synthetic or COLMAP).
     #[arg(long)]
@@ -141,8 +142,8 @@ enum SplitArg {
 /// Arguments of `render`.
 #[derive(Args, Debug)]
 struct RenderArgs {
-    /// The scene, INRIA PLY.
-    #[arg(long)]
+    /// The scene, INRIA PLY (`--ply` is the same flag).
+    #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: PathBuf,
     /// A dataset folder (NeRF-synthetic or COLMAP) whose cameras to render from; each picture
     /// is named after its dataset image, with the extension .png.
@@ -200,6 +201,9 @@ struct EvalArgs {
 
 /// Runs `stylize`, stopping after the current step on the first Ctrl-C.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(model) = &args.ply {
+        check_model(Binary::Scene, "--model", model)?;
+    }
     let overrides = args.overrides()?;
     let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
@@ -214,6 +218,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::Scene, "--model", &args.ply)?;
     check_output_folder(&args.out)?;
     let ply = read_ply(&args.ply)?;
     let cameras = match (&args.data, &args.camera) {
@@ -279,7 +284,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
         Command::Render(args) => render(args),
-        Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
+        Command::Interpolate(args) => args.run(Binary::Scene).map(|line| println!("{line}")),
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };

@@ -32,6 +32,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use style_loss::compute_device;
@@ -281,6 +282,9 @@ fn net_device(choice: DeviceChoice) -> Result<Device, Box<dyn Error>> {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(model) = &args.model {
+        check_model(Binary::DynamicScene, "--model", model)?;
+    }
     let overrides: Vec<Override> = args.style.overrides(vec![
         ("data", path_value(&args.data)),
         ("model", path_value(&args.model)),
@@ -370,6 +374,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::DynamicScene, "--model", &args.model)?;
     check_output_folder(&args.out)?;
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
@@ -423,6 +428,8 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `interpolate`.
 fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::DynamicScene, "--a", &args.a)?;
+    check_model(Binary::DynamicScene, "--b", &args.b)?;
     check_output_file(&args.out)?;
     let read =
         |p: &Path| -> Result<Dmiso, Box<dyn Error>> { Ok(read_model(p, None, &Device::Cpu)?) };

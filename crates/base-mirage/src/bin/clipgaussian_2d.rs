@@ -27,6 +27,7 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, SelftestArgs, StyleArgs};
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
@@ -207,6 +208,9 @@ struct RenderArgs {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(model) = &args.model {
+        check_model(Binary::Picture, "--model", model)?;
+    }
     let config: MirageStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
@@ -300,6 +304,7 @@ fn fit_into_folder(
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::Picture, "--model", &args.model)?;
     check_output_file(&args.out)?;
     let mut model = read_model(&args.model)?.model;
     let backend = open_device(args.device)?;
@@ -330,7 +335,7 @@ fn main() -> ExitCode {
         Command::Stylize(args) => stylize(args),
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
-        Command::Interpolate(args) => args.run().map(|line| println!("{line}")),
+        Command::Interpolate(args) => args.run(Binary::Picture).map(|line| println!("{line}")),
         Command::Selftest(args) => args.run(Vec::new()),
     };
     exit_code(result, |e| {

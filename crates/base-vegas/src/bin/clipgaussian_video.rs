@@ -28,6 +28,7 @@ use gs_stylize::animation::{
 use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use serde::Serialize;
@@ -233,6 +234,9 @@ fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    if let Some(model) = &args.model {
+        check_model(Binary::Video, "--model", model)?;
+    }
     let overrides: Vec<Override> = args.style.overrides(vec![
         ("video", path_value(&args.video)),
         ("model", path_value(&args.model)),
@@ -321,6 +325,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `render`.
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::Video, "--model", &args.model)?;
     check_output_folder(&args.out)?;
     let (mut model, record) = read_model(&args.model)?;
     let size = match (args.width, args.height, record) {
@@ -389,6 +394,8 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `interpolate`.
 fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    check_model(Binary::Video, "--a", &args.a)?;
+    check_model(Binary::Video, "--b", &args.b)?;
     check_output_file(&args.out)?;
     let (a, record) = read_model(&args.a)?;
     let (b, _) = read_model(&args.b)?;
