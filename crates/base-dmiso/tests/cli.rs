@@ -33,7 +33,7 @@ fn scene(dir: &Path) -> PathBuf {
 
 /// The tiny fit's settings as `fit` flags.
 const FIT: [&str; 14] = [
-    "--points",
+    "--gaussians",
     "200",
     "--steps",
     "40",
@@ -386,7 +386,7 @@ fn help_configs_and_eval() {
     }
     let metrics = dir.path().join("metrics.json");
     run(bin()
-        .args(["eval", "--renders", s(&renders), "--data", s(&data)])
+        .args(["eval", "--renders", s(&renders), "--gt", s(&data)])
         .args(["--style-prompt", "a red fire"])
         .args(["--clip-config", s(&models.clip_config)])
         .args(["--clip-weights", s(&models.clip_weights)])

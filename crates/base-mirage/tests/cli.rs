@@ -767,3 +767,99 @@ fn a_model_of_another_modality_names_its_binary() {
     });
     assert!(!out.exists(), "nothing was written");
 }
+
+/// `render` takes the size and distance the model records; a model that records none (MiraGe's
+/// own PLY) asks for the flag.
+#[test]
+fn render_takes_the_size_the_model_records() {
+    let dir = TempDir::new().unwrap();
+    let recorded = dir.path().join("recorded.ply");
+    let model = base_mirage::flat::FlatGaussians::new(GaussianSet::zeros(4, 0));
+    let fitted = FittedTo {
+        width: 12,
+        height: 7,
+        distance: 1.0,
+    };
+    base_mirage::model_file::write_model(&recorded, &model, &fitted).unwrap();
+    let png = dir.path().join("r.png");
+    run(bin()
+        .args(["render", "--model", s(&recorded), "--out", s(&png)])
+        .args(["--device", "cpu"]));
+    assert_eq!(png_size(&png), (12, 7));
+    run(bin()
+        .args(["render", "--model", s(&recorded), "--out", s(&png)])
+        .args(["--width", "5", "--device", "cpu"]));
+    assert_eq!(png_size(&png), (5, 7));
+
+    let mut plain = read_ply(&recorded).unwrap();
+    plain.comments.clear();
+    let unrecorded = dir.path().join("mirage.ply");
+    gs_core::ply::write_ply(
+        &unrecorded,
+        &plain,
+        gs_core::ply::PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    let err = fails(bin().args(["render", "--model", s(&unrecorded), "--out", s(&png)]));
+    assert!(
+        err.contains("records no picture size") && err.contains("--width"),
+        "{err}"
+    );
+    run(bin()
+        .args(["render", "--model", s(&unrecorded), "--out", s(&png)])
+        .args(["--width", "6", "--height", "4", "--device", "cpu"]));
+    assert_eq!(png_size(&png), (6, 4));
+}
+
+/// `eval` scores a stylized picture against the original and writes `metrics.json`'s fields;
+/// CLIP-CONS and CLIP-F, which need several views, are null; a missing picture is named.
+#[test]
+fn eval_scores_a_picture_against_its_original() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let other = dir.path().join("other.png");
+    image::RgbaImage::from_fn(W, H, |x, y| {
+        image::Rgba([(y * 9) as u8, 40, (x * 5) as u8, 255])
+    })
+    .save(&other)
+    .unwrap();
+    let out = dir.path().join("metrics.json");
+    let printed = run(bin()
+        .args(["eval", "--renders", s(&other), "--gt", s(&picture)])
+        .args(["--style-prompt", "fire", "--out", s(&out)])
+        .args(["--clip-config", s(&models.clip_config)])
+        .args(["--clip-weights", s(&models.clip_weights)])
+        .args(["--tokenizer", s(&models.tokenizer)]));
+    let printed = String::from_utf8_lossy(&printed.stdout);
+    assert!(
+        printed.contains("CLIP-S:") && printed.contains("n/a (one view)"),
+        "{printed}"
+    );
+    let metrics: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&out).unwrap()).unwrap();
+    assert_eq!(metrics["views"], 1);
+    assert!(metrics["clip_s"].as_f64().unwrap().is_finite());
+    assert!(metrics["clip_sim"].as_f64().unwrap().abs() > 0.0);
+    assert!(metrics["clip_cons"].is_null() && metrics["clip_f"].is_null());
+    let err = fails(
+        bin()
+            .args([
+                "eval",
+                "--renders",
+                s(&dir.path().join("missing.png")),
+                "--gt",
+                s(&picture),
+            ])
+            .args([
+                "--style-prompt",
+                "fire",
+                "--out",
+                s(&dir.path().join("m2.json")),
+            ])
+            .args(["--clip-config", s(&models.clip_config)])
+            .args(["--clip-weights", s(&models.clip_weights)])
+            .args(["--tokenizer", s(&models.tokenizer)]),
+    );
+    assert!(err.contains("missing.png"), "{err}");
+}

@@ -292,7 +292,7 @@ fn eval_scores_stylized_frames_against_the_video() {
     let metrics = dir.path().join("metrics.json");
     let eval = |renders: &Path| {
         let mut cmd = bin();
-        cmd.args(["eval", "--renders", s(renders), "--video", s(&clip)])
+        cmd.args(["eval", "--renders", s(renders), "--gt", s(&clip)])
             .args(["--style-prompt", "a red fire"])
             .args(["--clip-config", s(&models.clip_config)])
             .args(["--clip-weights", s(&models.clip_weights)])

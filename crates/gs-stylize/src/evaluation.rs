@@ -102,6 +102,21 @@ pub struct Metrics {
     pub clip_f: Option<f64>,
 }
 
+impl Metrics {
+    /// The scores as lines for the terminal (`n/a` for the two that need two views).
+    pub fn lines(&self) -> String {
+        let optional = |v: Option<f64>| v.map_or("n/a (one view)".into(), |v| format!("{v:.4}"));
+        format!(
+            "views:     {}\nCLIP-S:    {:.4}\nCLIP-SIM:  {:.4}\nCLIP-CONS: {}\nCLIP-F:    {}\n",
+            self.views,
+            self.clip_s,
+            self.clip_sim,
+            optional(self.clip_cons),
+            optional(self.clip_f)
+        )
+    }
+}
+
 /// Refuses an empty style prompt or source prompt, as stylization does.
 pub fn check_prompts(style: &Style, source_prompt: &str) -> Result<(), EvalError> {
     if let Style::Prompt(prompt) = style {

@@ -266,12 +266,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &args.style.clip_files(),
         args.background.rgb(),
     )?;
-    let optional = |v: Option<f64>| v.map_or("n/a (one view)".into(), |v| format!("{v:.4}"));
-    println!("views:     {}", metrics.views);
-    println!("CLIP-S:    {:.4}", metrics.clip_s);
-    println!("CLIP-SIM:  {:.4}", metrics.clip_sim);
-    println!("CLIP-CONS: {}", optional(metrics.clip_cons));
-    println!("CLIP-F:    {}", optional(metrics.clip_f));
+    print!("{}", metrics.lines());
     write_metrics(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());
     Ok(())

@@ -124,8 +124,9 @@ struct StylizeArgs {
     /// at its default -r -1; default 1600); 0 keeps every picture at its size.
     #[arg(long)]
     max_width: Option<u32>,
-    /// Random starting points of the fit.
-    #[arg(long)]
+    /// Random starting Gaussians (cores) of the fit, as the other binaries' `--gaussians`
+    /// (`--points` is the same flag).
+    #[arg(long = "gaussians", visible_alias = "points")]
     points: Option<usize>,
     /// Steps of the fit.
     #[arg(long)]
@@ -145,8 +146,9 @@ struct FitArgs {
     /// The output folder (created after the fit; files of the same names are replaced).
     #[arg(long)]
     out: PathBuf,
-    /// Random starting points (cores).
-    #[arg(long, default_value_t = FitSettings::default().points)]
+    /// Random starting Gaussians (cores), as the other binaries' `--gaussians` (`--points` is
+    /// the same flag).
+    #[arg(long = "gaussians", visible_alias = "points", default_value_t = FitSettings::default().points)]
     points: usize,
     /// Optimizer steps of the whole fit.
     #[arg(long, default_value_t = FitSettings::default().steps)]
@@ -163,8 +165,8 @@ struct FitArgs {
     /// Sub-Gaussians per core.
     #[arg(long, default_value_t = FitSettings::default().subs_per_core)]
     subs_per_core: usize,
-    /// Views per step.
-    #[arg(long, default_value_t = FitSettings::default().batch)]
+    /// Consecutive views per step, as `stylize --batch-size` (`--batch` is the same flag).
+    #[arg(long = "batch-size", visible_alias = "batch", default_value_t = FitSettings::default().batch)]
     batch: usize,
     /// Width of the deformation network.
     #[arg(long, default_value_t = FitSettings::default().deform_width)]
@@ -247,8 +249,9 @@ struct EvalArgs {
     /// transforms_test.json.
     #[arg(long)]
     renders: PathBuf,
-    /// The D-NeRF scene (its test split is the reference).
-    #[arg(long)]
+    /// The reference: the D-NeRF scene, whose test split the renders are scored against
+    /// (`--data` is the same flag).
+    #[arg(long = "gt", visible_alias = "data", value_name = "SCENE")]
     data: PathBuf,
     /// The style and the CLIP model.
     #[command(flatten)]

@@ -25,7 +25,10 @@ use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
-use gs_stylize::cli::{exit_code, path_value, InterpolateArgs, SelftestArgs, StyleArgs};
+use gs_stylize::cli::{
+    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
+};
+use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -76,6 +79,11 @@ enum Command {
     /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
     /// normalized), e.g. between two stylizations of one fit.
     Interpolate(InterpolateArgs),
+    /// The paper's CLIP metrics (CLIP-S, CLIP-SIM) of a stylized picture against the original.
+    ///
+    /// Scores (x100) the picture `--renders` against `--gt` for the style and writes them as
+    /// JSON (CLIP-CONS and CLIP-F need several views: null here).
+    Eval(EvalArgs),
     /// Check the device: every part of a stylization on small seeded inputs against the cpu.
     ///
     /// Runs the render and its backward, Adam, each loss term and the loss gradient on
@@ -183,27 +191,77 @@ struct RenderArgs {
     /// The model, MiraGe PLY.
     #[arg(long)]
     model: PathBuf,
-    /// Width of the picture, pixels (the fitted picture's, for the picture itself).
+    /// Width of the picture, pixels (default: the fitted picture's, which our model files
+    /// record).
     #[arg(long)]
-    width: u32,
-    /// Height of the picture, pixels.
+    width: Option<u32>,
+    /// Height of the picture, pixels (default: the fitted picture's).
     #[arg(long)]
-    height: u32,
+    height: Option<u32>,
     /// Render from the mirror camera (the picture flipped left to right).
     #[arg(long)]
     mirror: bool,
     /// The background colour: white, black or R,G,B.
     #[arg(long, value_parser = parse_background, default_value = "black")]
     background: [f32; 3],
-    /// Distance of the camera from the picture plane (the fit's).
-    #[arg(long, default_value_t = DEFAULT_DISTANCE)]
-    distance: f64,
+    /// Distance of the camera from the picture plane (default: the fit's, which our model
+    /// files record, else the fit's default).
+    #[arg(long)]
+    distance: Option<f64>,
     /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
     /// The output PNG (its folder must exist; a file of that name is replaced).
     #[arg(long)]
     out: PathBuf,
+}
+
+/// Arguments of `eval`.
+#[derive(Args, Debug)]
+struct EvalArgs {
+    /// The stylized picture (e.g. `<stylize out>/stylized.png`).
+    #[arg(long)]
+    renders: PathBuf,
+    /// The reference: the original picture.
+    #[arg(long)]
+    gt: PathBuf,
+    /// The style and the CLIP model.
+    #[command(flatten)]
+    style: EvalStyleArgs,
+    /// The colour behind transparent pixels: white, black or R,G,B (black by default, as
+    /// `stylize` composites the picture).
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
+    /// Where to write the scores as JSON (its folder must exist; checked before any work).
+    #[arg(long, default_value = "metrics.json")]
+    out: PathBuf,
+}
+
+/// Runs `eval`.
+fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+    check_output_file(&args.out)?;
+    let style = args.style.style();
+    check_prompts(&style, &args.style.source_prompt)?;
+    let clip = resolve_clip(&args.style.clip_files())?;
+    let load = |path: &Path| {
+        gs_stylize::picture::load_picture(
+            path,
+            args.background,
+            &style_loss::candle_core::Device::Cpu,
+        )
+    };
+    let metrics = score(
+        &clip,
+        &[load(&args.renders)?],
+        &[load(&args.gt)?],
+        &style,
+        &args.style.source_prompt,
+        args.background,
+    )?;
+    print!("{}", metrics.lines());
+    write_metrics(&args.out, &metrics)?;
+    println!("wrote {}", args.out.display());
+    Ok(())
 }
 
 /// Runs `stylize`.
@@ -306,24 +364,36 @@ fn fit_into_folder(
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     check_model(Binary::Picture, "--model", &args.model)?;
     check_output_file(&args.out)?;
-    let mut model = read_model(&args.model)?.model;
+    let file = read_model(&args.model)?;
+    let recorded = file.fitted_to;
+    let size = |flag: &str, given: Option<u32>, recorded: Option<u32>| {
+        given.or(recorded).ok_or_else(|| {
+            format!(
+                "{}: the model records no picture size (a MiraGe PLY, not one of ours); give \
+                 {flag}",
+                args.model.display()
+            )
+        })
+    };
+    let width = size("--width", args.width, recorded.map(|r| r.width))?;
+    let height = size("--height", args.height, recorded.map(|r| r.height))?;
+    let distance = args
+        .distance
+        .or(recorded.map(|r| r.distance))
+        .unwrap_or(DEFAULT_DISTANCE);
+    let mut model = file.model;
     let backend = open_device(args.device)?;
     let image = render_picture(
         &mut model,
-        args.width,
-        args.height,
-        args.distance,
+        width,
+        height,
+        distance,
         args.mirror,
         args.background,
         &backend,
     )?;
     image.save_png(&args.out)?;
-    println!(
-        "wrote {} ({}x{})",
-        args.out.display(),
-        args.width,
-        args.height
-    );
+    println!("wrote {} ({width}x{height})", args.out.display());
     Ok(())
 }
 
@@ -335,6 +405,7 @@ fn main() -> ExitCode {
         Command::Stylize(args) => stylize(args),
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
+        Command::Eval(args) => eval(args),
         Command::Interpolate(args) => args.run(Binary::Picture).map(|line| println!("{line}")),
         Command::Selftest(args) => args.run(Vec::new()),
     };

@@ -208,8 +208,9 @@ struct EvalArgs {
     /// The stylized frames (a folder, e.g. `<stylize out>/frames`, or a video file).
     #[arg(long)]
     renders: PathBuf,
-    /// The original video (a frames folder or a video file) with as many frames.
-    #[arg(long)]
+    /// The reference: the original video (a frames folder or a video file) with as many
+    /// frames (`--video` is the same flag).
+    #[arg(long = "gt", visible_alias = "video", value_name = "VIDEO")]
     video: PathBuf,
     /// The style and the CLIP model.
     #[command(flatten)]
