@@ -703,3 +703,13 @@ fn a_model_of_another_modality_names_its_binary() {
     });
     assert!(!out.exists(), "nothing was written");
 }
+
+/// Every subcommand has the flags the four binaries share, under the same names.
+#[test]
+fn the_shared_flags_have_the_same_names_in_every_subcommand() {
+    gs_stylize::test_support::assert_shared_flags(
+        std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-3d")),
+        &["stylize", "render", "interpolate", "eval", "selftest"],
+        false,
+    );
+}

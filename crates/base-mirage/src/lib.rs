@@ -11,7 +11,6 @@
 //! - [`init`]: MiraGe's random initialisation on the picture plane.
 //! - [`fit`]: fitting a picture with L1 + D-SSIM on both cameras.
 //! - [`picture`]: loading a picture and the embedded default one.
-//! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
 //! - [`model_file`]: model files: is it a 2D model, which picture was it fitted to.
 //! - [`stylize`](mod@stylize): the 2D stylization run (`clipgaussian-2d stylize`).
 //!
@@ -33,7 +32,6 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
-pub mod background;
 pub mod fit;
 pub mod flat;
 pub mod init;

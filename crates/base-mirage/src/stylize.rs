@@ -64,7 +64,7 @@ pub struct MirageStylizeConfig {
     pub out: Option<PathBuf>,
     /// Colour behind transparent picture pixels and behind the Gaussians, RGB in `[0, 1]`;
     /// also read as `white`, `black` or `"R,G,B"` ([`crate::background`]).
-    #[serde(deserialize_with = "crate::background::deserialize")]
+    #[serde(deserialize_with = "gs_stylize::background::deserialize")]
     pub background: [f32; 3],
     /// A picture wider than this is shrunk to it, pixels, as MiraGe's loader shrinks it (PIL's
     /// bicubic of the 8-bit picture; default 1600); 0 keeps every picture at its size.

@@ -863,3 +863,20 @@ fn eval_scores_a_picture_against_its_original() {
     );
     assert!(err.contains("missing.png"), "{err}");
 }
+
+/// Every subcommand has the flags the four binaries share, under the same names.
+#[test]
+fn the_shared_flags_have_the_same_names_in_every_subcommand() {
+    gs_stylize::test_support::assert_shared_flags(
+        std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-2d")),
+        &[
+            "stylize",
+            "fit",
+            "render",
+            "interpolate",
+            "eval",
+            "selftest",
+        ],
+        true,
+    );
+}

@@ -61,7 +61,9 @@ pub struct VideoStylizeConfig {
     /// Frames wider than this are shrunk to it, pixels, as VeGaS's loader shrinks them (PIL's
     /// bicubic of the 8-bit frame; default 1600); 0 keeps every frame at its size.
     pub max_width: u32,
-    /// Colour behind transparent pixels and behind the Gaussians, RGB in `[0, 1]` (VeGaS: black).
+    /// Colour behind transparent pixels and behind the Gaussians, RGB in `[0, 1]` (VeGaS:
+    /// black); `white`, `black`, `"R,G,B"` or `[r, g, b]` in a configuration.
+    #[serde(deserialize_with = "gs_stylize::background::deserialize")]
     pub background: [f32; 3],
     /// Distance of the cameras from the plane, world units (VeGaS: 1).
     pub distance: f64,
@@ -339,5 +341,24 @@ mod tests {
             (5.0, 90.0, 0.5)
         );
         assert_eq!((config.style.feature_lr, config.style.steps), (0.02, 4999));
+    }
+
+    /// The background is written as the other binaries write it: `white`, `black`, `R,G,B`, or
+    /// an array (the form `config.json` keeps).
+    #[test]
+    fn the_background_takes_names_and_colours() {
+        use gs_stylize::{resolve_config, Override};
+        let background = |value: serde_json::Value| {
+            resolve_config::<VideoStylizeConfig>(None, &[Override::new("background", value)])
+                .map(|c| c.background)
+        };
+        assert_eq!(background("white".into()).unwrap(), [1.0; 3]);
+        assert_eq!(background("0.25,0.5,1".into()).unwrap(), [0.25, 0.5, 1.0]);
+        assert_eq!(
+            background(serde_json::json!([0.0, 0.5, 0.0])).unwrap(),
+            [0.0, 0.5, 0.0]
+        );
+        let err = background("grey".into()).unwrap_err().to_string();
+        assert!(err.contains("white, black or R,G,B"), "{err}");
     }
 }

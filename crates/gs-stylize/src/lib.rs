@@ -3,6 +3,7 @@
 //! views, hands them to [`PreparedRun::stylize`], and writes its own results (a stylized PLY,
 //! previews) from the trained model.
 //!
+//! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
@@ -19,6 +20,7 @@
 //! - [`writable`]: checking before any work that every output can be written.
 
 pub mod animation;
+pub mod background;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;

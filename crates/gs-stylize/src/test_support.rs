@@ -275,3 +275,96 @@ pub fn assert_foreign_models_refused(
         );
     }
 }
+
+/// The flags a subcommand has in every binary that has it: one product, one set of names.
+pub const SHARED_FLAGS: &[(&str, &[&str])] = &[
+    (
+        "stylize",
+        &[
+            "--config",
+            "--model",
+            "--out",
+            "--style-prompt",
+            "--style-image",
+            "--source-prompt",
+            "--steps",
+            "--max-width",
+            "--background",
+            "--clip-config",
+            "--clip-weights",
+            "--tokenizer",
+            "--vgg-weights",
+            "--device",
+            "--set",
+            "--resume",
+            "--quiet",
+        ],
+    ),
+    (
+        "fit",
+        &[
+            "--out",
+            "--gaussians",
+            "--steps",
+            "--seed",
+            "--max-width",
+            "--device",
+            "--quiet",
+        ],
+    ),
+    ("render", &["--model", "--out", "--background", "--device"]),
+    ("interpolate", &["--a", "--b", "--t", "--out"]),
+    (
+        "eval",
+        &[
+            "--renders",
+            "--gt",
+            "--style-prompt",
+            "--style-image",
+            "--source-prompt",
+            "--clip-config",
+            "--clip-weights",
+            "--tokenizer",
+            "--out",
+        ],
+    ),
+    ("selftest", &["--device"]),
+];
+
+/// The flags `stylize` has where the modality fits its own base model first (2D, video, 4D).
+pub const STYLIZE_FIT_FLAGS: &[&str] = &["--gaussians", "--fit-steps"];
+
+/// Asserts that the binary at `binary` has each of `subcommands` with every flag
+/// [`SHARED_FLAGS`] lists for it (from its `--help`), `stylize` also [`STYLIZE_FIT_FLAGS`]
+/// when the binary `fits`, and that each `--device` takes `cpu, gpu, auto`.
+///
+/// # Panics
+/// When a subcommand or a flag is missing, or a `--device` takes other values.
+pub fn assert_shared_flags(binary: &Path, subcommands: &[&str], fits: bool) {
+    for &sub in subcommands {
+        let (_, shared) = SHARED_FLAGS
+            .iter()
+            .find(|(name, _)| *name == sub)
+            .unwrap_or_else(|| panic!("no shared flags listed for {sub}"));
+        let mut flags = shared.to_vec();
+        if fits && sub == "stylize" {
+            flags.extend(STYLIZE_FIT_FLAGS);
+        }
+        let help = succeeds(Command::new(binary).args([sub, "--help"]));
+        let help = String::from_utf8_lossy(&help.stdout);
+        for flag in &flags {
+            let listed = help
+                .lines()
+                .any(|l| l.trim_start().split([' ', ',', '=']).any(|w| w == *flag));
+            assert!(listed, "{} {sub}: no {flag} in\n{help}", binary.display());
+        }
+        if flags.contains(&"--device") {
+            let err = fails(Command::new(binary).args([sub, "--device", "tpu"]));
+            assert!(
+                err.contains("cpu, gpu, auto"),
+                "{} {sub} --device: {err}",
+                binary.display()
+            );
+        }
+    }
+}

@@ -12,7 +12,6 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use base_mirage::background::parse_background;
 use base_mirage::fit::{render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG};
 use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
@@ -25,6 +24,7 @@ use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
+use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };

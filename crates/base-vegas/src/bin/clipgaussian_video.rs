@@ -25,6 +25,7 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
+use gs_stylize::background::parse_background;
 use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
@@ -117,6 +118,10 @@ struct StylizeArgs {
     /// Steps of the fit.
     #[arg(long)]
     fit_steps: Option<u64>,
+    /// The colour behind transparent pixels of the frames and behind the Gaussians: white,
+    /// black or R,G,B (default black, as VeGaS).
+    #[arg(long, value_parser = parse_background)]
+    background: Option<[f32; 3]>,
     /// The style, model files, device and run controls; `--resume` also reuses
     /// `<out>/base.ply`.
     #[command(flatten)]
@@ -174,8 +179,8 @@ struct RenderArgs {
     /// Distance of the camera from the plane (default: the recorded one, else 1).
     #[arg(long)]
     distance: Option<f64>,
-    /// The background colour as R,G,B in [0, 1] (the run's; VeGaS: black).
-    #[arg(long, value_parser = parse_rgb, default_value = "0,0,0")]
+    /// The background colour: white, black or R,G,B in [0, 1] (the run's; VeGaS: black).
+    #[arg(long, value_parser = parse_background, default_value = "black")]
     background: [f32; 3],
     /// Where to render: cpu, gpu, or auto.
     #[arg(long, default_value_t = DeviceChoice::Auto)]
@@ -220,19 +225,6 @@ struct EvalArgs {
     out: Option<PathBuf>,
 }
 
-/// `R,G,B` with channels in `[0, 1]`.
-fn parse_rgb(text: &str) -> Result<[f32; 3], String> {
-    let channels: Vec<f32> = text
-        .split(',')
-        .map(|c| c.trim().parse::<f32>())
-        .collect::<Result<_, _>>()
-        .map_err(|e| format!("{text:?} is not R,G,B: {e}"))?;
-    match channels[..] {
-        [r, g, b] if channels.iter().all(|c| (0.0..=1.0).contains(c)) => Ok([r, g, b]),
-        _ => Err(format!("{text:?} is not R,G,B with channels in [0, 1]")),
-    }
-}
-
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     if let Some(model) = &args.model {
@@ -246,6 +238,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("max_width", args.max_width.map(Into::into)),
         ("fit_gaussians", args.gaussians.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
+        ("background", args.background.map(|c| c.to_vec().into())),
     ])?;
     let config: VideoStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
