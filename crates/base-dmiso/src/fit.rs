@@ -94,28 +94,29 @@ impl Default for FitSettings {
 }
 
 impl FitSettings {
-    /// Checks the settings; the error starts with the field.
+    /// Checks the settings; the error starts with the flag of `clipgaussian-4d fit` that sets
+    /// the field.
     pub fn check(&self) -> Result<(), FitError> {
         check_fit_settings(self.points, self.steps, self.lambda_dssim, self.background)
-            .map_err(|e| FitError::Settings(e.replace("gaussians:", "points:")))?;
+            .map_err(|e| FitError::Settings(format!("--{e}")))?;
         let bad = |m: String| Err(FitError::Settings(m));
         if self.warm_up > self.subs_from || self.subs_from > self.steps {
             return bad(format!(
-                "warm_up {} <= subs_from {} <= steps {} is required",
+                "--warm-up {} <= --subs-from {} <= --steps {} is required",
                 self.warm_up, self.subs_from, self.steps
             ));
         }
         if self.sub_cores == 0 || self.subs_per_core == 0 {
             return bad(format!(
-                "sub_cores ({}) and subs_per_core ({}) must be at least 1",
+                "--sub-cores ({}) and --subs-per-core ({}) must be at least 1",
                 self.sub_cores, self.subs_per_core
             ));
         }
         if self.batch == 0 {
-            return bad("batch: must be at least 1".into());
+            return bad("--batch-size: must be at least 1".into());
         }
         if self.deform_width == 0 {
-            return bad("deform_width: must be at least 1".into());
+            return bad("--deform-width: must be at least 1".into());
         }
         Ok(())
     }

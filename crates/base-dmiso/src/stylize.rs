@@ -178,7 +178,7 @@ impl DynamicStylizeConfig {
     fn check(&self) -> Result<(), DynamicError> {
         let bad = |m: String| Err(DynamicError::Config(m));
         if self.batch_size == 0 {
-            return bad("batch_size: must be at least 1".into());
+            return bad("batch_size: must be at least 1 (--batch-size)".into());
         }
         for (name, v) in [
             ("alpha_lr", self.alpha_lr),

@@ -474,3 +474,36 @@ fn the_shared_flags_have_the_same_names_in_every_subcommand() {
         true,
     );
 }
+
+/// A fit setting out of range is refused naming the flag that sets it.
+#[test]
+fn fit_errors_name_their_flags() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let data = dir.path().join("scene");
+    for (flags, named) in [
+        (vec!["--gaussians", "0"], "--gaussians: must be at least 1"),
+        (
+            vec!["--batch-size", "0"],
+            "--batch-size: must be at least 1",
+        ),
+        (
+            vec!["--warm-up", "50", "--subs-from", "20"],
+            "--warm-up 50 <= --subs-from 20",
+        ),
+    ] {
+        let err = gs_stylize::test_support::fails(
+            bin()
+                .args([
+                    "fit",
+                    "--data",
+                    data.to_str().unwrap(),
+                    "--out",
+                    out.to_str().unwrap(),
+                ])
+                .args(&flags),
+        );
+        assert!(err.contains(named), "{flags:?}: {err}");
+    }
+    assert!(!out.exists());
+}

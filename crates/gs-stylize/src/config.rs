@@ -169,19 +169,26 @@ impl StyleSettings {
     /// step, finite non-negative weights, finite positive rates, patches when the patch loss is
     /// on, a distortion in `[0, 1]`. Errors name the field.
     pub fn validate(&self) -> Result<(), StylizeError> {
-        let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
+        let bad = |field: &str, why: &str| {
+            Err(StylizeError::Config(format!(
+                "{field}: {why} (set it with {})",
+                flag_for(field)
+            )))
+        };
         match (&self.style_prompt, &self.style_image) {
             (Some(_), Some(_)) => {
-                return bad(
-                    "style_prompt, style_image",
-                    "give exactly one style (a prompt or an image), not both",
-                )
+                return Err(StylizeError::Config(
+                    "style_prompt, style_image: give exactly one style (--style-prompt or \
+                     --style-image), not both"
+                        .into(),
+                ))
             }
             (None, None) => {
-                return bad(
-                    "style_prompt, style_image",
-                    "a style is required: a prompt or an image",
-                )
+                return Err(StylizeError::Config(
+                    "style_prompt, style_image: a style is required: --style-prompt TEXT or \
+                     --style-image PICTURE"
+                        .into(),
+                ))
             }
             (Some(p), None) => {
                 if let Err(why) = check_prompt("style prompt", p) {
@@ -221,10 +228,12 @@ impl StyleSettings {
             }
         }
         if self.lambda_patch > 0.0 && (self.patch_size == 0 || self.num_patches == 0) {
-            return bad(
-                "patch_size, num_patches",
-                "a patch loss needs a patch size and a number of patches above 0",
-            );
+            return Err(StylizeError::Config(
+                "patch_size, num_patches: a patch loss needs a patch size and a number of \
+                 patches above 0 (--set patch_size=128 --set num_patches=64, the paper's; or \
+                 --set lambda_patch=0 for none)"
+                    .into(),
+            ));
         }
         if !(0.0..=1.0).contains(&self.distortion_scale) {
             return bad("distortion_scale", "must be in [0, 1]");
@@ -313,6 +322,27 @@ impl Override {
         }
         let value = serde_json::from_str(value).unwrap_or_else(|_| Value::String(value.into()));
         Ok(Self::new(field, value))
+    }
+}
+
+/// How a user sets configuration field `field` on the command line: its own flag where every
+/// binary has one (`--steps`, `--style-prompt`, ...), else `--set field=VALUE`.
+pub fn flag_for(field: &str) -> String {
+    const OWN_FLAGS: [&str; 9] = [
+        "style_prompt",
+        "style_image",
+        "source_prompt",
+        "steps",
+        "clip_config",
+        "clip_weights",
+        "tokenizer",
+        "vgg_weights",
+        "device",
+    ];
+    if OWN_FLAGS.contains(&field) {
+        format!("--{}", field.replace('_', "-"))
+    } else {
+        format!("--set {field}=VALUE")
     }
 }
 
@@ -410,6 +440,33 @@ fn name_bad_fields<C: DeserializeOwned>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A field out of range is refused with the flag that sets it: its own flag where every
+    /// binary has one, else `--set field=VALUE`.
+    #[test]
+    fn errors_name_the_flag_that_fixes_them() {
+        let mut settings = StyleSettings {
+            style_prompt: Some("fire".into()),
+            ..StyleSettings::paper_3d()
+        };
+        settings.steps = 0;
+        let err = settings.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("steps: must be at least 1 (set it with --steps)"),
+            "{err}"
+        );
+        settings.steps = 10;
+        settings.distortion_scale = 2.0;
+        let err = settings.validate().unwrap_err().to_string();
+        assert!(err.contains("--set distortion_scale=VALUE"), "{err}");
+        settings.distortion_scale = 0.5;
+        settings.style_prompt = None;
+        let err = settings.validate().unwrap_err().to_string();
+        assert!(
+            err.contains("--style-prompt TEXT or --style-image PICTURE"),
+            "{err}"
+        );
+    }
 
     /// A modality configuration with the 3D fields, so `configs/3d.json` reads into it.
     #[derive(Debug, PartialEq, Serialize, Deserialize)]
@@ -568,7 +625,10 @@ mod tests {
         let mut s = StyleSettings::paper_3d();
         s.style_prompt = Some("  ".into());
         let e = s.validate().unwrap_err().to_string();
-        assert_eq!(e, "configuration: style_prompt: the style prompt is empty");
+        assert_eq!(
+            e,
+            "configuration: style_prompt: the style prompt is empty (set it with --style-prompt)"
+        );
         s.style_prompt = None;
         assert!(s
             .validate()

@@ -433,9 +433,11 @@ pub fn check_patches_fit(
         for (i, (img, label)) in images.iter().zip(labels).enumerate() {
             if (img.width as usize) < size || (img.height as usize) < size {
                 return Err(StylizeError::Input(format!(
-                    "patch_size {size} is larger than view {i} ({label}, {}x{}); lower \
-                     patch_size (or the resolution divisor of a dataset)",
-                    img.width, img.height
+                    "patch_size {size} is larger than view {i} ({label}, {}x{}); lower it \
+                     with --set patch_size={} (or use larger views)",
+                    img.width,
+                    img.height,
+                    img.width.min(img.height)
                 )));
             }
         }
@@ -532,7 +534,9 @@ fn build_loss(
         }
         (None, None) => {
             return Err(StylizeError::Config(
-                "style_prompt, style_image: a style is required".into(),
+                "style_prompt, style_image: a style is required: --style-prompt TEXT or \
+                 --style-image PICTURE"
+                    .into(),
             ))
         }
     };
