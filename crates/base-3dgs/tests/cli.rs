@@ -586,7 +586,7 @@ fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
     let help = succeeds(&["stylize", "--help"]);
     for text in [
         "stylized.ply",
-        "preview_view000.png",
+        "preview.png",
         "losses.json",
         "losses.png",
         "config.json",

@@ -9,7 +9,7 @@
 //! image, CLIP configuration, weight files) is checked before the fit. Outputs in `out`:
 //! - `model.safetensors`: the stylized model, to stylize again, render or interpolate;
 //! - `base.safetensors`: the fitted model when this run fitted it (a resumed run reuses it);
-//! - `test/00000.png ...`: the test views at their times, when the scene has a test split;
+//! - `frames/00000.png ...`: the test views at their times, when the scene has a test split;
 //! - `sweep/00000.png ...`, `preview.gif` (original | stylized) and `sweep.mp4` (with
 //!   `ffmpeg`): the scene through time from its first test camera (else its first camera);
 //! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize).
@@ -28,6 +28,7 @@ use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, PREVIEW_GIF,
 };
 use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -43,8 +44,8 @@ use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
 pub const MODEL_FILE: &str = "model.safetensors";
 /// The model fitted by this run.
 pub const BASE_FILE: &str = "base.safetensors";
-/// The renders of the test views.
-pub const TEST_DIR: &str = "test";
+/// The renders of the test views: `frames/`, the folder name of rendered views in every binary.
+pub const TEST_DIR: &str = gs_stylize::animation::FRAMES_DIR;
 /// The frames of the sweep through time.
 pub const SWEEP_DIR: &str = "sweep";
 /// The sweep as a video, when `ffmpeg` is installed.
@@ -79,7 +80,7 @@ pub struct DynamicStylizeConfig {
     /// loader without `--eval`: the test frames after the training ones, the extent of both) or
     /// `train`. Unset (the default): as the authors' model folder's `cfg_args` says (`eval`
     /// overrides the command line in the authors' 4D code), else `train_and_test` (their
-    /// example fit passes no `--eval`). The test views are rendered into `test/` either way.
+    /// example fit passes no `--eval`). The test views are rendered into `frames/` either way.
     pub train_splits: Option<TrainSplits>,
     /// Consecutive training views per step (runs of the views left in the epoch), their losses
     /// summed and divided by this size.
@@ -469,6 +470,9 @@ pub fn run(
     let sweep = render_views(&mut model, &views, background.rgb(), backend)?;
     let sweep_dir = out.join(SWEEP_DIR);
     write_frames(&sweep_dir, &sweep)?;
+    if let (Some(first), Some(stylized)) = (original.first(), sweep.first()) {
+        write_pair(&out.join(PREVIEW_PNG), first, stylized)?;
+    }
     write_preview_gif(&out.join(PREVIEW_GIF), &original, &sweep, config.sweep_fps)?;
     let wrote_mp4 = write_mp4_or_warn(&sweep_dir, config.sweep_fps, &out.join(SWEEP_MP4));
     mark_finished(out, config.style.steps)?;

@@ -88,7 +88,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         text.contains("mean PSNR") && text.contains("50 cores of 3 sub-Gaussians"),
         "{text}"
     );
-    assert_eq!(count_pngs(&fitted.join("test")), 3);
+    assert_eq!(count_pngs(&fitted.join("frames")), 3);
     let base = load(&fitted.join("model.safetensors"));
     assert_eq!(
         (base.cores(), base.subs_per_core(), base.net().width),
@@ -110,10 +110,16 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         stdout.lines().all(|l| !l.to_lowercase().contains("error")),
         "{stdout}"
     );
-    for name in ["preview.gif", "losses.json", "losses.png", "config.json"] {
+    for name in [
+        "preview.gif",
+        "preview.png",
+        "losses.json",
+        "losses.png",
+        "config.json",
+    ] {
         assert!(styled.join(name).is_file(), "{name}");
     }
-    assert_eq!(count_pngs(&styled.join("test")), 3);
+    assert_eq!(count_pngs(&styled.join("frames")), 3);
     assert_eq!(count_pngs(&styled.join("sweep")), 5);
     // The sweep's mp4 is written exactly where ffmpeg is installed (not on CI).
     let ffmpeg = Command::new("ffmpeg").arg("-version").output().is_ok();

@@ -8,7 +8,7 @@
 //! bad input costs no time and leaves nothing behind.
 //! Outputs in `out`:
 //! - `stylized.png`: the stylized picture, the size of the original;
-//! - `side_by_side.png`: the original and the stylized picture, left and right;
+//! - `preview.png`: the original and the stylized picture, left and right;
 //! - `model.ply`: the stylized model (MiraGe PLY), to stylize again or interpolate;
 //! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
 //! - `original.png`: the picture when it is the embedded default;
@@ -41,8 +41,8 @@ pub const DEFAULT_STYLE_PROMPT: &str = "Starry Night by Vincent van Gogh";
 
 /// The stylized picture.
 pub const STYLIZED_PNG: &str = "stylized.png";
-/// Original and stylized picture side by side.
-pub const SIDE_BY_SIDE_PNG: &str = "side_by_side.png";
+/// Original and stylized picture side by side, as every modality writes it.
+pub use gs_stylize::outputs::PREVIEW_PNG;
 /// The stylized model.
 pub const MODEL_PLY: &str = "model.ply";
 /// The model fitted by this run.
@@ -270,10 +270,7 @@ pub fn run(
             .map_err(|e| MirageError::from(StylizeError::from(e)))
     };
     save(&stylized, STYLIZED_PNG)?;
-    save(
-        &Image::side_by_side(&[&picture, &stylized]),
-        SIDE_BY_SIDE_PNG,
-    )?;
+    save(&Image::side_by_side(&[&picture, &stylized]), PREVIEW_PNG)?;
     if config.picture.is_none() {
         save(&picture, ORIGINAL_PNG)?;
     }

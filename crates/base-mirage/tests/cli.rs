@@ -109,7 +109,7 @@ fn fit_then_stylize_from_file_to_file() {
         (W, H),
         "the original size"
     );
-    assert_eq!(png_size(&sty.join("side_by_side.png")), (2 * W, H));
+    assert_eq!(png_size(&sty.join("preview.png")), (2 * W, H));
     assert_eq!(png_size(&sty.join("losses.png")).0, 640);
     let stylized = read_ply(&sty.join("model.ply")).unwrap();
     assert_eq!(stylized.gaussians.len(), 400, "the count never changes");
@@ -702,7 +702,7 @@ fn stylize_help_lists_every_file_it_writes() {
     let help = String::from_utf8_lossy(&run(bin().args(["stylize", "--help"])).stdout).into_owned();
     for file in [
         "stylized.png",
-        "side_by_side.png",
+        "preview.png",
         "model.ply",
         "base.ply",
         "original.png",

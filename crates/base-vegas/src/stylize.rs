@@ -22,6 +22,7 @@ use gs_core::backend::Backend;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_progress;
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -289,6 +290,7 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
     write_model(&out.join(MODEL_PLY), &outcome.model, Some(record))?;
     let frames_dir = out.join(FRAMES_DIR);
     write_frames(&frames_dir, &stylized)?;
+    write_pair(&out.join(PREVIEW_PNG), &video.frames[0], &stylized[0])?;
     write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
     let wrote_mp4 = write_mp4_or_warn(&frames_dir, video.fps, &out.join(STYLIZED_MP4));
     mark_finished(out, config.style.steps)?;

@@ -91,6 +91,11 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     );
     assert_eq!(frame_sizes(&fitted.join("frames")), vec![(W, H); FRAMES]);
     assert!(fitted.join("preview.gif").is_file());
+    // The first frame, original | fitted, as every modality's preview.png.
+    assert_eq!(
+        image::image_dimensions(fitted.join("preview.png")).unwrap(),
+        (2 * W, H)
+    );
 
     let styled = dir.path().join("styled");
     let mut cmd = bin();
@@ -107,6 +112,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     assert_eq!(frame_sizes(&styled.join("frames")), vec![(W, H); FRAMES]);
     for name in [
         "preview.gif",
+        "preview.png",
         "model.ply",
         "losses.json",
         "losses.png",

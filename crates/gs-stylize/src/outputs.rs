@@ -46,9 +46,23 @@ impl StepLosses {
     }
 }
 
-/// The name of the before/after picture of view `view`.
-pub fn preview_name(view: usize) -> String {
-    format!("preview_view{view:03}.png")
+/// The before/after picture every modality writes: the original and the stylized result side
+/// by side (the first preview view in 3D, the first frame in video and 4D, the picture in 2D).
+pub const PREVIEW_PNG: &str = "preview.png";
+
+/// The name of the before/after picture of the `k`-th preview view, view `view`: [`PREVIEW_PNG`]
+/// for the first, `preview_view{view:03}.png` for the others.
+pub fn preview_name(k: usize, view: usize) -> String {
+    if k == 0 {
+        PREVIEW_PNG.to_string()
+    } else {
+        format!("preview_view{view:03}.png")
+    }
+}
+
+/// Writes `before` and `after` side by side to `path`.
+pub fn write_pair(path: &Path, before: &Image, after: &Image) -> Result<(), StylizeError> {
+    Ok(Image::side_by_side(&[before, after]).save_png(path)?)
 }
 
 /// Writes `bytes` to `path` through [`gs_core::fs::write_atomic`].
@@ -77,16 +91,17 @@ pub fn read_json<T: DeserializeOwned>(path: &Path) -> Result<T, StylizeError> {
     })
 }
 
-/// Writes `before` and `after` side by side as the preview of view `view` in `dir`; returns
-/// the file.
+/// Writes `before` and `after` side by side as the preview of the `k`-th preview view, view
+/// `view`, in `dir` ([`preview_name`]); returns the file.
 pub fn write_preview(
     dir: &Path,
+    k: usize,
     view: usize,
     before: &Image,
     after: &Image,
 ) -> Result<PathBuf, StylizeError> {
-    let path = dir.join(preview_name(view));
-    Image::side_by_side(&[before, after]).save_png(&path)?;
+    let path = dir.join(preview_name(k, view));
+    write_pair(&path, before, after)?;
     Ok(path)
 }
 
@@ -124,6 +139,7 @@ pub fn write_previews<M: BaseModel>(
     chosen
         .iter()
         .zip(befores.iter().zip(&afters))
-        .map(|((v, _), (b, a))| write_preview(dir, *v, b, a))
+        .enumerate()
+        .map(|(k, ((v, _), (b, a)))| write_preview(dir, k, *v, b, a))
         .collect()
 }

@@ -45,7 +45,8 @@ enum Command {
     /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
     ///
     /// Writes to `--out`: stylized.ply (the stylized scene, in the input's PLY format with its
-    /// extra properties), preview_view000.png (before | after, one per `preview_views` entry),
+    /// extra properties), preview.png (before | after of the first `preview_views` entry; the
+    /// others preview_viewNNN.png),
     /// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The
     /// configuration comes from `--config` (the paper's defaults when absent), then the flags,
     /// then every `--set field=value` in order. The output folder is checked before the scene

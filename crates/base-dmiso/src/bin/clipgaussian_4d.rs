@@ -61,7 +61,8 @@ enum Command {
     /// (configs/4d.json; configs/4d-keep-background.json keeps the background): batches of 4
     /// consecutive views, the sub-Gaussians, triangles, deformation network and time-rotation
     /// layer trained together. Writes to --out: model.safetensors, base.safetensors (the fit,
-    /// when this run fitted), test/ (the test views at their times), sweep/ with preview.gif
+    /// when this run fitted), frames/ (the test views at their times), preview.png (the first
+    /// sweep frame, original | stylized), sweep/ with preview.gif
     /// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), losses.json,
     /// losses.png, config.json and checkpoint/. The configuration comes from --config (the
     /// paper's defaults when absent), then the flags, then every --set field=value in order.
@@ -70,7 +71,7 @@ enum Command {
     Stylize(Box<StylizeArgs>),
     /// Fit a D-NeRF scene with D-MiSo (no stylization).
     ///
-    /// Writes to --out: model.safetensors and test/ (the test views at their times; train/, the
+    /// Writes to --out: model.safetensors and frames/ (the test views at their times; the
     /// training views, when the scene has no test split), and prints their mean PSNR.
     Fit(FitArgs),
     /// Render a model at the views and times of a dataset split, and optionally through time
@@ -245,7 +246,7 @@ struct InterpolateArgs {
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 struct EvalArgs {
-    /// The rendered test views (e.g. `<stylize out>/test`): 00000.png ... in the order of
+    /// The rendered test views (e.g. `<stylize out>/frames`): 00000.png ... in the order of
     /// transforms_test.json.
     #[arg(long)]
     renders: PathBuf,
@@ -360,8 +361,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         None => (&train.views, &train.images, "training"),
     };
     let renders = render_views(&mut model, views, bg.rgb(), &backend)?;
-    let folder = if test.is_some() { TEST_DIR } else { "train" };
-    write_frames(&args.out.join(folder), &renders)?;
+    write_frames(&args.out.join(TEST_DIR), &renders)?;
     println!(
         "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, mean PSNR \
          {:.2} dB over the {which} views; wrote {}",

@@ -17,7 +17,7 @@ use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{
-    fit_with_progress, run, MirageError, MirageStylizeConfig, SIDE_BY_SIDE_PNG, STYLIZED_PNG,
+    fit_with_progress, run, MirageError, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG,
 };
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::{Backend, DeviceChoice};
@@ -55,7 +55,7 @@ enum Command {
     ///
     /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
     /// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
-    /// picture), side_by_side.png (original | stylized), model.ply (the stylized model),
+    /// picture), preview.png (original | stylized), model.ply (the stylized model),
     /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
     /// original.png (the embedded default picture,
     /// when no --picture is given), losses.json, losses.png, config.json and checkpoint/. The
@@ -69,7 +69,7 @@ enum Command {
     /// Fit a picture with flat Gaussians (no stylization).
     ///
     /// Writes to --out: model.ply (MiraGe PLY, recording the picture's size), fitted.png (the
-    /// front camera's render, the size of the picture), side_by_side.png (picture | fit) and
+    /// front camera's render, the size of the picture), preview.png (picture | fit) and
     /// fit_psnr.png (the PSNR of each step, front and mirror camera), and prints the PSNR.
     Fit(FitArgs),
     /// Render a model from the front camera (or the mirror camera) to a PNG.
@@ -275,7 +275,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     println!(
         "wrote {} and {} ({}x{}, {} Gaussians, final loss {:.4})",
         out.join(STYLIZED_PNG).display(),
-        out.join(SIDE_BY_SIDE_PNG).display(),
+        out.join(PREVIEW_PNG).display(),
         summary.stylized.width,
         summary.stylized.height,
         summary.model.params().len(),
@@ -323,7 +323,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Fits `picture` and writes model.ply, fitted.png, fit_psnr.png and side_by_side.png into
+/// Fits `picture` and writes model.ply, fitted.png, fit_psnr.png and preview.png into
 /// `out`; returns
 /// the fit's PSNR (dB) and its time (s).
 fn fit_into_folder(
@@ -356,7 +356,7 @@ fn fit_into_folder(
     write_model(&out.join("model.ply"), &model, &fitted_to)?;
     fitted.save_png(&out.join("fitted.png"))?;
     write_psnr_plot(&out.join(FIT_PSNR_PNG), &log)?;
-    Image::side_by_side(&[picture, &fitted]).save_png(&out.join(SIDE_BY_SIDE_PNG))?;
+    Image::side_by_side(&[picture, &fitted]).save_png(&out.join(PREVIEW_PNG))?;
     Ok((psnr(&fitted, picture), seconds))
 }
 

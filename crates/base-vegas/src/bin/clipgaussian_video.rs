@@ -30,6 +30,7 @@ use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleA
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use serde::Serialize;
@@ -56,7 +57,8 @@ enum Command {
     /// Fits the video first unless --model gives a fitted one, then stylizes its colours with
     /// the paper's video settings (configs/video.json; configs/video-light.json is the light
     /// variant). Writes to --out: frames/00000.png ... (the stylized frames, the size of the
-    /// video), preview.gif (original | stylized, animated), stylized.mp4 (when ffmpeg is
+    /// video), preview.png (the first frame, original | stylized), preview.gif (original |
+    /// stylized, animated), stylized.mp4 (when ffmpeg is
     /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
     /// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
     /// --config (the paper's defaults when absent), then the flags, then every --set
@@ -66,7 +68,8 @@ enum Command {
     /// Fit a video with VeGaS folded Gaussians (no stylization).
     ///
     /// Writes to --out: model.ply (VeGaS PLY, recording the frame size and rate), frames/ (the
-    /// fitted frames), preview.gif (original | fit) and prints the mean PSNR over the frames.
+    /// fitted frames), preview.png (the first frame, original | fit), preview.gif (original |
+    /// fit, animated) and prints the mean PSNR over the frames.
     Fit(FitArgs),
     /// Render every frame of a model to a folder (frames/ and, with ffmpeg, stylized.mp4).
     Render(RenderArgs),
@@ -300,6 +303,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     };
     write_model(&args.out.join(MODEL_PLY), &model, Some(record))?;
     write_frames(&args.out.join(FRAMES_DIR), &fitted)?;
+    write_pair(&args.out.join(PREVIEW_PNG), &video.frames[0], &fitted[0])?;
     write_preview_gif(
         &args.out.join(PREVIEW_GIF),
         &video.frames,
