@@ -477,6 +477,15 @@ fn a_redirected_run_prints_a_progress_line_every_five_percent_and_no_error_line(
         "{}",
         stylize[5]
     );
+    // The per-view cache says where it is before the first step (2D: the picture and its
+    // mirror).
+    let caching = lines_starting(&stderr, "caching views: step ");
+    assert!(
+        caching.len() == 2 && caching[1].starts_with("caching views: step 2/2 (100%)"),
+        "{stderr}"
+    );
+    let first_step = stderr.find("stylize: step ").unwrap();
+    assert!(stderr.find("caching views: step 1/2").unwrap() < first_step);
     assert!(lines_starting(&stderr, "error").is_empty(), "{stderr}");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(lines_starting(&stdout, "wrote ").len(), 1, "{stdout}");

@@ -1,7 +1,8 @@
 //! The progress of a long loop (the stylization, the 2D fit) on stderr: a bar on a terminal;
 //! where stderr is not one (a log file, `nohup`, CI), one plain line every
-//! [`LINE_EVERY_PERCENT`] % of the steps with the step, the percentage, the time elapsed, the
-//! estimated time left and the last loss, so that a redirected run still says how far it is.
+//! [`LINE_EVERY_PERCENT`] % of the steps, and at least every [`LINE_EVERY`] while steps come,
+//! with the step, the percentage, the time elapsed, the estimated time left and the last loss,
+//! so that a redirected run still says how far it is.
 //! The bar is cleared when the loop ends and its last state printed as such a line, so that
 //! whatever is printed next starts on a line of its own.
 
@@ -19,6 +20,9 @@ use crate::RunOptions;
 
 /// The plain lines come every this many percent of the steps (and at the last step).
 pub const LINE_EVERY_PERCENT: u64 = 5;
+
+/// A plain line comes at least this often (at the next step after it), whatever the percentage.
+pub const LINE_EVERY: Duration = Duration::from_secs(30);
 
 /// How the progress is shown.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -57,6 +61,8 @@ pub struct Progress {
     last: RefCell<(u64, String)>,
     /// The last step a line was printed for.
     printed: Cell<u64>,
+    /// When the last line was printed (or the loop started).
+    printed_at: Cell<Instant>,
 }
 
 impl Progress {
@@ -90,6 +96,7 @@ impl Progress {
             mode,
             last: RefCell::new((done, String::new())),
             printed: Cell::new(done),
+            printed_at: Cell::new(Instant::now()),
         }
     }
 
@@ -101,11 +108,19 @@ impl Progress {
             bar.set_position(step);
             bar.set_message(message.to_string());
         } else if self.mode == ProgressMode::Lines
-            && (step >= self.total
-                || bucket(step, self.total) > bucket(self.printed.get(), self.total))
+            && self.line_due(step, self.printed_at.get().elapsed())
         {
             self.print_line();
         }
+    }
+
+    /// Whether a plain line is due at `step`, `since_last` after the last one: at the last
+    /// step, when the step crosses the next [`LINE_EVERY_PERCENT`] %, or [`LINE_EVERY`] after
+    /// the last line.
+    fn line_due(&self, step: u64, since_last: Duration) -> bool {
+        step >= self.total
+            || bucket(step, self.total) > bucket(self.printed.get(), self.total)
+            || (step > self.printed.get() && since_last >= LINE_EVERY)
     }
 
     /// Ends the progress display: clears the bar and prints its last state as a line (in line
@@ -125,6 +140,7 @@ impl Progress {
         let (step, message) = &*self.last.borrow();
         eprintln!("{}", self.line(*step, message, self.started.elapsed()));
         self.printed.set(*step);
+        self.printed_at.set(Instant::now());
     }
 
     /// `fit: step 40/800 (5%), 0:01:02 elapsed, about 0:19:38 left, loss 0.1234`, where
@@ -215,5 +231,17 @@ mod tests {
         assert!(p
             .line(1000, "", Duration::from_secs(3725))
             .contains("1:02:05 elapsed, done"));
+    }
+
+    /// Between two 5 % marks a slow loop still prints a line every 30 s, at a new step only.
+    #[test]
+    fn a_slow_loop_prints_a_line_at_least_every_thirty_seconds() {
+        let p = Progress::with_mode(ProgressMode::Lines, "caching views", 1000, 0);
+        let soon = Duration::from_secs(29);
+        assert!(!p.line_due(1, soon));
+        assert!(p.line_due(1, LINE_EVERY));
+        assert!(p.line_due(50, soon), "the 5 % mark");
+        assert!(p.line_due(1000, Duration::ZERO), "the last step");
+        assert!(!p.line_due(0, Duration::from_secs(300)), "no new step");
     }
 }

@@ -246,13 +246,17 @@ impl PreparedRun {
             ..
         } = job;
         let (loss, masks) = build_loss(settings, weights, masks, device)?;
-        let mut objective = StyleObjective::new(
+        let caching = Progress::new(options.progress, "caching views", images.len() as u64, 0);
+        let objective = StyleObjective::with_progress(
             loss,
             &images,
             masks.as_deref(),
             settings.seed.wrapping_add(PATCH_SEED_OFFSET),
             device,
-        )?;
+            &mut |done, total| caching.update(done as u64, &format!("view {done} of {total}")),
+        );
+        caching.finish();
+        let mut objective = objective?;
         let config_json = serde_json::to_value(config).expect("the config serializes");
         let bad_checkpoint = |message: String| StylizeError::Checkpoint {
             path: checkpoint::checkpoint_dir(out),

@@ -32,6 +32,20 @@ impl StyleObjective {
         seed: u64,
         device: &Device,
     ) -> Result<Self> {
+        Self::with_progress(loss, targets, masks, seed, device, &mut |_, _| {})
+    }
+
+    /// [`StyleObjective::new`], calling `cached(done, total)` after each view's cache (the
+    /// CLIP embedding and VGG features of its ground truth: seconds a view on a CPU), so that a
+    /// run can show how far it is before its first step.
+    pub fn with_progress(
+        loss: StyleLoss,
+        targets: &[Image],
+        masks: Option<&[Vec<f32>]>,
+        seed: u64,
+        device: &Device,
+        cached: &mut dyn FnMut(usize, usize),
+    ) -> Result<Self> {
         if let Some(m) = masks {
             if m.len() != targets.len() {
                 return Err(StyleLossError::Input {
@@ -57,6 +71,7 @@ impl StyleObjective {
                 None => None,
             };
             caches.push(loss.cache_view(&gt, mask.as_ref())?);
+            cached(i + 1, targets.len());
         }
         Ok(Self {
             loss,
