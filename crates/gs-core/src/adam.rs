@@ -167,6 +167,46 @@ pub struct Adam {
 
 const STATE_MAGIC: &[u8; 8] = b"CGADAM01";
 
+/// `groups` in the order of `names` (a model's [`crate::model::BaseModel::group_names`]),
+/// matched by name: each group configured once, none unknown, none missing. An error names the
+/// groups at fault and the model's, so that a list in another order trains the groups it names,
+/// and a misspelt or forgotten one stops the run instead of training the wrong group.
+pub fn groups_in_model_order(
+    groups: Vec<GroupConfig>,
+    names: &[String],
+) -> Result<Vec<GroupConfig>, String> {
+    let listed = names.join(", ");
+    let mut slots: Vec<Option<GroupConfig>> = names.iter().map(|_| None).collect();
+    for group in groups {
+        let Some(at) = names.iter().position(|n| *n == group.name) else {
+            return Err(format!(
+                "no parameter group {:?} in this model (its groups: {listed})",
+                group.name
+            ));
+        };
+        if slots[at].is_some() {
+            return Err(format!(
+                "parameter group {:?} is configured twice",
+                group.name
+            ));
+        }
+        slots[at] = Some(group);
+    }
+    let missing: Vec<&str> = names
+        .iter()
+        .zip(&slots)
+        .filter(|(_, s)| s.is_none())
+        .map(|(n, _)| n.as_str())
+        .collect();
+    if !missing.is_empty() {
+        return Err(format!(
+            "no configuration for parameter group(s) {} (the model's: {listed})",
+            missing.join(", ")
+        ));
+    }
+    Ok(slots.into_iter().flatten().collect())
+}
+
 impl Adam {
     /// An optimizer for `groups` whose sizes are `lens` (moments are allocated for trained groups
     /// only).

@@ -73,6 +73,9 @@ pub enum DeviceError {
     #[cfg(feature = "wgpu")]
     #[error("GPU: {0}")]
     Gpu(#[from] GpuError),
+    /// The optimizer's groups do not name the model's ([`crate::adam::groups_in_model_order`]).
+    #[error("optimizer: {0}")]
+    Groups(String),
 }
 
 impl DeviceChoice {
@@ -396,13 +399,16 @@ pub struct Trainer<M> {
 }
 
 impl<M: BaseModel> Trainer<M> {
-    /// `model` with a fresh Adam over `groups` (one per parameter group) on `backend`.
+    /// `model` with a fresh Adam over `groups` (one per parameter group, matched to the model's
+    /// groups by name in any order) on `backend`.
     pub fn new(
         backend: &Backend,
         #[cfg_attr(not(feature = "wgpu"), allow(unused_mut))] mut model: M,
         groups: Vec<GroupConfig>,
         hyper: AdamHyper,
     ) -> Result<Self, DeviceError> {
+        let groups = crate::adam::groups_in_model_order(groups, &model.group_names())
+            .map_err(DeviceError::Groups)?;
         let lens = model.group_lens();
         let state = match backend {
             Backend::Cpu => State::Cpu(Adam::new(groups, &lens, hyper)),
