@@ -489,6 +489,21 @@ fn a_redirected_run_prints_a_progress_line_every_five_percent_and_no_error_line(
     assert!(lines_starting(&stderr, "error").is_empty(), "{stderr}");
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(lines_starting(&stdout, "wrote ").len(), 1, "{stdout}");
+    // The summary: printed last and written beside the outputs.
+    assert!(
+        stdout.contains("done in 0:0") && stdout.contains(": 6 steps, final loss "),
+        "{stdout}"
+    );
+    let summary: serde_json::Value = serde_json::from_str(
+        &std::fs::read_to_string(dir.path().join("out").join("summary.json")).unwrap(),
+    )
+    .unwrap();
+    assert_eq!(summary["command"], "clipgaussian-2d stylize");
+    assert_eq!(summary["steps"], 6);
+    let outputs = summary["outputs"].as_array().unwrap();
+    for name in ["preview.png", "stylized.png", "model.ply", "losses.json"] {
+        assert!(outputs.iter().any(|o| o == name), "{name}: {summary}");
+    }
 }
 
 #[test]

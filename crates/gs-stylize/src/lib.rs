@@ -7,6 +7,7 @@
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
+//! - [`summary`]: the summary a finished run prints and writes as `summary.json`.
 //! - [`selftest`]: the `selftest` subcommand: each part on the chosen device against the cpu.
 //! - [`evaluation`]: the paper's CLIP metrics of renders against ground truths (`eval`).
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
@@ -33,6 +34,7 @@ pub mod plot;
 pub mod progress;
 pub mod run;
 pub mod selftest;
+pub mod summary;
 #[cfg(feature = "test-support")]
 pub mod test_support;
 pub mod weights;

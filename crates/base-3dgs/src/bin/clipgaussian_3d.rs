@@ -24,6 +24,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
+use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 
 /// Command-line arguments.
@@ -205,6 +206,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     if let Some(model) = &args.ply {
         check_model(Binary::Scene, "--model", model)?;
     }
+    let started = std::time::Instant::now();
     let overrides = args.overrides()?;
     let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
@@ -213,6 +215,14 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         "wrote {} ({} Gaussians, final loss {last:.4})",
         summary.stylized_ply.display(),
         summary.gaussians.len()
+    );
+    print!(
+        "{}",
+        write_summary(
+            "clipgaussian-3d stylize",
+            started,
+            config.out.as_deref().expect("run checked out")
+        )?
     );
     Ok(())
 }

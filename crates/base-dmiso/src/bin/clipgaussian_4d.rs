@@ -33,6 +33,7 @@ use gs_stylize::cli::{
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use style_loss::compute_device;
@@ -286,6 +287,7 @@ fn net_device(choice: DeviceChoice) -> Result<Device, Box<dyn Error>> {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let started = std::time::Instant::now();
     if let Some(model) = &args.model {
         check_model(Binary::DynamicScene, "--model", model)?;
     }
@@ -320,6 +322,10 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         } else {
             " (no mp4: ffmpeg is not installed)".into()
         },
+    );
+    print!(
+        "{}",
+        write_summary("clipgaussian-4d stylize", started, out)?
     );
     Ok(())
 }

@@ -31,6 +31,7 @@ use gs_stylize::cli::{
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 
@@ -266,6 +267,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let started = std::time::Instant::now();
     if let Some(model) = &args.model {
         check_model(Binary::Picture, "--model", model)?;
     }
@@ -280,6 +282,10 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         summary.stylized.height,
         summary.model.params().len(),
         summary.losses.last().copied().unwrap_or(f32::NAN)
+    );
+    print!(
+        "{}",
+        write_summary("clipgaussian-2d stylize", started, out)?
     );
     Ok(())
 }

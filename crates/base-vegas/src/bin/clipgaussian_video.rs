@@ -31,6 +31,7 @@ use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
+use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use serde::Serialize;
@@ -230,6 +231,7 @@ struct EvalArgs {
 
 /// Runs `stylize`.
 fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+    let started = std::time::Instant::now();
     if let Some(model) = &args.model {
         check_model(Binary::Video, "--model", model)?;
     }
@@ -259,6 +261,10 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         },
         out.join(MODEL_PLY).display(),
         summary.model.params().len()
+    );
+    print!(
+        "{}",
+        write_summary("clipgaussian-video stylize", started, out)?
     );
     Ok(())
 }
