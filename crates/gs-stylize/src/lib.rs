@@ -12,6 +12,7 @@
 //! - [`evaluation`]: the paper's CLIP metrics of renders against ground truths (`eval`).
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
+//! - [`memory_estimate`]: the memory a run will need, printed first; a run that cannot fit is refused.
 //! - [`interrupt`]: Ctrl-C as a request to stop after the current step.
 //! - [`model_kind`]: which binary opens a model file; the wrong binary refuses it by name.
 //! - [`plot`]: line charts as pictures: the loss curves (`losses.png`), a fit's PSNR.
@@ -27,6 +28,7 @@ pub mod cli;
 pub mod config;
 pub mod evaluation;
 pub mod interrupt;
+pub mod memory_estimate;
 pub mod model_kind;
 pub mod outputs;
 pub mod picture;

@@ -26,6 +26,7 @@ use style_loss::{
 };
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
+use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
 use crate::outputs::{write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use crate::picture::load_style_picture;
 use crate::plot::write_loss_plot;
@@ -234,6 +235,17 @@ impl PreparedRun {
         } = self;
         let out = out.as_path();
         check_job(settings, &job)?;
+        let view_pixels: Vec<u64> = job
+            .images
+            .iter()
+            .map(|i| u64::from(i.width) * u64::from(i.height))
+            .collect();
+        let parameters: usize = job.model.group_lens().iter().sum();
+        let estimate = MemoryEstimate::of(settings, &view_pixels, parameters);
+        println!("{}", estimate.line());
+        if let Some(note) = check_memory(&estimate, machine_memory())? {
+            println!("{note}");
+        }
         let StylizeJob {
             mut model,
             groups,
