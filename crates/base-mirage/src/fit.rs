@@ -210,6 +210,7 @@ pub fn psnr_chart(log: &[PsnrPoint]) -> Chart {
             .filter(|p| p.mirrored == mirrored)
             .map(|p| (p.step as f64, p.psnr_db))
             .collect(),
+        dashed: false,
     };
     Chart {
         title: "Fit PSNR (each step's render before its update)".into(),

@@ -490,7 +490,9 @@ fn a_redirected_run_prints_a_progress_line_every_five_percent_and_no_error_line(
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert_eq!(lines_starting(&stdout, "wrote ").len(), 1, "{stdout}");
     // The memory estimate comes before the work, the summary last.
-    let memory = stdout.find("memory: about ").expect("the estimate is printed");
+    let memory = stdout
+        .find("memory: about ")
+        .expect("the estimate is printed");
     assert!(memory < stdout.find("done in ").unwrap(), "{stdout}");
     // The summary: printed last and written beside the outputs.
     assert!(

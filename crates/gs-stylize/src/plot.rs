@@ -66,6 +66,9 @@ pub struct Series {
     /// Its points; those the y axis cannot show (non-finite, or not positive on a log axis)
     /// are skipped and break the line.
     pub points: Vec<(f64, f64)>,
+    /// Drawn dashed and over the others (the loss chart's total, which often lies on the
+    /// largest term: both stay visible).
+    pub dashed: bool,
 }
 
 /// A line chart: what [`Chart::render`] draws.
@@ -192,12 +195,15 @@ impl Chart {
             .draw()?;
         // Thin lines where there are more points than pixels, so noise stays legible.
         let thin = |s: &Series| s.points.len() > area.dim_in_pixel().0 as usize;
-        for s in self.series.iter() {
+        // Solid series first, dashed ones over them.
+        let order = self.series.iter().filter(|s| !s.dashed);
+        for s in order.chain(self.series.iter().filter(|s| s.dashed)) {
             let color = RGBColor(s.color[0], s.color[1], s.color[2]);
             let line = color.stroke_width(if thin(s) { 1 } else { 2 });
             for run in runs(&s.points, self.y_scale()) {
                 match run.as_slice() {
                     [only] => chart.draw_series([Circle::new(*only, 3, color.filled())])?,
+                    _ if s.dashed => chart.draw_series(DashedLineSeries::new(run, 8, 6, line))?,
                     _ => chart.draw_series(LineSeries::new(run, line))?,
                 };
             }
@@ -258,6 +264,7 @@ pub fn loss_chart(losses: &[StepLosses]) -> Chart {
             .iter()
             .map(|l| (l.step as f64, l.total as f64))
             .collect(),
+        dashed: true,
     };
     let terms = term_names(losses)
         .into_iter()
@@ -299,6 +306,7 @@ fn term_series(losses: &[StepLosses], name: &str, color: [u8; 3]) -> Series {
     Series {
         name: name.into(),
         color,
+        dashed: false,
         points,
     }
 }
@@ -446,6 +454,25 @@ mod tests {
         }
     }
 
+    /// The total lies on the patch term where the patch term is all of it: dashed and drawn
+    /// over it, both stay visible.
+    #[test]
+    fn the_total_stays_visible_on_a_term_equal_to_it() {
+        let equal: Vec<StepLosses> = (0..40u64)
+            .map(|i| {
+                let v = 2.0 - i as f32 / 40.0;
+                step(i + 1, v, &[("patch", v)])
+            })
+            .collect();
+        let img = loss_chart(&equal).render().unwrap();
+        let total = rows_of(&img, PALETTE[0], 0..LEGEND_X).len();
+        let patch = rows_of(&img, PALETTE[2], 0..LEGEND_X).len();
+        assert!(
+            total > 100 && patch > 100,
+            "total {total}, patch {patch} pixels"
+        );
+    }
+
     #[test]
     fn a_falling_curve_is_higher_on_the_left_than_on_the_right() {
         let img = loss_chart(&falling_run()).render().unwrap();
@@ -509,11 +536,13 @@ mod tests {
                         (4.0, f64::NAN),
                         (5.0, 1e-2),
                     ],
+                    dashed: false,
                 },
                 Series {
                     name: "never positive".into(),
                     color: PALETTE[1],
                     points: vec![(1.0, 0.0), (2.0, -1.0)],
+                    dashed: false,
                 },
             ],
         };
