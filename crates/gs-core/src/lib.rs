@@ -55,6 +55,7 @@ pub mod adam;
 pub mod backend;
 pub mod camera;
 pub mod dataset;
+mod error;
 pub mod fs;
 pub mod gaussians;
 pub mod image;
@@ -80,47 +81,4 @@ pub use gaussians::{GaussianGrads, GaussianSet};
 pub use image::Image;
 pub use real::Real;
 
-use std::path::PathBuf;
-
-/// Errors of gs-core: each names what was wrong and where.
-#[derive(Debug, thiserror::Error)]
-pub enum GsError {
-    /// A camera with an impossible size, intrinsics or pose.
-    #[error("invalid camera: {0}")]
-    InvalidCamera(String),
-    /// An image file that could not be read or written.
-    #[error("image {path}: {message}")]
-    Image {
-        /// The file.
-        path: PathBuf,
-        /// What went wrong.
-        message: String,
-    },
-    /// A render and its target differ in size.
-    #[error(
-        "view {view}: render is {render_w}x{render_h} but its target is {target_w}x{target_h}"
-    )]
-    SizeMismatch {
-        /// The view index.
-        view: usize,
-        /// Render width, pixels.
-        render_w: u32,
-        /// Render height, pixels.
-        render_h: u32,
-        /// Target width, pixels.
-        target_w: u32,
-        /// Target height, pixels.
-        target_h: u32,
-    },
-    /// Saved optimizer state that does not fit the parameters it is restored into.
-    #[error("optimizer state: {0}")]
-    OptimizerState(String),
-    /// An input/output error on a named file.
-    #[error("{path}: {source}")]
-    Io {
-        /// The file.
-        path: PathBuf,
-        /// The underlying error.
-        source: std::io::Error,
-    },
-}
+pub use error::GsError;
