@@ -63,7 +63,7 @@ pub struct MirageStylizeConfig {
     /// The output folder.
     pub out: Option<PathBuf>,
     /// Colour behind transparent picture pixels and behind the Gaussians, RGB in `[0, 1]`;
-    /// also read as `white`, `black` or `"R,G,B"` ([`crate::background`]).
+    /// also read as `white`, `black` or `"R,G,B"` ([`gs_stylize::background`]).
     #[serde(deserialize_with = "gs_stylize::background::deserialize")]
     pub background: [f32; 3],
     /// A picture wider than this is shrunk to it, pixels, as MiraGe's loader shrinks it (PIL's

@@ -41,8 +41,8 @@ const MAX_CANDIDATES: usize = 12;
 /// `[windows, channels, height, width]`, differentiable in `image`. Bilinear, fill 0, as
 /// torchvision's `perspective` on each crop.
 ///
-/// Windows are warped in groups of one [`Backward`], and the groups' outputs put back in the
-/// order of `warps`.
+/// Windows are warped in groups of one candidate square side (a window without a useful bound
+/// is scattered instead), and the groups' outputs put back in the order of `warps`.
 pub fn warp_windows(
     image: &Tensor,
     warps: &[WindowWarp],
