@@ -336,7 +336,8 @@ pub const STYLIZE_FIT_FLAGS: &[&str] = &["--gaussians", "--fit-steps"];
 
 /// Asserts that the binary at `binary` has each of `subcommands` with every flag
 /// [`SHARED_FLAGS`] lists for it (from its `--help`), `stylize` also [`STYLIZE_FIT_FLAGS`]
-/// when the binary `fits`, and that each `--device` takes `cpu, gpu, auto`.
+/// when the binary `fits`, that each `--device` takes `cpu, gpu, auto`, and that `eval` writes
+/// `metrics.json` by default.
 ///
 /// # Panics
 /// When a subcommand or a flag is missing, or a `--device` takes other values.
@@ -357,6 +358,13 @@ pub fn assert_shared_flags(binary: &Path, subcommands: &[&str], fits: bool) {
                 .lines()
                 .any(|l| l.trim_start().split([' ', ',', '=']).any(|w| w == *flag));
             assert!(listed, "{} {sub}: no {flag} in\n{help}", binary.display());
+        }
+        if sub == "eval" {
+            assert!(
+                help.contains("[default: metrics.json]"),
+                "{} eval writes metrics.json by default:\n{help}",
+                binary.display()
+            );
         }
         if flags.contains(&"--device") {
             let err = fails(Command::new(binary).args([sub, "--device", "tpu"]));

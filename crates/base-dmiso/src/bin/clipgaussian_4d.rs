@@ -265,9 +265,10 @@ struct EvalArgs {
     /// at its default -r -1); 0 keeps every picture at its size.
     #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
     max_width: u32,
-    /// Where to write the scores as JSON (printed too).
-    #[arg(long)]
-    out: Option<PathBuf>,
+    /// Where to write the scores as JSON, printed too (metrics.json by default, as every
+    /// binary's eval; its folder must exist; checked before any work).
+    #[arg(long, default_value = "metrics.json")]
+    out: PathBuf,
 }
 
 /// `test`, `train` or `val`.
@@ -466,9 +467,7 @@ fn read_renders(dir: &Path, count: usize) -> Result<Vec<Image>, Box<dyn Error>> 
 
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
-    if let Some(out) = &args.out {
-        check_output_file(out)?;
-    }
+    check_output_file(&args.out)?;
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
     let bg = args.background.dataset();
@@ -519,10 +518,9 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     )?;
     let text = serde_json::to_string_pretty(&metrics)?;
     println!("{text}");
-    if let Some(out) = &args.out {
-        gs_core::fs::write_atomic(out, (text + "\n").as_bytes())
-            .map_err(|e| format!("{}: {e}", out.display()))?;
-    }
+    gs_core::fs::write_atomic(&args.out, (text + "\n").as_bytes())
+        .map_err(|e| format!("{}: {e}", args.out.display()))?;
+    println!("wrote {}", args.out.display());
     Ok(())
 }
 

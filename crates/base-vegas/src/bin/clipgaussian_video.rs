@@ -224,9 +224,10 @@ struct EvalArgs {
     /// The style and the CLIP model.
     #[command(flatten)]
     style: EvalStyleArgs,
-    /// Where to write the scores as JSON (printed too).
-    #[arg(long)]
-    out: Option<PathBuf>,
+    /// Where to write the scores as JSON, printed too (metrics.json by default, as every
+    /// binary's eval; its folder must exist; checked before any work).
+    #[arg(long, default_value = "metrics.json")]
+    out: PathBuf,
 }
 
 /// Runs `stylize`.
@@ -421,9 +422,7 @@ struct VideoMetrics {
 
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
-    if let Some(out) = &args.out {
-        check_output_file(out)?;
-    }
+    check_output_file(&args.out)?;
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
     let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS, 0)?;
@@ -464,10 +463,9 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     };
     let text = serde_json::to_string_pretty(&metrics)?;
     println!("{text}");
-    if let Some(out) = &args.out {
-        gs_core::fs::write_atomic(out, (text + "\n").as_bytes())
-            .map_err(|e| format!("{}: {e}", out.display()))?;
-    }
+    gs_core::fs::write_atomic(&args.out, (text + "\n").as_bytes())
+        .map_err(|e| format!("{}: {e}", args.out.display()))?;
+    println!("wrote {}", args.out.display());
     Ok(())
 }
 
