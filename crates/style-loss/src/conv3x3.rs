@@ -136,44 +136,62 @@ pub(crate) fn conv3x3(
             scratch,
         );
         let dst = &mut out[image * out_len..image * out_len + rows * cout];
-        for dy in 0..3 {
-            let lhs = &scratch[dy * padded_w * cin..];
-            let rhs = &kernel.data[dy * 3 * cin * cout..(dy + 1) * 3 * cin * cout];
-            debug_assert!((rows - 1) * cin + 3 * cin <= lhs.len());
-            // SAFETY: `dst` holds `rows x cout` (row stride `cout`, column stride 1); `lhs` is
-            // read as `rows x 3cin` with row stride `cin` and column stride 1, whose last
-            // element `(rows - 1) * cin + 3cin - 1` lies inside `lhs` (checked above: the
-            // padded buffer has two spare pixels); `rhs` is `3cin x cout`, row-major, exactly
-            // its length. The three do not overlap (`dst` is in `out`, the others in `scratch`
-            // and `kernel`).
-            unsafe {
-                gemm::gemm(
-                    rows,
-                    cout,
-                    3 * cin,
-                    dst.as_mut_ptr(),
-                    1,
-                    cout as isize,
-                    dy > 0,
-                    lhs.as_ptr(),
-                    1,
-                    cin as isize,
-                    rhs.as_ptr(),
-                    1,
-                    cout as isize,
-                    1.0,
-                    1.0,
-                    false,
-                    false,
-                    false,
-                    gemm::Parallelism::Rayon(0),
-                );
-            }
-        }
+        kernel_row_products(dst, scratch, &kernel.data, rows, padded_w, cin, cout, 1.0);
         compact_rows(&mut out[image * out_len..], h, w, cout, epilogue);
     }
     out.truncate(images * out_len);
     out
+}
+
+/// The three products of a 3x3 convolution, one per kernel row `dy`, accumulated into `dst`
+/// (`[m, cout]`, row-major): the `m x 3cin` view of `padded` starting at padded row `dy` (row
+/// stride `cin`, rows `padded_w` pixels long) times the `3cin x cout` slice `dy` of `taps`.
+/// `one` is the element type's 1.
+#[allow(clippy::too_many_arguments)]
+fn kernel_row_products<T: Copy + 'static>(
+    dst: &mut [T],
+    padded: &[T],
+    taps: &[T],
+    m: usize,
+    padded_w: usize,
+    cin: usize,
+    cout: usize,
+    one: T,
+) {
+    assert!(dst.len() >= m * cout, "conv3x3: destination size");
+    for dy in 0..3 {
+        let lhs = &padded[dy * padded_w * cin..];
+        let rhs = &taps[dy * 3 * cin * cout..(dy + 1) * 3 * cin * cout];
+        assert!((m - 1) * cin + 3 * cin <= lhs.len(), "conv3x3: padded size");
+        // SAFETY: `dst` holds `m x cout` (row stride `cout`, column stride 1: checked above);
+        // `lhs` is read as `m x 3cin` with row stride `cin` and column stride 1, whose last
+        // element `(m - 1) * cin + 3cin - 1` lies inside `lhs` (checked above: the padded
+        // buffers have two spare pixels); `rhs` is `3cin x cout`, row-major, exactly its length.
+        // `dst` is a buffer of its own, apart from `padded` and `taps`.
+        unsafe {
+            gemm::gemm(
+                m,
+                cout,
+                3 * cin,
+                dst.as_mut_ptr(),
+                1,
+                cout as isize,
+                dy > 0,
+                lhs.as_ptr(),
+                1,
+                cin as isize,
+                rhs.as_ptr(),
+                1,
+                cout as isize,
+                one,
+                one,
+                false,
+                false,
+                false,
+                gemm::Parallelism::Rayon(0),
+            );
+        }
+    }
 }
 
 /// Output rows per band of [`conv3x3_bias_relu_f64`]: about 2M f64 values (16 MB) in each of its
@@ -224,38 +242,7 @@ fn conv3x3_bias_relu_f64(
             let m = rows_here * padded_w;
             dst.clear();
             dst.resize(m * cout, 0.0);
-            for dy in 0..3 {
-                let lhs = &padded[dy * row_len..];
-                let rhs = &taps[dy * 3 * cin * cout..(dy + 1) * 3 * cin * cout];
-                debug_assert!((m - 1) * cin + 3 * cin <= lhs.len());
-                // SAFETY: as in `conv3x3`: `dst` holds `m x cout` row-major; `lhs` is read as
-                // `m x 3cin` with row stride `cin`, its last element `(m - 1) * cin + 3cin - 1`
-                // inside `lhs` (the band's buffer has two spare pixels); `rhs` is `3cin x cout`
-                // row-major, exactly its length; the three are distinct buffers.
-                unsafe {
-                    gemm::gemm(
-                        m,
-                        cout,
-                        3 * cin,
-                        dst.as_mut_ptr(),
-                        1,
-                        cout as isize,
-                        dy > 0,
-                        lhs.as_ptr(),
-                        1,
-                        cin as isize,
-                        rhs.as_ptr(),
-                        1,
-                        cout as isize,
-                        1.0,
-                        1.0,
-                        false,
-                        false,
-                        false,
-                        gemm::Parallelism::Rayon(0),
-                    );
-                }
-            }
+            kernel_row_products(&mut dst, &padded, &taps, m, padded_w, cin, cout, 1.0);
             let first = image * out_len + y0 * w * cout;
             out[first..first + rows_here * w * cout]
                 .par_chunks_mut(w * cout)
