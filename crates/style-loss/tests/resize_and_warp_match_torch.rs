@@ -31,6 +31,37 @@ fn run_case(
     (y, grad)
 }
 
+/// Asserts that case `name`'s output and input gradient match the fixture's to 1e-5 (largest
+/// difference of the output, relative error of the gradient).
+fn assert_case_matches(
+    fixtures: &std::collections::HashMap<String, Tensor>,
+    name: &str,
+    (y, grad): (Tensor, Tensor),
+) {
+    let out_err = max_abs_diff(&y, &fixtures[&format!("{name}.output")]);
+    let grad_err = relative_error(&grad, &fixtures[&format!("{name}.grad")]);
+    assert!(out_err < 1e-5, "{name}: output max error {out_err}");
+    assert!(
+        grad_err < 1e-5,
+        "{name}: gradient relative error {grad_err}"
+    );
+}
+
+/// Every perspective fixture case through `warp` (the image `[1, c, h, w]`, torchvision's
+/// coefficients for the case) against torchvision's output and gradient.
+fn check_perspective_cases(warp: impl Fn(&Tensor, [f32; 8]) -> Tensor) {
+    let r = load("perspective_reference.safetensors");
+    let cases = load_json("perspective_reference.json");
+    let cases = cases.as_object().unwrap();
+    assert_eq!(cases.len(), 5);
+    for (name, end) in cases {
+        let end: Corners = serde_json::from_value(end.clone()).unwrap();
+        let (_, _, h, w) = r[&format!("{name}.input")].dims4().unwrap();
+        let coeffs = perspective_coefficients(&image_corners(w, h), &end).unwrap();
+        assert_case_matches(&r, name, run_case(&r, name, |x| warp(x, coeffs)));
+    }
+}
+
 #[test]
 fn resizes_match_torch_forward_and_backward() {
     let r = load("resize_reference.safetensors");
@@ -48,13 +79,10 @@ fn resizes_match_torch_forward_and_backward() {
             "bilinear_aa" => ResizeKernel::BilinearAntialias,
             other => panic!("unknown mode {other}"),
         };
-        let (y, grad) = run_case(&r, name, |x| resize(x, size, kernel).unwrap());
-        let out_err = max_abs_diff(&y, &r[&format!("{name}.output")]);
-        let grad_err = relative_error(&grad, &r[&format!("{name}.grad")]);
-        assert!(out_err < 1e-5, "{name}: output max error {out_err}");
-        assert!(
-            grad_err < 1e-5,
-            "{name}: gradient relative error {grad_err}"
+        assert_case_matches(
+            &r,
+            name,
+            run_case(&r, name, |x| resize(x, size, kernel).unwrap()),
         );
     }
 }
@@ -77,14 +105,8 @@ fn same_size_resize_is_the_identity_matrix() {
 
 #[test]
 fn perspective_matches_torchvision_forward_and_backward() {
-    let r = load("perspective_reference.safetensors");
-    let cases = load_json("perspective_reference.json");
-    let cases = cases.as_object().unwrap();
-    assert_eq!(cases.len(), 5);
-    for (name, end) in cases {
-        let end: Corners = serde_json::from_value(end.clone()).unwrap();
-        let (_, c, h, w) = r[&format!("{name}.input")].dims4().unwrap();
-        let coeffs = perspective_coefficients(&image_corners(w, h), &end).unwrap();
+    check_perspective_cases(|x, coeffs| {
+        let (_, c, h, w) = x.dims4().unwrap();
         let mut taps = Taps::default();
         taps.push_perspective(
             &coeffs,
@@ -96,47 +118,26 @@ fn perspective_matches_torchvision_forward_and_backward() {
                 source_width: w,
             },
         );
-        let (y, grad) = run_case(&r, name, |x| {
-            let flat = x.reshape((c, h * w)).unwrap();
-            gather_taps(&flat, &taps)
-                .unwrap()
-                .reshape((1, c, h, w))
-                .unwrap()
-        });
-        let out_err = max_abs_diff(&y, &r[&format!("{name}.output")]);
-        let grad_err = relative_error(&grad, &r[&format!("{name}.grad")]);
-        assert!(out_err < 1e-5, "{name}: output max error {out_err}");
-        assert!(
-            grad_err < 1e-5,
-            "{name}: gradient relative error {grad_err}"
-        );
-    }
+        let flat = x.reshape((c, h * w)).unwrap();
+        gather_taps(&flat, &taps)
+            .unwrap()
+            .reshape((1, c, h, w))
+            .unwrap()
+    });
 }
 
 /// The device form of the warp (taps computed as tensors, backward a gather) on the same cases.
 #[test]
 fn window_warp_matches_torchvision_forward_and_backward() {
-    let r = load("perspective_reference.safetensors");
-    let cases = load_json("perspective_reference.json");
-    for (name, end) in cases.as_object().unwrap() {
-        let end: Corners = serde_json::from_value(end.clone()).unwrap();
-        let (_, _, h, w) = r[&format!("{name}.input")].dims4().unwrap();
+    check_perspective_cases(|x, coeffs| {
+        let (_, _, h, w) = x.dims4().unwrap();
         let warp = WindowWarp {
             left: 0,
             top: 0,
-            coeffs: perspective_coefficients(&image_corners(w, h), &end).unwrap(),
+            coeffs,
         };
-        let (y, grad) = run_case(&r, name, |x| {
-            warp_windows(&x.squeeze(0).unwrap(), &[warp], w, h).unwrap()
-        });
-        let out_err = max_abs_diff(&y, &r[&format!("{name}.output")]);
-        let grad_err = relative_error(&grad, &r[&format!("{name}.grad")]);
-        assert!(out_err < 1e-5, "{name}: output max error {out_err}");
-        assert!(
-            grad_err < 1e-5,
-            "{name}: gradient relative error {grad_err}"
-        );
-    }
+        warp_windows(&x.squeeze(0).unwrap(), &[warp], w, h).unwrap()
+    });
 }
 
 #[test]

@@ -59,6 +59,24 @@ fn content_loss_and_grad(vgg: &Vgg19Features, render: &Tensor, gt: &Tensor) -> (
     (values(&loss)[0], grad)
 }
 
+/// Asserts that the content loss of fixture case `name` (its `render` against its `gt`) matches
+/// the fixture's `loss` to 1e-5 and its image gradient `grad` to 1e-4, relative.
+fn assert_content_case_matches(
+    vgg: &Vgg19Features,
+    fixtures: &std::collections::HashMap<String, Tensor>,
+    name: &str,
+) {
+    let t = |what: &str| fixtures[&format!("{name}.{what}")].clone();
+    let (loss, grad) = content_loss_and_grad(vgg, &t("render"), &t("gt"));
+    let reference = values(&t("loss"))[0];
+    assert!(
+        (loss - reference).abs() <= 1e-5 * reference.abs(),
+        "{name}: loss {loss} vs {reference}"
+    );
+    let err = relative_error(&grad, &t("grad"));
+    assert!(err < 1e-4, "{name}: gradient relative error {err}");
+}
+
 /// Flat regions (white backgrounds, constant borders, flat fields) tie in every 2x2 pooling
 /// window, and torchvision's initialisation (zero biases) gives pre-activations of exactly 0:
 /// the gradient must go to the first maximum of a window and stop at a ReLU of 0, as PyTorch's.
@@ -77,16 +95,7 @@ fn content_gradient_matches_at_ties_and_zeros() {
     let cases = cases.as_object().unwrap();
     assert_eq!(cases.len(), 5);
     for (name, weight_set) in cases {
-        let vgg = weights(weight_set.as_str().unwrap());
-        let t = |what: &str| r[&format!("{name}.{what}")].clone();
-        let (loss, grad) = content_loss_and_grad(&vgg, &t("render"), &t("gt"));
-        let reference = values(&t("loss"))[0];
-        assert!(
-            (loss - reference).abs() <= 1e-5 * reference.abs(),
-            "{name}: loss {loss} vs {reference}"
-        );
-        let err = relative_error(&grad, &t("grad"));
-        assert!(err < 1e-4, "{name}: gradient relative error {err}");
+        assert_content_case_matches(&weights(weight_set.as_str().unwrap()), &r, name);
     }
 }
 
@@ -104,15 +113,7 @@ fn content_gradient_matches_where_relus_sit_a_hair_from_zero() {
     .unwrap();
     let r = load("vgg_border_ties_reference.safetensors");
     for name in ["128x96", "61x45", "97x131"] {
-        let t = |what: &str| r[&format!("{name}.{what}")].clone();
-        let (loss, grad) = content_loss_and_grad(&vgg, &t("render"), &t("gt"));
-        let reference = values(&t("loss"))[0];
-        assert!(
-            (loss - reference).abs() <= 1e-5 * reference.abs(),
-            "{name}: loss {loss} vs {reference}"
-        );
-        let err = relative_error(&grad, &t("grad"));
-        assert!(err < 1e-4, "{name}: gradient relative error {err}");
+        assert_content_case_matches(&vgg, &r, name);
     }
 }
 
