@@ -758,43 +758,14 @@ fn selftest_on_the_cpu_prints_every_part_and_passes() {
 /// `stylize` and `interpolate`.
 #[test]
 fn a_model_of_another_modality_names_its_binary() {
-    use gs_stylize::model_kind::Binary;
-    use gs_stylize::test_support::assert_foreign_models_refused;
     let dir = TempDir::new().unwrap();
-    let out = dir.path().join("out");
-    let run = |args: &[&str]| bin().args(args).output().unwrap();
-    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
-        let png = out.join("r.png");
-        run(&[
-            "render",
-            "--model",
-            s(model),
-            "--width",
-            "8",
-            "--height",
-            "8",
-            "--out",
-            s(&png),
-        ])
-    });
-    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
-        run(&["stylize", "--model", s(model), "--out", s(&out)])
-    });
-    assert_foreign_models_refused(Binary::Picture, dir.path(), |model| {
-        let blend = out.join("blend.ply");
-        run(&[
-            "interpolate",
-            "--a",
-            s(model),
-            "--b",
-            s(model),
-            "--t",
-            "0.5",
-            "--out",
-            s(&blend),
-        ])
-    });
-    assert!(!out.exists(), "nothing was written");
+    gs_stylize::test_support::assert_every_command_refuses_foreign_models(
+        gs_stylize::model_kind::Binary::Picture,
+        std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-2d")),
+        dir.path(),
+        "--model",
+        &["--width", "8", "--height", "8"],
+    );
 }
 
 /// `render` takes the size and distance the model records; a model that records none (MiraGe's
@@ -898,14 +869,6 @@ fn eval_scores_a_picture_against_its_original() {
 fn the_shared_flags_have_the_same_names_in_every_subcommand() {
     gs_stylize::test_support::assert_shared_flags(
         std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-2d")),
-        &[
-            "stylize",
-            "fit",
-            "render",
-            "interpolate",
-            "eval",
-            "selftest",
-        ],
         true,
     );
 }

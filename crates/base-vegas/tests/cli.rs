@@ -401,33 +401,14 @@ fn selftest_on_the_cpu_prints_every_part_and_passes() {
 /// `stylize` and `interpolate`.
 #[test]
 fn a_model_of_another_modality_names_its_binary() {
-    use gs_stylize::model_kind::Binary;
-    use gs_stylize::test_support::assert_foreign_models_refused;
     let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
-    let run = |args: &[&str]| bin().args(args).output().unwrap();
-    let s = |p: &Path| p.to_str().unwrap().to_string();
-    assert_foreign_models_refused(Binary::Video, dir.path(), |model| {
-        run(&["render", "--model", &s(model), "--out", &s(&out)])
-    });
-    assert_foreign_models_refused(Binary::Video, dir.path(), |model| {
-        run(&["stylize", "--model", &s(model), "--out", &s(&out)])
-    });
-    assert_foreign_models_refused(Binary::Video, dir.path(), |model| {
-        let blend = s(&out.join("blend.ply"));
-        run(&[
-            "interpolate",
-            "--a",
-            &s(model),
-            "--b",
-            &s(model),
-            "--t",
-            "0.5",
-            "--out",
-            &blend,
-        ])
-    });
-    assert!(!out.exists(), "nothing was written");
+    gs_stylize::test_support::assert_every_command_refuses_foreign_models(
+        gs_stylize::model_kind::Binary::Video,
+        std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-video")),
+        dir.path(),
+        "--model",
+        &[],
+    );
 }
 
 /// Every subcommand has the flags the four binaries share, under the same names.
@@ -435,14 +416,6 @@ fn a_model_of_another_modality_names_its_binary() {
 fn the_shared_flags_have_the_same_names_in_every_subcommand() {
     gs_stylize::test_support::assert_shared_flags(
         std::path::Path::new(env!("CARGO_BIN_EXE_clipgaussian-video")),
-        &[
-            "stylize",
-            "fit",
-            "render",
-            "interpolate",
-            "eval",
-            "selftest",
-        ],
         true,
     );
 }

@@ -253,10 +253,7 @@ pub fn model_of_each_binary(dir: &Path) -> Vec<(Binary, std::path::PathBuf)> {
 /// Runs `run` (the binary `binary` given a model file) on a model of every other binary (a
 /// plain Gaussian PLY is left out for 2D, which reads MiraGe's own) and asserts that each run
 /// fails naming the binary that opens it.
-///
-/// # Panics
-/// When a run succeeds or its error does not name the right binary.
-pub fn assert_foreign_models_refused(
+fn assert_foreign_models_refused(
     binary: Binary,
     dir: &Path,
     run: impl Fn(&Path) -> std::process::Output,
@@ -274,6 +271,55 @@ pub fn assert_foreign_models_refused(
             path.display()
         );
     }
+}
+
+/// Asserts that the binary `exe` (which is `binary`) refuses a model of every other binary
+/// (written in the empty folder `dir`), naming the binary that opens it, in `render`
+/// (`--model`, with `render_args` besides), `stylize` (the model given with `stylize_flag`)
+/// and `interpolate` (`--a`, `--b`), and writes nothing.
+///
+/// # Panics
+/// When a run succeeds, its error does not name the right binary, or an output appears.
+pub fn assert_every_command_refuses_foreign_models(
+    binary: Binary,
+    exe: &Path,
+    dir: &Path,
+    stylize_flag: &str,
+    render_args: &[&str],
+) {
+    let out = dir.join("out");
+    let out_arg = path_str(&out);
+    let run = |args: &[&str]| {
+        Command::new(exe)
+            .args(args)
+            .output()
+            .unwrap_or_else(|e| panic!("{} did not start: {e}", exe.display()))
+    };
+    assert_foreign_models_refused(binary, dir, |model| {
+        let mut args = vec!["render", "--model", path_str(model)];
+        args.extend_from_slice(render_args);
+        args.extend(["--out", out_arg]);
+        run(&args)
+    });
+    assert_foreign_models_refused(binary, dir, |model| {
+        run(&["stylize", stylize_flag, path_str(model), "--out", out_arg])
+    });
+    let blend = out.join("blend");
+    assert_foreign_models_refused(binary, dir, |model| {
+        let model = path_str(model);
+        let args = [
+            "--a",
+            model,
+            "--b",
+            model,
+            "--t",
+            "0.5",
+            "--out",
+            path_str(&blend),
+        ];
+        run(&[&["interpolate"][..], &args].concat())
+    });
+    assert!(!out.exists(), "{}: nothing is written", exe.display());
 }
 
 /// The flags a subcommand has in every binary that has it: one product, one set of names.
@@ -334,19 +380,15 @@ pub const SHARED_FLAGS: &[(&str, &[&str])] = &[
 /// The flags `stylize` has where the modality fits its own base model first (2D, video, 4D).
 pub const STYLIZE_FIT_FLAGS: &[&str] = &["--gaussians", "--fit-steps"];
 
-/// Asserts that the binary at `binary` has each of `subcommands` with every flag
-/// [`SHARED_FLAGS`] lists for it (from its `--help`), `stylize` also [`STYLIZE_FIT_FLAGS`]
-/// when the binary `fits`, that each `--device` takes `cpu, gpu, auto`, and that `eval` writes
-/// `metrics.json` by default.
+/// Asserts that the binary at `binary` has every subcommand of [`SHARED_FLAGS`] (`fit` only
+/// when it `fits` its own base model) with every flag listed for it (from its `--help`),
+/// `stylize` also [`STYLIZE_FIT_FLAGS`] when it fits, that each `--device` takes
+/// `cpu, gpu, auto`, and that `eval` writes `metrics.json` by default.
 ///
 /// # Panics
 /// When a subcommand or a flag is missing, or a `--device` takes other values.
-pub fn assert_shared_flags(binary: &Path, subcommands: &[&str], fits: bool) {
-    for &sub in subcommands {
-        let (_, shared) = SHARED_FLAGS
-            .iter()
-            .find(|(name, _)| *name == sub)
-            .unwrap_or_else(|| panic!("no shared flags listed for {sub}"));
+pub fn assert_shared_flags(binary: &Path, fits: bool) {
+    for &(sub, shared) in SHARED_FLAGS.iter().filter(|(sub, _)| fits || *sub != "fit") {
         let mut flags = shared.to_vec();
         if fits && sub == "stylize" {
             flags.extend(STYLIZE_FIT_FLAGS);
