@@ -180,7 +180,7 @@ fn bucket(step: u64, total: u64) -> u64 {
 }
 
 /// `h:mm:ss`.
-fn clock(d: Duration) -> String {
+pub(crate) fn clock(d: Duration) -> String {
     let s = d.as_secs();
     format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
 }

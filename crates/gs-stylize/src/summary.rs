@@ -9,6 +9,7 @@ use serde::Serialize;
 
 use crate::checkpoint::checkpoint_dir;
 use crate::outputs::{read_json, write_json, StepLosses, LOSSES_JSON};
+use crate::progress::clock;
 use crate::StylizeError;
 
 /// The summary file in the output folder.
@@ -61,14 +62,7 @@ pub fn write_summary(command: &str, started: Instant, out: &Path) -> Result<Stri
 
 /// `done in 0:01:23: 6 steps, final loss 0.1234` and the outputs, one line each.
 fn lines(report: &RunReport) -> String {
-    let s = report.seconds.max(0.0).round() as u64;
-    let wall = Duration::from_secs(s);
-    let clock = format!(
-        "{}:{:02}:{:02}",
-        wall.as_secs() / 3600,
-        wall.as_secs() / 60 % 60,
-        wall.as_secs() % 60
-    );
+    let clock = clock(Duration::from_secs(report.seconds.max(0.0).round() as u64));
     let loss = report
         .final_loss
         .map_or(String::new(), |l| format!(", final loss {l:.4}"));

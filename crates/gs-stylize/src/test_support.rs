@@ -215,7 +215,7 @@ pub fn update_error(start: &[f32], ours: &[f32], reference: &[f64]) -> f64 {
 
 /// One small file of each model kind the binaries open, in `dir` (headers only: enough to be
 /// recognized by [`crate::model_kind`], not to load): the binary that opens it, and its path.
-pub fn model_of_each_binary(dir: &Path) -> Vec<(Binary, std::path::PathBuf)> {
+fn model_of_each_binary(dir: &Path) -> Vec<(Binary, std::path::PathBuf)> {
     let ply = |extra: &str| {
         format!(
             "ply\nformat binary_little_endian 1.0\n{extra}element vertex 1\nproperty float x\n\
