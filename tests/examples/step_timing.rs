@@ -15,10 +15,11 @@ use std::time::{Duration, Instant};
 
 use gs_core::adam::AdamHyper;
 use gs_core::backend::{DeviceChoice, Trainer};
-use gs_core::model::{GaussianLrs, View};
+use gs_core::model::{BaseModel, View};
 use gs_core::raster::render;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
+use gs_stylize::rates::gaussian_stylization;
 use rand::{Rng, SeedableRng};
 use style_loss::compute_device;
 use style_loss::test_models::random_full_size_loss;
@@ -120,7 +121,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         start.elapsed().as_secs_f64()
     );
 
-    let groups = GaussianLrs::stylization(3.5, 0.01).groups();
+    let groups = gaussian_stylization(0.01).optimizer_groups(&model.group_names(), 3.5)?;
     let mut trainer = Trainer::new(&backend, model, groups, AdamHyper::default())?;
     let mut sampler = ViewSampler::new(views.len(), 0);
     let mut phases = [Duration::ZERO; 3];

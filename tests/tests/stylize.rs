@@ -7,10 +7,11 @@ use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
 use gs_core::adam::{Adam, AdamHyper};
-use gs_core::model::{BaseModel, GaussianLrs, View};
+use gs_core::model::{BaseModel, View};
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
+use gs_stylize::rates::gaussian_stylization;
 use rand::{Rng, SeedableRng};
 use style_loss::clip::{ClipConfig, ClipModel};
 use style_loss::image_layout::hwc_to_tensor;
@@ -130,7 +131,9 @@ fn stylizing_a_scene_lowers_the_style_loss_and_keeps_the_count() {
     let mut objective = StyleObjective::new(loss.clone(), &targets, None, 7, &Device::Cpu).unwrap();
     let mut model = base.clone();
     // The paper's 3D learning rates (extent about 3.3 here), feature_lr 0.01.
-    let groups = GaussianLrs::stylization(3.3, 0.01).groups();
+    let groups = gaussian_stylization(0.01)
+        .optimizer_groups(&model.group_names(), 3.3)
+        .unwrap();
     let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
     let config = TrainConfig {
         steps: 60,

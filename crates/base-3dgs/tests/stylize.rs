@@ -25,6 +25,7 @@ use gs_core::render_clamp::clamp_unit;
 use gs_core::GaussianSet;
 use gs_stylize::checkpoint;
 use gs_stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
+use gs_stylize::rates::gaussian_stylization;
 use scene::{fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, SIZE, VIEWS};
 use style_loss::image_layout::hwc_to_tensor;
 use style_loss::{
@@ -61,7 +62,6 @@ impl Setup {
                 device: DeviceChoice::Cpu,
                 patch_size: 32,
                 num_patches: 4,
-                feature_lr: 0.05,
                 checkpoint_every: 0,
                 clip_config: Some(clip_config),
                 clip_weights: Some(clip_weights),
@@ -70,6 +70,7 @@ impl Setup {
                 vgg_widths: [4, 8, 16, 32, 32],
                 ..StyleSettings::paper_3d()
             },
+            learning_rates: gaussian_stylization(0.05),
             ..StylizeConfig::default()
         };
         Self { dir, config }
@@ -432,10 +433,10 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
         light,
         StylizeConfig {
             style: StyleSettings {
-                feature_lr: 0.002,
                 lambda_patch: 35.0,
                 ..expected.style.clone()
             },
+            learning_rates: gaussian_stylization(0.002),
             ..expected.clone()
         }
     );

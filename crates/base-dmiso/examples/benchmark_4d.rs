@@ -138,7 +138,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut trainer = Trainer::new(
         &Backend::Cpu,
         model,
-        stylize_groups(&config, scene_extent(&big_train)),
+        stylize_groups(&config.learning_rates, scene_extent(&big_train))?,
         AdamHyper::default(),
     )?;
     let mut times = Vec::new();

@@ -19,7 +19,7 @@ use std::sync::Mutex;
 
 use gs_core::adam::RowChange;
 use gs_core::gaussians::GaussianGrads;
-use gs_core::model::{BaseModel, Forward, ModelError, View};
+use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -128,16 +128,12 @@ impl BaseModel for Recording {
     /// The model's tape and the rendered centres.
     type Tape = (<Dmiso as BaseModel>::Tape, Vec<f32>);
 
-    fn group_names(&self) -> Vec<String> {
-        self.model.group_names()
+    fn groups(&self) -> Vec<Group<'_>> {
+        self.model.groups()
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
         self.model.groups_mut()
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        self.model.group_lens()
     }
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {

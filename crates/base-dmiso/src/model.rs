@@ -18,7 +18,7 @@ use std::borrow::Cow;
 
 use candle_core::Device;
 use gs_core::gaussians::{GaussianGrads, GaussianSet};
-use gs_core::model::{BaseModel, Forward, ModelError, View};
+use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
 use rayon::prelude::*;
 
@@ -286,8 +286,12 @@ impl BaseModel for Dmiso {
     /// The network's tape and outputs (none without deformation).
     type Tape = Option<(NetTape, Vec<f32>)>;
 
-    fn group_names(&self) -> Vec<String> {
-        GROUP_NAMES.iter().map(|s| s.to_string()).collect()
+    fn groups(&self) -> Vec<Group<'_>> {
+        GROUP_NAMES
+            .iter()
+            .zip(&self.params.groups)
+            .map(|(name, values)| Group::new(name, values))
+            .collect()
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
@@ -296,10 +300,6 @@ impl BaseModel for Dmiso {
             .iter_mut()
             .map(|g| g.as_mut_slice())
             .collect()
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        self.params.groups.iter().map(|g| g.len()).collect()
     }
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {

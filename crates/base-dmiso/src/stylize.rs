@@ -17,7 +17,7 @@
 use std::path::{Path, PathBuf};
 
 use candle_core::Device;
-use gs_core::adam::{GroupConfig, LrSchedule, RateAt};
+use gs_core::adam::{GroupConfig, RateAt};
 use gs_core::backend::Backend;
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split, TrainSplits};
 use gs_core::dataset::{Background, Dataset, DatasetError, LoadOptions};
@@ -30,6 +30,7 @@ use gs_stylize::animation::{
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_progress;
+use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
     prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
@@ -85,16 +86,11 @@ pub struct DynamicStylizeConfig {
     /// Consecutive training views per step (runs of the views left in the epoch), their losses
     /// summed and divided by this size.
     pub batch_size: usize,
-    /// Learning rate of the sub-Gaussians' offsets.
-    pub alpha_lr: f64,
-    /// Learning rate of the deformation network at step 0.
-    pub deform_lr_start: f64,
-    /// Learning rate of the deformation network at the end of its decay.
-    pub deform_lr_end: f64,
-    /// Length of the deformation network's decay, steps.
-    pub deform_lr_steps: u64,
-    /// Learning rate of the time-rotation layer.
-    pub time_net_lr: f64,
+    /// The learning rate of each parameter group (`pseudomesh`, `alpha`, `attached_scale`,
+    /// `attached_rotation`, `attached_opacity`, `attached_features_dc`,
+    /// `attached_features_rest`, `deform`, `time_net`), by name, or `"frozen"` (see
+    /// gs-stylize's `rates`); the defaults are the paper's and D-MiSo's ([`stylize_rates`]).
+    pub learning_rates: GroupRates,
     /// Frames of the sweep through time.
     pub sweep_frames: usize,
     /// Frame rate of the sweep's preview and video.
@@ -132,11 +128,7 @@ impl Default for DynamicStylizeConfig {
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
             train_splits: None,
             batch_size: 4,
-            alpha_lr: 1e-5,
-            deform_lr_start: 5e-5,
-            deform_lr_end: 1e-6,
-            deform_lr_steps: 5000,
-            time_net_lr: 0.1,
+            learning_rates: stylize_rates(),
             sweep_frames: 60,
             sweep_fps: 24.0,
             fit_points: fit.points,
@@ -181,16 +173,7 @@ impl DynamicStylizeConfig {
         if self.batch_size == 0 {
             return bad("batch_size: must be at least 1 (--batch-size)".into());
         }
-        for (name, v) in [
-            ("alpha_lr", self.alpha_lr),
-            ("deform_lr_start", self.deform_lr_start),
-            ("deform_lr_end", self.deform_lr_end),
-            ("time_net_lr", self.time_net_lr),
-        ] {
-            if !(v.is_finite() && v >= 0.0) {
-                return bad(format!("{name}: {v} must be a finite rate, 0 or more"));
-            }
-        }
+        self.learning_rates.check(&GROUP_NAMES)?;
         if !(self.sweep_fps.is_finite() && self.sweep_fps > 0.0) {
             return bad(format!("sweep_fps: {} must be positive", self.sweep_fps));
         }
@@ -221,40 +204,38 @@ fn iteration_name<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<Strin
     }
 }
 
-/// The optimizer groups of a stylization of a scene of extent `extent` (in [`GROUP_NAMES`]
-/// order): triangles from the "means" rates times the extent, offsets `alpha_lr`, log-scales
-/// `scales_lr`, quaternions `rotations_lr`, opacity `opacity_lr`, SH of every degree
-/// `feature_lr`, the network `deform_lr_start -> deform_lr_end`, the time-rotation layer
-/// `time_net_lr`.
-pub fn stylize_groups(config: &DynamicStylizeConfig, extent: f64) -> Vec<GroupConfig> {
-    let s = &config.style;
-    let constant = LrSchedule::Constant;
-    let rates = [
-        LrSchedule::Exponential {
-            start: s.means_lr_start * extent,
-            end: s.means_lr_end * extent,
-            steps: s.means_lr_steps,
-        },
-        constant(config.alpha_lr),
-        constant(s.scales_lr),
-        constant(s.rotations_lr),
-        constant(s.opacity_lr),
-        constant(s.feature_lr),
-        constant(s.feature_lr),
-        LrSchedule::Exponential {
-            start: config.deform_lr_start,
-            end: config.deform_lr_end,
-            steps: config.deform_lr_steps,
-        },
-        constant(config.time_net_lr),
-    ];
-    let mut groups: Vec<GroupConfig> = GROUP_NAMES
-        .iter()
-        .zip(rates)
-        .map(|(name, rate)| GroupConfig::new(*name, rate))
-        .collect();
+/// The paper's 4D stylization rates with D-MiSo's (in [`GROUP_NAMES`] order): the
+/// triangles' vertices (the "means") `1e-5 -> 1e-6` times the extent over 5000 steps, offsets
+/// 1e-5, log-scales 0.001, quaternions 0.001, opacity 0.05, SH of every degree `feature_lr`
+/// 0.025, the network `5e-5 -> 1e-6` over 5000 steps, the time-rotation layer 0.1.
+pub fn stylize_rates() -> GroupRates {
+    let constant = GroupRate::Constant;
+    let decay = |start, end, times_extent| GroupRate::Decay {
+        start,
+        end,
+        steps: 5000,
+        times_extent,
+    };
+    GroupRates::new(GROUP_NAMES.into_iter().zip([
+        decay(1e-5, 1e-6, true),
+        constant(1e-5),
+        constant(0.001),
+        constant(0.001),
+        constant(0.05),
+        constant(0.025),
+        constant(0.025),
+        decay(5e-5, 1e-6, false),
+        constant(0.1),
+    ]))
+}
+
+/// The optimizer groups of a stylization of a scene of extent `extent` with `rates` (in
+/// [`GROUP_NAMES`] order), with the authors' update rules.
+pub fn stylize_groups(rates: &GroupRates, extent: f64) -> Result<Vec<GroupConfig>, StylizeError> {
+    let names: Vec<String> = GROUP_NAMES.iter().map(|n| n.to_string()).collect();
+    let mut groups = rates.optimizer_groups(&names, extent)?;
     authors_update_rules(&mut groups);
-    groups
+    Ok(groups)
 }
 
 /// What the authors' 4D loop does beyond the rates: the network's rate is updated after each
@@ -443,7 +424,7 @@ pub fn run(
         .map(|m| m.as_ref().map(|m| m.data.clone()))
         .collect::<Option<Vec<_>>>();
     let job = StylizeJob {
-        groups: stylize_groups(config, train.extent),
+        groups: stylize_groups(&config.learning_rates, train.extent)?,
         model,
         views: train.views.clone(),
         images: train.images.clone(),
@@ -529,9 +510,9 @@ mod tests {
             ),
             (5.0, 90.0, 0.8, 0.0)
         );
-        assert_eq!((s.feature_lr, s.steps, config.batch_size), (0.025, 4999, 4));
+        assert_eq!((s.steps, config.batch_size), (4999, 4));
         assert_eq!(config.train_splits, None);
-        let groups = stylize_groups(&config, 2.0);
+        let groups = stylize_groups(&config.learning_rates, 2.0).unwrap();
         let at = |name: &str, step: u64| {
             groups
                 .iter()

@@ -107,6 +107,7 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     use gs_core::image_loss::PhotometricObjective;
     use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
     use gs_core::wgpu::{test_context, GpuOptions};
+    use gs_stylize::rates::GroupRate;
 
     let views = common::views(4, 0.0, 32);
     let targets: Vec<_> = views.iter().map(|v| common::render(v, [1.0; 3])).collect();
@@ -119,13 +120,21 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     for backend in [Backend::Cpu, Backend::Gpu(Arc::new(ctx))] {
         let mut config = DynamicStylizeConfig::default();
         // Rates large enough for every group to move visibly in a few steps.
-        config.style.means_lr_start = 1e-3;
-        config.style.feature_lr = 0.05;
-        config.deform_lr_start = 1e-3;
+        let rates = &mut config.learning_rates;
+        let decay = |start, times_extent| GroupRate::Decay {
+            start,
+            end: 1e-6,
+            steps: 5000,
+            times_extent,
+        };
+        rates.set("pseudomesh", decay(1e-3, true));
+        rates.set("attached_features_dc", GroupRate::Constant(0.05));
+        rates.set("attached_features_rest", GroupRate::Constant(0.05));
+        rates.set("deform", decay(1e-3, false));
         let mut trainer = Trainer::new(
             &backend,
             model.clone(),
-            stylize_groups(&config, 3.0),
+            stylize_groups(&config.learning_rates, 3.0).unwrap(),
             AdamHyper::default(),
         )
         .unwrap();

@@ -16,13 +16,13 @@ use base_mirage::fit::{fit_groups, FitSettings};
 use base_mirage::init::initial_gaussians;
 use base_mirage::mirror::{extent, mirror_views, mirrored, plane_half_size};
 use base_mirage::picture::landscape;
+use base_mirage::stylize::MirageStylizeConfig;
 use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::BaseModel;
 use gs_core::raster::render;
 use gs_core::train::{train, TrainConfig, ViewSampler};
-use gs_stylize::StyleSettings;
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 
@@ -98,9 +98,11 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
     let mut objective =
         StyleObjective::new(loss, std::slice::from_ref(&picture), None, 0, &device)?;
     let cache = start.elapsed().as_secs_f64();
-    let paper = StyleSettings::paper_2d();
+    let paper = MirageStylizeConfig::default();
     let mut adam = Adam::new(
-        paper.optimizer_groups(extent(settings.distance)),
+        paper
+            .learning_rates
+            .optimizer_groups(&model.group_names(), extent(settings.distance))?,
         &model.group_lens(),
         AdamHyper::default(),
     );

@@ -13,15 +13,15 @@
 
 use std::borrow::Cow;
 
-use gs_core::gaussians::{GaussianGrads, PARAM_NAMES};
-use gs_core::model::{add_identity_grads, BaseModel, Forward, ModelError, View};
+use gs_core::gaussians::GaussianGrads;
+use gs_core::model::{add_identity_grads, BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
 use gs_core::wgpu::{
     zeroed_f32, Access, Binding, Buffer, GpuError, GpuForward, GpuGradients, GpuStep, KernelSource,
 };
 use gs_core::{GaussianSet, Real};
 
-/// Index of the log-scales in [`PARAM_NAMES`].
+/// Index of the log-scales in [`gs_core::gaussians::PARAM_NAMES`].
 const SCALES_GROUP: usize = 1;
 
 /// The scale of the flat axis and the lower clamp of the others, world units.
@@ -131,16 +131,12 @@ impl FlatGaussians {
 impl BaseModel for FlatGaussians {
     type Tape = ();
 
-    fn group_names(&self) -> Vec<String> {
-        PARAM_NAMES.iter().map(|s| s.to_string()).collect()
+    fn groups(&self) -> Vec<Group<'_>> {
+        self.params.groups()
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
         self.params.groups_mut()
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        self.params.group_lens()
     }
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {

@@ -18,10 +18,13 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::backend::Backend;
+use gs_core::gaussians::PARAM_NAMES;
+use gs_core::model::BaseModel;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::progress::with_progress;
+use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
     prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
@@ -52,7 +55,7 @@ pub const ORIGINAL_PNG: &str = "original.png";
 
 /// Everything a 2D stylization run needs (a flat JSON object: `configs/2d.json`). The
 /// defaults are the paper's 2D settings (method.md): lambdas 5 / 90 / 0.8 / 0, feature_lr
-/// 0.0025, 4999 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
+/// 0.0025 (`learning_rates`), 4999 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct MirageStylizeConfig {
@@ -77,7 +80,11 @@ pub struct MirageStylizeConfig {
     pub fit_steps: u64,
     /// SH degree of the fit (when no model is given).
     pub fit_sh_degree: usize,
-    /// The style, the losses, the learning rates and the model files.
+    /// The learning rate of each parameter group (`means`, `scales`, `rotations`,
+    /// `opacities`, `sh_dc`, `sh_rest`), by name (see gs-stylize's `rates`); the paper's:
+    /// those of 3D with `feature_lr` 0.0025 (`sh_dc`, and a twentieth of it for `sh_rest`).
+    pub learning_rates: GroupRates,
+    /// The style, the losses and the model files.
     #[serde(flatten)]
     pub style: StyleSettings,
 }
@@ -97,6 +104,7 @@ impl Default for MirageStylizeConfig {
             fit_gaussians: fit.gaussians,
             fit_steps: fit.steps,
             fit_sh_degree: fit.sh_degree,
+            learning_rates: gaussian_stylization(0.0025),
             style,
         }
     }
@@ -200,6 +208,7 @@ fn check(config: &MirageStylizeConfig, picture: &Image, label: &str) -> Result<(
     }
     let style = &config.style;
     style.validate()?;
+    config.learning_rates.check(&PARAM_NAMES)?;
     check_patches_fit(style, std::slice::from_ref(picture), &[label.to_string()])?;
     Ok(())
 }
@@ -243,7 +252,9 @@ pub fn run(
     };
     let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
     let job = StylizeJob {
-        groups: config.style.optimizer_groups(extent(config.distance)),
+        groups: config
+            .learning_rates
+            .optimizer_groups(&model.group_names(), extent(config.distance))?,
         model,
         views: views.to_vec(),
         images: vec![picture.clone(), mirrored(&picture)],

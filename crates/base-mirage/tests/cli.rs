@@ -45,7 +45,12 @@ fn stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
 fn shown_stylize_args(cmd: &mut Command, models: &TinyModelFiles, steps: u64) {
     cmd.args(["stylize", "--steps", &steps.to_string()]);
     tiny_style_flags(cmd, models);
-    cmd.args(["--set", "checkpoint_every=3", "--set", "feature_lr=0.05"]);
+    cmd.args([
+        "--set",
+        "checkpoint_every=3",
+        "--set",
+        "learning_rates.sh_dc=0.05",
+    ]);
 }
 
 fn png_size(path: &Path) -> (u32, u32) {
@@ -127,7 +132,9 @@ fn fit_then_stylize_from_file_to_file() {
     let config: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(sty.join("config.json")).unwrap()).unwrap();
     assert_eq!(config["lambda_background"], 0.0);
-    assert_eq!(config["feature_lr"], 0.05);
+    // The dotted override set one group's rate and kept the others'.
+    assert_eq!(config["learning_rates"]["sh_dc"], 0.05);
+    assert_eq!(config["learning_rates"]["sh_rest"], 0.000125);
     assert_eq!(config["background"], serde_json::json!([1.0, 1.0, 1.0]));
 }
 
@@ -292,7 +299,10 @@ fn the_configuration_file_holds_the_paper_defaults() {
         base_mirage::stylize::MirageStylizeConfig::default()
     );
     assert_eq!(from_file.style.lambda_background, 0.0);
-    assert_eq!(from_file.style.feature_lr, 0.0025);
+    assert_eq!(
+        from_file.learning_rates.get("sh_dc"),
+        Some(&gs_stylize::rates::GroupRate::Constant(0.0025))
+    );
     assert_eq!(
         from_file.style.style_prompt.as_deref(),
         Some("Starry Night by Vincent van Gogh")

@@ -12,11 +12,12 @@ use base_vegas::fit::{
     fit, mean_psnr, render_frames, training_targets, training_views, FitSettings,
 };
 use base_vegas::init::initial_model;
-use base_vegas::stylize::stylize_groups;
+use base_vegas::stylize::VideoStylizeConfig;
 use candle_core::Device;
 use gs_core::adam::AdamHyper;
 use gs_core::backend::{Backend, Trainer};
 use gs_core::mirror_pair::plane_half_size;
+use gs_core::model::BaseModel;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::Image;
 use style_loss::test_models::random_full_size_loss;
@@ -114,12 +115,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         views.len(),
         start.elapsed().as_secs_f64()
     );
-    let mut trainer = Trainer::new(
-        &Backend::Cpu,
-        model,
-        stylize_groups(0.02),
-        AdamHyper::default(),
-    )?;
+    let groups = VideoStylizeConfig::default()
+        .learning_rates
+        .optimizer_groups(&model.group_names(), 1.0)?;
+    let mut trainer = Trainer::new(&Backend::Cpu, model, groups, AdamHyper::default())?;
     let mut times = Vec::new();
     trainer.train(
         &views,

@@ -9,7 +9,7 @@
 use std::borrow::Cow;
 
 use gs_core::gaussians::GaussianGrads;
-use gs_core::model::{BaseModel, Forward, ModelError, View};
+use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
 
 use crate::frame::{add_frame_grads, build_frame, FoldedParams, FrameTape, POLY_LEN};
@@ -116,8 +116,24 @@ impl FoldedGaussians {
 impl BaseModel for FoldedGaussians {
     type Tape = FrameTape;
 
-    fn group_names(&self) -> Vec<String> {
-        GROUP_NAMES.iter().map(|s| s.to_string()).collect()
+    fn groups(&self) -> Vec<Group<'_>> {
+        let p = &self.params;
+        let values: [&[f32]; 9] = [
+            &p.xyz,
+            &p.log_scales,
+            &p.rotation,
+            &p.m,
+            &p.sigma,
+            &p.w,
+            &p.opacity_logits,
+            &p.sh_dc,
+            &self.time_logits,
+        ];
+        GROUP_NAMES
+            .iter()
+            .zip(values)
+            .map(|(name, values)| Group::new(name, values))
+            .collect()
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
@@ -132,21 +148,6 @@ impl BaseModel for FoldedGaussians {
             &mut p.opacity_logits,
             &mut p.sh_dc,
             &mut self.time_logits,
-        ]
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        let p = &self.params;
-        vec![
-            p.xyz.len(),
-            p.log_scales.len(),
-            p.rotation.len(),
-            p.m.len(),
-            p.sigma.len(),
-            p.w.len(),
-            p.opacity_logits.len(),
-            p.sh_dc.len(),
-            self.time_logits.len(),
         ]
     }
 

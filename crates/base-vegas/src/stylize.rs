@@ -1,7 +1,7 @@
 //! Video stylization (CLIPGaussian on VeGaS): a video, fitted first unless a fitted model is
 //! given, is stylized over all its frames and their mirrors, one view per step in shuffled
-//! order, with the paper's video settings (`configs/video.json`): colours only (SH DC at
-//! `feature_lr`; positions, shapes, motion, opacity and the time function frozen, as the
+//! order, with the paper's video settings (`configs/video.json`): colours only (`f_dc` at the
+//! paper's `feature_lr` 0.02 in `learning_rates`; positions, shapes, motion, opacity and the time function frozen, as the
 //! authors' video script), and the result is rendered at the video's resolution, frame count
 //! and frame rate.
 //!
@@ -17,13 +17,14 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::adam::{GroupConfig, LrSchedule};
 use gs_core::backend::Backend;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_core::model::BaseModel;
 use gs_core::Image;
 use gs_stylize::checkpoint::mark_finished;
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_progress;
+use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
     prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
@@ -72,7 +73,12 @@ pub struct VideoStylizeConfig {
     pub fit_gaussians: usize,
     /// Steps of the fit (when no model is given).
     pub fit_steps: u64,
-    /// The style, the losses, the learning rates and the model files.
+    /// The learning rate of each parameter group of the folded Gaussians (`xyz`, `scaling`,
+    /// `rotation`, `m`, `sigma`, `w`, `opacity`, `f_dc`, `time`), by name, or `"frozen"` (see
+    /// gs-stylize's `rates`); the paper's: colours only, `f_dc` at 0.02, every other group
+    /// frozen.
+    pub learning_rates: GroupRates,
+    /// The style, the losses and the model files.
     #[serde(flatten)]
     pub style: StyleSettings,
 }
@@ -90,6 +96,7 @@ impl Default for VideoStylizeConfig {
             distance: DEFAULT_DISTANCE,
             fit_gaussians: fit.gaussians,
             fit_steps: fit.steps,
+            learning_rates: stylize_rates(0.02),
             style: StyleSettings::paper_video(),
         }
     }
@@ -109,19 +116,17 @@ impl VideoStylizeConfig {
     }
 }
 
-/// The optimizer groups of a video stylization: SH DC at `feature_lr`, every other group
+/// The learning rates of a video stylization: SH DC at `feature_lr`, every other group
 /// frozen (the paper's "colours only").
-pub fn stylize_groups(feature_lr: f64) -> Vec<GroupConfig> {
-    GROUP_NAMES
-        .iter()
-        .map(|&name| {
-            if name == "f_dc" {
-                GroupConfig::new(name, LrSchedule::Constant(feature_lr))
-            } else {
-                GroupConfig::frozen(name)
-            }
-        })
-        .collect()
+pub fn stylize_rates(feature_lr: f64) -> GroupRates {
+    GroupRates::new(GROUP_NAMES.iter().map(|&name| {
+        let rate = if name == "f_dc" {
+            GroupRate::Constant(feature_lr)
+        } else {
+            GroupRate::Frozen
+        };
+        (name, rate)
+    }))
 }
 
 /// Why a video run could not run; each names the file or field at fault.
@@ -221,6 +226,7 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
             config.fps
         )));
     }
+    config.learning_rates.check(&GROUP_NAMES)?;
     let prepared = prepare(&config.style, out, options.clone())?;
     let backend = prepared.backend();
     let video = load_video(video_path, config.background, config.fps, config.max_width)?;
@@ -268,7 +274,9 @@ pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSum
         .flat_map(|l| [l.clone(), format!("{l}, mirrored")])
         .collect();
     let job = StylizeJob {
-        groups: stylize_groups(config.style.feature_lr),
+        groups: config
+            .learning_rates
+            .optimizer_groups(&model.group_names(), 1.0)?,
         model,
         views,
         images: training_targets(&video.frames),
@@ -325,15 +333,13 @@ mod tests {
 
     #[test]
     fn only_the_colours_are_trained() {
-        let groups = stylize_groups(0.02);
-        let trained: Vec<&str> = groups
-            .iter()
-            .filter(|g| !g.frozen)
-            .map(|g| g.name.as_str())
-            .collect();
-        assert_eq!(trained, ["f_dc"]);
-        assert_eq!(groups.len(), GROUP_NAMES.len());
         let config = VideoStylizeConfig::default();
+        config.learning_rates.check(&GROUP_NAMES).unwrap();
+        assert_eq!(config.learning_rates.trained(), ["f_dc"]);
+        assert_eq!(
+            config.learning_rates.get("f_dc"),
+            Some(&GroupRate::Constant(0.02))
+        );
         assert_eq!(
             (
                 config.style.lambda_directional,
@@ -342,7 +348,7 @@ mod tests {
             ),
             (5.0, 90.0, 0.5)
         );
-        assert_eq!((config.style.feature_lr, config.style.steps), (0.02, 4999));
+        assert_eq!(config.style.steps, 4999);
     }
 
     /// The background is written as the other binaries write it: `white`, `black`, `R,G,B`, or

@@ -278,14 +278,14 @@ fn the_configuration_files_hold_the_paper_defaults() {
         ),
         (5.0, 90.0, 0.5, 0.0)
     );
-    assert_eq!(
-        (s.feature_lr, s.steps, s.num_patches, s.patch_size),
-        (0.02, 4999, 64, 128)
-    );
+    assert_eq!((s.steps, s.num_patches, s.patch_size), (4999, 64, 128));
+    assert_eq!(paper.learning_rates.trained(), ["f_dc"]);
     let light: VideoStylizeConfig =
         gs_stylize::resolve_config(Some(&root.join("video-light.json")), &[]).unwrap();
     let mut expected = paper.clone();
-    expected.style.feature_lr = 0.002;
+    expected
+        .learning_rates
+        .set("f_dc", gs_stylize::rates::GroupRate::Constant(0.002));
     expected.style.lambda_patch = 45.0;
     assert_eq!(light, expected);
 }

@@ -57,9 +57,27 @@ impl<'a> Forward<'a, ()> {
     }
 }
 
+/// One parameter group of a model: its name (how configurations, checkpoints and optimizer
+/// state find it) and its values.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Group<'a> {
+    /// The group's name, unique within its model (e.g. `"means"`).
+    pub name: &'a str,
+    /// Its values, in the model's layout.
+    pub values: &'a [f32],
+}
+
+impl<'a> Group<'a> {
+    /// Group `name` holding `values`.
+    pub fn new(name: &'a str, values: &'a [f32]) -> Self {
+        Self { name, values }
+    }
+}
+
 /// A model whose parameters (theta) produce the Gaussians rendered for each view.
 ///
-/// Parameters are exposed as named groups of `f32` values, each trained by its own Adam group;
+/// Parameters are exposed as named groups of `f32` values ([`BaseModel::groups`], the one list
+/// of names and lengths), each trained by its own Adam group, matched to it by name;
 /// gradients come back in the same group order and layout. One step is
 /// [`BaseModel::forward`] -> render -> loss -> rasterizer backward -> [`BaseModel::backward`]
 /// (or their GPU twins) -> Adam.
@@ -67,14 +85,21 @@ pub trait BaseModel {
     /// What a view's forward keeps for its backward (`()` when nothing).
     type Tape;
 
-    /// Names of the parameter groups, in a fixed order.
-    fn group_names(&self) -> Vec<String>;
+    /// The parameter groups, named, in a fixed order: the model's one description of them.
+    fn groups(&self) -> Vec<Group<'_>>;
 
-    /// The parameter groups as mutable slices, in [`BaseModel::group_names`] order.
+    /// The values of the parameter groups as mutable slices, in [`BaseModel::groups`] order.
     fn groups_mut(&mut self) -> Vec<&mut [f32]>;
 
-    /// Lengths of the parameter groups, in [`BaseModel::group_names`] order.
-    fn group_lens(&self) -> Vec<usize>;
+    /// Names of the parameter groups, in [`BaseModel::groups`] order.
+    fn group_names(&self) -> Vec<String> {
+        self.groups().iter().map(|g| g.name.to_string()).collect()
+    }
+
+    /// Lengths of the parameter groups, in [`BaseModel::groups`] order.
+    fn group_lens(&self) -> Vec<usize> {
+        self.groups().iter().map(|g| g.values.len()).collect()
+    }
 
     /// Which Gaussian arrays need a gradient when only the groups with `trained[i]` are trained.
     fn grad_mask(&self, trained: &[bool]) -> GradMask;
@@ -156,8 +181,12 @@ pub fn add_identity_grads(
 impl BaseModel for GaussianSet {
     type Tape = ();
 
-    fn group_names(&self) -> Vec<String> {
-        PARAM_NAMES.iter().map(|s| s.to_string()).collect()
+    fn groups(&self) -> Vec<Group<'_>> {
+        PARAM_NAMES
+            .iter()
+            .zip(self.arrays())
+            .map(|(name, values)| Group::new(name, values))
+            .collect()
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
@@ -165,10 +194,6 @@ impl BaseModel for GaussianSet {
             .into_iter()
             .map(|v| v.as_mut_slice())
             .collect()
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        self.arrays().iter().map(|a| a.len()).collect()
     }
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {
@@ -239,22 +264,6 @@ pub struct GaussianLrs {
 }
 
 impl GaussianLrs {
-    /// CLIPGaussian's 3D stylization rates (method.md): means `1e-4 extent -> 1e-6 extent` over
-    /// 30,000 steps, scales 0.005, rotations 0.001, opacities 0.05, and `feature_lr`.
-    pub fn stylization(extent: f64, feature_lr: f64) -> Self {
-        Self {
-            means: LrSchedule::Exponential {
-                start: 1e-4 * extent,
-                end: 1e-6 * extent,
-                steps: 30_000,
-            },
-            scales: 0.005,
-            rotations: 0.001,
-            opacities: 0.05,
-            feature: feature_lr,
-        }
-    }
-
     /// The Adam groups, in [`PARAM_NAMES`] order.
     pub fn groups(&self) -> Vec<GroupConfig> {
         let schedules = [
@@ -270,22 +279,5 @@ impl GaussianLrs {
             .zip(schedules)
             .map(|(name, schedule)| GroupConfig::new(*name, schedule))
             .collect()
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn stylization_rates_follow_method_md() {
-        let groups = GaussianLrs::stylization(2.0, 0.01).groups();
-        let names: Vec<&str> = groups.iter().map(|g| g.name.as_str()).collect();
-        assert_eq!(names, PARAM_NAMES);
-        assert!((groups[0].schedule.at(0) - 2e-4).abs() < 1e-15);
-        assert!((groups[0].schedule.at(30_000) - 2e-6).abs() < 1e-15);
-        let constant: Vec<f64> = groups[1..].iter().map(|g| g.schedule.at(123)).collect();
-        assert_eq!(constant, vec![0.005, 0.001, 0.05, 0.01, 0.0005]);
-        assert!(groups.iter().all(|g| !g.frozen));
     }
 }

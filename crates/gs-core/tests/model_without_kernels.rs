@@ -15,7 +15,9 @@ use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
 use gs_core::backend::{Backend, Trainer};
 use gs_core::gaussians::GaussianGrads;
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{add_identity_grads, BaseModel, Forward, GaussianLrs, ModelError, View};
+use gs_core::model::{
+    add_identity_grads, BaseModel, Forward, GaussianLrs, Group, ModelError, View,
+};
 use gs_core::raster::GradMask;
 use gs_core::train::{BatchOrder, Objective, TrainConfig, TrainError, ViewSampler};
 use gs_core::wgpu::{test_context, GpuOptions};
@@ -37,22 +39,16 @@ struct SlideTape {
 impl BaseModel for SlidingGaussians {
     type Tape = SlideTape;
 
-    fn group_names(&self) -> Vec<String> {
-        let mut names = self.set.group_names();
-        names.push("shift".into());
-        names
+    fn groups(&self) -> Vec<Group<'_>> {
+        let mut groups = self.set.groups();
+        groups.push(Group::new("shift", &self.shift));
+        groups
     }
 
     fn groups_mut(&mut self) -> Vec<&mut [f32]> {
         let mut groups = self.set.groups_mut();
         groups.push(&mut self.shift);
         groups
-    }
-
-    fn group_lens(&self) -> Vec<usize> {
-        let mut lens = self.set.group_lens();
-        lens.push(1);
-        lens
     }
 
     fn grad_mask(&self, trained: &[bool]) -> GradMask {

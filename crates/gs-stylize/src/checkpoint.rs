@@ -91,43 +91,58 @@ struct State {
 }
 
 /// The parameter groups of `model`, copied (mutable access is how [`BaseModel`] lends them).
-pub fn model_params<M: BaseModel>(model: &mut M) -> Vec<ParamGroup> {
+pub fn model_params<M: BaseModel>(model: &M) -> Vec<ParamGroup> {
     model
-        .group_names()
+        .groups()
         .into_iter()
-        .zip(model.groups_mut())
-        .map(|(name, values)| ParamGroup {
-            name,
-            values: values.to_vec(),
+        .map(|group| ParamGroup {
+            name: group.name.to_string(),
+            values: group.values.to_vec(),
         })
         .collect()
 }
 
-/// Copies `params` into `model` when it has the same groups (names and lengths, in order);
+/// Copies `params` into `model` when it has the same groups (names and lengths; each saved group
+/// goes to the model's group of its name, in whatever order they were saved);
 /// otherwise changes nothing and returns every difference, named.
 pub fn restore_params<M: BaseModel>(model: &mut M, params: &[ParamGroup]) -> Result<(), String> {
     let names = model.group_names();
     let saved: Vec<&str> = params.iter().map(|p| p.name.as_str()).collect();
-    if saved != names {
+    let model_names: Vec<&str> = names.iter().map(String::as_str).collect();
+    if sorted(&saved) != sorted(&model_names) {
         return Err(format!(
             "parameter groups [{}], the model has [{}]",
             saved.join(", "),
             names.join(", ")
         ));
     }
-    let differ: Vec<String> = params
+    let by_name = |name: &str| {
+        params
+            .iter()
+            .find(|p| p.name == name)
+            .expect("the names were compared")
+    };
+    let differ: Vec<String> = names
         .iter()
         .zip(model.group_lens())
+        .map(|(name, len)| (by_name(name), len))
         .filter(|(p, len)| p.values.len() != *len)
         .map(|(p, len)| format!("{} has {} values, the model {len}", p.name, p.values.len()))
         .collect();
     if !differ.is_empty() {
         return Err(differ.join("; "));
     }
-    for (dst, p) in model.groups_mut().into_iter().zip(params) {
-        dst.copy_from_slice(&p.values);
+    for (dst, name) in model.groups_mut().into_iter().zip(&names) {
+        dst.copy_from_slice(&by_name(name).values);
     }
     Ok(())
+}
+
+/// `list`, sorted.
+fn sorted<'a>(list: &[&'a str]) -> Vec<&'a str> {
+    let mut list = list.to_vec();
+    list.sort_unstable();
+    list
 }
 
 /// The checkpoint folder of the output folder `out`.
@@ -367,6 +382,7 @@ pub fn changed_fields(saved: &Value, current: &Value) -> Vec<String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use gs_core::model::BaseModel;
     use gs_core::GaussianSet;
     use rand_chacha::rand_core::RngCore;
 
@@ -382,7 +398,7 @@ mod tests {
         model.sh_rest[2] = f32::MAX;
         let checkpoint = Checkpoint {
             step: 1,
-            params: model_params(&mut model),
+            params: model_params(&model),
             adam_state: vec![1, 2, 3],
             rng: rng.clone(),
             config: serde_json::json!({"steps": 4}),
@@ -426,7 +442,7 @@ mod tests {
         );
         let checkpoint = Checkpoint {
             step: 3,
-            params: model_params(&mut GaussianSet::zeros(2, 0)),
+            params: model_params(&GaussianSet::zeros(2, 0)),
             adam_state: Vec::new(),
             rng: style_loss::style_rng(1),
             config: serde_json::json!({}),
@@ -463,7 +479,7 @@ mod tests {
 
     #[test]
     fn parameters_of_another_model_are_refused_with_the_differences_named() {
-        let params = model_params(&mut GaussianSet::zeros(3, 1));
+        let params = model_params(&GaussianSet::zeros(3, 1));
         let mut other = GaussianSet::zeros(4, 1);
         let before = other.clone();
         let e = restore_params(&mut other, &params).unwrap_err();
@@ -477,6 +493,20 @@ mod tests {
             e.contains("[scales,") && e.contains("[means, scales"),
             "{e}"
         );
+    }
+
+    /// Saved groups find the model's groups by name, in whatever order they were saved.
+    #[test]
+    fn parameters_saved_in_another_order_restore_by_name() {
+        let mut source = GaussianSet::zeros(3, 1);
+        for (i, group) in source.groups_mut().into_iter().enumerate() {
+            group.fill(i as f32 + 1.0);
+        }
+        let mut params = model_params(&source);
+        params.reverse();
+        let mut restored = GaussianSet::zeros(3, 1);
+        restore_params(&mut restored, &params).unwrap();
+        assert_eq!(restored, source);
     }
 
     #[test]

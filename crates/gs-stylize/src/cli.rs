@@ -58,7 +58,8 @@ pub struct StyleArgs {
     /// candle's CUDA or Metal device in builds with that feature, else on the cpu.
     #[arg(long)]
     pub device: Option<DeviceChoice>,
-    /// Any configuration field, e.g. `--set feature_lr=0.005 --set num_patches=16`.
+    /// Any configuration field, e.g. `--set num_patches=16`; `FIELD.KEY=VALUE` sets one key of
+    /// an object field, e.g. one group's learning rate: `--set learning_rates.sh_dc=0.005`.
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     pub set: Vec<String>,
     /// Continue the run from `<out>/checkpoint/` (a finished run: only with more --steps).

@@ -1,6 +1,7 @@
 //! The settings every stylization shares ([`StyleSettings`]) and how a modality's configuration
 //! is read: a flat JSON object (`configs/3d.json`) over the modality's defaults, edited by
-//! `field=value` overrides ([`Override`]), unknown fields refused and type errors named
+//! `field=value` overrides ([`Override`]; `field.key=value` sets one key of an object field,
+//! as `learning_rates.sh_dc=0.02`), unknown fields refused and type errors named
 //! ([`resolve_config`]).
 //!
 //! A modality's configuration is a struct of its own fields plus
@@ -8,9 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::adam::{GroupConfig, LrSchedule};
 use gs_core::backend::DeviceChoice;
-use gs_core::model::GaussianLrs;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
@@ -22,9 +21,11 @@ use crate::StylizeError;
 /// updates nothing.
 pub const PAPER_UPDATES: u64 = 4999;
 
-/// The modality-independent settings of a stylization: the style, the loss weights, the learning
-/// rates, the patches, the checkpoints and the model files. There is no `Default`: each modality
-/// starts from its paper's values ([`StyleSettings::paper_3d`] for 3D scenes).
+/// The modality-independent settings of a stylization: the style, the loss weights, the steps,
+/// the patches, the checkpoints and the model files. The learning rates are the modality's own
+/// (its `learning_rates`, keyed by its parameter groups' names: [`crate::rates`]). There is no
+/// `Default`: each modality starts from its paper's values ([`StyleSettings::paper_3d`] for 3D
+/// scenes).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StyleSettings {
     /// The style as text (exactly one of `style_prompt` and `style_image`).
@@ -53,20 +54,6 @@ pub struct StyleSettings {
     pub lambda_content: f64,
     /// Weight of the background loss, used only when every view has a mask.
     pub lambda_background: f64,
-    /// Learning rate of the SH DC coefficients; the rest use `feature_lr / 20`.
-    pub feature_lr: f64,
-    /// Means learning rate at step 0, times the scene extent.
-    pub means_lr_start: f64,
-    /// Means learning rate at the end of its decay, times the scene extent.
-    pub means_lr_end: f64,
-    /// Length of the means learning-rate decay, steps.
-    pub means_lr_steps: u64,
-    /// Learning rate of the opacity logits.
-    pub opacity_lr: f64,
-    /// Learning rate of the log-scales.
-    pub scales_lr: f64,
-    /// Learning rate of the quaternions.
-    pub rotations_lr: f64,
     /// Side of the square patches of the patch loss, pixels.
     pub patch_size: usize,
     /// Patches per step.
@@ -92,9 +79,8 @@ pub struct StyleSettings {
 
 impl StyleSettings {
     /// The paper's 3D settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 1000 (the
-    /// background term only applies to datasets with masks), feature_lr 0.01, the 3DGS rates of
-    /// the other groups, 4999 updates (the authors' 5000 iterations), 64 patches of 128 x 128, a
-    /// checkpoint every 500 steps.
+    /// background term only applies to datasets with masks), 4999 updates (the authors' 5000
+    /// iterations), 64 patches of 128 x 128, a checkpoint every 500 steps.
     pub fn paper_3d() -> Self {
         Self {
             style_prompt: None,
@@ -107,13 +93,6 @@ impl StyleSettings {
             lambda_patch: 90.0,
             lambda_content: 0.8,
             lambda_background: 1000.0,
-            feature_lr: 0.01,
-            means_lr_start: 1e-4,
-            means_lr_end: 1e-6,
-            means_lr_steps: 30_000,
-            opacity_lr: 0.05,
-            scales_lr: 0.005,
-            rotations_lr: 0.001,
             patch_size: 128,
             num_patches: 64,
             distortion_scale: 0.5,
@@ -128,45 +107,34 @@ impl StyleSettings {
     }
 
     /// The paper's 2D (MiraGe) settings (method.md), no style yet: those of
-    /// [`StyleSettings::paper_3d`] with lambda_background 0 and feature_lr 0.0025.
+    /// [`StyleSettings::paper_3d`] with lambda_background 0.
     pub fn paper_2d() -> Self {
         Self {
             lambda_background: 0.0,
-            feature_lr: 0.0025,
             ..Self::paper_3d()
         }
     }
 
     /// The paper's 4D (D-MiSo) settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 0
-    /// (500 where the background must stay), feature_lr 0.025 (the sub-Gaussians' SH, every
-    /// degree), and D-MiSo's stylization rates: the triangles' vertices (the "means")
-    /// `1e-5 extent -> 1e-6 extent` over 5000 steps, opacity 0.05, scales 0.001, rotations
-    /// 0.001.
+    /// (500 where the background must stay).
     pub fn paper_4d() -> Self {
         Self {
             lambda_background: 0.0,
-            feature_lr: 0.025,
-            means_lr_start: 1e-5,
-            means_lr_end: 1e-6,
-            means_lr_steps: 5000,
-            scales_lr: 0.001,
             ..Self::paper_3d()
         }
     }
 
-    /// The paper's video (VeGaS) settings (method.md), no style yet: lambdas 5 / 90 / 0.5 / 0,
-    /// feature_lr 0.02 (colours only: a modality freezes every other group).
+    /// The paper's video (VeGaS) settings (method.md), no style yet: lambdas 5 / 90 / 0.5 / 0.
     pub fn paper_video() -> Self {
         Self {
             lambda_content: 0.5,
             lambda_background: 0.0,
-            feature_lr: 0.02,
             ..Self::paper_3d()
         }
     }
 
     /// Checks what deserializing cannot: exactly one style, non-empty prompts, at least one
-    /// step, finite non-negative weights, finite positive rates, patches when the patch loss is
+    /// step, finite non-negative weights, patches when the patch loss is
     /// on, a distortion in `[0, 1]`. Errors name the field.
     pub fn validate(&self) -> Result<(), StylizeError> {
         let bad = |field: &str, why: &str| {
@@ -214,19 +182,6 @@ impl StyleSettings {
                 return bad(field, &format!("{w} must be finite and >= 0"));
             }
         }
-        let rates = [
-            ("feature_lr", self.feature_lr),
-            ("means_lr_start", self.means_lr_start),
-            ("means_lr_end", self.means_lr_end),
-            ("opacity_lr", self.opacity_lr),
-            ("scales_lr", self.scales_lr),
-            ("rotations_lr", self.rotations_lr),
-        ];
-        for (field, lr) in rates {
-            if !(lr.is_finite() && lr > 0.0) {
-                return bad(field, &format!("{lr} must be finite and > 0"));
-            }
-        }
         if self.lambda_patch > 0.0 && (self.patch_size == 0 || self.num_patches == 0) {
             return Err(StylizeError::Config(
                 "patch_size, num_patches: a patch loss needs a patch size and a number of \
@@ -239,25 +194,6 @@ impl StyleSettings {
             return bad("distortion_scale", "must be in [0, 1]");
         }
         Ok(())
-    }
-
-    /// The Adam groups of plain Gaussians ([`gs_core::gaussians::PARAM_NAMES`] order) for a
-    /// scene of size `extent`: means `means_lr_start * extent -> means_lr_end * extent` over
-    /// `means_lr_steps`, then scales, rotations, opacities, SH DC (`feature_lr`) and SH rest
-    /// (`feature_lr / 20`).
-    pub fn optimizer_groups(&self, extent: f64) -> Vec<GroupConfig> {
-        GaussianLrs {
-            means: LrSchedule::Exponential {
-                start: self.means_lr_start * extent,
-                end: self.means_lr_end * extent,
-                steps: self.means_lr_steps,
-            },
-            scales: self.scales_lr,
-            rotations: self.rotations_lr,
-            opacities: self.opacity_lr,
-            feature: self.feature_lr,
-        }
-        .groups()
     }
 }
 
@@ -381,11 +317,54 @@ where
     }
     let mut given = Map::new();
     for o in overrides {
-        given.insert(o.field.clone(), o.value.clone());
+        set_override(&fields, &mut given, o).map_err(StylizeError::Config)?;
     }
     check_fields::<C>(&fields, &given).map_err(StylizeError::Config)?;
     fields.extend(given);
     serde_json::from_value(Value::Object(fields)).map_err(|e| StylizeError::Config(e.to_string()))
+}
+
+/// Puts override `o` into `given` (the overridden fields over `base`): a plain field is set
+/// whole; `field.key...` sets one key inside the object `field` holds (in `given` when an
+/// earlier override set it, else in `base`), keeping its other keys. A dotted path through a
+/// field that is not an object is an error naming it; an unknown top-level field is left for
+/// [`check_fields`] to name.
+fn set_override(
+    base: &Map<String, Value>,
+    given: &mut Map<String, Value>,
+    o: &Override,
+) -> Result<(), String> {
+    let mut path = o.field.split('.');
+    let top = path.next().unwrap_or_default();
+    let keys: Vec<&str> = path.collect();
+    if keys.is_empty() {
+        given.insert(o.field.clone(), o.value.clone());
+        return Ok(());
+    }
+    let Some(current) = given.get(top).or_else(|| base.get(top)) else {
+        given.insert(top.to_string(), Value::Null);
+        return Ok(());
+    };
+    let mut whole = current.clone();
+    let mut at = &mut whole;
+    for (i, key) in keys.iter().enumerate() {
+        let Value::Object(object) = at else {
+            return Err(format!(
+                "{} = {}: `{}` is not an object, so it has no key `{key}`",
+                o.field,
+                o.value,
+                keys[..i]
+                    .iter()
+                    .fold(top.to_string(), |path, k| format!("{path}.{k}"))
+            ));
+        };
+        at = object
+            .entry(key.to_string())
+            .or_insert(Value::Object(Map::new()));
+    }
+    *at = o.value.clone();
+    given.insert(top.to_string(), whole);
+    Ok(())
 }
 
 /// Checks the fields `given` over the configuration `base` (every field of `C`): each is a
@@ -482,6 +461,7 @@ mod tests {
         background_mask: String,
         train_splits: String,
         preview_views: Vec<usize>,
+        learning_rates: crate::rates::GroupRates,
         #[serde(flatten)]
         style: StyleSettings,
     }
@@ -500,6 +480,7 @@ mod tests {
                 background_mask: "ground_truth_colour".into(),
                 train_splits: "train_and_test".into(),
                 preview_views: vec![0],
+                learning_rates: crate::rates::gaussian_stylization(0.01),
                 style: StyleSettings::paper_3d(),
             }
         }
@@ -540,6 +521,43 @@ mod tests {
         );
     }
 
+    /// `field.key=value` sets one key of an object field and keeps the others, also over an
+    /// earlier override of the same field; a path through a non-object is refused by name.
+    #[test]
+    fn a_dotted_override_sets_one_key_of_an_object_field() {
+        use crate::rates::GroupRate;
+        let c: Modality = resolve_config(
+            None,
+            &[
+                Override::parse("learning_rates.sh_dc=0.5").unwrap(),
+                Override::parse("learning_rates.scales=frozen").unwrap(),
+            ],
+        )
+        .unwrap();
+        let mut want = crate::rates::gaussian_stylization(0.01);
+        want.set("sh_dc", GroupRate::Constant(0.5));
+        want.set("scales", GroupRate::Frozen);
+        assert_eq!(c.learning_rates, want);
+        let c: Modality = resolve_config(
+            None,
+            &[Override::parse("learning_rates.means.steps=10").unwrap()],
+        )
+        .unwrap();
+        assert!(matches!(
+            c.learning_rates.get("means"),
+            Some(GroupRate::Decay { steps: 10, start, .. }) if *start == 1e-4
+        ));
+        let e = error(&[Override::parse("learning_rates.sh_dc=fast").unwrap()]);
+        assert!(
+            e.contains("learning_rates") && e.contains("sh_dc: \"fast\""),
+            "{e}"
+        );
+        let e = error(&[Override::parse("steps.count=3").unwrap()]);
+        assert!(e.contains("`steps` is not an object"), "{e}");
+        let e = error(&[Override::parse("lerning_rates.sh_dc=3").unwrap()]);
+        assert!(e.contains("unknown field `lerning_rates`"), "{e}");
+    }
+
     #[test]
     fn overrides_apply_in_order_over_the_defaults() {
         let c: Modality = resolve_config(
@@ -554,7 +572,7 @@ mod tests {
         .unwrap();
         assert_eq!((c.style.steps, c.preview_views), (9, vec![1, 3]));
         assert_eq!(c.style.style_prompt.as_deref(), Some("fire"));
-        assert_eq!(c.style.feature_lr, StyleSettings::paper_3d().feature_lr);
+        assert_eq!(c.style.lambda_patch, StyleSettings::paper_3d().lambda_patch);
         let c: Modality = resolve_config(None, &[Override::parse("device=gpu").unwrap()]).unwrap();
         assert_eq!(c.style.device, DeviceChoice::Gpu);
         let e = error(&[Override::parse("device=cuda").unwrap()]);
@@ -637,9 +655,11 @@ mod tests {
             .contains("a style is required"));
         s.style_prompt = Some("fire".into());
         s.validate().unwrap();
-        s.feature_lr = 0.0;
-        assert!(s.validate().unwrap_err().to_string().contains("feature_lr"));
-        let groups = StyleSettings::paper_3d().optimizer_groups(2.0);
-        assert_eq!(groups, GaussianLrs::stylization(2.0, 0.01).groups());
+        s.lambda_content = -1.0;
+        assert!(s
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("lambda_content: -1 must be finite and >= 0"));
     }
 }

@@ -6,6 +6,7 @@
 //! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
+//! - [`rates`]: the learning rates of a modality's configuration, keyed by group name.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
 //! - [`summary`]: the summary a finished run prints and writes as `summary.json`.
 //! - [`selftest`]: the `selftest` subcommand: each part on the chosen device against the cpu.
@@ -34,6 +35,7 @@ pub mod outputs;
 pub mod picture;
 pub mod plot;
 pub mod progress;
+pub mod rates;
 pub mod run;
 pub mod selftest;
 pub mod summary;

@@ -6,6 +6,8 @@ use std::path::{Path, PathBuf};
 
 use gs_core::dataset::nerf_synthetic::TrainSplits;
 use gs_core::dataset::GroundTruth;
+use gs_core::gaussians::PARAM_NAMES;
+use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::{resolve_config, Override, StyleSettings, StylizeError};
 use serde::{Deserialize, Serialize};
 
@@ -67,7 +69,12 @@ pub struct StylizeConfig {
     /// Views rendered before and after into the preview pictures (indices into the training
     /// views: the train split's frames, then the test split's).
     pub preview_views: Vec<usize>,
-    /// The settings every modality shares (style, weights, rates, patches, models).
+    /// The learning rate of each parameter group of the scene's Gaussians (`means`, `scales`,
+    /// `rotations`, `opacities`, `sh_dc`, `sh_rest`), by name (see gs-stylize's `rates`); the
+    /// paper's: `means` `1e-4 -> 1e-6` times the scene extent over 30,000 steps, 0.005, 0.001,
+    /// 0.05, `feature_lr` 0.01 and a twentieth of it.
+    pub learning_rates: GroupRates,
+    /// The settings every modality shares (style, weights, patches, models).
     #[serde(flatten)]
     pub style: StyleSettings,
 }
@@ -86,6 +93,7 @@ impl Default for StylizeConfig {
             background_mask: BackgroundPixels::GroundTruthColour,
             train_splits: TrainSplits::TrainAndTest,
             preview_views: vec![0],
+            learning_rates: gaussian_stylization(0.01),
             style: StyleSettings::paper_3d(),
         }
     }
@@ -102,7 +110,7 @@ impl StylizeConfig {
     }
 
     /// Checks what deserializing cannot: the required paths, the shared settings
-    /// ([`StyleSettings::validate`]) and the resolution divisor.
+    /// ([`StyleSettings::validate`]), the learning rates and the resolution divisor.
     pub fn validate(&self) -> Result<(), StylizeError> {
         let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
         for (field, value) in [("ply", &self.ply), ("data", &self.data), ("out", &self.out)] {
@@ -111,6 +119,7 @@ impl StylizeConfig {
             }
         }
         self.style.validate()?;
+        self.learning_rates.check(&PARAM_NAMES)?;
         if self.resolution == 0 {
             return bad(
                 "resolution",

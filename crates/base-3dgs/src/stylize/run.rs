@@ -6,6 +6,7 @@
 
 use std::path::PathBuf;
 
+use gs_core::model::BaseModel;
 use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::checkpoint::mark_finished;
@@ -54,9 +55,12 @@ pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, S
         .object
         .then(|| background_masks(&dataset, config.background_mask))
         .flatten();
+    let model = ply.gaussians.clone();
     let job = StylizeJob {
-        model: ply.gaussians.clone(),
-        groups: config.style.optimizer_groups(dataset.extent),
+        groups: config
+            .learning_rates
+            .optimizer_groups(&model.group_names(), dataset.extent)?,
+        model,
         views: dataset.views.clone(),
         images: dataset.images,
         labels: dataset
