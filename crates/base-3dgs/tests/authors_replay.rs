@@ -122,7 +122,11 @@ fn our_run(
         data: Some(data.join("data")),
         out: Some(out),
         preview_views: vec![0],
-        white_background: variant["white_background"].as_bool().unwrap(),
+        background: if variant["white_background"].as_bool().unwrap() {
+            [1.0; 3]
+        } else {
+            [0.0; 3]
+        },
         ground_truth,
         object: variant["object"].as_bool().unwrap(),
         style: StyleSettings {

@@ -604,14 +604,21 @@ fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
 }
 
 #[test]
-fn stylize_renders_over_black_unless_background_white_is_asked() {
+fn stylize_renders_over_black_unless_another_background_is_asked() {
     let dir = TempDir::new("cli-stylize-background");
     let (ply, data) = write_scene(dir.path());
     let (clip_config, clip_weights) = write_tiny_clip(dir.path());
     let tokenizer = fixture("tokenizer/tokenizer.json");
     let vgg = fixture("tiny_vgg19.safetensors");
-    for (flags, white) in [(vec![], false), (vec!["--background", "white"], true)] {
-        let out = dir.path().join(format!("out-{white}"));
+    for (i, (flags, rgb)) in [
+        (vec![], [0.0; 3]),
+        (vec!["--background", "white"], [1.0; 3]),
+        (vec!["--background", "0.25,0.5,1"], [0.25, 0.5, 1.0]),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let out = dir.path().join(format!("out-{i}"));
         let mut args = vec![
             "stylize",
             "--ply",
@@ -647,7 +654,7 @@ fn stylize_renders_over_black_unless_background_white_is_asked() {
         let config: serde_json::Value =
             serde_json::from_str(&std::fs::read_to_string(out.join("config.json")).unwrap())
                 .unwrap();
-        assert_eq!(config["white_background"], white);
+        assert_eq!(config["background"], serde_json::json!(rgb));
         assert_eq!(config["ground_truth"], "file_colour");
         assert_eq!(config["steps"], 1);
     }

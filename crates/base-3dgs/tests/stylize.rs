@@ -51,7 +51,7 @@ impl Setup {
             preview_views: vec![0, 2],
             // The scene's pictures are renders over black with alpha: composited over white,
             // their background differs from the transparent pixels' stored black.
-            white_background: true,
+            background: [1.0; 3],
             ground_truth: GroundTruth::Composited,
             object: true,
             style: StyleSettings {
@@ -107,11 +107,7 @@ fn resume() -> RunOptions {
 /// dataset with the same patches each time, so the losses before and after stylization compare.
 fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
     let device = Device::Cpu;
-    let background = if config.white_background {
-        Background::White
-    } else {
-        Background::Black
-    };
+    let background = Background::from_rgb(config.background);
     let options = LoadOptions {
         background,
         ground_truth: config.ground_truth,
@@ -271,7 +267,7 @@ fn a_run_with_the_authors_3d_defaults_has_a_background_term_only_for_an_object()
     let defaults = StylizeConfig::default();
     let config = |object: bool, out: &str| {
         setup.with(|c| {
-            c.white_background = defaults.white_background;
+            c.background = defaults.background;
             c.ground_truth = defaults.ground_truth;
             c.background_mask = defaults.background_mask;
             c.object = object;
@@ -279,7 +275,7 @@ fn a_run_with_the_authors_3d_defaults_has_a_background_term_only_for_an_object()
             c.style.steps = 3;
         })
     };
-    assert!(!defaults.object && !defaults.white_background);
+    assert!(!defaults.object && defaults.background == [0.0; 3]);
     let scene = run(&config(false, "scene"), &quiet()).unwrap();
     assert!(scene.losses.iter().all(|l| l.total.is_finite()));
     assert!(!scene.losses[0].terms.contains_key("background"));

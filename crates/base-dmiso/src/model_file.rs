@@ -13,6 +13,8 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
+use gs_core::dataset::Background;
+use gs_stylize::background::parse_background;
 
 use crate::deform_net::NetShape;
 use crate::model::{group, Dmiso, DmisoParams};
@@ -95,7 +97,11 @@ fn layout(cores: usize, subs: usize, net: &NetShape) -> Vec<(String, Vec<usize>,
 
 /// Writes `model` to `path` (`model.safetensors`), through a temporary name, recording the
 /// background it was fitted or stylized over (`white`) when given.
-pub fn save(model: &Dmiso, path: &Path, white: Option<bool>) -> Result<(), ModelFileError> {
+pub fn save(
+    model: &Dmiso,
+    path: &Path,
+    background: Option<Background>,
+) -> Result<(), ModelFileError> {
     let params = model.params();
     let data: Vec<(String, Vec<usize>, Vec<u8>)> =
         layout(model.cores(), model.subs_per_core(), &model.net())
@@ -122,8 +128,16 @@ pub fn save(model: &Dmiso, path: &Path, white: Option<bool>) -> Result<(), Model
         ("deform_width".into(), model.net().width.to_string()),
         ("deformation".into(), model.deformation.to_string()),
     ]);
-    if let Some(white) = white {
-        metadata.insert("white_background".into(), white.to_string());
+    if let Some(background) = background {
+        let [r, g, b] = background.rgb();
+        metadata.insert("background".into(), format!("{r},{g},{b}"));
+        if background != Background::Colour([r, g, b]) {
+            // What readers of the white-or-black record (and D-MiSo's cfg_args) understand.
+            metadata.insert(
+                "white_background".into(),
+                (background == Background::White).to_string(),
+            );
+        }
     }
     let bytes =
         safetensors::serialize(tensors, Some(metadata)).map_err(|e| ModelFileError::Format {
@@ -331,11 +345,22 @@ fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
     }
 }
 
-/// The background a model records: our file's `white_background` metadata, or the
-/// `white_background` of the `cfg_args` beside the authors' folder; `None` when it records none.
-pub fn recorded_background(path: &Path) -> Result<Option<bool>, ModelFileError> {
+/// The background a model records: our file's `background` metadata (`R,G,B`), else its
+/// `white_background`, or the `white_background` of the `cfg_args` beside the authors' folder;
+/// `None` when it records none.
+pub fn recorded_background(path: &Path) -> Result<Option<Background>, ModelFileError> {
+    let white_or_black = |white: bool| {
+        if white {
+            Background::White
+        } else {
+            Background::Black
+        }
+    };
     if path.is_dir() {
-        return Ok(cfg_args(path)?.as_deref().and_then(white_background));
+        return Ok(cfg_args(path)?
+            .as_deref()
+            .and_then(white_background)
+            .map(white_or_black));
     }
     // Only the header: an 8-byte length, then the JSON header with the metadata.
     use std::io::Read;
@@ -359,9 +384,19 @@ pub fn recorded_background(path: &Path) -> Result<Option<bool>, ModelFileError> 
         .map_err(|e| not_ours(format!("header: {e}")))?;
     let header: serde_json::Value =
         serde_json::from_slice(&header).map_err(|e| not_ours(format!("header: {e}")))?;
-    Ok(header["__metadata__"]["white_background"]
+    let metadata = &header["__metadata__"];
+    if let Some(rgb) = metadata["background"].as_str() {
+        return parse_background(rgb)
+            .map(|rgb| Some(Background::from_rgb(rgb)))
+            .map_err(|why| ModelFileError::Format {
+                path: path.to_path_buf(),
+                message: format!("metadata background: {why}"),
+            });
+    }
+    Ok(metadata["white_background"]
         .as_str()
-        .and_then(|v| v.parse().ok()))
+        .and_then(|v| v.parse().ok())
+        .map(white_or_black))
 }
 
 /// The largest safetensors header read for its metadata (the format's own limit is 100 MB).
@@ -512,6 +547,28 @@ fn ply_vertex_count(path: &Path) -> Result<usize, ModelFileError> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Every background a model file records comes back: white and black (also as the
+    /// white-or-black record older readers take), any other colour by its channels.
+    #[test]
+    fn the_recorded_background_round_trips() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
+        for (background, white) in [
+            (Some(Background::White), Some("true")),
+            (Some(Background::Black), Some("false")),
+            (Some(Background::Colour([0.25, 0.5, 1.0])), None),
+            (None, None),
+        ] {
+            let path = dir.path().join("model.safetensors");
+            save(&model, &path, background).unwrap();
+            assert_eq!(recorded_background(&path).unwrap(), background);
+            let bytes = std::fs::read(&path).unwrap();
+            let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+            let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+            assert_eq!(header["__metadata__"]["white_background"].as_str(), white);
+        }
+    }
 
     #[test]
     fn cfg_args_say_the_background() {

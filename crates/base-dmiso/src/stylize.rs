@@ -69,10 +69,12 @@ pub struct DynamicStylizeConfig {
     pub iteration: Option<String>,
     /// The output folder.
     pub out: Option<PathBuf>,
-    /// Composite the pictures over white (D-MiSo's `-w`) or black; none: the background the
+    /// The colour the pictures are composited over and the scene renders over: `white`
+    /// (D-MiSo's `-w`), `black`, `"R,G,B"` or `[r, g, b]` in `[0, 1]`; none: the background the
     /// model records (our file's, or the authors' `cfg_args`), else white (CLIPGaussian's 4D
     /// examples).
-    pub white_background: Option<bool>,
+    #[serde(deserialize_with = "gs_stylize::background::deserialize_optional")]
+    pub background: Option<[f32; 3]>,
     /// Pictures wider than this many pixels are shrunk to it, the cameras with them (Pillow's
     /// bicubic of the 8-bit picture), as D-MiSo's loader does at its default `-r -1` (default
     /// 1600); 0 keeps every picture at its size (D-MiSo's `-r 1`).
@@ -124,7 +126,7 @@ impl Default for DynamicStylizeConfig {
             model: None,
             iteration: None,
             out: None,
-            white_background: None,
+            background: None,
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
             train_splits: None,
             batch_size: 4,
@@ -146,8 +148,8 @@ impl Default for DynamicStylizeConfig {
 
 impl DynamicStylizeConfig {
     /// The background colour: the configured one, else `recorded` (the model's), else white.
-    pub fn background(&self, recorded: Option<bool>) -> Background {
-        background_of(self.white_background, recorded)
+    pub fn background(&self, recorded: Option<Background>) -> Background {
+        background_of(self.background, recorded)
     }
 
     /// The fit this configuration asks for.
@@ -181,14 +183,13 @@ impl DynamicStylizeConfig {
     }
 }
 
-/// The background of a run: white when `white` says so (given), else when the model records
-/// white or nothing (`recorded`); else black.
-pub fn background_of(white: Option<bool>, recorded: Option<bool>) -> Background {
-    if white.or(recorded).unwrap_or(true) {
-        Background::White
-    } else {
-        Background::Black
-    }
+/// The background of a run: the colour `given` (linear RGB), else the one the model records
+/// (`recorded`), else white.
+pub fn background_of(given: Option<[f32; 3]>, recorded: Option<Background>) -> Background {
+    given
+        .map(Background::from_rgb)
+        .or(recorded)
+        .unwrap_or(Background::White)
 }
 
 /// An iteration given as `"best"`, `"5000"` or `5000`.
@@ -382,7 +383,6 @@ pub fn run(
         Some(true) => TrainSplits::Train,
         Some(false) | None => TrainSplits::TrainAndTest,
     });
-    let white = Some(background == Background::White);
     let (mut train, test) = load_scene(data, background, config.max_width)?;
     if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
         train.append(test.clone());
@@ -410,7 +410,7 @@ pub fn run(
                 path: out.to_path_buf(),
                 source,
             })?;
-            model_file::save(&model, &base_file, white)?;
+            model_file::save(&model, &base_file, Some(background))?;
             model
         }
     };
@@ -439,7 +439,7 @@ pub fn run(
     };
     let outcome = prepared.stylize(config, job)?;
     let mut model = outcome.model;
-    model_file::save(&model, &out.join(MODEL_FILE), white)?;
+    model_file::save(&model, &out.join(MODEL_FILE), Some(background))?;
     let test_renders = match &test {
         Some(test) => {
             let renders = render_views(&mut model, &test.views, background.rgb(), backend)?;

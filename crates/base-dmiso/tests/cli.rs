@@ -14,6 +14,7 @@ use base_dmiso::model_file;
 use base_dmiso::stylize::DynamicStylizeConfig;
 use base_dmiso::Dmiso;
 use candle_core::Device;
+use gs_core::dataset::Background;
 use gs_stylize::test_support::{
     cpu_selftest_table, fails, path_str as s, succeeds as run, tiny_style_flags,
 };
@@ -95,7 +96,10 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         (50, 3, 16)
     );
     let recorded = |p: &Path| model_file::recorded_background(p).unwrap();
-    assert_eq!(recorded(&fitted.join("model.safetensors")), Some(true));
+    assert_eq!(
+        recorded(&fitted.join("model.safetensors")),
+        Some(Background::White)
+    );
 
     let styled = dir.path().join("styled");
     let mut cmd = bin();
@@ -194,10 +198,13 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     let styled_theirs = load(&theirs.join("model.safetensors"));
     assert_eq!(
         recorded(&authors),
-        Some(true),
+        Some(Background::White),
         "their cfg_args: white_background=True"
     );
-    assert_eq!(recorded(&theirs.join("model.safetensors")), Some(true));
+    assert_eq!(
+        recorded(&theirs.join("model.safetensors")),
+        Some(Background::White)
+    );
     assert_eq!(
         (
             styled_theirs.cores(),
@@ -241,7 +248,11 @@ fn a_run_that_fits_first_resumes_with_its_fit() {
     ]));
     let base = load(&out.join("base.safetensors"));
     let recorded = model_file::recorded_background(&out.join("base.safetensors")).unwrap();
-    assert_eq!(recorded, Some(false), "the fit records its background");
+    assert_eq!(
+        recorded,
+        Some(Background::Black),
+        "the fit records its background"
+    );
     assert_eq!((base.cores(), base.subs_per_core()), (40, 2));
     let mut cmd = bin();
     stylize_args(&mut cmd, &models, 4);
@@ -251,7 +262,7 @@ fn a_run_that_fits_first_resumes_with_its_fit() {
         .args(["--data", s(&data), "--out", s(&out), "--resume"])
         .args(["--background", "black"]));
     let recorded = model_file::recorded_background(&out.join("model.safetensors")).unwrap();
-    assert_eq!(recorded, Some(false));
+    assert_eq!(recorded, Some(Background::Black));
     assert_eq!(
         load(&out.join("base.safetensors")),
         base,

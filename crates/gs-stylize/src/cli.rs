@@ -13,7 +13,6 @@ use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 use gs_core::backend::DeviceChoice;
-use gs_core::dataset::Background;
 use serde_json::Value;
 
 use crate::evaluation::{ClipFiles, Style};
@@ -166,30 +165,6 @@ impl EvalStyleArgs {
             weights: self.clip_weights.clone(),
             tokenizer: self.tokenizer.clone(),
         }
-    }
-}
-
-/// A background colour on the command line: `white` or `black`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
-pub enum BackgroundArg {
-    /// (1, 1, 1).
-    White,
-    /// (0, 0, 0).
-    Black,
-}
-
-impl BackgroundArg {
-    /// As a dataset's background.
-    pub fn dataset(self) -> Background {
-        match self {
-            Self::White => Background::White,
-            Self::Black => Background::Black,
-        }
-    }
-
-    /// The colour, linear RGB.
-    pub fn rgb(self) -> [f32; 3] {
-        self.dataset().rgb()
     }
 }
 

@@ -383,7 +383,8 @@ pub const STYLIZE_FIT_FLAGS: &[&str] = &["--gaussians", "--fit-steps"];
 /// Asserts that the binary at `binary` has every subcommand of [`SHARED_FLAGS`] (`fit` only
 /// when it `fits` its own base model) with every flag listed for it (from its `--help`),
 /// `stylize` also [`STYLIZE_FIT_FLAGS`] when it fits, that each `--device` takes
-/// `cpu, gpu, auto`, and that `eval` writes `metrics.json` by default.
+/// `cpu, gpu, auto` and each `--background` `white`, `black` or `R,G,B`, and that `eval`
+/// writes `metrics.json` by default.
 ///
 /// # Panics
 /// When a subcommand or a flag is missing, or a `--device` takes other values.
@@ -405,6 +406,14 @@ pub fn assert_shared_flags(binary: &Path, fits: bool) {
             assert!(
                 help.contains("[default: metrics.json]"),
                 "{} eval writes metrics.json by default:\n{help}",
+                binary.display()
+            );
+        }
+        if flags.contains(&"--background") {
+            let err = fails(Command::new(binary).args([sub, "--background", "grey"]));
+            assert!(
+                err.contains("is not white, black or R,G,B"),
+                "{} {sub} --background takes white, black or R,G,B: {err}",
                 binary.display()
             );
         }

@@ -12,15 +12,16 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
-use base_3dgs::dataset::LoadOptions;
+use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::backend::DeviceChoice;
 use gs_core::ply::read_ply;
+use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
-    exit_code, path_value, BackgroundArg, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
+    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
@@ -104,10 +105,10 @@ struct StylizeArgs {
     /// as INRIA's loader at its default -r -1; default 1600); 0 keeps every picture at its size.
     #[arg(long)]
     max_width: Option<u32>,
-    /// The colour renders are composited over (default black, as the authors' commands, or
-    /// the configuration's `white_background`).
-    #[arg(long, value_enum)]
-    background: Option<BackgroundArg>,
+    /// The colour renders are composited over: white, black or R,G,B in [0, 1] (default
+    /// black, as the authors' commands, or the configuration's `background`).
+    #[arg(long, value_parser = parse_background)]
+    background: Option<[f32; 3]>,
     /// The style, model files, device and run controls.
     #[command(flatten)]
     style: StyleArgs,
@@ -123,8 +124,8 @@ impl StylizeArgs {
             ("resolution", self.resolution.map(Into::into)),
             ("max_width", self.max_width.map(Into::into)),
             (
-                "white_background",
-                self.background.map(|b| (b == BackgroundArg::White).into()),
+                "background",
+                self.background.map(|b| serde_json::Value::from(b.to_vec())),
             ),
         ])
     }
@@ -171,10 +172,10 @@ struct RenderArgs {
     /// checked before any work).
     #[arg(long)]
     out: PathBuf,
-    /// The background colour (black by default, as `stylize` renders unless its
-    /// `white_background` is set).
-    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
-    background: BackgroundArg,
+    /// The background colour: white, black or R,G,B in [0, 1] (black by default, as `stylize`
+    /// renders unless its `background` is set).
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
     /// Where to render: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -192,10 +193,11 @@ struct EvalArgs {
     /// The style and the CLIP model.
     #[command(flatten)]
     style: EvalStyleArgs,
-    /// The colour behind transparent pixels of the pictures (black by default, the background
-    /// `stylize` renders over unless its `white_background` is set).
-    #[arg(long, value_enum, default_value_t = BackgroundArg::Black)]
-    background: BackgroundArg,
+    /// The colour behind transparent pixels of the pictures: white, black or R,G,B in [0, 1]
+    /// (black by default, the background `stylize` renders over unless its `background` is
+    /// set).
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
     /// Where to write the scores as JSON (its folder must exist; checked before any work).
     #[arg(long, default_value = "metrics.json")]
     out: PathBuf,
@@ -240,7 +242,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
                 SplitArg::Val => Split::Val,
             });
             let options = LoadOptions {
-                background: args.background.dataset(),
+                background: Background::from_rgb(args.background),
                 downscale: args.resolution,
                 max_width: args.max_width,
                 ..LoadOptions::default()
@@ -254,7 +256,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let written = render_to_folder(
         &ply.gaussians,
         &cameras,
-        args.background.rgb(),
+        args.background,
         &args.out,
         &backend,
     )?;
@@ -275,7 +277,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &args.style.style(),
         &args.style.source_prompt,
         &args.style.clip_files(),
-        args.background.rgb(),
+        args.background,
     )?;
     print!("{}", metrics.lines());
     write_metrics(&args.out, &metrics)?;

@@ -42,9 +42,11 @@ pub struct StylizeConfig {
     /// with them (Pillow's bicubic of the 8-bit picture), as INRIA's loader does at its default
     /// `-r -1` (default 1600); 0 keeps every picture at its size (INRIA's `-r 1`).
     pub max_width: u32,
-    /// Render over white (else black, the default: the authors' commands pass no `-w`), and
-    /// composite transparent pixels over it where `ground_truth` is `composited`.
-    pub white_background: bool,
+    /// The colour renders are composited over, and transparent pixels where `ground_truth` is
+    /// `composited`: `white` (the authors' `-w`), `black` (the default: the authors' commands
+    /// pass no `-w`), `"R,G,B"` or `[r, g, b]` in `[0, 1]`.
+    #[serde(deserialize_with = "gs_stylize::background::deserialize")]
+    pub background: [f32; 3],
     /// How a picture with transparency becomes the ground truth: `file_colour` (the default, as
     /// the INRIA 3DGS commit the authors' 3D code pins: the stored colours, alpha ignored, so a
     /// NeRF-synthetic scene's transparent pixels are black even over white) or `composited`
@@ -87,7 +89,7 @@ impl Default for StylizeConfig {
             out: None,
             resolution: 1,
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
-            white_background: false,
+            background: [0.0; 3],
             ground_truth: GroundTruth::FileColour,
             object: false,
             background_mask: BackgroundPixels::GroundTruthColour,

@@ -111,11 +111,7 @@ fn ply_error(e: PlyError) -> StylizeError {
 fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
     let data = config.data_path();
     let options = LoadOptions {
-        background: if config.white_background {
-            Background::White
-        } else {
-            Background::Black
-        },
+        background: Background::from_rgb(config.background),
         ground_truth: config.ground_truth,
         downscale: config.resolution,
         max_width: config.max_width,

@@ -27,9 +27,8 @@ use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_core::Image;
 use gs_stylize::animation::{write_frames, write_mp4, FRAMES_DIR};
-use gs_stylize::cli::{
-    exit_code, path_value, BackgroundArg, EvalStyleArgs, SelftestArgs, StyleArgs,
-};
+use gs_stylize::background::parse_background;
+use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -118,10 +117,10 @@ struct StylizeArgs {
     /// Consecutive views per step, their losses summed and divided by it (the paper: 4).
     #[arg(long)]
     batch_size: Option<usize>,
-    /// The colour the pictures are composited over (default: the background the model
-    /// records, else white).
-    #[arg(long, value_enum)]
-    background: Option<BackgroundArg>,
+    /// The colour the pictures are composited over and the scene renders over: white, black or
+    /// R,G,B in [0, 1] (default: the background the model records, else white).
+    #[arg(long, value_parser = parse_background)]
+    background: Option<[f32; 3]>,
     /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
     /// at its default -r -1; default 1600); 0 keeps every picture at its size.
     #[arg(long)]
@@ -176,9 +175,10 @@ struct FitArgs {
     /// Seed of the starting model, the cores drawn and the view order.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// The colour the pictures are composited over, white (D-MiSo's -w) or black.
-    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
-    background: BackgroundArg,
+    /// The colour the pictures are composited over: white (D-MiSo's -w), black or R,G,B in
+    /// [0, 1].
+    #[arg(long, value_parser = parse_background, default_value = "white")]
+    background: [f32; 3],
     /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
     /// at its default -r -1); 0 keeps every picture at its size.
     #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
@@ -212,9 +212,10 @@ struct RenderArgs {
     /// Frame rate of the sweep's mp4.
     #[arg(long, default_value_t = 24.0)]
     fps: f64,
-    /// Render over white or black (default: the background the model records, else white).
-    #[arg(long, value_enum)]
-    background: Option<BackgroundArg>,
+    /// Render over white, black or R,G,B in [0, 1] (default: the background the model
+    /// records, else white).
+    #[arg(long, value_parser = parse_background)]
+    background: Option<[f32; 3]>,
     /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
     /// at its default -r -1); 0 keeps every picture at its size.
     #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
@@ -258,9 +259,10 @@ struct EvalArgs {
     /// The style and the CLIP model.
     #[command(flatten)]
     style: EvalStyleArgs,
-    /// The colour the test pictures are composited over (that of the renders).
-    #[arg(long, value_enum, default_value_t = BackgroundArg::White)]
-    background: BackgroundArg,
+    /// The colour the test pictures are composited over (that of the renders): white, black
+    /// or R,G,B in [0, 1].
+    #[arg(long, value_parser = parse_background, default_value = "white")]
+    background: [f32; 3],
     /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
     /// at its default -r -1); 0 keeps every picture at its size.
     #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
@@ -300,8 +302,8 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("batch_size", args.batch_size.map(Into::into)),
         ("max_width", args.max_width.map(Into::into)),
         (
-            "white_background",
-            args.background.map(|b| (b == BackgroundArg::White).into()),
+            "background",
+            args.background.map(|b| serde_json::Value::from(b.to_vec())),
         ),
         ("fit_points", args.points.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
@@ -334,7 +336,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     check_output_folder(&args.out)?;
-    let bg = args.background.dataset();
+    let bg = Background::from_rgb(args.background);
     let settings = FitSettings {
         points: args.points,
         steps: args.steps,
@@ -361,8 +363,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let mut model = fit_with_progress(&train, &settings, &options, &backend, &device)?;
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
-    let white = Some(bg == Background::White);
-    model_file::save(&model, &args.out.join(MODEL_FILE), white)?;
+    model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;
     let (views, images, which) = match &test {
         Some(test) => (&test.views, &test.images, "test"),
         None => (&train.views, &train.images, "training"),
@@ -390,7 +391,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
     let bg = background_of(
-        args.background.map(|b| b == BackgroundArg::White),
+        args.background,
         model_file::recorded_background(&args.model)?,
     );
     let options = LoadOptions {
@@ -470,7 +471,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
-    let bg = args.background.dataset();
+    let bg = Background::from_rgb(args.background);
     let options = LoadOptions {
         background: bg,
         downscale: 1,

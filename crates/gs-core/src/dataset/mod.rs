@@ -43,21 +43,37 @@ impl Layout {
 }
 
 /// The colour that transparent pixels are composited over.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub enum Background {
     /// `(1, 1, 1)`, 3DGS's `--white_background`.
     White,
     /// `(0, 0, 0)`, 3DGS's default.
     #[default]
     Black,
+    /// Any other colour, linear RGB in `[0, 1]` ([`Background::from_rgb`] gives white and black
+    /// their own variants).
+    Colour([f32; 3]),
 }
 
 impl Background {
+    /// The background of colour `rgb` (linear RGB in `[0, 1]`): [`Background::White`] for
+    /// `(1, 1, 1)`, [`Background::Black`] for `(0, 0, 0)`, else [`Background::Colour`].
+    pub fn from_rgb(rgb: [f32; 3]) -> Self {
+        if rgb == [1.0; 3] {
+            Self::White
+        } else if rgb == [0.0; 3] {
+            Self::Black
+        } else {
+            Self::Colour(rgb)
+        }
+    }
+
     /// The colour, linear RGB in `[0, 1]`.
     pub fn rgb(self) -> [f32; 3] {
         match self {
             Self::White => [1.0; 3],
             Self::Black => [0.0; 3],
+            Self::Colour(rgb) => rgb,
         }
     }
 }
@@ -80,7 +96,7 @@ pub enum GroundTruth {
 }
 
 /// How to load a dataset.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub struct LoadOptions {
     /// Background that alpha is composited over.
     pub background: Background,
