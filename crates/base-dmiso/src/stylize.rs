@@ -18,7 +18,6 @@ use std::path::{Path, PathBuf};
 
 use candle_core::Device;
 use gs_core::adam::{GroupConfig, RateAt};
-use gs_core::backend::Backend;
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split, TrainSplits};
 use gs_core::dataset::{Background, Dataset, DatasetError, LoadOptions};
 use gs_core::model::View;
@@ -27,13 +26,13 @@ use gs_core::Image;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, PREVIEW_GIF,
 };
-use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
-use gs_stylize::progress::with_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
-    prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
@@ -170,7 +169,7 @@ impl DynamicStylizeConfig {
     }
 
     /// Checks the fields of this configuration that gs-stylize does not.
-    fn check(&self) -> Result<(), DynamicError> {
+    fn check_fields(&self) -> Result<(), DynamicError> {
         let bad = |m: String| Err(DynamicError::Config(m));
         if self.batch_size == 0 {
             return bad("batch_size: must be at least 1 (--batch-size)".into());
@@ -268,9 +267,6 @@ pub enum DynamicError {
     /// An output file.
     #[error("{0}")]
     Output(#[from] AnimationError),
-    /// Ctrl-C during the fit: nothing was written.
-    #[error("interrupted while fitting the scene; nothing was written")]
-    InterruptedFit,
 }
 
 /// What a finished run produced.
@@ -354,143 +350,223 @@ pub fn run(
     config: &DynamicStylizeConfig,
     options: &RunOptions,
 ) -> Result<DynamicSummary, DynamicError> {
-    config.check()?;
-    let out = config
-        .out
-        .as_deref()
-        .ok_or_else(|| DynamicError::Config("out: is required".into()))?;
-    let data = config
-        .data
-        .as_deref()
-        .ok_or_else(|| DynamicError::Config("data: is required (a D-NeRF scene folder)".into()))?;
-    let prepared = prepare(&config.style, out, options.clone())?;
-    let backend = prepared.backend();
-    let device = prepared.loss_device().clone();
-    let base_file = out.join(BASE_FILE);
-    // A resumed run that fitted its model takes it up again.
-    let refit = config.model.is_none() && options.resume && base_file.exists();
-    let recorded = match (&config.model, refit) {
-        (Some(path), _) => model_file::recorded_background(path)?,
-        (None, true) => model_file::recorded_background(&base_file)?,
-        (None, false) => None,
-    };
-    let background = config.background(recorded);
-    let recorded_eval = match &config.model {
-        Some(path) => model_file::recorded_eval(path)?,
-        None => None,
-    };
-    let train_splits = config.train_splits.unwrap_or(match recorded_eval {
-        Some(true) => TrainSplits::Train,
-        Some(false) | None => TrainSplits::TrainAndTest,
-    });
-    let (mut train, test) = load_scene(data, background, config.max_width)?;
-    if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
-        train.append(test.clone());
-    }
-    let labels: Vec<String> = train
-        .image_paths
-        .iter()
-        .map(|p| p.display().to_string())
-        .collect();
-    check_patches_fit(&config.style, &train.images[..1], &labels[..1])?;
-    if config.batch_size > train.views.len() {
-        return Err(DynamicError::Config(format!(
-            "batch_size: {} is more than the {} training views",
-            config.batch_size,
-            train.views.len()
-        )));
-    }
-    let mut model = match &config.model {
-        Some(path) => read_model(path, config.iteration.as_deref(), &device)?,
-        None if refit => model_file::load(&base_file, &device)?,
-        None => {
-            let model =
-                fit_with_progress(&train, &config.fit_settings(), options, backend, &device)?;
-            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
-                path: out.to_path_buf(),
-                source,
-            })?;
-            model_file::save(&model, &base_file, Some(background))?;
-            model
-        }
-    };
-    // The sweep through time, of the model before stylization, for the preview.
-    let camera = &test.as_ref().unwrap_or(&train).views[0].camera;
-    let views = sweep_views(camera, config.sweep_frames.max(1));
-    let original = render_views(&mut model, &views, background.rgb(), backend)?;
-    let masks = train
-        .masks
-        .iter()
-        .map(|m| m.as_ref().map(|m| m.data.clone()))
-        .collect::<Option<Vec<_>>>();
-    let job = StylizeJob {
-        groups: stylize_groups(&config.learning_rates, train.extent)?,
-        model,
-        views: train.views.clone(),
-        images: train.images.clone(),
-        labels,
-        masks,
-        background: background.rgb(),
-        batches: Batches {
-            size: config.batch_size,
-            order: BatchOrder::Consecutive,
-        },
-        render_clamp: RenderClamp::Off,
-    };
-    let outcome = prepared.stylize(config, job)?;
-    let mut model = outcome.model;
-    model_file::save(&model, &out.join(MODEL_FILE), Some(background))?;
-    let test_renders = match &test {
-        Some(test) => {
-            let renders = render_views(&mut model, &test.views, background.rgb(), backend)?;
-            write_frames(&out.join(TEST_DIR), &renders)?;
-            renders
-        }
-        None => Vec::new(),
-    };
-    let sweep = render_views(&mut model, &views, background.rgb(), backend)?;
-    let sweep_dir = out.join(SWEEP_DIR);
-    write_frames(&sweep_dir, &sweep)?;
-    if let (Some(first), Some(stylized)) = (original.first(), sweep.first()) {
-        write_pair(&out.join(PREVIEW_PNG), first, stylized)?;
-    }
-    write_preview_gif(&out.join(PREVIEW_GIF), &original, &sweep, config.sweep_fps)?;
-    let wrote_mp4 = write_mp4_or_warn(&sweep_dir, config.sweep_fps, &out.join(SWEEP_MP4));
-    mark_finished(out, config.style.steps)?;
-    Ok(DynamicSummary {
-        model,
-        test_renders,
-        sweep,
-        wrote_mp4,
-    })
+    gs_stylize::drive::run(config, options)
 }
 
-/// Fits the scene `train` on `backend` (the network on `device`), showing the progress when
-/// `options.progress` ([`with_progress`]); the stop flag ends the fit with
-/// [`DynamicError::InterruptedFit`].
-pub fn fit_with_progress(
-    train: &Dataset,
-    settings: &FitSettings,
-    options: &RunOptions,
-    backend: &Backend,
-    device: &Device,
-) -> Result<Dmiso, DynamicError> {
-    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
-        fit(
+/// The scene of a 4D run: its training views (the test split's appended where they train),
+/// its test split, the background and, once the job is made, the sweep through time before
+/// stylization.
+#[derive(Debug)]
+pub struct SceneInput {
+    train: Dataset,
+    test: Option<Dataset>,
+    labels: Vec<String>,
+    background: Background,
+    device: Device,
+    sweep: Vec<View>,
+    original: Vec<Image>,
+}
+
+impl Modality for DynamicStylizeConfig {
+    type Model = Dmiso;
+    type Inputs = SceneInput;
+    type Fit = Dmiso;
+    type Outputs = DynamicSummary;
+    type Error = DynamicError;
+
+    const BASE_MODEL: &'static str = BASE_FILE;
+    const FITTED: &'static str = "the scene";
+
+    fn settings(&self) -> &StyleSettings {
+        &self.style
+    }
+
+    fn out(&self) -> Result<&Path, DynamicError> {
+        self.out
+            .as_deref()
+            .ok_or_else(|| DynamicError::Config("out: is required".into()))
+    }
+
+    fn check(&self) -> Result<(), DynamicError> {
+        self.check_fields()?;
+        if self.data.is_none() {
+            return Err(DynamicError::Config(
+                "data: is required (a D-NeRF scene folder)".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    fn given_model(&self) -> Option<&Path> {
+        self.model.as_deref()
+    }
+
+    /// The scene over the background this configuration or the model (`model`) records, with
+    /// the splits that train (this configuration's, else as the given model's `cfg_args`
+    /// says), checked against the patch size and the batch size.
+    fn load_inputs(
+        &self,
+        run: &PreparedRun,
+        model: Option<&Path>,
+    ) -> Result<SceneInput, DynamicError> {
+        let data = self.data.as_deref().expect("checked: the data is given");
+        let recorded = model.map(model_file::recorded_background).transpose()?;
+        let background = self.background(recorded.flatten());
+        let recorded_eval = match &self.model {
+            Some(path) => model_file::recorded_eval(path)?,
+            None => None,
+        };
+        let train_splits = self.train_splits.unwrap_or(match recorded_eval {
+            Some(true) => TrainSplits::Train,
+            Some(false) | None => TrainSplits::TrainAndTest,
+        });
+        let (mut train, test) = load_scene(data, background, self.max_width)?;
+        if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
+            train.append(test.clone());
+        }
+        let labels: Vec<String> = train
+            .image_paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
+        check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
+        if self.batch_size > train.views.len() {
+            return Err(DynamicError::Config(format!(
+                "batch_size: {} is more than the {} training views",
+                self.batch_size,
+                train.views.len()
+            )));
+        }
+        Ok(SceneInput {
+            train,
+            test,
+            labels,
+            background,
+            device: run.loss_device().clone(),
+            sweep: Vec::new(),
+            original: Vec::new(),
+        })
+    }
+
+    /// Our `.safetensors` file or the authors' folder (at `iteration`).
+    fn read_model(
+        &self,
+        scene: &SceneInput,
+        path: &Path,
+        own_fit: bool,
+        _run: &PreparedRun,
+    ) -> Result<Dmiso, DynamicError> {
+        if own_fit {
+            Ok(model_file::load(path, &scene.device)?)
+        } else {
+            Ok(read_model(path, self.iteration.as_deref(), &scene.device)?)
+        }
+    }
+
+    fn fit_steps(&self) -> u64 {
+        self.fit_steps
+    }
+
+    fn fit(
+        &self,
+        scene: &SceneInput,
+        run: &PreparedRun,
+        on_step: OnStep<'_>,
+    ) -> Result<Dmiso, DynamicError> {
+        let train = &scene.train;
+        Ok(fit(
             &train.views,
             &train.images,
             train.extent,
-            settings,
-            backend,
-            device,
+            &self.fit_settings(),
+            run.backend(),
+            &scene.device,
             on_step,
-        )
-    });
-    let fitted = fitted?;
-    if stopped {
-        return Err(DynamicError::InterruptedFit);
+        )?)
     }
-    Ok(fitted)
+
+    fn keep_fit(&self, scene: &SceneInput, fit: Dmiso, path: &Path) -> Result<Dmiso, DynamicError> {
+        model_file::save(&fit, path, Some(scene.background))?;
+        Ok(fit)
+    }
+
+    /// Batches of consecutive training views; renders the sweep through time of the model
+    /// before stylization first, for the preview.
+    fn job(
+        &self,
+        scene: &mut SceneInput,
+        mut model: Dmiso,
+        run: &PreparedRun,
+    ) -> Result<StylizeJob<Dmiso>, DynamicError> {
+        let train = &scene.train;
+        let camera = &scene.test.as_ref().unwrap_or(train).views[0].camera;
+        scene.sweep = sweep_views(camera, self.sweep_frames.max(1));
+        scene.original = render_views(
+            &mut model,
+            &scene.sweep,
+            scene.background.rgb(),
+            run.backend(),
+        )?;
+        let masks = train
+            .masks
+            .iter()
+            .map(|m| m.as_ref().map(|m| m.data.clone()))
+            .collect::<Option<Vec<_>>>();
+        Ok(StylizeJob {
+            groups: stylize_groups(&self.learning_rates, train.extent)?,
+            model,
+            views: train.views.clone(),
+            images: train.images.clone(),
+            labels: scene.labels.clone(),
+            masks,
+            background: scene.background.rgb(),
+            batches: Batches {
+                size: self.batch_size,
+                order: BatchOrder::Consecutive,
+            },
+            render_clamp: RenderClamp::Off,
+        })
+    }
+
+    /// The model, the test views, the sweep, its previews and its video.
+    fn write_outputs(
+        &self,
+        scene: SceneInput,
+        outcome: StylizeOutcome<Dmiso>,
+        run: &PreparedRun,
+    ) -> Result<DynamicSummary, DynamicError> {
+        let (out, backend) = (run.out(), run.backend());
+        let background = scene.background.rgb();
+        let mut model = outcome.model;
+        model_file::save(&model, &out.join(MODEL_FILE), Some(scene.background))?;
+        let test_renders = match &scene.test {
+            Some(test) => {
+                let renders = render_views(&mut model, &test.views, background, backend)?;
+                write_frames(&out.join(TEST_DIR), &renders)?;
+                renders
+            }
+            None => Vec::new(),
+        };
+        let sweep = render_views(&mut model, &scene.sweep, background, backend)?;
+        let sweep_dir = out.join(SWEEP_DIR);
+        write_frames(&sweep_dir, &sweep)?;
+        if let (Some(first), Some(stylized)) = (scene.original.first(), sweep.first()) {
+            write_pair(&out.join(PREVIEW_PNG), first, stylized)?;
+        }
+        write_preview_gif(
+            &out.join(PREVIEW_GIF),
+            &scene.original,
+            &sweep,
+            self.sweep_fps,
+        )?;
+        let wrote_mp4 = write_mp4_or_warn(&sweep_dir, self.sweep_fps, &out.join(SWEEP_MP4));
+        Ok(DynamicSummary {
+            model,
+            test_renders,
+            sweep,
+            wrote_mp4,
+        })
+    }
 }
 
 #[cfg(test)]

@@ -17,17 +17,16 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::backend::Backend;
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::model::BaseModel;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
-use gs_stylize::checkpoint::mark_finished;
-use gs_stylize::progress::with_progress;
+use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
-    prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
@@ -163,9 +162,6 @@ pub enum MirageError {
     /// The stylization.
     #[error("{0}")]
     Stylize(#[from] StylizeError),
-    /// Ctrl-C during the fit: nothing was written.
-    #[error("interrupted while fitting the picture; nothing was written")]
-    InterruptedFit,
 }
 
 /// What a finished run produced.
@@ -197,126 +193,190 @@ fn picture_label(config: &MirageStylizeConfig) -> String {
         })
 }
 
-/// Checks the background and the style settings, and the picture (named `label` in errors)
-/// against the patch size.
-fn check(config: &MirageStylizeConfig, picture: &Image, label: &str) -> Result<(), MirageError> {
-    if config.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-        return Err(MirageError::Config(format!(
-            "background: {:?} must have channels in [0, 1]",
-            config.background
-        )));
-    }
-    let style = &config.style;
-    style.validate()?;
-    config.learning_rates.check(&PARAM_NAMES)?;
-    check_patches_fit(style, std::slice::from_ref(picture), &[label.to_string()])?;
-    Ok(())
-}
-
 /// Runs the 2D stylization `config` describes (see the module documentation).
 pub fn run(
     config: &MirageStylizeConfig,
     options: &RunOptions,
 ) -> Result<MirageSummary, MirageError> {
-    let out = config.out_path()?;
-    let prepared = prepare(&config.style, out, options.clone())?;
-    let backend = prepared.backend();
-    let picture = picture(config)?;
-    let label = picture_label(config);
-    check(config, &picture, &label)?;
-    let (w, h) = (picture.width, picture.height);
-    let fitted_to = FittedTo {
-        width: w,
-        height: h,
-        distance: config.distance,
-    };
-    let of_picture = |path: &Path| -> Result<FlatGaussians, MirageError> {
+    gs_stylize::drive::run(config, options)
+}
+
+/// The picture of a 2D run and how it is named in errors.
+#[derive(Debug)]
+pub struct PictureInput {
+    picture: Image,
+    label: String,
+}
+
+impl PictureInput {
+    /// What a model of this picture was fitted to.
+    fn fitted_to(&self, distance: f64) -> FittedTo {
+        FittedTo {
+            width: self.picture.width,
+            height: self.picture.height,
+            distance,
+        }
+    }
+}
+
+impl Modality for MirageStylizeConfig {
+    type Model = FlatGaussians;
+    type Inputs = PictureInput;
+    type Fit = Fitted;
+    type Outputs = MirageSummary;
+    type Error = MirageError;
+
+    const BASE_MODEL: &'static str = BASE_PLY;
+    const FITTED: &'static str = "the picture";
+
+    fn settings(&self) -> &StyleSettings {
+        &self.style
+    }
+
+    fn out(&self) -> Result<&Path, MirageError> {
+        self.out_path()
+    }
+
+    /// Checks the background and the learning rates.
+    fn check(&self) -> Result<(), MirageError> {
+        if self.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return Err(MirageError::Config(format!(
+                "background: {:?} must have channels in [0, 1]",
+                self.background
+            )));
+        }
+        self.learning_rates.check(&PARAM_NAMES)?;
+        Ok(())
+    }
+
+    fn given_model(&self) -> Option<&Path> {
+        self.model.as_deref()
+    }
+
+    /// The picture, checked against the patch size.
+    fn load_inputs(
+        &self,
+        _run: &PreparedRun,
+        _model: Option<&Path>,
+    ) -> Result<PictureInput, MirageError> {
+        let picture = picture(self)?;
+        let label = picture_label(self);
+        check_patches_fit(
+            &self.style,
+            std::slice::from_ref(&picture),
+            std::slice::from_ref(&label),
+        )?;
+        Ok(PictureInput { picture, label })
+    }
+
+    /// A MiraGe PLY, checked against the picture (a model of another size is refused; one of
+    /// the same aspect ratio fitted at another size is taken with a warning).
+    fn read_model(
+        &self,
+        inputs: &PictureInput,
+        path: &Path,
+        _own_fit: bool,
+        _run: &PreparedRun,
+    ) -> Result<FlatGaussians, MirageError> {
         let file = read_model(path)?;
-        if let Some(warning) = check_fits_picture(path, &file, w, h, config.distance, &label)? {
+        let (w, h) = (inputs.picture.width, inputs.picture.height);
+        if let Some(warning) = check_fits_picture(path, &file, w, h, self.distance, &inputs.label)?
+        {
             eprintln!("warning: {warning}");
         }
         Ok(file.model)
-    };
-    let given = config.model.as_deref().map(of_picture).transpose()?;
-    let base_ply = out.join(BASE_PLY);
-    let model = match given {
-        Some(model) => model,
-        None if options.resume && base_ply.exists() => of_picture(&base_ply)?,
-        None => {
-            let fitted = fit_with_progress(&picture, &config.fit_settings(), options, backend)?;
-            create_out(out)?;
-            write_model(&base_ply, &fitted.model, &fitted_to)?;
-            write_psnr_plot(&out.join(FIT_PSNR_PNG), &fitted.psnr)?;
-            fitted.model
-        }
-    };
-    let views = mirror_views(w, h, config.distance).map_err(StylizeError::from)?;
-    let job = StylizeJob {
-        groups: config
-            .learning_rates
-            .optimizer_groups(&model.group_names(), extent(config.distance))?,
-        model,
-        views: views.to_vec(),
-        images: vec![picture.clone(), mirrored(&picture)],
-        labels: vec![label.clone(), format!("{label}, mirrored")],
-        masks: None,
-        background: config.background,
-        batches: Batches::ONE,
-        render_clamp: RenderClamp::Off,
-    };
-    let mut outcome = prepared.stylize(config, job)?;
-    let stylized = render_picture(
-        &mut outcome.model,
-        w,
-        h,
-        config.distance,
-        false,
-        config.background,
-        backend,
-    )?;
-    write_model(&out.join(MODEL_PLY), &outcome.model, &fitted_to)?;
-    let save = |image: &Image, name: &str| {
-        image
-            .save_png(&out.join(name))
-            .map_err(|e| MirageError::from(StylizeError::from(e)))
-    };
-    save(&stylized, STYLIZED_PNG)?;
-    save(&Image::side_by_side(&[&picture, &stylized]), PREVIEW_PNG)?;
-    if config.picture.is_none() {
-        save(&picture, ORIGINAL_PNG)?;
     }
-    mark_finished(out, config.style.steps)?;
-    Ok(MirageSummary {
-        model: outcome.model,
-        stylized,
-        losses: outcome.losses.iter().map(|l| l.total).collect(),
-    })
-}
 
-fn create_out(out: &Path) -> Result<(), MirageError> {
-    std::fs::create_dir_all(out).map_err(|source| {
-        StylizeError::Io {
-            path: out.to_path_buf(),
-            source,
-        }
-        .into()
-    })
-}
-
-/// Fits `picture` on `backend`, showing the progress when `options.progress`
-/// ([`with_progress`]); the stop flag ends the fit with [`MirageError::InterruptedFit`].
-pub fn fit_with_progress(
-    picture: &Image,
-    settings: &FitSettings,
-    options: &RunOptions,
-    backend: &Backend,
-) -> Result<Fitted, MirageError> {
-    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
-        fit_logged(picture, settings, backend, on_step)
-    });
-    let fitted = fitted?;
-    if stopped {
-        return Err(MirageError::InterruptedFit);
+    fn fit_steps(&self) -> u64 {
+        self.fit_steps
     }
-    Ok(fitted)
+
+    fn fit(
+        &self,
+        inputs: &PictureInput,
+        run: &PreparedRun,
+        on_step: OnStep<'_>,
+    ) -> Result<Fitted, MirageError> {
+        Ok(fit_logged(
+            &inputs.picture,
+            &self.fit_settings(),
+            run.backend(),
+            on_step,
+        )?)
+    }
+
+    /// Writes the fitted model and the plot of its PSNR ([`FIT_PSNR_PNG`]).
+    fn keep_fit(
+        &self,
+        inputs: &PictureInput,
+        fit: Fitted,
+        path: &Path,
+    ) -> Result<FlatGaussians, MirageError> {
+        write_model(path, &fit.model, &inputs.fitted_to(self.distance))?;
+        write_psnr_plot(&self.out_path()?.join(FIT_PSNR_PNG), &fit.psnr)?;
+        Ok(fit.model)
+    }
+
+    /// Both mirror cameras, the picture and its mirror image, one view per step.
+    fn job(
+        &self,
+        inputs: &mut PictureInput,
+        model: FlatGaussians,
+        _run: &PreparedRun,
+    ) -> Result<StylizeJob<FlatGaussians>, MirageError> {
+        let PictureInput { picture, label } = inputs;
+        let views = mirror_views(picture.width, picture.height, self.distance)
+            .map_err(StylizeError::from)?;
+        Ok(StylizeJob {
+            groups: self
+                .learning_rates
+                .optimizer_groups(&model.group_names(), extent(self.distance))?,
+            model,
+            views: views.to_vec(),
+            images: vec![picture.clone(), mirrored(picture)],
+            labels: vec![label.clone(), format!("{label}, mirrored")],
+            masks: None,
+            background: self.background,
+            batches: Batches::ONE,
+            render_clamp: RenderClamp::Off,
+        })
+    }
+
+    /// The stylized picture at the original's size, the model and the preview.
+    fn write_outputs(
+        &self,
+        inputs: PictureInput,
+        outcome: StylizeOutcome<FlatGaussians>,
+        run: &PreparedRun,
+    ) -> Result<MirageSummary, MirageError> {
+        let out = run.out();
+        let fitted_to = inputs.fitted_to(self.distance);
+        let picture = inputs.picture;
+        let mut model = outcome.model;
+        let stylized = render_picture(
+            &mut model,
+            picture.width,
+            picture.height,
+            self.distance,
+            false,
+            self.background,
+            run.backend(),
+        )?;
+        write_model(&out.join(MODEL_PLY), &model, &fitted_to)?;
+        let save = |image: &Image, name: &str| {
+            image
+                .save_png(&out.join(name))
+                .map_err(|e| MirageError::from(StylizeError::from(e)))
+        };
+        save(&stylized, STYLIZED_PNG)?;
+        save(&Image::side_by_side(&[&picture, &stylized]), PREVIEW_PNG)?;
+        if self.picture.is_none() {
+            save(&picture, ORIGINAL_PNG)?;
+        }
+        Ok(MirageSummary {
+            model,
+            stylized,
+            losses: outcome.losses.iter().map(|l| l.total).collect(),
+        })
+    }
 }

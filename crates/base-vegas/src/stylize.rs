@@ -17,17 +17,16 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::backend::Backend;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::model::BaseModel;
 use gs_core::Image;
-use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
-use gs_stylize::progress::with_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
-    prepare, Batches, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
@@ -158,9 +157,6 @@ pub enum VideoError {
     /// An output file.
     #[error("{0}")]
     Output(#[from] AnimationError),
-    /// Ctrl-C during the fit: nothing was written.
-    #[error("interrupted while fitting the video; nothing was written")]
-    InterruptedFit,
 }
 
 /// What a finished run produced.
@@ -213,118 +209,183 @@ pub fn model_of_video(
 
 /// Runs the video stylization `config` describes (see the module documentation).
 pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSummary, VideoError> {
-    let out = config
-        .out
-        .as_deref()
-        .ok_or_else(|| VideoError::Config("out: is required".into()))?;
-    let video_path = config.video.as_deref().ok_or_else(|| {
-        VideoError::Config("video: is required (a frames folder or a video file)".into())
-    })?;
-    if !(config.fps.is_finite() && config.fps > 0.0) {
-        return Err(VideoError::Config(format!(
-            "fps: {} must be positive",
-            config.fps
-        )));
-    }
-    config.learning_rates.check(&GROUP_NAMES)?;
-    let prepared = prepare(&config.style, out, options.clone())?;
-    let backend = prepared.backend();
-    let video = load_video(video_path, config.background, config.fps, config.max_width)?;
-    check_patches_fit(&config.style, &video.frames[..1], &video.labels[..1])?;
-    let (w, h) = video.size();
-    let record = VideoRecord {
-        width: w,
-        height: h,
-        fps: video.fps,
-        distance: config.distance,
-    };
-    let frames = video.frames.len();
-    let base_ply = out.join(BASE_PLY);
-    let model = match &config.model {
-        Some(path) => model_of_video(path, frames, (w, h), config.distance)?,
-        None if options.resume && base_ply.exists() => {
-            let model = model_of_video(&base_ply, frames, (w, h), config.distance)?;
-            if model.params().len() != config.fit_gaussians {
-                return Err(VideoError::ModelMismatch {
-                    path: base_ply,
-                    reason: format!(
-                        "this run's fit holds {} Gaussians, but fit_gaussians is {}; resume \
-                         with the same settings",
-                        model.params().len(),
-                        config.fit_gaussians
-                    ),
-                });
-            }
-            model
-        }
-        None => {
-            let model = fit_with_progress(&video, &config.fit_settings(), options, backend)?;
-            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
-                path: out.to_path_buf(),
-                source,
-            })?;
-            write_model(&base_ply, &model, Some(record))?;
-            model
-        }
-    };
-    let views = training_views(w, h, frames, config.distance).map_err(StylizeError::from)?;
-    let labels = video
-        .labels
-        .iter()
-        .flat_map(|l| [l.clone(), format!("{l}, mirrored")])
-        .collect();
-    let job = StylizeJob {
-        groups: config
-            .learning_rates
-            .optimizer_groups(&model.group_names(), 1.0)?,
-        model,
-        views,
-        images: training_targets(&video.frames),
-        labels,
-        masks: None,
-        background: config.background,
-        batches: Batches::ONE,
-        render_clamp: RenderClamp::Off,
-    };
-    let mut outcome = prepared.stylize(config, job)?;
-    let stylized = render_frames(
-        &mut outcome.model,
-        w,
-        h,
-        config.distance,
-        config.background,
-        backend,
-    )?;
-    write_model(&out.join(MODEL_PLY), &outcome.model, Some(record))?;
-    let frames_dir = out.join(FRAMES_DIR);
-    write_frames(&frames_dir, &stylized)?;
-    write_pair(&out.join(PREVIEW_PNG), &video.frames[0], &stylized[0])?;
-    write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
-    let wrote_mp4 = write_mp4_or_warn(&frames_dir, video.fps, &out.join(STYLIZED_MP4));
-    mark_finished(out, config.style.steps)?;
-    Ok(VideoSummary {
-        model: outcome.model,
-        frames: stylized,
-        wrote_mp4,
-    })
+    gs_stylize::drive::run(config, options)
 }
 
-/// Fits `video` on `backend`, showing the progress when `options.progress`
-/// ([`with_progress`]); the stop flag ends the fit with [`VideoError::InterruptedFit`].
-pub fn fit_with_progress(
-    video: &Video,
-    settings: &FitSettings,
-    options: &RunOptions,
-    backend: &Backend,
-) -> Result<FoldedGaussians, VideoError> {
-    let (fitted, stopped) = with_progress("fit", settings.steps, options, |on_step| {
-        fit(&video.frames, settings, backend, on_step)
-    });
-    let fitted = fitted?;
-    if stopped {
-        return Err(VideoError::InterruptedFit);
+impl VideoStylizeConfig {
+    /// What a model of `video` records with this configuration.
+    fn record_of(&self, video: &Video) -> VideoRecord {
+        let (width, height) = video.size();
+        VideoRecord {
+            width,
+            height,
+            fps: video.fps,
+            distance: self.distance,
+        }
     }
-    Ok(fitted)
+}
+
+impl Modality for VideoStylizeConfig {
+    type Model = FoldedGaussians;
+    type Inputs = Video;
+    type Fit = FoldedGaussians;
+    type Outputs = VideoSummary;
+    type Error = VideoError;
+
+    const BASE_MODEL: &'static str = BASE_PLY;
+    const FITTED: &'static str = "the video";
+
+    fn settings(&self) -> &StyleSettings {
+        &self.style
+    }
+
+    fn out(&self) -> Result<&Path, VideoError> {
+        self.out
+            .as_deref()
+            .ok_or_else(|| VideoError::Config("out: is required".into()))
+    }
+
+    /// Checks the video path, the frame rate and the learning rates.
+    fn check(&self) -> Result<(), VideoError> {
+        if self.video.is_none() {
+            return Err(VideoError::Config(
+                "video: is required (a frames folder or a video file)".into(),
+            ));
+        }
+        if !(self.fps.is_finite() && self.fps > 0.0) {
+            return Err(VideoError::Config(format!(
+                "fps: {} must be positive",
+                self.fps
+            )));
+        }
+        self.learning_rates.check(&GROUP_NAMES)?;
+        Ok(())
+    }
+
+    fn given_model(&self) -> Option<&Path> {
+        self.model.as_deref()
+    }
+
+    /// The frames, checked against the patch size.
+    fn load_inputs(&self, _run: &PreparedRun, _model: Option<&Path>) -> Result<Video, VideoError> {
+        let path = self.video.as_deref().expect("checked: the video is given");
+        let video = load_video(path, self.background, self.fps, self.max_width)?;
+        check_patches_fit(&self.style, &video.frames[..1], &video.labels[..1])?;
+        Ok(video)
+    }
+
+    /// A VeGaS PLY of as many frames as the video (of its aspect ratio and camera distance
+    /// where it records them); this run's own fit must also hold `fit_gaussians`.
+    fn read_model(
+        &self,
+        video: &Video,
+        path: &Path,
+        own_fit: bool,
+        _run: &PreparedRun,
+    ) -> Result<FoldedGaussians, VideoError> {
+        let model = model_of_video(path, video.frames.len(), video.size(), self.distance)?;
+        if own_fit && model.params().len() != self.fit_gaussians {
+            return Err(VideoError::ModelMismatch {
+                path: path.to_path_buf(),
+                reason: format!(
+                    "this run's fit holds {} Gaussians, but fit_gaussians is {}; resume with \
+                     the same settings",
+                    model.params().len(),
+                    self.fit_gaussians
+                ),
+            });
+        }
+        Ok(model)
+    }
+
+    fn fit_steps(&self) -> u64 {
+        self.fit_steps
+    }
+
+    fn fit(
+        &self,
+        video: &Video,
+        run: &PreparedRun,
+        on_step: OnStep<'_>,
+    ) -> Result<FoldedGaussians, VideoError> {
+        Ok(fit(
+            &video.frames,
+            &self.fit_settings(),
+            run.backend(),
+            on_step,
+        )?)
+    }
+
+    fn keep_fit(
+        &self,
+        video: &Video,
+        fit: FoldedGaussians,
+        path: &Path,
+    ) -> Result<FoldedGaussians, VideoError> {
+        write_model(path, &fit, Some(self.record_of(video)))?;
+        Ok(fit)
+    }
+
+    /// Every frame and its mirror image, one view per step in shuffled order.
+    fn job(
+        &self,
+        video: &mut Video,
+        model: FoldedGaussians,
+        _run: &PreparedRun,
+    ) -> Result<StylizeJob<FoldedGaussians>, VideoError> {
+        let (w, h) = video.size();
+        let views =
+            training_views(w, h, video.frames.len(), self.distance).map_err(StylizeError::from)?;
+        let labels = video
+            .labels
+            .iter()
+            .flat_map(|l| [l.clone(), format!("{l}, mirrored")])
+            .collect();
+        Ok(StylizeJob {
+            groups: self
+                .learning_rates
+                .optimizer_groups(&model.group_names(), 1.0)?,
+            model,
+            views,
+            images: training_targets(&video.frames),
+            labels,
+            masks: None,
+            background: self.background,
+            batches: Batches::ONE,
+            render_clamp: RenderClamp::Off,
+        })
+    }
+
+    /// The stylized frames, the model, the previews and the video.
+    fn write_outputs(
+        &self,
+        video: Video,
+        outcome: StylizeOutcome<FoldedGaussians>,
+        run: &PreparedRun,
+    ) -> Result<VideoSummary, VideoError> {
+        let out = run.out();
+        let (w, h) = video.size();
+        let mut model = outcome.model;
+        let stylized = render_frames(
+            &mut model,
+            w,
+            h,
+            self.distance,
+            self.background,
+            run.backend(),
+        )?;
+        write_model(&out.join(MODEL_PLY), &model, Some(self.record_of(&video)))?;
+        let frames_dir = out.join(FRAMES_DIR);
+        write_frames(&frames_dir, &stylized)?;
+        write_pair(&out.join(PREVIEW_PNG), &video.frames[0], &stylized[0])?;
+        write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
+        let wrote_mp4 = write_mp4_or_warn(&frames_dir, video.fps, &out.join(STYLIZED_MP4));
+        Ok(VideoSummary {
+            model,
+            frames: stylized,
+            wrote_mp4,
+        })
+    }
 }
 
 #[cfg(test)]

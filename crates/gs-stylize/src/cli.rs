@@ -238,24 +238,19 @@ impl SelftestArgs {
 
 /// A subcommand's result as the process's exit: nothing more on success; on failure the error
 /// on one `error: ...` line (and the lines of [`StylizeError::Several`]) and exit code
-/// [`INTERRUPTED_EXIT`] when the run was stopped by Ctrl-C (a [`StylizeError::Interrupted`]
-/// anywhere in the error's chain, or an error `interrupted` recognizes: a modality's own
-/// interruption), else 1.
-pub fn exit_code(
-    result: Result<(), Box<dyn Error>>,
-    interrupted: impl Fn(&(dyn Error + 'static)) -> bool,
-) -> ExitCode {
+/// [`INTERRUPTED_EXIT`] when the run was stopped by Ctrl-C (a [`StylizeError::Interrupted`] or
+/// [`StylizeError::InterruptedFit`] anywhere in the error's chain), else 1.
+pub fn exit_code(result: Result<(), Box<dyn Error>>) -> ExitCode {
     let Err(e) = result else {
         return ExitCode::SUCCESS;
     };
     eprintln!("error: {e}");
     let mut cause: Option<&(dyn Error + 'static)> = Some(e.as_ref());
     while let Some(c) = cause {
-        let stopped = matches!(
+        if matches!(
             c.downcast_ref::<StylizeError>(),
-            Some(StylizeError::Interrupted { .. })
-        );
-        if stopped || interrupted(c) {
+            Some(StylizeError::Interrupted { .. } | StylizeError::InterruptedFit { .. })
+        ) {
             return ExitCode::from(INTERRUPTED_EXIT);
         }
         cause = c.source();

@@ -1,10 +1,12 @@
 //! gs-stylize: the CLIPGaussian stylization run (stage 2) that every modality shares. A base
-//! crate checks the run with [`prepare`], loads its model ([`gs_core::model::BaseModel`]) and
-//! views, hands them to [`PreparedRun::stylize`], and writes its own results (a stylized PLY,
-//! previews) from the trained model.
+//! crate's configuration implements [`drive::Modality`] (its inputs, its base model and fit,
+//! its views, its outputs) and [`drive::run`] runs it in one order for every modality:
+//! [`prepare`] checks everything first, the base model is given, resumed or fitted,
+//! [`PreparedRun::stylize`] trains, and the modality writes its results.
 //!
 //! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
+//! - [`drive`]: the order of every stylization run, calling the modality through [`drive::Modality`].
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`rates`]: the learning rates of a modality's configuration, keyed by group name.
 //! - [`run`](mod@run): the driver: the objective, the optimizer, resume, training, the loss log.
@@ -27,6 +29,7 @@ pub mod background;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;
+pub mod drive;
 pub mod evaluation;
 pub mod interrupt;
 pub mod memory_estimate;
@@ -117,6 +120,12 @@ pub enum StylizeError {
         step: u64,
         /// The output folder.
         out: PathBuf,
+    },
+    /// The fit of a base model was stopped (Ctrl-C); nothing of it was written.
+    #[error("interrupted while fitting {what}; nothing was written")]
+    InterruptedFit {
+        /// What was being fitted (`the picture`, `the video`, `the scene`).
+        what: String,
     },
 }
 

@@ -16,7 +16,7 @@ use gs_core::train::StepReport;
 
 use indicatif::{ProgressBar, ProgressStyle};
 
-use crate::RunOptions;
+use crate::{RunOptions, StylizeError};
 
 /// The plain lines come every this many percent of the steps (and at the last step).
 pub const LINE_EVERY_PERCENT: u64 = 5;
@@ -185,17 +185,18 @@ pub(crate) fn clock(d: Duration) -> String {
     format!("{}:{:02}:{:02}", s / 3600, s / 60 % 60, s % 60)
 }
 
-/// Runs `work`, a training loop of `steps` steps (a fit), with its progress shown as `label`
-/// when `options.progress`: `work` gets the per-step callback, which shows the step's loss and
-/// asks the loop to stop once `options.stop` is set (Ctrl-C). Returns `work`'s result and
-/// whether it was stopped.
-pub fn with_progress<T>(
-    label: &str,
+/// Runs `work`, the fit of a base model (`what`: `the picture`, `the video`, `the scene`) in
+/// `steps` steps, with its progress shown as `fit` when `options.progress`: `work` gets the
+/// per-step callback, which shows the step's loss and asks the loop to stop once
+/// `options.stop` is set (Ctrl-C). Returns `work`'s result, or
+/// [`StylizeError::InterruptedFit`] when it was stopped.
+pub fn fit_with_progress<T, E: From<StylizeError>>(
+    what: &str,
     steps: u64,
     options: &RunOptions,
-    work: impl FnOnce(&mut dyn FnMut(&StepReport) -> ControlFlow<()>) -> T,
-) -> (T, bool) {
-    let progress = Progress::new(options.progress, label, steps, 0);
+    work: impl FnOnce(&mut dyn FnMut(&StepReport) -> ControlFlow<()>) -> Result<T, E>,
+) -> Result<T, E> {
+    let progress = Progress::new(options.progress, "fit", steps, 0);
     let result = work(&mut |report: &StepReport| {
         progress.update(report.step, &format!("loss {:.4}", report.value.loss));
         if options.stop.load(Ordering::SeqCst) {
@@ -205,7 +206,11 @@ pub fn with_progress<T>(
         }
     });
     progress.finish();
-    (result, options.stop.load(Ordering::SeqCst))
+    let fitted = result?;
+    if options.stop.load(Ordering::SeqCst) {
+        return Err(StylizeError::InterruptedFit { what: what.into() }.into());
+    }
+    Ok(fitted)
 }
 
 #[cfg(test)]

@@ -296,5 +296,5 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };
-    exit_code(result, |_| false)
+    exit_code(result)
 }

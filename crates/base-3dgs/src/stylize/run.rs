@@ -1,18 +1,18 @@
-//! One 3D stylization run: check the run ([`gs_stylize::prepare`]: settings, output folder,
-//! weights, style, device), load the PLY and the dataset and check the preview views, stylize
-//! ([`gs_stylize::PreparedRun::stylize`], which checks the rest before creating the output
-//! folder), then write the stylized PLY, in the input's format and with its extra
+//! One 3D stylization run, in the order of [`gs_stylize::drive`]: check the run (settings,
+//! output folder, weights, style, device), load the PLY and the dataset and check the preview
+//! views, stylize, then write the stylized PLY, in the input's format and with its extra
 //! properties, and the before/after previews, and mark the run's checkpoint finished.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use gs_core::model::BaseModel;
-use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyGaussians};
+use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
-use gs_stylize::checkpoint::mark_finished;
+use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
 use gs_stylize::{
-    prepare, Batches, RenderClamp, RunOptions, StylizeError, StylizeJob, StylizeOutcome,
+    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    StylizeOutcome,
 };
 
 use super::config::BackgroundPixels;
@@ -40,65 +40,174 @@ pub struct RunSummary {
 /// ([`gs_stylize::run::check_out_folder`]). When [`RunOptions::stop`] is set, the run ends
 /// after the current step with a checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
-    config.validate()?;
-    let prepared = prepare(&config.style, config.out_path(), options.clone())?;
-    let backend = prepared.backend();
-    let (ply, format) = read_ply_with_format(config.ply_path()).map_err(ply_error)?;
-    let dataset = load_dataset(config)?;
-    let count = dataset.views.len();
-    if let Some(v) = config.preview_views.iter().find(|&&v| v >= count) {
-        return Err(StylizeError::Input(format!(
-            "preview_views: view {v} does not exist (the dataset has {count})"
-        )));
-    }
-    let masks = config
-        .object
-        .then(|| background_masks(&dataset, config.background_mask))
-        .flatten();
-    let model = ply.gaussians.clone();
-    let job = StylizeJob {
-        groups: config
-            .learning_rates
-            .optimizer_groups(&model.group_names(), dataset.extent)?,
-        model,
-        views: dataset.views.clone(),
-        images: dataset.images,
-        labels: dataset
-            .image_paths
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect(),
-        masks,
-        background: dataset.background,
-        batches: Batches::ONE,
-        render_clamp: RenderClamp::Unit,
-    };
-    let out = config.out_path();
-    let StylizeOutcome { model, losses } = prepared.stylize(config, job)?;
+    gs_stylize::drive::run(config, options)
+}
 
-    let stylized_ply = out.join(STYLIZED_PLY);
-    let mut stylized = PlyGaussians {
-        gaussians: model,
-        extras: ply.extras,
-        comments: ply.comments,
-    };
-    write_ply(&stylized_ply, &stylized, format).map_err(ply_error)?;
-    let mut base = ply.gaussians;
-    write_previews(
-        out,
-        &mut base,
-        &mut stylized.gaussians,
-        &dataset.views,
-        &config.preview_views,
-        dataset.background,
-        backend,
-    )?;
-    mark_finished(out, config.style.steps)?;
-    Ok(RunSummary {
-        gaussians: stylized.gaussians,
-        losses,
-        stylized_ply,
-    })
+/// The inputs of a 3D run: the trained scene (with the PLY's format, extra properties and
+/// comments, written back into the stylized PLY) and its dataset.
+#[derive(Debug)]
+pub struct SceneInput {
+    ply: PlyGaussians,
+    format: PlyFormat,
+    dataset: Dataset,
+}
+
+impl Modality for StylizeConfig {
+    type Model = GaussianSet;
+    type Inputs = SceneInput;
+    type Fit = GaussianSet;
+    type Outputs = RunSummary;
+    type Error = StylizeError;
+
+    /// Unused: a 3D run starts from a trained scene, always given.
+    const BASE_MODEL: &'static str = "base.ply";
+    const FITTED: &'static str = "the scene";
+
+    fn settings(&self) -> &StyleSettings {
+        &self.style
+    }
+
+    fn out(&self) -> Result<&Path, StylizeError> {
+        Ok(self.out_path())
+    }
+
+    fn check(&self) -> Result<(), StylizeError> {
+        self.validate()
+    }
+
+    fn given_model(&self) -> Option<&Path> {
+        Some(self.ply_path())
+    }
+
+    /// The PLY and the dataset, with the preview views checked against it.
+    fn load_inputs(
+        &self,
+        _run: &PreparedRun,
+        _model: Option<&Path>,
+    ) -> Result<SceneInput, StylizeError> {
+        let (ply, format) = read_ply_with_format(self.ply_path()).map_err(ply_error)?;
+        let dataset = load_dataset(self)?;
+        let count = dataset.views.len();
+        if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
+            return Err(StylizeError::Input(format!(
+                "preview_views: view {v} does not exist (the dataset has {count})"
+            )));
+        }
+        Ok(SceneInput {
+            ply,
+            format,
+            dataset,
+        })
+    }
+
+    /// The scene the inputs read.
+    fn read_model(
+        &self,
+        scene: &SceneInput,
+        _path: &Path,
+        _own_fit: bool,
+        _run: &PreparedRun,
+    ) -> Result<GaussianSet, StylizeError> {
+        Ok(scene.ply.gaussians.clone())
+    }
+
+    fn fit_steps(&self) -> u64 {
+        0
+    }
+
+    /// A 3D run does not fit its base model.
+    fn fit(
+        &self,
+        _scene: &SceneInput,
+        _run: &PreparedRun,
+        _on_step: OnStep<'_>,
+    ) -> Result<GaussianSet, StylizeError> {
+        Err(no_fit())
+    }
+
+    /// A 3D run does not fit its base model.
+    fn keep_fit(
+        &self,
+        _scene: &SceneInput,
+        _fit: GaussianSet,
+        _path: &Path,
+    ) -> Result<GaussianSet, StylizeError> {
+        Err(no_fit())
+    }
+
+    /// Every view of the dataset, one per step, the loss seeing the render clamped to [0, 1];
+    /// the background term where the scene is an `object`.
+    fn job(
+        &self,
+        scene: &mut SceneInput,
+        model: GaussianSet,
+        _run: &PreparedRun,
+    ) -> Result<StylizeJob<GaussianSet>, StylizeError> {
+        let dataset = &scene.dataset;
+        let masks = self
+            .object
+            .then(|| background_masks(dataset, self.background_mask))
+            .flatten();
+        Ok(StylizeJob {
+            groups: self
+                .learning_rates
+                .optimizer_groups(&model.group_names(), dataset.extent)?,
+            model,
+            views: dataset.views.clone(),
+            images: dataset.images.clone(),
+            labels: dataset
+                .image_paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect(),
+            masks,
+            background: dataset.background,
+            batches: Batches::ONE,
+            render_clamp: RenderClamp::Unit,
+        })
+    }
+
+    /// The stylized PLY, in the input's format with its extra properties, and the previews.
+    fn write_outputs(
+        &self,
+        scene: SceneInput,
+        outcome: StylizeOutcome<GaussianSet>,
+        run: &PreparedRun,
+    ) -> Result<RunSummary, StylizeError> {
+        let out = run.out();
+        let SceneInput {
+            ply,
+            format,
+            dataset,
+        } = scene;
+        let stylized_ply = out.join(STYLIZED_PLY);
+        let mut stylized = PlyGaussians {
+            gaussians: outcome.model,
+            extras: ply.extras,
+            comments: ply.comments,
+        };
+        write_ply(&stylized_ply, &stylized, format).map_err(ply_error)?;
+        let mut base = ply.gaussians;
+        write_previews(
+            out,
+            &mut base,
+            &mut stylized.gaussians,
+            &dataset.views,
+            &self.preview_views,
+            dataset.background,
+            run.backend(),
+        )?;
+        Ok(RunSummary {
+            gaussians: stylized.gaussians,
+            losses: outcome.losses,
+            stylized_ply,
+        })
+    }
+}
+
+/// Why a 3D run has no fit.
+fn no_fit() -> StylizeError {
+    StylizeError::Input("a 3D stylization starts from a trained scene: give it with --model".into())
 }
 
 /// A PLY error as a run error (it names the file).

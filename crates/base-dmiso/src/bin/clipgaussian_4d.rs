@@ -13,11 +13,11 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use base_dmiso::fit::{mean_psnr, render_views, FitSettings};
+use base_dmiso::fit::{self, mean_psnr, render_views, FitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
-    background_of, fit_with_progress, load_scene, read_model, run, sweep_views, DynamicError,
-    DynamicStylizeConfig, MODEL_FILE, SWEEP_DIR, SWEEP_MP4, TEST_DIR,
+    background_of, load_scene, read_model, run, sweep_views, DynamicError, DynamicStylizeConfig,
+    MODEL_FILE, SWEEP_DIR, SWEEP_MP4, TEST_DIR,
 };
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
@@ -32,6 +32,7 @@ use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleA
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -360,7 +361,18 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let backend = open_device(args.device)?;
     let device = net_device(args.device)?;
     let start = Instant::now();
-    let mut model = fit_with_progress(&train, &settings, &options, &backend, &device)?;
+    let mut model = fit_with_progress("the scene", settings.steps, &options, |on_step| {
+        fit::fit(
+            &train.views,
+            &train.images,
+            train.extent,
+            &settings,
+            &backend,
+            &device,
+            on_step,
+        )
+        .map_err(DynamicError::from)
+    })?;
     let seconds = start.elapsed().as_secs_f64();
     std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
     model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;
@@ -537,10 +549,5 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(vec![Box::new(base_dmiso::deform_net::self_check)]),
     };
-    exit_code(result, |e| {
-        matches!(
-            e.downcast_ref::<DynamicError>(),
-            Some(DynamicError::InterruptedFit)
-        )
-    })
+    exit_code(result)
 }

@@ -12,13 +12,13 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
-use base_mirage::fit::{render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG};
+use base_mirage::fit::{
+    fit_logged, render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG,
+};
 use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
-use base_mirage::stylize::{
-    fit_with_progress, run, MirageError, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG,
-};
+use base_mirage::stylize::{run, MirageError, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
 use clap::{Args, Parser, Subcommand};
 use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
@@ -31,6 +31,7 @@ use gs_stylize::cli::{
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
@@ -343,7 +344,9 @@ fn fit_into_folder(
     let Fitted {
         mut model,
         psnr: log,
-    } = fit_with_progress(picture, settings, options, backend)?;
+    } = fit_with_progress("the picture", settings.steps, options, |on_step| {
+        fit_logged(picture, settings, backend, on_step).map_err(MirageError::from)
+    })?;
     let seconds = start.elapsed().as_secs_f64();
     let fitted = render_picture(
         &mut model,
@@ -415,10 +418,5 @@ fn main() -> ExitCode {
         Command::Interpolate(args) => args.run(Binary::Picture).map(|line| println!("{line}")),
         Command::Selftest(args) => args.run(Vec::new()),
     };
-    exit_code(result, |e| {
-        matches!(
-            e.downcast_ref::<MirageError>(),
-            Some(MirageError::InterruptedFit)
-        )
-    })
+    exit_code(result)
 }

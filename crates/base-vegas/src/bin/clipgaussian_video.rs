@@ -12,10 +12,10 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Instant;
 
-use base_vegas::fit::{mean_psnr, render_frames, FitSettings};
+use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings};
 use base_vegas::folded::interpolate;
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
-use base_vegas::stylize::{fit_with_progress, run, VideoError, VideoStylizeConfig, MODEL_PLY};
+use base_vegas::stylize::{run, VideoError, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
 use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
@@ -31,6 +31,7 @@ use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
+use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -290,7 +291,9 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     };
     let backend = open_device(args.device)?;
     let start = Instant::now();
-    let mut model = fit_with_progress(&video, &settings, &options, &backend)?;
+    let mut model = fit_with_progress("the video", settings.steps, &options, |on_step| {
+        fit::fit(&video.frames, &settings, &backend, on_step).map_err(VideoError::from)
+    })?;
     let seconds = start.elapsed().as_secs_f64();
     let (w, h) = video.size();
     let fitted = render_frames(
@@ -481,10 +484,5 @@ fn main() -> ExitCode {
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };
-    exit_code(result, |e| {
-        matches!(
-            e.downcast_ref::<VideoError>(),
-            Some(VideoError::InterruptedFit)
-        )
-    })
+    exit_code(result)
 }

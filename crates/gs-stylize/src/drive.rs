@@ -1,0 +1,155 @@
+//! The order every stylization runs in, written once: a modality's configuration implements
+//! [`Modality`] (what is its own: its inputs, its base model, its fit, its views, its outputs)
+//! and [`run`] calls it in this order:
+//!
+//! 1. the modality's own checks ([`Modality::check`]), then [`prepare`]: settings, output
+//!    folder and checkpoint, weights, style image, devices, every problem at once;
+//! 2. the inputs ([`Modality::load_inputs`]: the picture, the video, the scene), checked
+//!    against the settings (the patch size) before any long work;
+//! 3. the base model: the one given (`--model`), this run's own fit when it resumes, or a fit
+//!    with progress ([`fit_with_progress`]; Ctrl-C ends it with
+//!    [`StylizeError::InterruptedFit`], nothing written), kept as `BASE_MODEL` in the output
+//!    folder ([`Modality::keep_fit`]);
+//! 4. the job ([`Modality::job`]: views, ground truths, optimizer groups from the
+//!    configuration's `learning_rates`) and the stylization ([`PreparedRun::stylize`]);
+//! 5. the modality's outputs ([`Modality::write_outputs`]), then the checkpoint is marked
+//!    finished ([`mark_finished`]).
+
+use std::ops::ControlFlow;
+use std::path::Path;
+
+use gs_core::model::BaseModel;
+use gs_core::train::StepReport;
+use serde::Serialize;
+
+use crate::checkpoint::mark_finished;
+use crate::progress::fit_with_progress;
+use crate::{
+    prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob, StylizeOutcome,
+};
+
+/// The per-step callback a fit calls: it shows the progress and asks the fit to stop (Ctrl-C).
+pub type OnStep<'a> = &'a mut dyn FnMut(&StepReport) -> ControlFlow<()>;
+
+/// One modality's part of a stylization run, implemented by its configuration (serialized
+/// whole into the run's `config.json`). [`run`] calls these in the module's order.
+pub trait Modality: Serialize {
+    /// The model the run stylizes.
+    type Model: BaseModel;
+    /// What the run loads before its base model (the picture, the video, the scene) and what
+    /// it keeps for its outputs.
+    type Inputs;
+    /// What a fit returns (the model, and what the fit measured).
+    type Fit;
+    /// What a finished run returns.
+    type Outputs;
+    /// The modality's error; every shared failure converts into it.
+    type Error: From<StylizeError>;
+
+    /// The file, in the output folder, a run that fits its base model keeps it in (a resumed
+    /// run reads it back instead of fitting again).
+    const BASE_MODEL: &'static str;
+    /// What a fit fits, in messages (`the picture`).
+    const FITTED: &'static str;
+
+    /// The settings every modality shares.
+    fn settings(&self) -> &StyleSettings;
+
+    /// The output folder.
+    fn out(&self) -> Result<&Path, Self::Error>;
+
+    /// Checks the modality's own fields (and its `learning_rates` against its groups) before
+    /// any work; [`prepare`] checks the shared settings.
+    fn check(&self) -> Result<(), Self::Error>;
+
+    /// The base model given by the user; none when the run fits its own.
+    fn given_model(&self) -> Option<&Path>;
+
+    /// Loads and checks the inputs. `model` is the file the base model will be read from (the
+    /// given one, or this run's own fit when resuming; none before a fit), for what it records.
+    fn load_inputs(
+        &self,
+        run: &PreparedRun,
+        model: Option<&Path>,
+    ) -> Result<Self::Inputs, Self::Error>;
+
+    /// Reads the base model at `path` and checks it against the inputs; `own_fit` when it is
+    /// this run's earlier fit (a resumed run), which must match this configuration's fit.
+    fn read_model(
+        &self,
+        inputs: &Self::Inputs,
+        path: &Path,
+        own_fit: bool,
+        run: &PreparedRun,
+    ) -> Result<Self::Model, Self::Error>;
+
+    /// Steps of the fit.
+    fn fit_steps(&self) -> u64;
+
+    /// Fits the base model to the inputs on the run's device, calling `on_step` after every
+    /// step and stopping when it breaks.
+    fn fit(
+        &self,
+        inputs: &Self::Inputs,
+        run: &PreparedRun,
+        on_step: OnStep<'_>,
+    ) -> Result<Self::Fit, Self::Error>;
+
+    /// Writes the fitted base model to `path` (the output folder's `BASE_MODEL`, the folder
+    /// made) with what the fit measured, and returns the model.
+    fn keep_fit(
+        &self,
+        inputs: &Self::Inputs,
+        fit: Self::Fit,
+        path: &Path,
+    ) -> Result<Self::Model, Self::Error>;
+
+    /// The stylization job of `model` over the inputs (which it may add to, e.g. renders of
+    /// the model before stylization for a preview).
+    fn job(
+        &self,
+        inputs: &mut Self::Inputs,
+        model: Self::Model,
+        run: &PreparedRun,
+    ) -> Result<StylizeJob<Self::Model>, Self::Error>;
+
+    /// Writes the modality's outputs of the stylized model into the output folder.
+    fn write_outputs(
+        &self,
+        inputs: Self::Inputs,
+        outcome: StylizeOutcome<Self::Model>,
+        run: &PreparedRun,
+    ) -> Result<Self::Outputs, Self::Error>;
+}
+
+/// Runs the stylization `modality` describes, in the order of the module documentation.
+pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs, M::Error> {
+    modality.check()?;
+    let out = modality.out()?;
+    let prepared = prepare(modality.settings(), out, options.clone())?;
+    let base = out.join(M::BASE_MODEL);
+    let own_fit = modality.given_model().is_none() && options.resume && base.exists();
+    let source = match modality.given_model() {
+        Some(path) => Some(path),
+        None => own_fit.then_some(base.as_path()),
+    };
+    let mut inputs = modality.load_inputs(&prepared, source)?;
+    let model = match source {
+        Some(path) => modality.read_model(&inputs, path, own_fit, &prepared)?,
+        None => {
+            let fit = fit_with_progress(M::FITTED, modality.fit_steps(), options, |on_step| {
+                modality.fit(&inputs, &prepared, on_step)
+            })?;
+            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
+                path: out.to_path_buf(),
+                source,
+            })?;
+            modality.keep_fit(&inputs, fit, &base)?
+        }
+    };
+    let job = modality.job(&mut inputs, model, &prepared)?;
+    let outcome = prepared.stylize(modality, job)?;
+    let outputs = modality.write_outputs(inputs, outcome, &prepared)?;
+    mark_finished(out, modality.settings().steps)?;
+    Ok(outputs)
+}
