@@ -409,21 +409,18 @@ pub fn assert_shared_flags(binary: &Path, fits: bool) {
                 binary.display()
             );
         }
-        if flags.contains(&"--background") {
-            let err = fails(Command::new(binary).args([sub, "--background", "grey"]));
-            assert!(
-                err.contains("is not white, black or R,G,B"),
-                "{} {sub} --background takes white, black or R,G,B: {err}",
-                binary.display()
-            );
-        }
-        if flags.contains(&"--device") {
-            let err = fails(Command::new(binary).args([sub, "--device", "tpu"]));
-            assert!(
-                err.contains("cpu, gpu, auto"),
-                "{} {sub} --device: {err}",
-                binary.display()
-            );
+        for (flag, wrong, refusal) in [
+            ("--background", "grey", "is not white, black or R,G,B"),
+            ("--device", "tpu", "cpu, gpu, auto"),
+        ] {
+            if flags.contains(&flag) {
+                let err = fails(Command::new(binary).args([sub, flag, wrong]));
+                assert!(
+                    err.contains(refusal),
+                    "{} {sub} {flag} {wrong} is refused with {refusal:?}: {err}",
+                    binary.display()
+                );
+            }
         }
     }
 }
