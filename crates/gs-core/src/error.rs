@@ -9,12 +9,12 @@ pub enum GsError {
     #[error("invalid camera: {0}")]
     InvalidCamera(String),
     /// An image file that could not be read or written.
-    #[error("image {path}: {message}")]
+    #[error("image {path}: {source}")]
     Image {
         /// The file.
         path: PathBuf,
-        /// What went wrong.
-        message: String,
+        /// What went wrong (the decoder's, the encoder's or the file system's error).
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// A render and its target differ in size.
     #[error(

@@ -137,7 +137,7 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> 
     })
     .map_err(|e| GsError::Image {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        source: Box::new(e),
     })
 }
 
@@ -145,6 +145,6 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> 
 fn open_image(path: &Path) -> Result<image::DynamicImage, GsError> {
     image::open(path).map_err(|e| GsError::Image {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        source: Box::new(e),
     })
 }

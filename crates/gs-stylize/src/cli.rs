@@ -196,8 +196,11 @@ impl InterpolateArgs {
         check_output_file(&self.out)?;
         let (a, format) = read_ply_with_format(&self.a)?;
         let b = read_ply(&self.b)?;
-        let blended = interpolate_ply(&a, &b, self.t)
-            .map_err(|e| format!("{} and {}: {e}", self.a.display(), self.b.display()))?;
+        let blended = interpolate_ply(&a, &b, self.t).map_err(|e| StylizeError::Interpolate {
+            a: self.a.clone(),
+            b: self.b.clone(),
+            source: Box::new(e),
+        })?;
         write_ply(&self.out, &blended, format)?;
         Ok(format!(
             "wrote {} ({} Gaussians, t = {})",

@@ -23,6 +23,7 @@ use gs_core::train::StepReport;
 use serde::Serialize;
 
 use crate::checkpoint::mark_finished;
+use crate::outputs::create_folder;
 use crate::progress::fit_with_progress;
 use crate::{
     prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob, StylizeOutcome,
@@ -140,10 +141,7 @@ pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs
             let fit = fit_with_progress(M::FITTED, modality.fit_steps(), options, |on_step| {
                 modality.fit(&inputs, &prepared, on_step)
             })?;
-            std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
-                path: out.to_path_buf(),
-                source,
-            })?;
+            create_folder(out)?;
             modality.keep_fit(&inputs, fit, &base)?
         }
     };

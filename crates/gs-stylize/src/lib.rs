@@ -121,6 +121,30 @@ pub enum StylizeError {
         /// The output folder.
         out: PathBuf,
     },
+    /// A model file (INRIA PLY) that cannot be read or written; the error names the file.
+    #[error("{0}")]
+    Ply(#[from] gs_core::ply::PlyError),
+    /// A dataset that cannot be loaded.
+    #[error("dataset {}: {source}", path.display())]
+    Dataset {
+        /// The dataset folder.
+        path: PathBuf,
+        /// What is wrong with it.
+        source: Box<gs_core::dataset::DatasetError>,
+    },
+    /// The style image, which does not decode.
+    #[error("style image: {0}")]
+    StyleImage(#[source] gs_core::GsError),
+    /// Two models that cannot be blended (`interpolate`).
+    #[error("{} and {}: {source}", a.display(), b.display())]
+    Interpolate {
+        /// The first model.
+        a: PathBuf,
+        /// The second model.
+        b: PathBuf,
+        /// Why they do not blend.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
     /// The fit of a base model was stopped (Ctrl-C); nothing of it was written.
     #[error("interrupted while fitting {what}; nothing was written")]
     InterruptedFit {

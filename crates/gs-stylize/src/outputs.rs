@@ -60,6 +60,15 @@ pub fn preview_name(k: usize, view: usize) -> String {
     }
 }
 
+/// Creates the folder `path` and its parents (nothing when it exists); the error keeps the
+/// file system's and names the folder.
+pub fn create_folder(path: &Path) -> Result<(), StylizeError> {
+    std::fs::create_dir_all(path).map_err(|source| StylizeError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
 /// Writes `before` and `after` side by side to `path`.
 pub fn write_pair(path: &Path, before: &Image, after: &Image) -> Result<(), StylizeError> {
     Ok(Image::side_by_side(&[before, after]).save_png(path)?)

@@ -29,6 +29,6 @@ fn as_tensor(path: &Path, image: &Image, device: &Device) -> Result<Tensor, GsEr
     )
     .map_err(|e| GsError::Image {
         path: path.to_path_buf(),
-        message: e.to_string(),
+        source: Box::new(e),
     })
 }

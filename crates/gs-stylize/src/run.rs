@@ -27,7 +27,7 @@ use style_loss::{
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
-use crate::outputs::{write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
+use crate::outputs::{create_folder, write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use crate::picture::load_style_picture;
 use crate::plot::write_loss_plot;
 use crate::progress::Progress;
@@ -313,10 +313,7 @@ impl PreparedRun {
         if !options.resume {
             checkpoint::discard_finished(out)?;
         }
-        std::fs::create_dir_all(out).map_err(|source| StylizeError::Io {
-            path: out.to_path_buf(),
-            source,
-        })?;
+        create_folder(out)?;
         write_json(&out.join(CONFIG_JSON), config)?;
         let train_config = TrainConfig {
             steps: settings.steps,
@@ -509,8 +506,7 @@ pub fn check_out_folder(out: &Path, resume: bool, steps: u64) -> Result<(), Styl
 /// Checks that the style image of `settings` decodes and that its CLIP configuration parses.
 fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), StylizeError> {
     if let Some(path) = &settings.style_image {
-        load_style_picture(path, &Device::Cpu)
-            .map_err(|e| StylizeError::Input(format!("style image: {e}")))?;
+        load_style_picture(path, &Device::Cpu).map_err(StylizeError::StyleImage)?;
     }
     if let Some(path) = &settings.clip_config {
         ClipConfig::from_json_file(path)?;
@@ -528,10 +524,7 @@ fn build_loss(
     device: &Device,
 ) -> Result<(StyleLoss, Option<ViewMasks>), StylizeError> {
     let style_image = match &settings.style_image {
-        Some(path) => Some(
-            load_style_picture(path, device)
-                .map_err(|e| StylizeError::Input(format!("style image: {e}")))?,
-        ),
+        Some(path) => Some(load_style_picture(path, device).map_err(StylizeError::StyleImage)?),
         None => None,
     };
     let clip_config = match &settings.clip_config {

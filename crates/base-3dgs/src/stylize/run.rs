@@ -6,7 +6,7 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::model::BaseModel;
-use gs_core::ply::{read_ply_with_format, write_ply, PlyError, PlyFormat, PlyGaussians};
+use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
@@ -85,7 +85,7 @@ impl Modality for StylizeConfig {
         _run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<SceneInput, StylizeError> {
-        let (ply, format) = read_ply_with_format(self.ply_path()).map_err(ply_error)?;
+        let (ply, format) = read_ply_with_format(self.ply_path())?;
         let dataset = load_dataset(self)?;
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
@@ -186,7 +186,7 @@ impl Modality for StylizeConfig {
             extras: ply.extras,
             comments: ply.comments,
         };
-        write_ply(&stylized_ply, &stylized, format).map_err(ply_error)?;
+        write_ply(&stylized_ply, &stylized, format)?;
         let mut base = ply.gaussians;
         write_previews(
             out,
@@ -210,11 +210,6 @@ fn no_fit() -> StylizeError {
     StylizeError::Input("a 3D stylization starts from a trained scene: give it with --model".into())
 }
 
-/// A PLY error as a run error (it names the file).
-fn ply_error(e: PlyError) -> StylizeError {
-    StylizeError::Input(format!("PLY: {e}"))
-}
-
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
 /// `sparse/` is.
 fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
@@ -225,7 +220,10 @@ fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
         downscale: config.resolution,
         max_width: config.max_width,
     };
-    let wrap = |e: DatasetError| StylizeError::Input(format!("dataset {}: {e}", data.display()));
+    let wrap = |source: DatasetError| StylizeError::Dataset {
+        path: data.to_path_buf(),
+        source: Box::new(source),
+    };
     match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
             nerf_synthetic::load_training(data, config.train_splits, &options).map_err(wrap)

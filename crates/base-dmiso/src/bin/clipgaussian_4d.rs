@@ -32,10 +32,11 @@ use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleA
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::outputs::create_folder;
 use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 use style_loss::compute_device;
 use style_loss::image_layout::hwc_to_tensor;
 
@@ -374,7 +375,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         .map_err(DynamicError::from)
     })?;
     let seconds = start.elapsed().as_secs_f64();
-    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    create_folder(&args.out)?;
     model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;
     let (views, images, which) = match &test {
         Some(test) => (&test.views, &test.images, "test"),
@@ -420,7 +421,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         &net_device(args.device)?,
     )?;
     let renders = render_views(&mut model, &split.views, bg.rgb(), &backend)?;
-    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    create_folder(&args.out)?;
     write_frames(&args.out.join(FRAMES_DIR), &renders)?;
     let mut line = format!(
         "wrote {} views to {} (mean PSNR {:.2} dB against the pictures)",
@@ -457,8 +458,11 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     let read =
         |p: &Path| -> Result<Dmiso, Box<dyn Error>> { Ok(read_model(p, None, &Device::Cpu)?) };
     let (a, b) = (read(&args.a)?, read(&args.b)?);
-    let blended = interpolate(&a, &b, args.t)
-        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    let blended = interpolate(&a, &b, args.t).map_err(|e| StylizeError::Interpolate {
+        a: args.a.clone(),
+        b: args.b.clone(),
+        source: e.into(),
+    })?;
     model_file::save(
         &blended,
         &args.out,
@@ -473,7 +477,7 @@ fn read_renders(dir: &Path, count: usize) -> Result<Vec<Image>, Box<dyn Error>> 
     (0..count)
         .map(|i| {
             let path = dir.join(format!("{i:05}.png"));
-            Image::load(&path, [0.0; 3]).map_err(|e| format!("{}: {e}", path.display()).into())
+            Ok(Image::load(&path, [0.0; 3])?)
         })
         .collect()
 }

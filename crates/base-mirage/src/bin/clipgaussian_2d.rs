@@ -31,6 +31,7 @@ use gs_stylize::cli::{
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::outputs::create_folder;
 use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -313,7 +314,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     // The folder is made first, so one that cannot be made costs no fit, and removed again
     // when this run made it and anything fails, so nothing partial is left.
     let created = !args.out.exists();
-    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    create_folder(&args.out)?;
     let result = fit_into_folder(&picture, &settings, &options, &backend, &args.out);
     if result.is_err() && created {
         let _ = std::fs::remove_dir_all(&args.out);

@@ -30,11 +30,12 @@ use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleA
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::outputs::create_folder;
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
 use serde::Serialize;
 use style_loss::image_layout::hwc_to_tensor;
 
@@ -304,7 +305,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         settings.background,
         &backend,
     )?;
-    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    create_folder(&args.out)?;
     let record = VideoRecord {
         width: w,
         height: h,
@@ -381,7 +382,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         args.background,
         &backend,
     )?;
-    std::fs::create_dir_all(&args.out).map_err(|e| format!("{}: {e}", args.out.display()))?;
+    create_folder(&args.out)?;
     let dir = args.out.join(FRAMES_DIR);
     write_frames(&dir, &frames)?;
     let mp4 = write_mp4(&dir, fps, &args.out.join(STYLIZED_MP4))?;
@@ -407,8 +408,11 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
     let (a, record) = read_model(&args.a)?;
     let (b, _) = read_model(&args.b)?;
-    let blended = interpolate(&a, &b, args.t)
-        .map_err(|e| format!("{} and {}: {e}", args.a.display(), args.b.display()))?;
+    let blended = interpolate(&a, &b, args.t).map_err(|e| StylizeError::Interpolate {
+        a: args.a.clone(),
+        b: args.b.clone(),
+        source: e.into(),
+    })?;
     write_model(&args.out, &blended, record)?;
     println!("wrote {} (t = {})", args.out.display(), args.t);
     Ok(())

@@ -53,9 +53,9 @@ fn image_error(path: &Path, e: image::ImageError) -> DatasetError {
                 what: "an image of the dataset".into(),
             }
         }
-        e => DatasetError::Image {
+        source => DatasetError::Image {
             path: path.to_path_buf(),
-            message: e.to_string(),
+            source,
         },
     }
 }

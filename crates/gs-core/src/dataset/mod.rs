@@ -278,12 +278,12 @@ pub enum DatasetError {
         found: (u32, u32),
     },
     /// An image file that could not be decoded.
-    #[error("{}: {message}", path.display())]
+    #[error("{}: {source}", path.display())]
     Image {
         /// The file.
         path: PathBuf,
-        /// The decoder's message.
-        message: String,
+        /// The decoder's error.
+        source: image::ImageError,
     },
     /// A camera that gs-core refuses (impossible intrinsics or pose).
     #[error("{context}: {source}")]
