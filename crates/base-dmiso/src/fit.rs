@@ -94,6 +94,13 @@ impl Default for FitSettings {
 }
 
 impl FitSettings {
+    /// The step counts after which the fit's later stages begin: the deformation network
+    /// after the warm-up, the sub-Gaussians at `subs_from` (each slower a step than the one
+    /// before).
+    pub fn stages(&self) -> [u64; 2] {
+        [self.warm_up, self.subs_from]
+    }
+
     /// Checks the settings; the error starts with the flag of `clipgaussian-4d fit` that sets
     /// the field.
     pub fn check(&self) -> Result<(), FitError> {

@@ -467,6 +467,11 @@ impl Modality for DynamicStylizeConfig {
         self.fit_steps
     }
 
+    /// The deformation network's start and the sub-Gaussians' ([`FitSettings::stages`]).
+    fn fit_stages(&self) -> Vec<u64> {
+        self.fit_settings().stages().to_vec()
+    }
+
     fn fit(
         &self,
         scene: &SceneInput,

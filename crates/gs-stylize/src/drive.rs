@@ -87,6 +87,12 @@ pub trait Modality: Serialize {
     /// Steps of the fit.
     fn fit_steps(&self) -> u64;
 
+    /// The step counts after which the fit's later stages begin, for the time left
+    /// ([`crate::progress::Progress::with_stages`]); none by default (a fit of one stage).
+    fn fit_stages(&self) -> Vec<u64> {
+        Vec::new()
+    }
+
     /// Fits the base model to the inputs on the run's device, calling `on_step` after every
     /// step and stopping when it breaks.
     fn fit(
@@ -138,7 +144,8 @@ pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs
     let model = match source {
         Some(path) => modality.read_model(&inputs, path, own_fit, &prepared)?,
         None => {
-            let fit = fit_with_progress(M::FITTED, modality.fit_steps(), options, |on_step| {
+            let (steps, stages) = (modality.fit_steps(), modality.fit_stages());
+            let fit = fit_with_progress(M::FITTED, steps, &stages, options, |on_step| {
                 modality.fit(&inputs, &prepared, on_step)
             })?;
             create_folder(out)?;

@@ -5,6 +5,11 @@
 //! so that a redirected run still says how far it is.
 //! The bar is cleared when the loop ends and its last state printed as such a line, so that
 //! whatever is printed next starts on a line of its own.
+//!
+//! A loop whose stages run at different speeds (a 4D fit: a static warm-up, then the
+//! deformation network, then sub-Gaussians) names the steps where its stages begin
+//! ([`Progress::with_stages`]): the time left is then estimated from the current stage's
+//! speed, measured from its first step, not from the whole loop's average.
 
 use std::cell::{Cell, RefCell};
 use std::io::IsTerminal;
@@ -63,6 +68,10 @@ pub struct Progress {
     printed: Cell<u64>,
     /// When the last line was printed (or the loop started).
     printed_at: Cell<Instant>,
+    /// Step counts after which a new stage begins, ascending.
+    stages: Vec<u64>,
+    /// The current stage: the steps taken when it began and the time since the start then.
+    stage: Cell<(u64, Duration)>,
 }
 
 impl Progress {
@@ -97,12 +106,35 @@ impl Progress {
             last: RefCell::new((done, String::new())),
             printed: Cell::new(done),
             printed_at: Cell::new(Instant::now()),
+            stages: Vec::new(),
+            stage: Cell::new((done, Duration::ZERO)),
+        }
+    }
+
+    /// The same progress for a loop whose stages begin after the step counts `stages` (see
+    /// the module documentation).
+    pub fn with_stages(mut self, stages: &[u64]) -> Self {
+        self.stages = stages.to_vec();
+        self.stages.sort_unstable();
+        self
+    }
+
+    /// Starts the stage that begins after `step` steps when it has not begun yet, at
+    /// `elapsed` since the loop started.
+    fn enter_stage(&self, step: u64, elapsed: Duration) {
+        let (first, _) = self.stage.get();
+        if self.stages.iter().any(|&b| first < b && b <= step) {
+            self.stage.set((step, elapsed));
+            if let Some(bar) = &self.bar {
+                bar.reset_eta();
+            }
         }
     }
 
     /// Records that `step` steps are taken, the last with `message` (e.g. `loss 0.1234`);
     /// prints a line when the step crosses the next [`LINE_EVERY_PERCENT`] % or is the last.
     pub fn update(&self, step: u64, message: &str) {
+        self.enter_stage(step, self.started.elapsed());
         *self.last.borrow_mut() = (step, message.to_string());
         if let Some(bar) = &self.bar {
             bar.set_position(step);
@@ -144,21 +176,28 @@ impl Progress {
     }
 
     /// `fit: step 40/800 (5%), 0:01:02 elapsed, about 0:19:38 left, loss 0.1234`, where
-    /// `elapsed` is the time since this process started the loop.
+    /// `elapsed` is the time since this process started the loop; the time left is at the
+    /// current stage's speed once it has taken a step, else at the loop's.
     pub fn line(&self, step: u64, message: &str, elapsed: Duration) -> String {
         let percent = step
             .saturating_mul(100)
             .checked_div(self.total)
             .unwrap_or(100);
         let done_here = step.saturating_sub(self.first);
-        let left = if step >= self.total {
-            "done".to_string()
-        } else if done_here == 0 {
-            "time left unknown".to_string()
+        let (stage_first, stage_began) = self.stage.get();
+        let done_in_stage = step.saturating_sub(stage_first);
+        let per_step = if done_in_stage > 0 {
+            Some(elapsed.saturating_sub(stage_began).as_secs_f64() / done_in_stage as f64)
         } else {
-            let per_step = elapsed.as_secs_f64() / done_here as f64;
-            let left = Duration::from_secs_f64(per_step * (self.total - step) as f64);
-            format!("about {} left", clock(left))
+            (done_here > 0).then(|| elapsed.as_secs_f64() / done_here as f64)
+        };
+        let left = match per_step {
+            _ if step >= self.total => "done".to_string(),
+            None => "time left unknown".to_string(),
+            Some(per_step) => {
+                let left = Duration::from_secs_f64(per_step * (self.total - step) as f64);
+                format!("about {} left", clock(left))
+            }
         };
         let mut line = format!(
             "{}: step {step}/{} ({percent}%), {} elapsed, {left}",
@@ -186,17 +225,19 @@ pub(crate) fn clock(d: Duration) -> String {
 }
 
 /// Runs `work`, the fit of a base model (`what`: `the picture`, `the video`, `the scene`) in
-/// `steps` steps, with its progress shown as `fit` when `options.progress`: `work` gets the
-/// per-step callback, which shows the step's loss and asks the loop to stop once
-/// `options.stop` is set (Ctrl-C). Returns `work`'s result, or
+/// `steps` steps whose later stages begin after the step counts `stages`
+/// ([`Progress::with_stages`]; none for a fit of one stage), with its progress shown as `fit`
+/// when `options.progress`: `work` gets the per-step callback, which shows the step's loss and
+/// asks the loop to stop once `options.stop` is set (Ctrl-C). Returns `work`'s result, or
 /// [`StylizeError::InterruptedFit`] when it was stopped.
 pub fn fit_with_progress<T, E: From<StylizeError>>(
     what: &str,
     steps: u64,
+    stages: &[u64],
     options: &RunOptions,
     work: impl FnOnce(&mut dyn FnMut(&StepReport) -> ControlFlow<()>) -> Result<T, E>,
 ) -> Result<T, E> {
-    let progress = Progress::new(options.progress, "fit", steps, 0);
+    let progress = Progress::new(options.progress, "fit", steps, 0).with_stages(stages);
     let result = work(&mut |report: &StepReport| {
         progress.update(report.step, &format!("loss {:.4}", report.value.loss));
         if options.stop.load(Ordering::SeqCst) {
@@ -216,6 +257,28 @@ pub fn fit_with_progress<T, E: From<StylizeError>>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A loop of a fast stage then a slow one: once the slow one has taken a step, the time
+    /// left is at its speed, not at the average of both.
+    #[test]
+    fn the_time_left_is_at_the_current_stages_speed() {
+        let p = Progress::with_mode(ProgressMode::Hidden, "fit", 1000, 0).with_stages(&[500, 100]);
+        p.enter_stage(50, Duration::from_secs(5));
+        assert_eq!(p.stage.get(), (0, Duration::ZERO), "no stage begins at 50");
+        // 100 steps in 10 s: 0.1 s a step for the 900 left.
+        let line = p.line(100, "", Duration::from_secs(10));
+        assert!(line.contains("about 0:01:30 left"), "{line}");
+        p.enter_stage(100, Duration::from_secs(10));
+        // The second stage: 10 steps in 10 s, 1 s a step for the 890 left (the average of
+        // both stages would say 2:42).
+        let line = p.line(110, "", Duration::from_secs(20));
+        assert!(line.contains("about 0:14:50 left"), "{line}");
+        p.enter_stage(600, Duration::from_secs(410));
+        assert_eq!(p.stage.get(), (600, Duration::from_secs(410)));
+        // No step of the third stage yet: the whole loop's speed, 410 s for 600 steps.
+        let line = p.line(600, "", Duration::from_secs(410));
+        assert!(line.contains("about 0:04:33 left"), "{line}");
+    }
 
     #[test]
     fn lines_come_every_five_percent_and_estimate_the_time_left() {

@@ -362,18 +362,24 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let backend = open_device(args.device)?;
     let device = net_device(args.device)?;
     let start = Instant::now();
-    let mut model = fit_with_progress("the scene", settings.steps, &options, |on_step| {
-        fit::fit(
-            &train.views,
-            &train.images,
-            train.extent,
-            &settings,
-            &backend,
-            &device,
-            on_step,
-        )
-        .map_err(DynamicError::from)
-    })?;
+    let mut model = fit_with_progress(
+        "the scene",
+        settings.steps,
+        &settings.stages(),
+        &options,
+        |on_step| {
+            fit::fit(
+                &train.views,
+                &train.images,
+                train.extent,
+                &settings,
+                &backend,
+                &device,
+                on_step,
+            )
+            .map_err(DynamicError::from)
+        },
+    )?;
     let seconds = start.elapsed().as_secs_f64();
     create_folder(&args.out)?;
     model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;

@@ -345,7 +345,7 @@ fn fit_into_folder(
     let Fitted {
         mut model,
         psnr: log,
-    } = fit_with_progress("the picture", settings.steps, options, |on_step| {
+    } = fit_with_progress("the picture", settings.steps, &[], options, |on_step| {
         fit_logged(picture, settings, backend, on_step).map_err(MirageError::from)
     })?;
     let seconds = start.elapsed().as_secs_f64();

@@ -292,7 +292,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     };
     let backend = open_device(args.device)?;
     let start = Instant::now();
-    let mut model = fit_with_progress("the video", settings.steps, &options, |on_step| {
+    let mut model = fit_with_progress("the video", settings.steps, &[], &options, |on_step| {
         fit::fit(&video.frames, &settings, &backend, on_step).map_err(VideoError::from)
     })?;
     let seconds = start.elapsed().as_secs_f64();
