@@ -53,7 +53,7 @@ pub const BASE_PLY: &str = "base.ply";
 pub const ORIGINAL_PNG: &str = "original.png";
 
 /// Everything a 2D stylization run needs (a flat JSON object: `configs/2d.json`). The
-/// defaults are the paper's 2D settings (method.md): lambdas 5 / 90 / 0.8 / 0, feature_lr
+/// defaults are the paper's 2D settings (the paper; docs/fidelity.md): lambdas 5 / 90 / 0.8 / 0, feature_lr
 /// 0.0025 (`learning_rates`), 4999 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]

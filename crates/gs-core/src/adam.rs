@@ -11,7 +11,7 @@ pub enum LrSchedule {
     /// The same rate at every step.
     Constant(f64),
     /// `lr(t) = exp((1-u) ln start + u ln end)`, `u = clamp(t / steps, 0, 1)`: the schedule of
-    /// 3DGS positions and of CLIPGaussian (method.md).
+    /// 3DGS positions and of CLIPGaussian (the paper; docs/fidelity.md).
     Exponential {
         /// Rate at step 0.
         start: f64,

@@ -78,7 +78,7 @@ pub struct StyleSettings {
 }
 
 impl StyleSettings {
-    /// The paper's 3D settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 1000 (the
+    /// The paper's 3D settings (the paper; docs/fidelity.md), no style yet: lambdas 5 / 90 / 0.8 / 1000 (the
     /// background term only applies to datasets with masks), 4999 updates (the authors' 5000
     /// iterations), 64 patches of 128 x 128, a checkpoint every 500 steps.
     pub fn paper_3d() -> Self {
@@ -106,7 +106,7 @@ impl StyleSettings {
         }
     }
 
-    /// The paper's 2D (MiraGe) settings (method.md), no style yet: those of
+    /// The paper's 2D (MiraGe) settings (the paper; docs/fidelity.md), no style yet: those of
     /// [`StyleSettings::paper_3d`] with lambda_background 0.
     pub fn paper_2d() -> Self {
         Self {
@@ -115,7 +115,7 @@ impl StyleSettings {
         }
     }
 
-    /// The paper's 4D (D-MiSo) settings (method.md), no style yet: lambdas 5 / 90 / 0.8 / 0
+    /// The paper's 4D (D-MiSo) settings (the paper; docs/fidelity.md), no style yet: lambdas 5 / 90 / 0.8 / 0
     /// (500 where the background must stay).
     pub fn paper_4d() -> Self {
         Self {
@@ -124,7 +124,7 @@ impl StyleSettings {
         }
     }
 
-    /// The paper's video (VeGaS) settings (method.md), no style yet: lambdas 5 / 90 / 0.5 / 0.
+    /// The paper's video (VeGaS) settings (the paper; docs/fidelity.md), no style yet: lambdas 5 / 90 / 0.5 / 0.
     pub fn paper_video() -> Self {
         Self {
             lambda_content: 0.5,

@@ -8,6 +8,23 @@
 //! Conventions: images are f32, linear, in [0, 1], channels first (`[3, h, w]` or
 //! `[1, 3, h, w]`); gradients come back in the shape the image came in. Every operation that
 //! lies between the image and a loss has a backward pass that is tested against PyTorch.
+//!
+//! - [`clip`], [`tokenizer`], [`templates`], [`style_direction`]: CLIP, its tokenizer, the
+//!   prompt templates, and the style direction in CLIP space.
+//! - [`vgg`]: VGG-19 features of the content loss.
+//! - [`losses`] and [`terms`]: the four losses of a view with their gradient, and each term
+//!   alone as a differentiable scalar.
+//! - [`objective`]: the losses as gs-core's training objective ([`StyleObjective`]).
+//! - [`patches`], [`perspective`], [`window_warp`], [`resize`], [`pil_resize`]: the patch
+//!   augmentation (crop, perspective warp, resize), on the host and in the form a GPU runs it.
+//! - [`nn`], [`matmul`], [`torch_ties`]: differentiable building blocks, products in the
+//!   layouts candle's CUDA backend accepts, PyTorch's gradient at ties and exact zeros.
+//! - [`metrics`]: the paper's CLIP evaluation metrics.
+//! - [`compute_device`], [`memory`], [`transfers`]: the loss's device, the allocator setting,
+//!   the host-device traffic counts.
+//! - [`image_layout`], [`tensor_file`], [`weight_resolution`], [`error`]: image layouts,
+//!   checkpoints, where model files come from, the error type.
+//! - `test_models` (feature `test-models`): random-weight models for tests and benchmarks.
 
 pub mod clip;
 pub mod compute_device;
@@ -41,10 +58,10 @@ mod vgg_channels_last;
 pub mod weight_resolution;
 pub mod window_warp;
 
-pub use candle_core;
-pub use clip::{ClipConfig, ClipModel, ClipPrecision};
 /// The candle this crate is built on: images and gradients cross as its tensors, so callers
 /// use this one rather than pinning their own.
+pub use candle_core;
+pub use clip::{ClipConfig, ClipModel, ClipPrecision};
 pub use cpu_elements::GenericPath;
 pub use error::{Result, StyleLossError};
 pub use losses::{

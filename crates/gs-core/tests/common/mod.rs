@@ -108,9 +108,9 @@ pub fn degenerate_scene(edit: impl Fn(&mut GaussianSet<f64>)) -> GaussianSet<f64
     g
 }
 
-/// The degenerate cases of design.md seen by [`front_camera`], named: near-zero and huge
-/// scales, behind the camera, straddling the near plane, opacity near 0 and near 1, equal
-/// depths, a centre past the Jacobian clamp.
+/// The degenerate cases a rasterizer must survive, seen by [`front_camera`], named: near-zero
+/// and huge scales, behind the camera, straddling the near plane, opacity near 0 and near 1,
+/// equal depths, a centre past the Jacobian clamp.
 pub fn degenerate_cases() -> Vec<(&'static str, GaussianSet<f64>)> {
     vec![
         (
