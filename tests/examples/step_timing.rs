@@ -14,12 +14,12 @@ use std::ops::ControlFlow;
 use std::time::{Duration, Instant};
 
 use gs_core::adam::AdamHyper;
-use gs_core::backend::{DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::render;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
 use gs_stylize::rates::gaussian_stylization;
+use gs_wgpu::backend::{DeviceChoice, OpenDevice, Trainer};
 use rand::{Rng, SeedableRng};
 use style_loss::compute_device;
 use style_loss::test_models::random_full_size_loss;

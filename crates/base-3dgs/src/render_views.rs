@@ -7,8 +7,8 @@
 use std::collections::BTreeSet;
 use std::path::{Path, PathBuf};
 
-use gs_core::backend::{Backend, DeviceError};
 use gs_core::{Camera, GaussianSet};
+use gs_wgpu::backend::{Backend, DeviceError};
 use serde::Deserialize;
 
 use crate::dataset::nerf_synthetic::{self, Split};

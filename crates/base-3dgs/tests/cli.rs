@@ -420,7 +420,7 @@ fn a_gpu_run_without_a_desktop_session_prints_no_error_line() {
     // Without XDG_RUNTIME_DIR, Mesa's Vulkan layer VK_LAYER_MESA_device_select made
     // libwayland print `error: XDG_RUNTIME_DIR is invalid or not set in the environment.`
     // while the adapters were enumerated, on runs that then succeeded.
-    if !gs_core::wgpu::test_adapter_exists() {
+    if !gs_wgpu::test_adapter_exists() {
         return;
     }
     let dir = TempDir::new("cli-no-session");
@@ -439,7 +439,7 @@ fn a_gpu_run_without_a_desktop_session_prints_no_error_line() {
         .args(["--device", "gpu"])
         .env_remove("XDG_RUNTIME_DIR")
         .env_remove("NODEVICE_SELECT")
-        .env(gs_core::backend::ALLOW_SOFTWARE_GPU, "1")
+        .env(gs_wgpu::backend::ALLOW_SOFTWARE_GPU, "1")
         .output()
         .unwrap();
     let stderr = String::from_utf8_lossy(&run.stderr);

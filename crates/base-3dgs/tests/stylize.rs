@@ -17,7 +17,6 @@ use base_3dgs::stylize::config::BackgroundPixels;
 use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
 use candle_core::{Device, Tensor};
 use common::TempDir;
-use gs_core::backend::DeviceChoice;
 use gs_core::dataset::GroundTruth;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
@@ -26,6 +25,7 @@ use gs_core::GaussianSet;
 use gs_stylize::checkpoint;
 use gs_stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use gs_stylize::rates::gaussian_stylization;
+use gs_wgpu::backend::DeviceChoice;
 use scene::{fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, SIZE, VIEWS};
 use style_loss::image_layout::hwc_to_tensor;
 use style_loss::{

@@ -21,9 +21,9 @@ use base_dmiso::init::{initial_model, with_sub_gaussians};
 use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
 use candle_core::Device;
 use gs_core::adam::AdamHyper;
-use gs_core::backend::{Backend, Trainer};
 use gs_core::dataset::scene_extent;
 use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
+use gs_wgpu::backend::{Backend, Trainer};
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 

@@ -21,6 +21,7 @@ use gs_core::adam::RowChange;
 use gs_core::gaussians::GaussianGrads;
 use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
+use gs_wgpu::GpuModel;
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
@@ -190,6 +191,9 @@ impl BaseModel for Recording {
         Ok(())
     }
 }
+
+/// The provided GPU twins: the recording happens in the host forward and backward.
+impl GpuModel for Recording {}
 
 fn sigmoid(x: f32) -> f64 {
     1.0 / (1.0 + (-(x as f64)).exp())

@@ -27,12 +27,13 @@ use std::ops::ControlFlow;
 
 use candle_core::Device;
 use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RateAt};
-use gs_core::backend::{Backend, Trainer};
-pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::model::{BaseModel, View};
 use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
 use gs_core::Image;
+use gs_wgpu::backend::{Backend, Trainer};
+pub use gs_wgpu::FitError;
+use gs_wgpu::GpuModel;
 
 use crate::deform_net::NetShape;
 use crate::densify::{densify, reset_opacity, DensifySettings, GradStats, Recording};
@@ -388,7 +389,7 @@ where
     /// Trains `model` with a new optimizer of `groups` (restored from `state` when given) until
     /// it has taken `end - from` steps of the stage starting at step `from`; returns the model
     /// and the optimizer's state.
-    fn segment<M: BaseModel>(
+    fn segment<M: GpuModel>(
         &mut self,
         model: M,
         groups: &[GroupConfig],

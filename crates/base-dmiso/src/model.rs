@@ -20,6 +20,7 @@ use candle_core::Device;
 use gs_core::gaussians::{GaussianGrads, GaussianSet};
 use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
+use gs_wgpu::GpuModel;
 use rayon::prelude::*;
 
 use crate::core_frame::{deform, deform_backward, frame, Deformation, FrameGrads, FrameState};
@@ -507,6 +508,10 @@ impl BaseModel for Dmiso {
         Ok(())
     }
 }
+
+/// On a GPU the sub-Gaussians are built on the host (the network runs on candle's device) and
+/// uploaded: the provided twins.
+impl GpuModel for Dmiso {}
 
 /// `(1 - t) a + t b` of every parameter of two models of the same cores, sub-Gaussians and
 /// network (e.g. two stylizations of one fit: the Gaussians and the network's weights), or an

@@ -9,9 +9,9 @@ use std::ops::ControlFlow;
 use base_dmiso::densify::DensifySettings;
 use base_dmiso::fit::{fit, mean_psnr, render_views, FitSettings};
 use candle_core::Device;
-use gs_core::backend::Backend;
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
+use gs_wgpu::backend::Backend;
 
 #[test]
 fn a_fit_reproduces_held_out_times() {
@@ -103,11 +103,11 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     use base_dmiso::init::{initial_model, with_sub_gaussians};
     use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
     use gs_core::adam::AdamHyper;
-    use gs_core::backend::Trainer;
     use gs_core::image_loss::PhotometricObjective;
     use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
-    use gs_core::wgpu::{test_context, GpuOptions};
     use gs_stylize::rates::GroupRate;
+    use gs_wgpu::backend::Trainer;
+    use gs_wgpu::{test_context, GpuOptions};
 
     let views = common::views(4, 0.0, 32);
     let targets: Vec<_> = views.iter().map(|v| common::render(v, [1.0; 3])).collect();

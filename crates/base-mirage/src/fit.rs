@@ -13,14 +13,14 @@ use std::ops::ControlFlow;
 use std::path::Path;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, Trainer};
-pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::model::{GaussianLrs, View};
 use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig, ViewSampler};
 use gs_core::{GsError, Image};
 use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_stylize::StylizeError;
+use gs_wgpu::backend::{Backend, Trainer};
+pub use gs_wgpu::FitError;
 
 use crate::flat::FlatGaussians;
 use crate::init::initial_gaussians;

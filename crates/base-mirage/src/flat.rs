@@ -7,7 +7,7 @@
 //! the gradient of a clamped log-scale is zero, as torch's `clamp` gives, and the held axis
 //! never receives one, so Adam leaves it exactly where it is.
 //!
-//! On the GPU ([`BaseModel::gpu_forward`]) the same transform runs as two small kernels,
+//! On the GPU ([`gs_wgpu::GpuModel::gpu_forward`]) the same transform runs as two small kernels,
 //! `shaders/flat_gaussians_forward.wgsl` and `..._backward.wgsl`; every other array is rendered
 //! from the parameter buffers themselves.
 
@@ -16,10 +16,11 @@ use std::borrow::Cow;
 use gs_core::gaussians::GaussianGrads;
 use gs_core::model::{add_identity_grads, BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
-use gs_core::wgpu::{
-    zeroed_f32, Access, Binding, Buffer, GpuError, GpuForward, GpuGradients, GpuStep, KernelSource,
-};
 use gs_core::{GaussianSet, Real};
+use gs_wgpu::{
+    zeroed_f32, Access, Binding, Buffer, GpuError, GpuForward, GpuGradients, GpuModel, GpuStep,
+    KernelSource,
+};
 
 /// Index of the log-scales in [`gs_core::gaussians::PARAM_NAMES`].
 const SCALES_GROUP: usize = 1;
@@ -165,7 +166,11 @@ impl BaseModel for FlatGaussians {
         }
         Ok(())
     }
+}
 
+/// The GPU twins with kernels of their own: the stored log-scales are clamped on the GPU
+/// (`shaders/flat_gaussians_*.wgsl`), everything else is handed on as it is.
+impl GpuModel for FlatGaussians {
     fn gpu_forward(
         &mut self,
         gpu: &mut GpuStep<'_>,

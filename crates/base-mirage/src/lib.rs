@@ -19,7 +19,7 @@
 //! ```
 //! use base_mirage::init::initial_gaussians;
 //! use base_mirage::mirror::{plane_camera, plane_half_size};
-//! use gs_core::backend::DeviceChoice;
+//! use gs_wgpu::backend::{DeviceChoice, OpenDevice};
 //! use gs_core::model::View;
 //!
 //! let (width, height) = (48, 32);

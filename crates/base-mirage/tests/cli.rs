@@ -7,13 +7,13 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use base_mirage::model_file::FittedTo;
-use gs_core::backend::ALLOW_SOFTWARE_GPU;
 use gs_core::ply::read_ply;
-use gs_core::wgpu::{AdapterChoice, GpuContext};
 use gs_core::GaussianSet;
 use gs_stylize::test_support::{
     cpu_selftest_table, fails, path_str as s, succeeds as run, tiny_style_flags,
 };
+use gs_wgpu::backend::ALLOW_SOFTWARE_GPU;
+use gs_wgpu::{AdapterChoice, GpuContext};
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 use tempfile::TempDir;
 
@@ -328,7 +328,7 @@ fn distance(a: &GaussianSet, b: &GaussianSet) -> f64 {
 
 #[test]
 fn stylize_on_the_gpu_ends_close_to_the_cpu_and_resumes_on_the_cpu() {
-    if !gs_core::wgpu::test_adapter_exists() {
+    if !gs_wgpu::test_adapter_exists() {
         return;
     }
     let dir = TempDir::new().unwrap();

@@ -7,10 +7,10 @@ use std::sync::Arc;
 
 use base_mirage::fit::{fit, render_picture, FitSettings};
 use base_mirage::mirror::mirrored;
-use gs_core::backend::Backend;
 use gs_core::image_loss::psnr;
-use gs_core::wgpu::{test_context, GpuOptions};
 use gs_core::Image;
+use gs_wgpu::backend::Backend;
+use gs_wgpu::{test_context, GpuOptions};
 
 /// A 64x40 picture: a horizontal colour ramp, a dark disc and a bright bar.
 fn picture() -> Image {

@@ -8,10 +8,11 @@ use base_mirage::mirror::{plane_camera, plane_half_size};
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::{backward, render, OutputGrads};
-use gs_core::wgpu::{
-    self as gpu, read_f32, test_context, GpuContext, GpuOptions, GpuParams, GpuScratch, GpuStep,
-};
 use gs_core::GaussianSet;
+use gs_wgpu::{
+    self as gpu, read_f32, test_context, GpuContext, GpuModel, GpuOptions, GpuParams, GpuScratch,
+    GpuStep,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

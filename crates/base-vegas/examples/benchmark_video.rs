@@ -15,11 +15,11 @@ use base_vegas::init::initial_model;
 use base_vegas::stylize::VideoStylizeConfig;
 use candle_core::Device;
 use gs_core::adam::AdamHyper;
-use gs_core::backend::{Backend, Trainer};
 use gs_core::mirror_pair::plane_half_size;
 use gs_core::model::BaseModel;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::Image;
+use gs_wgpu::backend::{Backend, Trainer};
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 

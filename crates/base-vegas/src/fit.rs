@@ -9,13 +9,13 @@
 use std::ops::ControlFlow;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, Trainer};
-pub use gs_core::image_loss::FitError;
 use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
 use gs_core::mirror_pair::{extent, mirrored, plane_camera, plane_half_size, DEFAULT_DISTANCE};
 use gs_core::model::View;
 use gs_core::train::{StepReport, TrainConfig, ViewSampler};
 use gs_core::{GsError, Image};
+use gs_wgpu::backend::{Backend, Trainer};
+pub use gs_wgpu::FitError;
 
 use crate::folded::{view_time, FoldedGaussians, GROUP_NAMES};
 use crate::init::initial_model;

@@ -11,6 +11,7 @@ use std::borrow::Cow;
 use gs_core::gaussians::GaussianGrads;
 use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
+use gs_wgpu::GpuModel;
 
 use crate::frame::{add_frame_grads, build_frame, FoldedParams, FrameTape, POLY_LEN};
 use crate::time::{add_time_grads, frame_time};
@@ -209,6 +210,9 @@ impl BaseModel for FoldedGaussians {
         Ok(())
     }
 }
+
+/// The provided GPU twins: each frame's Gaussians are built on the host and uploaded.
+impl GpuModel for FoldedGaussians {}
 
 /// `(1 - t) a + t b` for every parameter of two models of the same Gaussians and frames (e.g.
 /// two stylizations of one fit; logits, logs and polynomials are blended as stored), or an

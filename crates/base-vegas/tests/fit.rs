@@ -6,14 +6,14 @@ use std::time::Instant;
 
 use base_vegas::fit::{fit, mean_psnr, render_frames, training_views, FitSettings};
 use base_vegas::init::initial_model;
-use gs_core::backend::Backend;
 use gs_core::mirror_pair::plane_half_size;
 use gs_core::model::BaseModel;
 use gs_core::raster::{backward, render, OutputGrads};
-use gs_core::wgpu::{
-    self as gpu, read_f32, test_context, GpuOptions, GpuParams, GpuScratch, GpuStep,
-};
 use gs_core::Image;
+use gs_wgpu::backend::Backend;
+use gs_wgpu::{
+    self as gpu, read_f32, test_context, GpuModel, GpuOptions, GpuParams, GpuScratch, GpuStep,
+};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 

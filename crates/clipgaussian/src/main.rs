@@ -12,12 +12,12 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use clap::{Parser, Subcommand};
 use gs_core::adam::{AdamHyper, LrSchedule};
-use gs_core::backend::{DeviceChoice, Trainer};
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::{GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{GaussianSet, Image};
+use gs_wgpu::backend::{DeviceChoice, OpenDevice, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
 
 #[derive(Parser)]

@@ -2,8 +2,8 @@
 //! another resolution), and the error of the f32 render and gradients against the f64
 //! reference.
 //!
-//! `cargo bench -p gs-core --bench raster [--features wgpu] [-- [--volume] [--no-reference]
-//! [--backend cpu|wgpu] [--size WxH] COUNT...]` (default counts 10000 100000 1000000); `--volume` times the
+//! `cargo bench -p gs-core --bench raster [-- [--volume] [--no-reference] [--backend cpu|wgpu]
+//! [--size WxH] COUNT...]` (default counts 10000 100000 1000000); `--volume` times the
 //! worst-case volume scene instead of the surface scene, `--no-reference` skips the f64
 //! reference and the error columns, `--backend wgpu` times the wgpu backend (a real GPU when
 //! there is one, else lavapipe) instead of the cpu backend: forward includes reading the image
@@ -123,19 +123,17 @@ fn measure_cpu(g: &GaussianSet, cam: &Camera, bg: [f32; 3], w: &[f32]) -> Measur
     }
 }
 
-#[cfg(feature = "wgpu")]
 fn measure_wgpu(
-    ctx: &gs_core::wgpu::GpuContext,
+    ctx: &gs_wgpu::GpuContext,
     g: &GaussianSet,
     cam: &Camera,
     bg: [f32; 3],
     w: &[f32],
 ) -> Measured {
-    use gs_core::wgpu;
-    let gg = wgpu::GpuGaussians::upload(ctx, g).expect("scene fits on the GPU");
+    let gg = gs_wgpu::GpuGaussians::upload(ctx, g).expect("scene fits on the GPU");
     let (t_fwd, (r, image)) = time(
         || {
-            let r = wgpu::render(ctx, &gg, cam, bg).expect("render");
+            let r = gs_wgpu::render(ctx, &gg, cam, bg).expect("render");
             let image = r.image(ctx);
             (r, image)
         },
@@ -148,7 +146,7 @@ fn measure_wgpu(
     };
     let (t_bwd, grads) = time(
         || {
-            let grads = wgpu::backward(ctx, &gg, &r, &out, GradMask::ALL).expect("backward");
+            let grads = gs_wgpu::backward(ctx, &gg, &r, &out, GradMask::ALL).expect("backward");
             ctx.wait();
             grads
         },
@@ -189,17 +187,15 @@ fn main() {
         .skip_while(|a| a != "--backend")
         .nth(1)
         .unwrap_or_else(|| "cpu".into());
-    #[cfg(feature = "wgpu")]
     let ctx = (backend == "wgpu").then(|| {
-        let ctx = gs_core::wgpu::GpuContext::new(gs_core::wgpu::AdapterChoice::AllowSoftware)
-            .expect("a GPU adapter");
+        let ctx =
+            gs_wgpu::GpuContext::new(gs_wgpu::AdapterChoice::AllowSoftware).expect("a GPU adapter");
         println!("device: {}", ctx.describe());
         ctx
     });
     match backend.as_str() {
         "cpu" => {}
-        "wgpu" if cfg!(feature = "wgpu") => {}
-        "wgpu" => panic!("--backend wgpu needs `--features wgpu`"),
+        "wgpu" => {}
         other => panic!("unknown backend {other}: cpu or wgpu"),
     }
     let counts = if counts.is_empty() {
@@ -241,13 +237,10 @@ fn main() {
             .collect();
         let w32: Vec<f32> = w64.iter().map(|v| *v as f32).collect();
         let bg32 = bg.map(|v| v as f32);
-        #[cfg(feature = "wgpu")]
         let m = match &ctx {
             Some(ctx) => measure_wgpu(ctx, &g32, &cam, bg32, &w32),
             None => measure_cpu(&g32, &cam, bg32, &w32),
         };
-        #[cfg(not(feature = "wgpu"))]
-        let m = measure_cpu(&g32, &cam, bg32, &w32);
         let Measured {
             visible,
             pairs,

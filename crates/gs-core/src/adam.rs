@@ -395,12 +395,12 @@ pub fn rearrange_state(
 }
 
 /// The first and second moments of one trained group, as saved.
-pub(crate) type SavedMoments = (Vec<f32>, Vec<f32>);
+pub type SavedMoments = (Vec<f32>, Vec<f32>);
 
 /// Optimizer state as bytes, little-endian: the magic `CGADAM01`, the `u64` step count and
 /// group count, then per group a `u64` name length, the UTF-8 name, a `u64` value count
 /// (`u64::MAX` for a frozen group, which has no moments) and the `f32` first then second moments.
-pub(crate) fn encode_state<'a>(
+pub fn encode_state<'a>(
     step: u64,
     groups: &[GroupConfig],
     moments: impl Iterator<Item = Option<(&'a [f32], &'a [f32])>>,
@@ -425,7 +425,7 @@ pub(crate) fn encode_state<'a>(
 
 /// Reads state written by [`encode_state`] for an optimizer of `groups` whose trained groups
 /// have `lens[i]` values (`None`: frozen): the step count and the moments of each group.
-pub(crate) fn decode_state(
+pub fn decode_state(
     bytes: &[u8],
     groups: &[GroupConfig],
     lens: &[Option<usize>],

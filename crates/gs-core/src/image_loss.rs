@@ -3,10 +3,9 @@
 
 use rayon::prelude::*;
 
-use crate::backend::{DeviceError, RenderError};
 use crate::image::Image;
 use crate::real::Real;
-use crate::train::{Objective, ObjectiveValue, TrainError};
+use crate::train::{Objective, ObjectiveValue};
 use crate::GsError;
 
 /// Side of the SSIM window, pixels.
@@ -187,26 +186,6 @@ pub struct PhotometricObjective {
     pub targets: Vec<Image>,
     /// Weight of the D-SSIM term (0.2 in 3DGS and MiraGe).
     pub lambda: f32,
-}
-
-/// Why a photometric fit (MiraGe's, VeGaS's) could not run.
-#[derive(Debug, thiserror::Error)]
-pub enum FitError {
-    /// A setting out of its range.
-    #[error("{0}")]
-    Settings(String),
-    /// A camera that could not be built.
-    #[error("{0}")]
-    Camera(#[from] GsError),
-    /// Training stopped with an error.
-    #[error("fitting: {0}")]
-    Train(#[from] TrainError<GsError>),
-    /// The device could not hold the model.
-    #[error("fitting: {0}")]
-    Device(#[from] DeviceError),
-    /// The model could not be rendered.
-    #[error("rendering: {0}")]
-    Render(#[from] RenderError),
 }
 
 /// Checks the settings every photometric fit shares (MiraGe's, VeGaS's): at least one Gaussian

@@ -17,44 +17,19 @@
 //! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
 //! - [`pil_resize`] and [`wide_pictures`]: Pillow's bicubic resize of 8-bit pictures, bit for
 //!   bit, and the authors' loaders' shrinking of pictures wider than 1600 pixels.
-//! - [`backend`]: the device chosen at run time (`cpu|gpu|auto`), training and rendering on it.
-//! - [`wgpu`] (feature `wgpu`, on by default): the GPU backend.
+//!
+//! - [`device`]: the device a run asks for (`cpu|gpu|auto`).
+//!
+//! The GPU backend, and the opening of the device a run asks for, are the gs-wgpu crate
+//! beside this one.
 //!
 //! Conventions follow gsplat's layouts and INRIA's rasterizer rules (near plane, radius, tiles,
 //! gradient at the alpha cap); see `docs/conventions.md` in the repository.
-//!
-//! Rendering a pipeline's own arrays and differentiating the render, on the cpu or (with
-//! `DeviceChoice::Gpu` or `Auto`) on a GPU through the same calls:
-//!
-//! ```
-//! use gs_core::backend::{Backend, DeviceChoice};
-//! use gs_core::raster::GradMask;
-//! use gs_core::{Camera, GaussianSet};
-//!
-//! // One Gaussian at the origin, SH degree 0 ([N, K, 3] = [1, 1, 3]).
-//! let set = GaussianSet::from_arrays(
-//!     vec![0.0, 0.0, 0.0],
-//!     vec![-1.5; 3],
-//!     vec![1.0, 0.0, 0.0, 0.0],
-//!     vec![2.0],
-//!     &[0.5, 0.2, -0.3],
-//! )?;
-//! let camera = Camera::look_at([0.0, 0.0, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 32, 24)?;
-//! let backend: Backend = DeviceChoice::Cpu.open()?;
-//! let renderer = backend.renderer(&set)?;
-//! let render = renderer.render_differentiable(&camera, [1.0; 3])?;
-//! let image = render.image();
-//! // dL/dimage of L = sum of the image: all ones.
-//! let grads = render.backward(&vec![1.0; image.data.len()], GradMask::ALL)?;
-//! assert_eq!(grads.gaussians.means.len(), 3);
-//! assert!(grads.gaussians.sh_dc[0] > 0.0);
-//! # Ok::<(), Box<dyn std::error::Error>>(())
-//! ```
 
 pub mod adam;
-pub mod backend;
 pub mod camera;
 pub mod dataset;
+pub mod device;
 mod error;
 pub mod fs;
 pub mod gaussians;
@@ -72,8 +47,6 @@ pub mod real;
 pub mod render_clamp;
 pub mod sh;
 pub mod train;
-#[cfg(feature = "wgpu")]
-pub mod wgpu;
 pub mod wide_pictures;
 
 pub use camera::Camera;

@@ -3,10 +3,10 @@
 //!
 //! One view's construction is a fallible forward, which returns the Gaussians and a tape (what
 //! the backward of the same step needs: D-MiSo's network graph; `()` for most models), and a
-//! fallible backward that consumes the tape. With gs-core's `wgpu` feature the trait also has
-//! the GPU twins of both, provided: by default the Gaussians are built on the host and
-//! uploaded and their gradient is brought back, so every model trains on either device; a
-//! model overrides them with its own kernels where measurement says they pay.
+//! fallible backward that consumes the tape. The GPU twins of both are gs-wgpu's `GpuModel`
+//! (provided: the Gaussians built on the host and uploaded, their gradient brought back), so
+//! every model trains on either device; a model overrides them with its own kernels where
+//! measurement says they pay.
 
 use std::borrow::Cow;
 
@@ -14,8 +14,6 @@ use crate::adam::{GroupConfig, LrSchedule};
 use crate::camera::Camera;
 use crate::gaussians::{GaussianGrads, GaussianSet, PARAM_NAMES};
 use crate::raster::GradMask;
-#[cfg(feature = "wgpu")]
-use crate::wgpu::{GpuForward, GpuGradients, GpuStep};
 
 /// A model's failure to build or differentiate a view's Gaussians (a network call that
 /// failed, a view out of its range); it keeps its source.
@@ -80,7 +78,7 @@ impl<'a> Group<'a> {
 /// of names and lengths), each trained by its own Adam group, matched to it by name;
 /// gradients come back in the same group order and layout. One step is
 /// [`BaseModel::forward`] -> render -> loss -> rasterizer backward -> [`BaseModel::backward`]
-/// (or their GPU twins) -> Adam.
+/// (or their GPU twins, gs-wgpu's `GpuModel`) -> Adam.
 pub trait BaseModel {
     /// What a view's forward keeps for its backward (`()` when nothing).
     type Tape;
@@ -118,41 +116,6 @@ pub trait BaseModel {
         trained: &[bool],
         out: &mut [Vec<f32>],
     ) -> Result<(), ModelError>;
-
-    /// The GPU twin of [`BaseModel::forward`], from the parameters on the GPU (`gpu.params`;
-    /// the host values of `self` may be stale). Provided: brings the parameters back when they
-    /// changed, builds on the host and uploads (buffers kept in `gpu.scratch` for the next
-    /// step).
-    #[cfg(feature = "wgpu")]
-    fn gpu_forward(
-        &mut self,
-        gpu: &mut GpuStep<'_>,
-        view: &View,
-    ) -> Result<GpuForward<Self::Tape>, ModelError>
-    where
-        Self: Sized,
-    {
-        crate::wgpu::host_forward(self, gpu, view)
-    }
-
-    /// The GPU twin of [`BaseModel::backward`]: the gradient of every group (`None` where
-    /// `trained[i]` is false), given `grads` with respect to the Gaussians of
-    /// [`BaseModel::gpu_forward`] (which may be handed on without a copy). Provided: brings
-    /// the gradient back, runs [`BaseModel::backward`] and uploads the result.
-    #[cfg(feature = "wgpu")]
-    fn gpu_backward(
-        &mut self,
-        gpu: &mut GpuStep<'_>,
-        view: &View,
-        tape: Self::Tape,
-        grads: GpuGradients,
-        trained: &[bool],
-    ) -> Result<Vec<Option<crate::wgpu::Buffer>>, ModelError>
-    where
-        Self: Sized,
-    {
-        crate::wgpu::host_backward(self, gpu, view, tape, grads, trained)
-    }
 }
 
 /// Adds `src` to `dst` for every trained group: the backward of groups rendered as they are.
@@ -221,29 +184,6 @@ impl BaseModel for GaussianSet {
     ) -> Result<(), ModelError> {
         add_identity_grads(grads, trained, out, None);
         Ok(())
-    }
-
-    #[cfg(feature = "wgpu")]
-    fn gpu_forward(
-        &mut self,
-        gpu: &mut GpuStep<'_>,
-        _view: &View,
-    ) -> Result<GpuForward<()>, ModelError> {
-        Ok(GpuForward::untaped(
-            gpu.params.as_gaussians(self.sh_degree()),
-        ))
-    }
-
-    #[cfg(feature = "wgpu")]
-    fn gpu_backward(
-        &mut self,
-        _gpu: &mut GpuStep<'_>,
-        _view: &View,
-        _tape: (),
-        grads: GpuGradients,
-        trained: &[bool],
-    ) -> Result<Vec<Option<crate::wgpu::Buffer>>, ModelError> {
-        Ok(grads.into_trained(trained))
     }
 }
 

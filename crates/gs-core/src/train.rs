@@ -262,7 +262,7 @@ pub enum TrainError<E: std::error::Error + 'static> {
 
 /// How a step ended on a [`StepBackend`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum StepEnd {
+pub enum StepEnd {
     /// The optimizer stepped.
     Taken,
     /// A parameter gradient was not finite; nothing changed.
@@ -271,7 +271,7 @@ pub(crate) enum StepEnd {
 
 /// Why a step on a [`StepBackend`] failed.
 #[derive(Debug)]
-pub(crate) enum StepFailure<E> {
+pub enum StepFailure<E> {
     /// The device failed.
     Device(E),
     /// The model failed.
@@ -285,9 +285,9 @@ impl<E> From<ModelError> for StepFailure<E> {
 }
 
 /// Where the parameters and the optimizer live, and how one step is computed there: the cpu
-/// backend below, the wgpu one in `crate::wgpu`. [`run_steps`] is the loop both share. A step
+/// backend below, the wgpu one in the gs-wgpu crate. [`run_steps`] is the loop both share. A step
 /// is one [`StepBackend::accumulate`] per view of its batch, then [`StepBackend::apply`].
-pub(crate) trait StepBackend {
+pub trait StepBackend {
     /// A failure of the device.
     type Error: std::error::Error + Send + Sync + 'static;
 
@@ -315,7 +315,7 @@ pub(crate) trait StepBackend {
 }
 
 /// The training loop of every backend: see [`train`].
-pub(crate) fn run_steps<B, O, F>(
+pub fn run_steps<B, O, F>(
     backend: &mut B,
     views: &[View],
     objective: &mut O,
@@ -498,7 +498,7 @@ impl<M: BaseModel> StepBackend for CpuBackend<'_, M> {
 }
 
 /// Checks that an optimizer of `optimizer_groups` groups fits a model with `names`.
-pub(crate) fn check_groups<E: std::error::Error>(
+pub fn check_groups<E: std::error::Error>(
     optimizer_groups: usize,
     names: &[String],
 ) -> Result<(), TrainError<E>> {
@@ -516,7 +516,7 @@ pub(crate) fn check_groups<E: std::error::Error>(
 /// Trains `model` on `views` with `objective` and `adam` on the cpu until `adam` has taken
 /// `config.steps` steps, calling `on_step` after each (return `ControlFlow::Break` to stop
 /// early, e.g. on Ctrl-C). A run resumed from a checkpoint passes the restored optimizer and a
-/// sampler advanced by the steps already taken ([`resumed_sampler`]). `crate::wgpu::train` is
+/// sampler advanced by the steps already taken ([`resumed_sampler`]). gs-wgpu's `train` is
 /// the same loop with everything on the GPU.
 pub fn train<M, O, F>(
     model: &mut M,

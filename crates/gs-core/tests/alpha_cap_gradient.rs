@@ -71,18 +71,17 @@ fn the_opacity_gradient_passes_the_cap_as_inria_computes_it() {
 
 /// On the cpu and on wgpu, one Adam step of the loss moves the capped opacity by the full rate
 /// (it would stay where it is with a zero gradient).
-#[cfg(feature = "wgpu")]
 #[test]
 fn a_capped_opacity_moves_on_both_backends() {
     use std::ops::ControlFlow;
     use std::sync::Arc;
 
     use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-    use gs_core::backend::{Backend, Trainer};
     use gs_core::model::{BaseModel, View};
     use gs_core::train::{Objective, ObjectiveValue, TrainConfig, ViewSampler};
-    use gs_core::wgpu::{test_context, GpuOptions};
     use gs_core::Image;
+    use gs_wgpu::backend::{Backend, Trainer};
+    use gs_wgpu::{test_context, GpuOptions};
 
     struct CentrePixel;
     impl Objective for CentrePixel {

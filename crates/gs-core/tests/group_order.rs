@@ -6,12 +6,12 @@ mod common;
 
 use common::random_scene;
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, DeviceError, Trainer};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::View;
 use gs_core::raster::render;
 use gs_core::train::{TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet};
+use gs_wgpu::backend::{Backend, DeviceError, Trainer};
 
 /// Each of the model's groups with a rate of its own; the opacities frozen.
 fn groups() -> Vec<GroupConfig> {

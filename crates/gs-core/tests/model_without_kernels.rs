@@ -2,7 +2,6 @@
 //! through the provided host construction of `BaseModel::gpu_forward` / `gpu_backward`; its
 //! tape reaches the backward of the same step, and its failures stop a run as model errors on
 //! both devices. Needs a GPU adapter (lavapipe in CI).
-#![cfg(feature = "wgpu")]
 
 mod common;
 
@@ -12,7 +11,6 @@ use std::sync::Arc;
 
 use common::random_scene;
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, Trainer};
 use gs_core::gaussians::GaussianGrads;
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{
@@ -20,8 +18,10 @@ use gs_core::model::{
 };
 use gs_core::raster::GradMask;
 use gs_core::train::{BatchOrder, Objective, TrainConfig, TrainError, ViewSampler};
-use gs_core::wgpu::{test_context, GpuOptions};
 use gs_core::{Camera, GaussianSet};
+use gs_wgpu::backend::{Backend, Trainer};
+use gs_wgpu::GpuModel;
+use gs_wgpu::{test_context, GpuOptions};
 
 /// Plain Gaussians slid along x by `shift * (1 + time)`: one extra parameter group of one
 /// value, reached through a computation that fails for times outside [0, 1].
@@ -88,6 +88,9 @@ impl BaseModel for SlidingGaussians {
         Ok(())
     }
 }
+
+/// The provided GPU twins, what this test is about.
+impl GpuModel for SlidingGaussians {}
 
 fn views(times: &[f64]) -> Vec<View> {
     times

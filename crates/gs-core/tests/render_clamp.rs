@@ -2,7 +2,6 @@
 //! `render()`), in the training loop on the cpu and on wgpu: the loss sees the clamped values,
 //! and a Gaussian whose every pixel is above 1 gets no gradient (PyTorch's `clamp` backward), so
 //! it does not move; without the clamp it does. Needs a GPU adapter (lavapipe in CI).
-#![cfg(feature = "wgpu")]
 
 mod common;
 
@@ -10,12 +9,12 @@ use std::ops::ControlFlow;
 use std::sync::Arc;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, Trainer};
 use gs_core::model::{BaseModel, View};
 use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig, ViewSampler};
-use gs_core::wgpu::{test_context, GpuOptions};
 use gs_core::{GaussianSet, Image};
+use gs_wgpu::backend::{Backend, Trainer};
+use gs_wgpu::{test_context, GpuOptions};
 
 /// L = sum of the render; records the largest value it saw.
 struct Sum {

@@ -1,12 +1,11 @@
 //! The wgpu backend's Adam against gs-core's cpu Adam, step for step, with a frozen group and
 //! both schedules. Needs a GPU adapter (lavapipe in CI).
-#![cfg(feature = "wgpu")]
 
 mod common;
 
 use common::{gpu, gpu_with, weights};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_core::wgpu::{GpuAdam, GpuContext, GpuOptions};
+use gs_wgpu::{GpuAdam, GpuContext, GpuOptions};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
@@ -54,9 +53,9 @@ fn check_steps(ctx: &GpuContext) {
         .enumerate()
         .map(|(i, &n)| f32s(weights(100 + i as u64, n)))
         .collect();
-    let buffers: Vec<wgpu::Buffer> = params
+    let buffers: Vec<gs_wgpu::Buffer> = params
         .iter()
-        .map(|p| gs_core::wgpu::upload_f32(ctx, p).expect("upload"))
+        .map(|p| gs_wgpu::upload_f32(ctx, p).expect("upload"))
         .collect();
     for step in 0..10u64 {
         let grads: Vec<Vec<f32>> = lens
@@ -73,20 +72,20 @@ fn check_steps(ctx: &GpuContext) {
                 )
             })
             .collect();
-        let grad_buffers: Vec<wgpu::Buffer> = grads
+        let grad_buffers: Vec<gs_wgpu::Buffer> = grads
             .iter()
-            .map(|g| gs_core::wgpu::upload_f32(ctx, g).expect("upload"))
+            .map(|g| gs_wgpu::upload_f32(ctx, g).expect("upload"))
             .collect();
         {
             let mut slices: Vec<&mut [f32]> = params.iter_mut().map(|p| &mut p[..]).collect();
             let grad_slices: Vec<&[f32]> = grads.iter().map(|g| &g[..]).collect();
             cpu.step(&mut slices, &grad_slices);
         }
-        let param_refs: Vec<&wgpu::Buffer> = buffers.iter().collect();
+        let param_refs: Vec<&gs_wgpu::Buffer> = buffers.iter().collect();
         let grad_refs = [Some(&grad_buffers[0]), None, Some(&grad_buffers[2])];
         gpu_adam.step(ctx, &param_refs, &grad_refs).unwrap();
         for (i, (want, buffer)) in params.iter().zip(&buffers).enumerate() {
-            let got = gs_core::wgpu::read_f32(ctx, buffer, want.len());
+            let got = gs_wgpu::read_f32(ctx, buffer, want.len());
             for (k, (a, b)) in want.iter().zip(&got).enumerate() {
                 assert!(
                     (a - b).abs() <= 1e-7 * a.abs().max(1e-3),

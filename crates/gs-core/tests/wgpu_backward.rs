@@ -2,7 +2,6 @@
 //! random scenes of every SH degree and on each degenerate case of docs/conventions.md, with
 //! native f32 atomics and with the compare-exchange fallback, and with frozen groups. Needs a
 //! GPU adapter (lavapipe in CI): without one these tests fail, naming what to install.
-#![cfg(feature = "wgpu")]
 
 mod common;
 
@@ -12,8 +11,8 @@ use common::{
 };
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
-use gs_core::wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions};
 use gs_core::{Camera, GaussianSet};
+use gs_wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()

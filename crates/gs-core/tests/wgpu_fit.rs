@@ -1,8 +1,7 @@
-//! Training on the GPU with [`gs_core::wgpu::train`]: the test of tests/fit.rs (a random set
+//! Training on the GPU with [`gs_wgpu::train`]: the test of tests/fit.rs (a random set
 //! trained with L1 + D-SSIM towards renders of another scene) with parameters, gradients and
 //! Adam moments on the GPU; it must converge as on the cpu backend, and a non-finite gradient
 //! must stop it as on the cpu, the parameters unchanged. Needs a GPU adapter (lavapipe in CI).
-#![cfg(feature = "wgpu")]
 
 mod common;
 
@@ -13,8 +12,8 @@ use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError, ViewSampler};
-use gs_core::wgpu::{render, train, GpuAdam, GpuContext, GpuGaussians, GpuParams};
 use gs_core::{Camera, GaussianSet, Image};
+use gs_wgpu::{render, train, GpuAdam, GpuContext, GpuGaussians, GpuParams};
 
 fn ring_views(count: usize, size: u32) -> Vec<View> {
     (0..count)

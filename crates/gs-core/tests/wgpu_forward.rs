@@ -1,7 +1,6 @@
 //! The wgpu backend's forward pass against the cpu backend, on random scenes of every SH degree
 //! and on each degenerate case of docs/conventions.md. Needs a GPU adapter (lavapipe in CI):
 //! without one these tests fail, naming what to install.
-#![cfg(feature = "wgpu")]
 
 mod common;
 
@@ -10,8 +9,8 @@ use common::{
     random_scene, stacked_scene, SMALL_BINDING,
 };
 use gs_core::raster::render;
-use gs_core::wgpu::{self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions};
 use gs_core::{Camera, GaussianSet};
+use gs_wgpu::{self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions};
 
 /// Renders `case` on both backends and checks that the image, alpha and depth agree.
 fn check(case: &str, g: &GaussianSet, cam: &Camera, background: [f32; 3], ctx: &GpuContext) {

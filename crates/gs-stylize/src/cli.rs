@@ -12,7 +12,7 @@ use std::process::ExitCode;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
-use gs_core::backend::DeviceChoice;
+use gs_wgpu::backend::DeviceChoice;
 use serde_json::Value;
 
 use crate::evaluation::{ClipFiles, Style};

@@ -9,7 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::backend::DeviceChoice;
+use gs_wgpu::backend::DeviceChoice;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
@@ -210,7 +210,7 @@ pub fn check_prompt(what: &str, prompt: &str) -> Result<(), String> {
 
 /// [`DeviceChoice`] as its name (`"cpu"`, `"gpu"`, `"auto"`) in configuration files.
 mod device_name {
-    use gs_core::backend::DeviceChoice;
+    use gs_wgpu::backend::DeviceChoice;
     use serde::{Deserialize, Deserializer, Serializer};
 
     pub fn serialize<S: Serializer>(device: &DeviceChoice, s: S) -> Result<S::Ok, S::Error> {

@@ -18,8 +18,8 @@
 use std::ops::ControlFlow;
 use std::path::Path;
 
-use gs_core::model::BaseModel;
 use gs_core::train::StepReport;
+use gs_wgpu::GpuModel;
 use serde::Serialize;
 
 use crate::checkpoint::mark_finished;
@@ -36,7 +36,7 @@ pub type OnStep<'a> = &'a mut dyn FnMut(&StepReport) -> ControlFlow<()>;
 /// whole into the run's `config.json`). [`run`] calls these in the module's order.
 pub trait Modality: Serialize {
     /// The model the run stylizes.
-    type Model: BaseModel;
+    type Model: GpuModel;
     /// What the run loads before its base model (the picture, the video, the scene) and what
     /// it keeps for its outputs.
     type Inputs;

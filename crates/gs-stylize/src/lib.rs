@@ -77,13 +77,13 @@ pub enum StylizeError {
     Core(#[from] gs_core::GsError),
     /// The compute device asked for is missing or failed.
     #[error("{0}")]
-    Device(#[from] gs_core::backend::DeviceError),
+    Device(#[from] gs_wgpu::backend::DeviceError),
     /// The style loss's GPU (candle's CUDA or Metal device) is missing or failed.
     #[error("{0}")]
     LossDevice(String),
     /// Rendering a model failed.
     #[error("render: {0}")]
-    Render(#[from] gs_core::backend::RenderError),
+    Render(#[from] gs_wgpu::backend::RenderError),
     /// Training stopped with an error.
     #[error("training: {0}")]
     Train(Box<gs_core::train::TrainError<style_loss::StyleLossError>>),

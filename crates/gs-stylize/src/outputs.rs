@@ -5,10 +5,11 @@
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
-use gs_core::backend::Backend;
-use gs_core::model::{BaseModel, View};
+use gs_core::model::View;
 use gs_core::train::StepReport;
 use gs_core::Image;
+use gs_wgpu::backend::Backend;
+use gs_wgpu::GpuModel;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 
@@ -117,7 +118,7 @@ pub fn write_preview(
 /// Renders `before` and `after` on `backend` from each of the views `which` over `background`
 /// (through each model's own forward) and writes their previews in `dir` ([`write_preview`]);
 /// returns the files.
-pub fn write_previews<M: BaseModel>(
+pub fn write_previews<M: GpuModel>(
     dir: &Path,
     before: &mut M,
     after: &mut M,

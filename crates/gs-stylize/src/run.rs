@@ -13,11 +13,13 @@ use std::sync::Arc;
 
 use candle_core::Device;
 use gs_core::adam::{AdamHyper, GroupConfig};
-use gs_core::backend::{Backend, DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
 use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
 use gs_core::Image;
+use gs_wgpu::backend::OpenDevice;
+use gs_wgpu::backend::{Backend, DeviceChoice, Trainer};
+use gs_wgpu::GpuModel;
 use serde::Serialize;
 use style_loss::compute_device;
 use style_loss::{
@@ -222,7 +224,7 @@ impl PreparedRun {
         job: StylizeJob<M>,
     ) -> Result<StylizeOutcome<M>, StylizeError>
     where
-        M: BaseModel,
+        M: GpuModel,
         C: Serialize,
     {
         let PreparedRun {

@@ -9,11 +9,11 @@ use std::time::Instant;
 
 use candle_core::{Device, Tensor};
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::backend::{Backend, DeviceChoice, Trainer};
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::GradMask;
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig, ViewSampler};
 use gs_core::{Camera, GaussianSet, Image};
+use gs_wgpu::backend::{Backend, DeviceChoice, OpenDevice, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use style_loss::clip::{ClipTextConfig, ClipVisionConfig};

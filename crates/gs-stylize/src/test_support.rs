@@ -70,7 +70,7 @@ pub fn replay_settings(
         style_prompt: Some("fire".into()),
         steps,
         seed,
-        device: gs_core::backend::DeviceChoice::Cpu,
+        device: gs_wgpu::backend::DeviceChoice::Cpu,
         patch_size: 32,
         num_patches: 4,
         checkpoint_every: 0,

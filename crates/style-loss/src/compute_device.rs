@@ -3,7 +3,7 @@
 //! this device and the rasterizer's, once each per step ([`crate::StyleObjective`]).
 
 use candle_core::{Device, Tensor};
-use gs_core::backend::DeviceChoice;
+use gs_core::device::DeviceChoice;
 
 use crate::matmul::checked_matmul;
 

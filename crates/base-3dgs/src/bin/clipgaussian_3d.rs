@@ -17,7 +17,6 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use gs_core::backend::DeviceChoice;
 use gs_core::ply::read_ply;
 use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
@@ -27,6 +26,7 @@ use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
+use gs_wgpu::backend::DeviceChoice;
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]

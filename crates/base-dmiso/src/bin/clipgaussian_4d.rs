@@ -22,7 +22,6 @@ use base_dmiso::stylize::{
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
 use clap::{Args, Parser, Subcommand};
-use gs_core::backend::DeviceChoice;
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_core::Image;
@@ -37,6 +36,7 @@ use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_wgpu::backend::DeviceChoice;
 use style_loss::compute_device;
 use style_loss::image_layout::hwc_to_tensor;
 

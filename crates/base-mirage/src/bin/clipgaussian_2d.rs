@@ -20,7 +20,6 @@ use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{run, MirageError, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
 use clap::{Args, Parser, Subcommand};
-use gs_core::backend::{Backend, DeviceChoice};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
@@ -36,6 +35,7 @@ use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_wgpu::backend::{Backend, DeviceChoice};
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]

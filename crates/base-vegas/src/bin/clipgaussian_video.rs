@@ -19,7 +19,6 @@ use base_vegas::stylize::{run, VideoError, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
 use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
-use gs_core::backend::DeviceChoice;
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
@@ -36,6 +35,7 @@ use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
 use style_loss::image_layout::hwc_to_tensor;
 

@@ -12,7 +12,7 @@
 
 mod bin;
 mod composite;
-pub(crate) mod project;
+pub mod project;
 
 use rayon::prelude::*;
 

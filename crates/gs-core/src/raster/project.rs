@@ -10,21 +10,32 @@ use super::{ALPHA_MIN, EPS2D, FAR_PLANE, NEAR_PLANE};
 
 /// The camera, cast once to the working precision.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct CameraT<T: Real> {
+pub struct CameraT<T: Real> {
+    /// World-to-camera rotation (OpenCV axes), row-major.
     pub rotation: M3<T>,
+    /// World-to-camera translation.
     pub translation: V3<T>,
+    /// The camera's centre in world coordinates.
     pub centre: V3<T>,
+    /// Focal length along x, pixels.
     pub fx: T,
+    /// Focal length along y, pixels.
     pub fy: T,
+    /// Principal point x, pixels.
     pub cx: T,
+    /// Principal point y, pixels.
     pub cy: T,
     /// Clamp limits of `x/z` and `y/z` in the Jacobian: `[-neg_x, pos_x]`, `[-neg_y, pos_y]`.
     pub lim: [T; 4],
+    /// Image width, pixels.
     pub width: T,
+    /// Image height, pixels.
     pub height: T,
 }
 
 impl<T: Real> CameraT<T> {
+    /// `cam` in the working precision, with its Jacobian clamp limits (1.3 times the half
+    /// field of view past each border, as gsplat and INRIA).
     pub fn new(cam: &Camera) -> Self {
         let c = T::from_f64;
         let tan_x = 0.5 * cam.width as f64 / cam.fx;

@@ -71,9 +71,8 @@ pub fn all_finite<T: Real>(v: &[T]) -> bool {
 /// The GPU context shared by a test binary: real GPU first, else a software device. `None`
 /// (the test says it was skipped, and passes) where there is no adapter, unless
 /// `CLIPGAUSSIAN_REQUIRE_GPU_TESTS=1` (`.ci/run`), where it fails naming what to install.
-#[cfg(feature = "wgpu")]
-pub fn gpu() -> Option<&'static gs_core::wgpu::GpuContext> {
-    use gs_core::wgpu::{test_context, GpuContext, GpuOptions};
+pub fn gpu() -> Option<&'static gs_wgpu::GpuContext> {
+    use gs_wgpu::{test_context, GpuContext, GpuOptions};
     static CTX: std::sync::OnceLock<GpuContext> = std::sync::OnceLock::new();
     if let Some(ctx) = CTX.get() {
         return Some(ctx);
@@ -85,15 +84,13 @@ pub fn gpu() -> Option<&'static gs_core::wgpu::GpuContext> {
 
 /// A GPU context of its own with `options` (real GPU first, else a software device), for the
 /// tests of the fallbacks; `None` as [`gpu`] where there is no adapter.
-#[cfg(feature = "wgpu")]
-pub fn gpu_with(options: gs_core::wgpu::GpuOptions) -> Option<gs_core::wgpu::GpuContext> {
-    gs_core::wgpu::test_context(options)
+pub fn gpu_with(options: gs_wgpu::GpuOptions) -> Option<gs_wgpu::GpuContext> {
+    gs_wgpu::test_context(options)
 }
 
 /// The binding limit, bytes, under which the split-array tests run: sixteen times smaller
 /// than a 1 MiB binding, so that a few thousand Gaussians of degree 3 run in 256-Gaussian
 /// chunks and their splats in parts of 1024.
-#[cfg(feature = "wgpu")]
 pub const SMALL_BINDING: u64 = 64 * 1024;
 
 /// One degenerate Gaussian (index 0, after `edit`) in front of a normal one, the scenes of the

@@ -1,15 +1,15 @@
 //! The forward pass on the GPU: projection and SH colour, depth sort, tile binning, sort by
-//! tile, compositing. Same outputs as [`crate::raster::render`].
+//! tile, compositing. Same outputs as [`gs_core::raster::render`].
 
 use super::buffers::{read, storage, storage_per_item, uniform, GpuGaussians};
 use super::device::{Binding, GpuContext, GpuError};
 use super::scan::{prefix_sum, PassUniform};
 use super::shaders::KernelId;
 use super::sort::radix_sort;
-use crate::camera::Camera;
-use crate::image::Image;
-use crate::raster::project::CameraT;
-use crate::raster::TILE_SIZE;
+use gs_core::camera::Camera;
+use gs_core::image::Image;
+use gs_core::raster::project::CameraT;
+use gs_core::raster::TILE_SIZE;
 
 /// Threads of the per-Gaussian and per-item kernels.
 pub(crate) const WORKGROUP: u32 = 256;
@@ -188,7 +188,7 @@ fn splat_bindings<'a>(
     })
 }
 
-/// Renders `gaussians` through `camera` over `background`, as [`crate::raster::render`] does.
+/// Renders `gaussians` through `camera` over `background`, as [`gs_core::raster::render`] does.
 /// Waits for the GPU once, to size the tile lists; the outputs stay on the GPU.
 ///
 /// # Panics

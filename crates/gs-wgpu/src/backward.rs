@@ -1,13 +1,13 @@
 //! The backward pass on the GPU: compositing backward per tile, then projection and SH
-//! backward per Gaussian. Same gradients as [`crate::raster::backward`]; frozen parameter
+//! backward per Gaussian. Same gradients as [`gs_core::raster::backward`]; frozen parameter
 //! groups cost no work and no memory.
 
 use super::buffers::{read, storage, storage_from, storage_per_item, uniform, GpuGaussians};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::{part_bindings, GpuRendered, SPLAT_PARTS};
 use super::shaders::KernelId;
-use crate::gaussians::GaussianGrads;
-use crate::raster::{GradMask, Gradients, OutputGrads};
+use gs_core::gaussians::GaussianGrads;
+use gs_core::raster::{GradMask, Gradients, OutputGrads};
 
 /// Bytes of one Gaussian's gradient slots in the accumulation buffer (`SPLAT_GRADS` `f32`s of
 /// helpers.wgsl).
@@ -35,7 +35,7 @@ pub struct GpuGradients {
 }
 
 impl GpuGradients {
-    /// The gradient buffers in the order of [`crate::gaussians::PARAM_NAMES`] (for
+    /// The gradient buffers in the order of [`gs_core::gaussians::PARAM_NAMES`] (for
     /// [`super::GpuAdam`]); `None` for frozen arrays.
     pub fn buffers(&self) -> [Option<&wgpu::Buffer>; 6] {
         self.arrays.each_ref().map(Option::as_ref)
@@ -73,7 +73,7 @@ impl GpuGradients {
     }
 }
 
-/// The backward pass of [`super::render`], as [`crate::raster::backward`]: given the
+/// The backward pass of [`super::render`], as [`gs_core::raster::backward`]: given the
 /// gradients of a loss with respect to the outputs, the gradients of the parameters `mask`
 /// asks for and of the background. `gaussians` must be the set that was rendered.
 ///
@@ -143,7 +143,7 @@ pub fn backward(
     let mut arrays: [Option<wgpu::Buffer>; 6] = Default::default();
     for (k, ((on, _), bytes)) in wanted.iter().zip(record_bytes).enumerate() {
         if *on {
-            let name = crate::gaussians::PARAM_NAMES[k];
+            let name = gs_core::gaussians::PARAM_NAMES[k];
             arrays[k] = Some(storage_per_item(
                 ctx,
                 &format!("gradient of {name}"),

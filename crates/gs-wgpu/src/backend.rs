@@ -6,62 +6,24 @@
 //! (Mesa's lavapipe) is for tests, never a default: `gpu` refuses it unless the environment
 //! variable [`ALLOW_SOFTWARE_GPU`] is `1`.
 
-use std::fmt;
 use std::ops::ControlFlow;
-use std::str::FromStr;
-#[cfg(feature = "wgpu")]
 use std::sync::Arc;
 
-use crate::adam::{Adam, AdamHyper, GroupConfig};
-use crate::camera::Camera;
-use crate::gaussians::GaussianSet;
-use crate::image::Image;
-use crate::model::{BaseModel, ModelError, View};
-use crate::raster::{GradMask, Gradients, OutputGrads};
-use crate::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
-#[cfg(feature = "wgpu")]
-use crate::wgpu::{
-    training_bytes, AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuParams,
+use crate::{
+    training_bytes, AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuModel, GpuParams,
 };
-use crate::GsError;
+use gs_core::adam::{Adam, AdamHyper, GroupConfig};
+use gs_core::camera::Camera;
+pub use gs_core::device::DeviceChoice;
+use gs_core::gaussians::GaussianSet;
+use gs_core::image::Image;
+use gs_core::model::{ModelError, View};
+use gs_core::raster::{GradMask, Gradients, OutputGrads};
+use gs_core::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
+use gs_core::GsError;
 
 /// The environment variable that lets `gpu` take a software adapter (for tests on lavapipe).
 pub const ALLOW_SOFTWARE_GPU: &str = "CLIPGAUSSIAN_ALLOW_SOFTWARE_GPU";
-
-/// The device asked for: `cpu`, `gpu` or `auto`.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub enum DeviceChoice {
-    /// The cpu backend (rayon).
-    Cpu,
-    /// A real GPU through wgpu; an error when there is none.
-    Gpu,
-    /// A real GPU when there is one, else the cpu.
-    #[default]
-    Auto,
-}
-
-impl FromStr for DeviceChoice {
-    type Err = String;
-
-    fn from_str(s: &str) -> Result<Self, String> {
-        match s {
-            "cpu" => Ok(Self::Cpu),
-            "gpu" => Ok(Self::Gpu),
-            "auto" => Ok(Self::Auto),
-            other => Err(format!("device {other:?} is not one of cpu, gpu, auto")),
-        }
-    }
-}
-
-impl fmt::Display for DeviceChoice {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(match self {
-            Self::Cpu => "cpu",
-            Self::Gpu => "gpu",
-            Self::Auto => "auto",
-        })
-    }
-}
 
 /// Why the device asked for cannot be used.
 #[derive(Debug, thiserror::Error)]
@@ -70,19 +32,27 @@ pub enum DeviceError {
     #[error("--device gpu: {0}")]
     NoGpu(String),
     /// The GPU failed.
-    #[cfg(feature = "wgpu")]
     #[error("GPU: {0}")]
     Gpu(#[from] GpuError),
-    /// The optimizer's groups do not name the model's ([`crate::adam::groups_in_model_order`]).
+    /// The optimizer's groups do not name the model's ([`gs_core::adam::groups_in_model_order`]).
     #[error("optimizer: {0}")]
     Groups(String),
 }
 
-impl DeviceChoice {
+/// Opening the device a [`DeviceChoice`] names.
+pub trait OpenDevice {
     /// Opens the device: the cpu, or a GPU adapter as described in the module documentation;
     /// `gpu` takes a software adapter only when `allow_software` (an embedder's switch; the
-    /// binaries and tests set it with [`ALLOW_SOFTWARE_GPU`], see [`DeviceChoice::open`]).
-    pub fn open_with(self, allow_software: bool) -> Result<Backend, DeviceError> {
+    /// binaries and tests set it with [`ALLOW_SOFTWARE_GPU`], see [`OpenDevice::open`]).
+    fn open_with(self, allow_software: bool) -> Result<Backend, DeviceError>;
+
+    /// [`OpenDevice::open_with`], allowing a software adapter when the environment variable
+    /// [`ALLOW_SOFTWARE_GPU`] is `1`.
+    fn open(self) -> Result<Backend, DeviceError>;
+}
+
+impl OpenDevice for DeviceChoice {
+    fn open_with(self, allow_software: bool) -> Result<Backend, DeviceError> {
         match self {
             Self::Cpu => Ok(Backend::Cpu),
             Self::Gpu => open_gpu(allow_software),
@@ -90,29 +60,19 @@ impl DeviceChoice {
         }
     }
 
-    /// [`DeviceChoice::open_with`], allowing a software adapter when the environment variable
-    /// [`ALLOW_SOFTWARE_GPU`] is `1`.
-    pub fn open(self) -> Result<Backend, DeviceError> {
+    fn open(self) -> Result<Backend, DeviceError> {
         self.open_with(std::env::var(ALLOW_SOFTWARE_GPU).is_ok_and(|v| v == "1"))
     }
 }
 
 /// A real GPU, when there is one.
-#[cfg(feature = "wgpu")]
 fn open_hardware_gpu() -> Option<Backend> {
     GpuContext::new(AdapterChoice::Hardware)
         .ok()
         .map(|ctx| Backend::Gpu(Arc::new(ctx)))
 }
 
-/// Built without the wgpu backend: never a GPU.
-#[cfg(not(feature = "wgpu"))]
-fn open_hardware_gpu() -> Option<Backend> {
-    None
-}
-
 /// A real GPU, or a software one when `software` is allowed.
-#[cfg(feature = "wgpu")]
 fn open_gpu(software: bool) -> Result<Backend, DeviceError> {
     let choice = if software {
         AdapterChoice::AllowSoftware
@@ -129,7 +89,6 @@ fn open_gpu(software: bool) -> Result<Backend, DeviceError> {
 /// Why `--device gpu` found no adapter, from the adapters wgpu saw (`"none"` when it saw none):
 /// with none, what is missing (a Vulkan loader and driver; in a container, the driver's graphics
 /// capability), else that only software devices were there.
-#[cfg(feature = "wgpu")]
 fn no_adapter_message(seen: &str) -> String {
     let missing = if seen == "none" {
         "wgpu sees no Vulkan, Metal or DX12 device at all: on Linux the Vulkan loader (libvulkan1) \
@@ -145,21 +104,12 @@ fn no_adapter_message(seen: &str) -> String {
     format!("no GPU adapter ({missing}); use --device cpu or auto to run on the cpu")
 }
 
-/// Built without the wgpu backend: `gpu` is an error.
-#[cfg(not(feature = "wgpu"))]
-fn open_gpu(_software: bool) -> Result<Backend, DeviceError> {
-    Err(DeviceError::NoGpu(
-        "gs-core was built without its wgpu feature; use --device cpu".into(),
-    ))
-}
-
 /// An opened device.
 #[derive(Clone, Debug)]
 pub enum Backend {
     /// The cpu backend: the rayon rasterizer and [`Adam`].
     Cpu,
     /// The wgpu backend on one adapter.
-    #[cfg(feature = "wgpu")]
     Gpu(Arc<GpuContext>),
 }
 
@@ -168,7 +118,6 @@ impl Backend {
     pub fn describe(&self) -> String {
         match self {
             Self::Cpu => format!("cpu (rayon, {} threads)", rayon::current_num_threads()),
-            #[cfg(feature = "wgpu")]
             Self::Gpu(ctx) => format!("gpu: {}", ctx.describe()),
         }
     }
@@ -177,7 +126,6 @@ impl Backend {
     pub fn renderer<'a>(&self, gaussians: &'a GaussianSet) -> Result<Renderer<'a>, DeviceError> {
         match self {
             Self::Cpu => Ok(Renderer::Cpu(gaussians)),
-            #[cfg(feature = "wgpu")]
             Self::Gpu(ctx) => Ok(Renderer::Gpu {
                 gaussians: Box::new(GpuGaussians::upload(ctx, gaussians)?),
                 ctx: Arc::clone(ctx),
@@ -197,7 +145,6 @@ pub enum RenderError {
     Model(ModelError),
 }
 
-#[cfg(feature = "wgpu")]
 impl From<GpuError> for RenderError {
     fn from(e: GpuError) -> Self {
         Self::Device(e.into())
@@ -207,13 +154,12 @@ impl From<GpuError> for RenderError {
 impl Backend {
     /// A renderer of `model` on this device, view by view through the model's own forward
     /// (on a GPU its parameters are uploaded once and each view's Gaussians built there).
-    pub fn model_renderer<'m, M: BaseModel>(
+    pub fn model_renderer<'m, M: GpuModel>(
         &self,
         model: &'m mut M,
     ) -> Result<ModelRenderer<'m, M>, RenderError> {
         let device = match self {
             Self::Cpu => ModelDevice::Cpu,
-            #[cfg(feature = "wgpu")]
             Self::Gpu(ctx) => ModelDevice::Gpu {
                 params: Box::new(GpuParams::upload(ctx, model)?),
                 scratch: Box::default(),
@@ -227,11 +173,10 @@ impl Backend {
 /// Where a [`ModelRenderer`] builds and renders.
 enum ModelDevice {
     Cpu,
-    #[cfg(feature = "wgpu")]
     Gpu {
         ctx: Arc<GpuContext>,
         params: Box<GpuParams>,
-        scratch: Box<crate::wgpu::GpuScratch>,
+        scratch: Box<crate::GpuScratch>,
     },
 }
 
@@ -242,27 +187,25 @@ pub struct ModelRenderer<'m, M> {
     device: ModelDevice,
 }
 
-impl<M: BaseModel> ModelRenderer<'_, M> {
+impl<M: GpuModel> ModelRenderer<'_, M> {
     /// The image of `view` over `background`.
     pub fn render(&mut self, view: &View, background: [f32; 3]) -> Result<Image, RenderError> {
         match &mut self.device {
             ModelDevice::Cpu => {
                 let forward = self.model.forward(view).map_err(RenderError::Model)?;
-                Ok(crate::raster::render(&forward.gaussians, &view.camera, background).image)
+                Ok(gs_core::raster::render(&forward.gaussians, &view.camera, background).image)
             }
-            #[cfg(feature = "wgpu")]
             ModelDevice::Gpu {
                 ctx,
                 params,
                 scratch,
             } => {
-                let gaussians =
-                    crate::wgpu::gaussians_for_view(self.model, ctx, params, scratch, view)
-                        .map_err(|e| match e.downcast::<GpuError>() {
-                            Ok(gpu) => RenderError::from(*gpu),
-                            Err(e) => RenderError::Model(e),
-                        })?;
-                Ok(crate::wgpu::render(ctx, &gaussians, &view.camera, background)?.image(ctx))
+                let gaussians = crate::gaussians_for_view(self.model, ctx, params, scratch, view)
+                    .map_err(|e| match e.downcast::<GpuError>() {
+                    Ok(gpu) => RenderError::from(*gpu),
+                    Err(e) => RenderError::Model(e),
+                })?;
+                Ok(crate::render(ctx, &gaussians, &view.camera, background)?.image(ctx))
             }
         }
     }
@@ -273,7 +216,6 @@ pub enum Renderer<'a> {
     /// The cpu rasterizer.
     Cpu(&'a GaussianSet),
     /// The set on a GPU.
-    #[cfg(feature = "wgpu")]
     Gpu {
         /// The device.
         ctx: Arc<GpuContext>,
@@ -286,10 +228,9 @@ impl Renderer<'_> {
     /// The image through `camera` over `background`.
     pub fn render(&self, camera: &Camera, background: [f32; 3]) -> Result<Image, DeviceError> {
         match self {
-            Self::Cpu(g) => Ok(crate::raster::render(g, camera, background).image),
-            #[cfg(feature = "wgpu")]
+            Self::Cpu(g) => Ok(gs_core::raster::render(g, camera, background).image),
             Self::Gpu { ctx, gaussians } => {
-                Ok(crate::wgpu::render(ctx, gaussians, camera, background)?.image(ctx))
+                Ok(crate::render(ctx, gaussians, camera, background)?.image(ctx))
             }
         }
     }
@@ -305,11 +246,10 @@ impl Renderer<'_> {
             Self::Cpu(g) => RenderState::Cpu {
                 gaussians: g,
                 camera: camera.clone(),
-                rendered: Box::new(crate::raster::render(g, camera, background)),
+                rendered: Box::new(gs_core::raster::render(g, camera, background)),
             },
-            #[cfg(feature = "wgpu")]
             Self::Gpu { ctx, gaussians } => RenderState::Gpu {
-                rendered: Box::new(crate::wgpu::render(ctx, gaussians, camera, background)?),
+                rendered: Box::new(crate::render(ctx, gaussians, camera, background)?),
                 ctx,
                 gaussians,
             },
@@ -327,13 +267,12 @@ enum RenderState<'r> {
     Cpu {
         gaussians: &'r GaussianSet,
         camera: Camera,
-        rendered: Box<crate::raster::Rendered>,
+        rendered: Box<gs_core::raster::Rendered>,
     },
-    #[cfg(feature = "wgpu")]
     Gpu {
         ctx: &'r GpuContext,
         gaussians: &'r GpuGaussians,
-        rendered: Box<crate::wgpu::GpuRendered>,
+        rendered: Box<crate::GpuRendered>,
     },
 }
 
@@ -342,7 +281,6 @@ impl DifferentiableRender<'_> {
     pub fn image(&self) -> Image {
         match &self.state {
             RenderState::Cpu { rendered, .. } => rendered.image.clone(),
-            #[cfg(feature = "wgpu")]
             RenderState::Gpu { ctx, rendered, .. } => rendered.image(ctx),
         }
     }
@@ -363,15 +301,14 @@ impl DifferentiableRender<'_> {
                 gaussians,
                 camera,
                 rendered,
-            } => Ok(crate::raster::backward(
+            } => Ok(gs_core::raster::backward(
                 gaussians, camera, rendered, &out, mask,
             )),
-            #[cfg(feature = "wgpu")]
             RenderState::Gpu {
                 ctx,
                 gaussians,
                 rendered,
-            } => Ok(crate::wgpu::backward(ctx, gaussians, rendered, &out, mask)?.download(ctx)),
+            } => Ok(crate::backward(ctx, gaussians, rendered, &out, mask)?.download(ctx)),
         }
     }
 }
@@ -379,7 +316,6 @@ impl DifferentiableRender<'_> {
 /// Where a trainer's parameters and optimizer live.
 enum State {
     Cpu(Adam),
-    #[cfg(feature = "wgpu")]
     Gpu {
         ctx: Arc<GpuContext>,
         params: GpuParams,
@@ -387,8 +323,8 @@ enum State {
     },
 }
 
-/// A model and its optimizer on one device, trained by [`crate::train::train`] or
-/// [`crate::wgpu::train`]. On a GPU the parameters and moments are uploaded once and read
+/// A model and its optimizer on one device, trained by [`gs_core::train::train`] or
+/// [`gs_core::train`]. On a GPU the parameters and moments are uploaded once and read
 /// back on request (and, for a model on the provided host construction, after each step that
 /// changed them) ([`Trainer::param_groups`], [`Trainer::save_optimizer`],
 /// [`Trainer::into_model`]); optimizer state is in one format on both devices, so a run saved
@@ -398,21 +334,20 @@ pub struct Trainer<M> {
     state: State,
 }
 
-impl<M: BaseModel> Trainer<M> {
+impl<M: GpuModel> Trainer<M> {
     /// `model` with a fresh Adam over `groups` (one per parameter group, matched to the model's
     /// groups by name in any order) on `backend`.
     pub fn new(
         backend: &Backend,
-        #[cfg_attr(not(feature = "wgpu"), allow(unused_mut))] mut model: M,
+        mut model: M,
         groups: Vec<GroupConfig>,
         hyper: AdamHyper,
     ) -> Result<Self, DeviceError> {
-        let groups = crate::adam::groups_in_model_order(groups, &model.group_names())
+        let groups = gs_core::adam::groups_in_model_order(groups, &model.group_names())
             .map_err(DeviceError::Groups)?;
         let lens = model.group_lens();
         let state = match backend {
             Backend::Cpu => State::Cpu(Adam::new(groups, &lens, hyper)),
-            #[cfg(feature = "wgpu")]
             Backend::Gpu(ctx) => {
                 let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
                 let needs = |e: GpuError| e.with_run_needs(training_bytes(&lens, &trained, 0, 0));
@@ -430,13 +365,12 @@ impl<M: BaseModel> Trainer<M> {
     pub fn step_count(&self) -> u64 {
         match &self.state {
             State::Cpu(adam) => adam.step_count(),
-            #[cfg(feature = "wgpu")]
             State::Gpu { adam, .. } => adam.step_count(),
         }
     }
 
     /// Trains until the optimizer has taken `config.steps` steps or `on_step` breaks (see
-    /// [`crate::train::train`]).
+    /// [`gs_core::train::train`]).
     pub fn train<O, F>(
         &mut self,
         views: &[View],
@@ -450,7 +384,7 @@ impl<M: BaseModel> Trainer<M> {
         F: FnMut(&StepReport) -> ControlFlow<()>,
     {
         match &mut self.state {
-            State::Cpu(adam) => crate::train::train(
+            State::Cpu(adam) => gs_core::train::train(
                 &mut self.model,
                 views,
                 objective,
@@ -459,8 +393,7 @@ impl<M: BaseModel> Trainer<M> {
                 config,
                 on_step,
             ),
-            #[cfg(feature = "wgpu")]
-            State::Gpu { ctx, params, adam } => crate::wgpu::train(
+            State::Gpu { ctx, params, adam } => crate::train(
                 ctx,
                 &mut self.model,
                 params,
@@ -475,7 +408,7 @@ impl<M: BaseModel> Trainer<M> {
     }
 
     /// The current values of every parameter group, in
-    /// [`crate::model::BaseModel::group_names`] order (read
+    /// [`gs_core::model::BaseModel::group_names`] order (read
     /// back from a GPU).
     pub fn param_groups(&mut self) -> Vec<Vec<f32>> {
         match &self.state {
@@ -485,7 +418,6 @@ impl<M: BaseModel> Trainer<M> {
                 .into_iter()
                 .map(|g| g.to_vec())
                 .collect(),
-            #[cfg(feature = "wgpu")]
             State::Gpu { ctx, params, .. } => params.download(ctx),
         }
     }
@@ -494,7 +426,6 @@ impl<M: BaseModel> Trainer<M> {
     pub fn save_optimizer(&self) -> Vec<u8> {
         match &self.state {
             State::Cpu(adam) => adam.save_state(),
-            #[cfg(feature = "wgpu")]
             State::Gpu { ctx, adam, .. } => adam.save_state(ctx),
         }
     }
@@ -503,7 +434,6 @@ impl<M: BaseModel> Trainer<M> {
     pub fn restore_optimizer(&mut self, bytes: &[u8]) -> Result<(), GsError> {
         match &mut self.state {
             State::Cpu(adam) => adam.restore_state(bytes),
-            #[cfg(feature = "wgpu")]
             State::Gpu { ctx, adam, .. } => adam.restore_state(ctx, bytes),
         }
     }
@@ -512,7 +442,6 @@ impl<M: BaseModel> Trainer<M> {
     pub fn into_model(self) -> M {
         match self.state {
             State::Cpu(_) => self.model,
-            #[cfg(feature = "wgpu")]
             State::Gpu { ctx, params, .. } => {
                 let mut model = self.model;
                 params.download_into(&ctx, &mut model);
@@ -526,7 +455,6 @@ impl<M: BaseModel> Trainer<M> {
 mod tests {
     use super::*;
 
-    #[cfg(feature = "wgpu")]
     #[test]
     fn no_adapter_says_what_is_missing() {
         let none = no_adapter_message("none");

@@ -1,5 +1,5 @@
-//! The training loop on the GPU: [`crate::train::train`]'s loop (the same sampler, objective,
-//! reports, callback and checks) over a model built on the GPU ([`BaseModel::gpu_forward`]),
+//! The training loop on the GPU: [`gs_core::train::train`]'s loop (the same sampler, objective,
+//! reports, callback and checks) over a model built on the GPU ([`GpuModel::gpu_forward`]),
 //! with the parameters, gradients and Adam moments staying there. Per step the image is read
 //! back, dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag);
 //! a model on the provided host construction also moves its parameters (when they changed),
@@ -13,12 +13,12 @@ use super::buffers::{read, storage, zeroed_f32};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
 use super::memory::{trained_values, training_bytes};
-use super::model::{GpuForward, GpuParams, GpuScratch, GpuStep};
+use super::model::{GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
-use crate::image::Image;
-use crate::model::{BaseModel, ModelError, View};
-use crate::raster::{GradMask, OutputGrads};
-use crate::train::{
+use gs_core::image::Image;
+use gs_core::model::{ModelError, View};
+use gs_core::raster::{GradMask, OutputGrads};
+use gs_core::train::{
     check_groups, run_steps, Objective, StepBackend, StepEnd, StepFailure, StepReport, TrainConfig,
     TrainError, ViewSampler,
 };
@@ -43,7 +43,7 @@ struct GpuBackend<'a, M> {
     views: usize,
 }
 
-impl<M: BaseModel> StepBackend for GpuBackend<'_, M> {
+impl<M: GpuModel> StepBackend for GpuBackend<'_, M> {
     type Error = GpuError;
 
     fn step_count(&self) -> u64 {
@@ -221,7 +221,7 @@ fn all_finite(
 
 /// Trains `model`, whose parameters are `params` on the GPU of `ctx`, on `views` with
 /// `objective` and `adam` until `adam` has taken `config.steps` steps, exactly as
-/// [`crate::train::train`] does on the cpu (same view order, reports, callback and errors).
+/// [`gs_core::train::train`] does on the cpu (same view order, reports, callback and errors).
 /// The parameters stay on the GPU: read them with [`GpuParams::download_into`].
 #[allow(clippy::too_many_arguments)]
 pub fn train<M, O, F>(
@@ -236,7 +236,7 @@ pub fn train<M, O, F>(
     on_step: F,
 ) -> Result<(), TrainError<O::Error>>
 where
-    M: BaseModel,
+    M: GpuModel,
     O: Objective,
     F: FnMut(&StepReport) -> ControlFlow<()>,
 {

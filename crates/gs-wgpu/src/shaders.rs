@@ -11,85 +11,85 @@
 const FILES: &[(&str, &str)] = &[
     (
         "helpers.wgsl",
-        include_str!("../../../../shaders/helpers.wgsl"),
+        include_str!("../../../shaders/helpers.wgsl"),
     ),
-    ("sh.wgsl", include_str!("../../../../shaders/sh.wgsl")),
-    ("chunk.wgsl", include_str!("../../../../shaders/chunk.wgsl")),
+    ("sh.wgsl", include_str!("../../../shaders/sh.wgsl")),
+    ("chunk.wgsl", include_str!("../../../shaders/chunk.wgsl")),
     (
         "splat_parts.wgsl",
-        include_str!("../../../../shaders/splat_parts.wgsl"),
+        include_str!("../../../shaders/splat_parts.wgsl"),
     ),
     (
         "project.wgsl",
-        include_str!("../../../../shaders/project.wgsl"),
+        include_str!("../../../shaders/project.wgsl"),
     ),
     (
         "accumulate_float_atomic.wgsl",
-        include_str!("../../../../shaders/accumulate_float_atomic.wgsl"),
+        include_str!("../../../shaders/accumulate_float_atomic.wgsl"),
     ),
     (
         "accumulate_parts.wgsl",
-        include_str!("../../../../shaders/accumulate_parts.wgsl"),
+        include_str!("../../../shaders/accumulate_parts.wgsl"),
     ),
     (
         "accumulate_cas.wgsl",
-        include_str!("../../../../shaders/accumulate_cas.wgsl"),
+        include_str!("../../../shaders/accumulate_cas.wgsl"),
     ),
     (
         "project_forward.wgsl",
-        include_str!("../../../../shaders/project_forward.wgsl"),
+        include_str!("../../../shaders/project_forward.wgsl"),
     ),
     (
         "bin_counts.wgsl",
-        include_str!("../../../../shaders/bin_counts.wgsl"),
+        include_str!("../../../shaders/bin_counts.wgsl"),
     ),
     (
         "bin_tiles.wgsl",
-        include_str!("../../../../shaders/bin_tiles.wgsl"),
+        include_str!("../../../shaders/bin_tiles.wgsl"),
     ),
     (
         "prefix_sum_blocks.wgsl",
-        include_str!("../../../../shaders/prefix_sum_blocks.wgsl"),
+        include_str!("../../../shaders/prefix_sum_blocks.wgsl"),
     ),
     (
         "prefix_sum_add.wgsl",
-        include_str!("../../../../shaders/prefix_sum_add.wgsl"),
+        include_str!("../../../shaders/prefix_sum_add.wgsl"),
     ),
     (
         "radix_sort_count.wgsl",
-        include_str!("../../../../shaders/radix_sort_count.wgsl"),
+        include_str!("../../../shaders/radix_sort_count.wgsl"),
     ),
     (
         "radix_sort_scatter.wgsl",
-        include_str!("../../../../shaders/radix_sort_scatter.wgsl"),
+        include_str!("../../../shaders/radix_sort_scatter.wgsl"),
     ),
     (
         "tile_ranges.wgsl",
-        include_str!("../../../../shaders/tile_ranges.wgsl"),
+        include_str!("../../../shaders/tile_ranges.wgsl"),
     ),
     (
         "composite_forward.wgsl",
-        include_str!("../../../../shaders/composite_forward.wgsl"),
+        include_str!("../../../shaders/composite_forward.wgsl"),
     ),
     (
         "composite_backward.wgsl",
-        include_str!("../../../../shaders/composite_backward.wgsl"),
+        include_str!("../../../shaders/composite_backward.wgsl"),
     ),
     (
         "project_backward.wgsl",
-        include_str!("../../../../shaders/project_backward.wgsl"),
+        include_str!("../../../shaders/project_backward.wgsl"),
     ),
     (
         "adam_step.wgsl",
-        include_str!("../../../../shaders/adam_step.wgsl"),
+        include_str!("../../../shaders/adam_step.wgsl"),
     ),
     (
         "check_finite.wgsl",
-        include_str!("../../../../shaders/check_finite.wgsl"),
+        include_str!("../../../shaders/check_finite.wgsl"),
     ),
     (
         "add_into.wgsl",
-        include_str!("../../../../shaders/add_into.wgsl"),
+        include_str!("../../../shaders/add_into.wgsl"),
     ),
 ];
 

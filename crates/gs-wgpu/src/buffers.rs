@@ -4,7 +4,7 @@
 use wgpu::util::DeviceExt;
 
 use super::device::{Binding, GpuContext, GpuError};
-use crate::gaussians::{GaussianSet, PARAM_NAMES};
+use gs_core::gaussians::{GaussianSet, PARAM_NAMES};
 
 /// Smallest buffer created: bindings cannot be empty, and the largest element (a splat) is 64
 /// bytes.
@@ -229,7 +229,7 @@ impl GpuGaussians {
     /// Bytes of one Gaussian's record in each array, in the order of [`PARAM_NAMES`]
     /// (`sh_rest` is empty at degree 0).
     pub(crate) fn record_bytes(&self) -> [u64; 6] {
-        let rest = 3 * (crate::gaussians::sh_coeff_count(self.sh_degree) - 1);
+        let rest = 3 * (gs_core::gaussians::sh_coeff_count(self.sh_degree) - 1);
         [3, 3, 4, 1, 3, rest].map(|floats| 4 * floats as u64)
     }
 

@@ -1,11 +1,11 @@
-//! Adam on the GPU: the update of [`crate::adam::Adam`], step for step, with the moments kept
+//! Adam on the GPU: the update of [`gs_core::adam::Adam`], step for step, with the moments kept
 //! on the GPU next to the parameters.
 
 use super::buffers::{read, storage_per_item, uniform};
 use super::device::{Binding, GpuContext, GpuError};
 use super::shaders::KernelId;
-use crate::adam::{decode_state, encode_state, AdamHyper, GroupConfig};
-use crate::GsError;
+use gs_core::adam::{decode_state, encode_state, AdamHyper, GroupConfig};
+use gs_core::GsError;
 
 /// The uniform of adam_step.wgsl.
 #[repr(C)]
@@ -27,7 +27,7 @@ struct Moments {
 }
 
 /// Adam over a fixed list of parameter groups living on the GPU (PyTorch's update rule with
-/// bias correction, as [`crate::adam::Adam`]); frozen groups get no moments and no work.
+/// bias correction, as [`gs_core::adam::Adam`]); frozen groups get no moments and no work.
 pub struct GpuAdam {
     hyper: AdamHyper,
     groups: Vec<GroupConfig>,
@@ -79,7 +79,7 @@ impl GpuAdam {
     }
 
     /// The state (step count and every moment, read back) as bytes, in the format of
-    /// [`crate::adam::Adam::save_state`]: either optimizer resumes from the other's state.
+    /// [`gs_core::adam::Adam::save_state`]: either optimizer resumes from the other's state.
     pub fn save_state(&self, ctx: &GpuContext) -> Vec<u8> {
         let moments: Vec<Option<(Vec<f32>, Vec<f32>)>> = (0..self.groups.len())
             .map(|i| self.moments(ctx, i))
@@ -93,7 +93,7 @@ impl GpuAdam {
         )
     }
 
-    /// Restores state saved by [`GpuAdam::save_state`] or [`crate::adam::Adam::save_state`]
+    /// Restores state saved by [`GpuAdam::save_state`] or [`gs_core::adam::Adam::save_state`]
     /// into an optimizer with the same groups (names, sizes and frozen flags); anything else is
     /// an error that names the difference, and changes nothing.
     pub fn restore_state(&mut self, ctx: &GpuContext, bytes: &[u8]) -> Result<(), GsError> {

@@ -1,8 +1,9 @@
 //! The GPU side of a base model: its parameter groups resident on the GPU ([`GpuParams`]),
 //! what a model's GPU construction works with in one step ([`GpuStep`]: the device, the
 //! parameters, buffers kept from step to step in a [`GpuScratch`]), what it returns
-//! ([`GpuForward`]), and the provided construction of every model without kernels of its own
-//! ([`host_forward`], [`host_backward`]): build on the host, upload, bring the gradient back.
+//! ([`GpuForward`]), the GPU twins of a model's forward and backward ([`GpuModel`]), and the
+//! provided construction of every model without kernels of its own ([`host_forward`],
+//! [`host_backward`]): build on the host, upload, bring the gradient back.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -10,7 +11,66 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use super::backward::GpuGradients;
 use super::buffers::{per_item_from, read, GpuGaussians};
 use super::device::{GpuContext, GpuError};
-use crate::model::{BaseModel, Forward, ModelError, View};
+use gs_core::gaussians::GaussianSet;
+use gs_core::model::{BaseModel, Forward, ModelError, View};
+
+/// The GPU twins of a [`BaseModel`]'s forward and backward. Both are provided: the Gaussians
+/// are built on the host and uploaded, and their gradient is brought back ([`host_forward`],
+/// [`host_backward`]), so a model trains and renders on a GPU with `impl GpuModel for M {}`;
+/// a model overrides them with its own kernels where measurement says they pay.
+pub trait GpuModel: BaseModel + Sized {
+    /// The GPU twin of [`BaseModel::forward`], from the parameters on the GPU (`gpu.params`;
+    /// the host values of `self` may be stale). Provided: brings the parameters back when they
+    /// changed, builds on the host and uploads (buffers kept in `gpu.scratch` for the next
+    /// step).
+    fn gpu_forward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        view: &View,
+    ) -> Result<GpuForward<Self::Tape>, ModelError> {
+        host_forward(self, gpu, view)
+    }
+
+    /// The GPU twin of [`BaseModel::backward`]: the gradient of every group (`None` where
+    /// `trained[i]` is false), given `grads` with respect to the Gaussians of
+    /// [`GpuModel::gpu_forward`] (which may be handed on without a copy). Provided: brings
+    /// the gradient back, runs [`BaseModel::backward`] and uploads the result.
+    fn gpu_backward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        view: &View,
+        tape: Self::Tape,
+        grads: GpuGradients,
+        trained: &[bool],
+    ) -> Result<Vec<Option<wgpu::Buffer>>, ModelError> {
+        host_backward(self, gpu, view, tape, grads, trained)
+    }
+}
+
+/// Plain 3D Gaussians render their parameters as they are: the GPU forward hands the
+/// parameter buffers on, the backward the gradient of the trained arrays.
+impl GpuModel for GaussianSet {
+    fn gpu_forward(
+        &mut self,
+        gpu: &mut GpuStep<'_>,
+        _view: &View,
+    ) -> Result<GpuForward<()>, ModelError> {
+        Ok(GpuForward::untaped(
+            gpu.params.as_gaussians(self.sh_degree()),
+        ))
+    }
+
+    fn gpu_backward(
+        &mut self,
+        _gpu: &mut GpuStep<'_>,
+        _view: &View,
+        _tape: (),
+        grads: GpuGradients,
+        trained: &[bool],
+    ) -> Result<Vec<Option<wgpu::Buffer>>, ModelError> {
+        Ok(grads.into_trained(trained))
+    }
+}
 
 /// A model's parameter groups on the GPU, one buffer per group in
 /// [`BaseModel::group_names`] order: uploaded once, read back on request (checkpoints,
@@ -139,7 +199,7 @@ pub struct GpuStep<'a> {
     pub scratch: &'a mut GpuScratch,
 }
 
-/// What [`BaseModel::gpu_forward`] returns: the Gaussians of a view on the GPU and the tape
+/// What [`GpuModel::gpu_forward`] returns: the Gaussians of a view on the GPU and the tape
 /// its backward consumes.
 pub struct GpuForward<T> {
     /// The Gaussians to render.
@@ -158,7 +218,7 @@ impl GpuForward<()> {
     }
 }
 
-/// The provided [`BaseModel::gpu_forward`]: the parameters brought back when they changed,
+/// The provided [`GpuModel::gpu_forward`]: the parameters brought back when they changed,
 /// [`BaseModel::forward`] on the host, the Gaussians uploaded (into the buffers of the last
 /// step when the count and degree are the same).
 pub fn host_forward<M: BaseModel>(
@@ -186,7 +246,7 @@ pub fn host_forward<M: BaseModel>(
     })
 }
 
-/// The provided [`BaseModel::gpu_backward`]: the gradient with respect to the Gaussians
+/// The provided [`GpuModel::gpu_backward`]: the gradient with respect to the Gaussians
 /// brought back, [`BaseModel::backward`] on the host, the trained groups' gradients uploaded.
 pub fn host_backward<M: BaseModel>(
     model: &mut M,
@@ -217,7 +277,7 @@ pub fn host_backward<M: BaseModel>(
 
 /// The Gaussians of `model` for `view` on the GPU, for a caller that renders without
 /// training (nothing steps the parameters, so the host values stay current).
-pub(crate) fn gaussians_for_view<M: BaseModel>(
+pub(crate) fn gaussians_for_view<M: GpuModel>(
     model: &mut M,
     ctx: &GpuContext,
     params: &GpuParams,

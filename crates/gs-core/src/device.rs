@@ -1,0 +1,40 @@
+//! The device a run asks for (`--device cpu|gpu|auto`), as a choice; opening it is the
+//! GPU backend's (gs-wgpu's `OpenDevice`).
+
+use std::fmt;
+use std::str::FromStr;
+
+/// The device asked for: `cpu`, `gpu` or `auto`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum DeviceChoice {
+    /// The cpu backend (rayon).
+    Cpu,
+    /// A real GPU through wgpu; an error when there is none.
+    Gpu,
+    /// A real GPU when there is one, else the cpu.
+    #[default]
+    Auto,
+}
+
+impl FromStr for DeviceChoice {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "cpu" => Ok(Self::Cpu),
+            "gpu" => Ok(Self::Gpu),
+            "auto" => Ok(Self::Auto),
+            other => Err(format!("device {other:?} is not one of cpu, gpu, auto")),
+        }
+    }
+}
+
+impl fmt::Display for DeviceChoice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::Cpu => "cpu",
+            Self::Gpu => "gpu",
+            Self::Auto => "auto",
+        })
+    }
+}
