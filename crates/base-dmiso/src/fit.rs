@@ -27,7 +27,8 @@ use std::ops::ControlFlow;
 
 use candle_core::Device;
 use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RateAt};
-use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
+pub use gs_core::image_loss::mean_psnr;
+use gs_core::image_loss::{check_fit_settings, PhotometricObjective};
 use gs_core::model::{BaseModel, View};
 use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
 use gs_core::Image;
@@ -453,11 +454,6 @@ pub fn render_views(
         .collect()
 }
 
-/// The mean PSNR (dB) of `renders` against `images`, image by image.
-pub fn mean_psnr(renders: &[Image], images: &[Image]) -> f64 {
-    let sum: f64 = renders.iter().zip(images).map(|(r, f)| psnr(r, f)).sum();
-    sum / images.len().max(1) as f64
-}
 
 #[cfg(test)]
 mod tests {

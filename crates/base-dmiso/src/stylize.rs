@@ -36,7 +36,7 @@ use gs_stylize::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{fit, render_views, FitError, FitSettings};
+use crate::fit::{fit, mean_psnr, render_views, FitError, FitSettings};
 use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
 
@@ -493,6 +493,18 @@ impl Modality for DynamicStylizeConfig {
     fn keep_fit(&self, scene: &SceneInput, fit: Dmiso, path: &Path) -> Result<Dmiso, DynamicError> {
         model_file::save(&fit, path, Some(scene.background))?;
         Ok(fit)
+    }
+
+    /// The mean PSNR of the fitted scene over its training views.
+    fn fit_psnr(
+        &self,
+        scene: &SceneInput,
+        model: &mut Dmiso,
+        run: &PreparedRun,
+    ) -> Result<Option<f64>, DynamicError> {
+        let train = &scene.train;
+        let renders = render_views(model, &train.views, scene.background.rgb(), run.backend())?;
+        Ok(Some(mean_psnr(&renders, &train.images)))
     }
 
     /// Batches of consecutive training views; renders the sweep through time of the model

@@ -18,6 +18,7 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::gaussians::PARAM_NAMES;
+use gs_core::image_loss::psnr;
 use gs_core::model::BaseModel;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
@@ -315,6 +316,26 @@ impl Modality for MirageStylizeConfig {
         write_model(path, &fit.model, &inputs.fitted_to(self.distance))?;
         write_psnr_plot(&self.out_path()?.join(FIT_PSNR_PNG), &fit.psnr)?;
         Ok(fit.model)
+    }
+
+    /// The PSNR of the fitted picture, seen by the front camera at the picture's size.
+    fn fit_psnr(
+        &self,
+        inputs: &PictureInput,
+        model: &mut FlatGaussians,
+        run: &PreparedRun,
+    ) -> Result<Option<f64>, MirageError> {
+        let picture = &inputs.picture;
+        let render = render_picture(
+            model,
+            picture.width,
+            picture.height,
+            self.distance,
+            false,
+            self.background,
+            run.backend(),
+        )?;
+        Ok(Some(psnr(&render, picture)))
     }
 
     /// Both mirror cameras, the picture and its mirror image, one view per step.

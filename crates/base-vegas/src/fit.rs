@@ -9,7 +9,8 @@
 use std::ops::ControlFlow;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
+pub use gs_core::image_loss::mean_psnr;
+use gs_core::image_loss::{check_fit_settings, PhotometricObjective};
 use gs_core::mirror_pair::{extent, mirrored, plane_camera, plane_half_size, DEFAULT_DISTANCE};
 use gs_core::model::View;
 use gs_core::train::{StepReport, TrainConfig, ViewSampler};
@@ -186,8 +187,3 @@ pub fn render_frames(
         .collect()
 }
 
-/// The mean PSNR (dB) of `renders` against `frames`, frame by frame.
-pub fn mean_psnr(renders: &[Image], frames: &[Image]) -> f64 {
-    let sum: f64 = renders.iter().zip(frames).map(|(r, f)| psnr(r, f)).sum();
-    sum / frames.len().max(1) as f64
-}

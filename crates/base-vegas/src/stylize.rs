@@ -30,7 +30,9 @@ use gs_stylize::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{fit, render_frames, training_targets, training_views, FitError, FitSettings};
+use crate::fit::{
+    fit, mean_psnr, render_frames, training_targets, training_views, FitError, FitSettings,
+};
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
 use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
@@ -324,6 +326,18 @@ impl Modality for VideoStylizeConfig {
     ) -> Result<FoldedGaussians, VideoError> {
         write_model(path, &fit, Some(self.record_of(video)))?;
         Ok(fit)
+    }
+
+    /// The mean PSNR of the fitted frames.
+    fn fit_psnr(
+        &self,
+        video: &Video,
+        model: &mut FoldedGaussians,
+        run: &PreparedRun,
+    ) -> Result<Option<f64>, VideoError> {
+        let (w, h) = video.size();
+        let renders = render_frames(model, w, h, self.distance, self.background, run.backend())?;
+        Ok(Some(mean_psnr(&renders, &video.frames)))
     }
 
     /// Every frame and its mirror image, one view per step in shuffled order.

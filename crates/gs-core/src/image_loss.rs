@@ -178,6 +178,12 @@ pub fn psnr(a: &Image, b: &Image) -> f64 {
     10.0 * (1.0 / mse.max(1e-12)).log10()
 }
 
+/// The mean [`psnr`] of `renders` against `targets` (pairs in order), dB; 0 for none.
+pub fn mean_psnr(renders: &[Image], targets: &[Image]) -> f64 {
+    let sum: f64 = renders.iter().zip(targets).map(|(r, t)| psnr(r, t)).sum();
+    sum / targets.len().max(1) as f64
+}
+
 /// The fitting objective of 3DGS and MiraGe: `(1 - lambda) L1 + lambda (1 - SSIM)` against a
 /// target image per view.
 #[derive(Clone, Debug)]

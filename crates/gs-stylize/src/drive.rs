@@ -9,7 +9,8 @@
 //! 3. the base model: the one given (`--model`), this run's own fit when it resumes, or a fit
 //!    with progress ([`fit_with_progress`]; Ctrl-C ends it with
 //!    [`StylizeError::InterruptedFit`], nothing written), kept as `BASE_MODEL` in the output
-//!    folder ([`Modality::keep_fit`]);
+//!    folder ([`Modality::keep_fit`]) with `fit.json` (its steps, time and PSNR:
+//!    [`crate::outputs::FitReport`]);
 //! 4. the job ([`Modality::job`]: views, ground truths, optimizer groups from the
 //!    configuration's `learning_rates`) and the stylization ([`PreparedRun::stylize`]);
 //! 5. the modality's outputs ([`Modality::write_outputs`]), then the checkpoint is marked
@@ -17,13 +18,14 @@
 
 use std::ops::ControlFlow;
 use std::path::Path;
+use std::time::Instant;
 
 use gs_core::train::StepReport;
 use gs_wgpu::GpuModel;
 use serde::Serialize;
 
 use crate::checkpoint::mark_finished;
-use crate::outputs::create_folder;
+use crate::outputs::{create_folder, write_json, FitReport, FIT_JSON};
 use crate::progress::fit_with_progress;
 use crate::{
     prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob, StylizeOutcome,
@@ -111,6 +113,17 @@ pub trait Modality: Serialize {
         path: &Path,
     ) -> Result<Self::Model, Self::Error>;
 
+    /// The mean PSNR of the fitted `model` over the training views, dB, for the run's
+    /// `fit.json` and summary; none by default (not measured).
+    fn fit_psnr(
+        &self,
+        _inputs: &Self::Inputs,
+        _model: &mut Self::Model,
+        _run: &PreparedRun,
+    ) -> Result<Option<f64>, Self::Error> {
+        Ok(None)
+    }
+
     /// The stylization job of `model` over the inputs (which it may add to, e.g. renders of
     /// the model before stylization for a preview).
     fn job(
@@ -145,11 +158,21 @@ pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs
         Some(path) => modality.read_model(&inputs, path, own_fit, &prepared)?,
         None => {
             let (steps, stages) = (modality.fit_steps(), modality.fit_stages());
+            let started = Instant::now();
             let fit = fit_with_progress(M::FITTED, steps, &stages, options, |on_step| {
                 modality.fit(&inputs, &prepared, on_step)
             })?;
+            let seconds = started.elapsed().as_secs_f64();
             create_folder(out)?;
-            modality.keep_fit(&inputs, fit, &base)?
+            let mut model = modality.keep_fit(&inputs, fit, &base)?;
+            let psnr_db = modality.fit_psnr(&inputs, &mut model, &prepared)?;
+            let report = FitReport {
+                steps,
+                seconds,
+                psnr_db,
+            };
+            write_json(&out.join(FIT_JSON), &report)?;
+            model
         }
     };
     let job = modality.job(&mut inputs, model, &prepared)?;

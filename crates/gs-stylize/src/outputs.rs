@@ -21,6 +21,20 @@ pub const LOSSES_JSON: &str = "losses.json";
 pub const LOSSES_PNG: &str = "losses.png";
 /// The resolved configuration in the output folder.
 pub const CONFIG_JSON: &str = "config.json";
+/// What the fit of the base model did, when the run fitted it ([`FitReport`]).
+pub const FIT_JSON: &str = "fit.json";
+
+/// What a run's fit of its base model did (`fit.json`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct FitReport {
+    /// Steps of the fit.
+    pub steps: u64,
+    /// Its wall time, seconds.
+    pub seconds: f64,
+    /// The fitted model's mean PSNR over the training views, dB, where the modality measures
+    /// it.
+    pub psnr_db: Option<f64>,
+}
 
 /// The losses of one step.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use serde::Serialize;
 
 use crate::checkpoint::checkpoint_dir;
-use crate::outputs::{read_json, write_json, StepLosses, LOSSES_JSON};
+use crate::outputs::{read_json, write_json, FitReport, StepLosses, FIT_JSON, LOSSES_JSON};
 use crate::progress::clock;
 use crate::StylizeError;
 
@@ -30,6 +30,8 @@ pub struct RunReport {
     pub out: String,
     /// Its files and folders (top level, sorted), without the checkpoint and this file.
     pub outputs: Vec<String>,
+    /// What the fit of the base model did, when the run fitted it (its `fit.json`).
+    pub fit: Option<FitReport>,
 }
 
 /// Writes `summary.json` in `out` for the run of `command` started at `started`, and returns
@@ -55,19 +57,33 @@ pub fn write_summary(command: &str, started: Instant, out: &Path) -> Result<Stri
         final_loss: losses.last().map(|l| l.total),
         out: out.display().to_string(),
         outputs,
+        fit: read_json(&out.join(FIT_JSON)).ok(),
     };
     write_json(&out.join(SUMMARY_JSON), &report)?;
     Ok(lines(&report))
 }
 
-/// `done in 0:01:23: 6 steps, final loss 0.1234` and the outputs, one line each.
+/// `done in 0:01:23: 6 steps, final loss 0.1234`, the fit's line when the run fitted its base
+/// model (`base model fitted in 0:00:44 (3000 steps), PSNR 31.20 dB`) and the outputs, one
+/// line each.
 fn lines(report: &RunReport) -> String {
-    let clock = clock(Duration::from_secs(report.seconds.max(0.0).round() as u64));
+    let clock_of = |seconds: f64| clock(Duration::from_secs(seconds.max(0.0).round() as u64));
     let loss = report
         .final_loss
         .map_or(String::new(), |l| format!(", final loss {l:.4}"));
+    let fit = report.fit.as_ref().map_or(String::new(), |fit| {
+        let psnr = fit
+            .psnr_db
+            .map_or(String::new(), |db| format!(", PSNR {db:.2} dB"));
+        format!(
+            "base model fitted in {} ({} steps){psnr}\n",
+            clock_of(fit.seconds),
+            fit.steps
+        )
+    });
     format!(
-        "done in {clock}: {} steps{loss}\noutputs in {}: {}, {SUMMARY_JSON}\n",
+        "done in {}: {} steps{loss}\n{fit}outputs in {}: {}, {SUMMARY_JSON}\n",
+        clock_of(report.seconds),
         report.steps,
         report.out,
         report.outputs.join(", ")
@@ -118,5 +134,23 @@ mod tests {
             written["outputs"],
             serde_json::json!(["frames", "losses.json", "stylized.png"])
         );
+        assert_eq!(written["fit"], serde_json::Value::Null);
+
+        let fit = FitReport {
+            steps: 3000,
+            seconds: 44.4,
+            psnr_db: Some(31.204),
+        };
+        write_json(&out.join(FIT_JSON), &fit).unwrap();
+        let text = write_summary("clipgaussian-2d stylize", Instant::now(), out).unwrap();
+        assert!(
+            text.contains("\nbase model fitted in 0:00:44 (3000 steps), PSNR 31.20 dB\noutputs"),
+            "{text}"
+        );
+        assert!(text.contains("fit.json, frames"), "{text}");
+        let written: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(out.join(SUMMARY_JSON)).unwrap())
+                .unwrap();
+        assert_eq!(written["fit"]["psnr_db"], 31.204);
     }
 }
