@@ -454,7 +454,6 @@ pub fn render_views(
         .collect()
 }
 
-
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -18,11 +18,12 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::gaussians::PARAM_NAMES;
+use gs_core::image::picture_size;
 use gs_core::image_loss::psnr;
 use gs_core::model::BaseModel;
-use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
+use gs_core::wide_pictures::{shrunk_size, AUTHORS_MAX_WIDTH};
 use gs_core::Image;
-use gs_stylize::drive::{Modality, OnStep};
+use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -252,6 +253,24 @@ impl Modality for MirageStylizeConfig {
 
     fn given_model(&self) -> Option<&Path> {
         self.model.as_deref()
+    }
+
+    /// The picture's size from its header: two views (the picture and its mirror image) at
+    /// its size once shrunk to `max_width`; none for the embedded default.
+    fn input_pixels(&self) -> Result<Option<InputPixels>, MirageError> {
+        let Some(path) = &self.picture else {
+            return Ok(None);
+        };
+        // A file whose header does not read is reported by the loading, as any bad picture.
+        let Ok((w, h)) = picture_size(path) else {
+            return Ok(None);
+        };
+        let (vw, vh) = shrunk_size(w, h, self.max_width);
+        let view = u64::from(vw) * u64::from(vh);
+        Ok(Some(InputPixels {
+            views: vec![view; 2],
+            largest_stored: u64::from(w) * u64::from(h),
+        }))
     }
 
     /// The picture, checked against the patch size.

@@ -516,7 +516,13 @@ fn a_redirected_run_prints_a_progress_line_every_five_percent_and_no_error_line(
     assert_eq!(summary["command"], "clipgaussian-2d stylize");
     assert_eq!(summary["steps"], 6);
     let outputs = summary["outputs"].as_array().unwrap();
-    for name in ["preview.png", "stylized.png", "model.ply", "losses.json", "fit.json"] {
+    for name in [
+        "preview.png",
+        "stylized.png",
+        "model.ply",
+        "losses.json",
+        "fit.json",
+    ] {
         assert!(outputs.iter().any(|o| o == name), "{name}: {summary}");
     }
     // The run fitted its base model: the summary says how long and how well.

@@ -141,6 +141,16 @@ pub fn save_rgb8_png(img: &image::RgbImage, path: &Path) -> Result<(), GsError> 
     })
 }
 
+/// The width and height of the picture at `path`, pixels, read from its header without
+/// decoding it (so that a picture too large to decode can be refused first); the error names
+/// the file.
+pub fn picture_size(path: &Path) -> Result<(u32, u32), GsError> {
+    image::image_dimensions(path).map_err(|e| GsError::Image {
+        path: path.to_path_buf(),
+        source: Box::new(e),
+    })
+}
+
 /// Decodes the picture at `path`; the error names the file.
 fn open_image(path: &Path) -> Result<image::DynamicImage, GsError> {
     image::open(path).map_err(|e| GsError::Image {

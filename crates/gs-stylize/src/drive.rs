@@ -5,7 +5,9 @@
 //! 1. the modality's own checks ([`Modality::check`]), then [`prepare`]: settings, output
 //!    folder and checkpoint, weights, style image, devices, every problem at once;
 //! 2. the inputs ([`Modality::load_inputs`]: the picture, the video, the scene), checked
-//!    against the settings (the patch size) before any long work;
+//!    against the settings (the patch size) before any long work; where their sizes can be
+//!    read without decoding them ([`Modality::input_pixels`]), a run too large for this
+//!    machine's memory is refused first;
 //! 3. the base model: the one given (`--model`), this run's own fit when it resumes, or a fit
 //!    with progress ([`fit_with_progress`]; Ctrl-C ends it with
 //!    [`StylizeError::InterruptedFit`], nothing written), kept as `BASE_MODEL` in the output
@@ -25,6 +27,7 @@ use gs_wgpu::GpuModel;
 use serde::Serialize;
 
 use crate::checkpoint::mark_finished;
+use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
 use crate::outputs::{create_folder, write_json, FitReport, FIT_JSON};
 use crate::progress::fit_with_progress;
 use crate::{
@@ -67,6 +70,14 @@ pub trait Modality: Serialize {
 
     /// The base model given by the user; none when the run fits its own.
     fn given_model(&self) -> Option<&Path>;
+
+    /// The training views' sizes in pixels (after any shrinking) and the stored size of the
+    /// largest input picture, read without decoding anything, where that is cheap: the run is
+    /// refused before it decodes a picture too large for this machine. None (the default):
+    /// the estimate comes once the inputs are loaded ([`PreparedRun::stylize`]).
+    fn input_pixels(&self) -> Result<Option<InputPixels>, Self::Error> {
+        Ok(None)
+    }
 
     /// Loads and checks the inputs. `model` is the file the base model will be read from (the
     /// given one, or this run's own fit when resuming; none before a fit), for what it records.
@@ -142,11 +153,25 @@ pub trait Modality: Serialize {
     ) -> Result<Self::Outputs, Self::Error>;
 }
 
+/// The pixels of a run's inputs, read from their headers ([`Modality::input_pixels`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct InputPixels {
+    /// Pixels of each training view, as trained (after any shrinking).
+    pub views: Vec<u64>,
+    /// Pixels of the largest input picture as stored.
+    pub largest_stored: u64,
+}
+
 /// Runs the stylization `modality` describes, in the order of the module documentation.
 pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs, M::Error> {
     modality.check()?;
     let out = modality.out()?;
     let prepared = prepare(modality.settings(), out, options.clone())?;
+    if let Some(pixels) = modality.input_pixels()? {
+        let estimate = MemoryEstimate::of(modality.settings(), &pixels.views, 0)
+            .before_decoding(pixels.largest_stored);
+        check_memory(&estimate, machine_memory())?;
+    }
     let base = out.join(M::BASE_MODEL);
     let own_fit = modality.given_model().is_none() && options.resume && base.exists();
     let source = match modality.given_model() {

@@ -24,6 +24,8 @@ const PER_PATCH: f64 = 80e6;
 const CACHE_PER_PIXEL: f64 = 60.0;
 /// Bytes per model parameter.
 const PER_PARAMETER: f64 = 20.0;
+/// Bytes per pixel of a picture while it is decoded: its 8-bit RGBA and its `f32` RGBA.
+const DECODE_PER_PIXEL: f64 = 20.0;
 
 /// The estimate, in bytes, by part.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -36,6 +38,8 @@ pub struct MemoryEstimate {
     pub views: f64,
     /// The model's parameters and optimizer state.
     pub model: f64,
+    /// Decoding the largest input picture at its stored size (0 once the inputs are loaded).
+    pub decode: f64,
 }
 
 impl MemoryEstimate {
@@ -58,18 +62,34 @@ impl MemoryEstimate {
             step: content + patches,
             views: CACHE_PER_PIXEL * view_pixels.iter().sum::<u64>() as f64,
             model: PER_PARAMETER * parameters as f64,
+            decode: 0.0,
+        }
+    }
+
+    /// The same estimate before the inputs are decoded, the largest of them
+    /// `largest_picture` pixels as stored (before any shrinking).
+    pub fn before_decoding(self, largest_picture: u64) -> Self {
+        Self {
+            decode: DECODE_PER_PIXEL * largest_picture as f64,
+            ..self
         }
     }
 
     /// The whole estimate, bytes.
     pub fn total(&self) -> f64 {
-        self.models + self.step + self.views + self.model
+        self.models + self.step + self.views + self.model + self.decode
     }
 
-    /// `memory: about 8.5 GB (models 1.3 GB, step 7.2 GB, view caches 0.1 GB, model 0.1 GB)`.
+    /// `memory: about 8.5 GB (models 1.3 GB, step 7.2 GB, view caches 0.1 GB, model 0.1 GB)`,
+    /// with `, decoding 2.0 GB` before the inputs are decoded.
     pub fn line(&self) -> String {
+        let decode = if self.decode > 0.0 {
+            format!(", decoding {}", gb(self.decode))
+        } else {
+            String::new()
+        };
         format!(
-            "memory: about {} (models {}, step {}, view caches {}, model {})",
+            "memory: about {} (models {}, step {}, view caches {}, model {}{decode})",
             gb(self.total()),
             gb(self.models),
             gb(self.step),
@@ -122,7 +142,8 @@ pub fn check_memory(
         return Err(StylizeError::Input(format!(
             "this run needs about {} of memory and this machine has {} in all ({}); lower \
              --set num_patches=N (about 80 MB each), the views' size (--max-width, or a \
-             dataset's -r), or run on a machine with more memory",
+             dataset's -r; a picture's stored size counts while it is decoded), or run on a \
+             machine with more memory",
             gb(need),
             gb(machine.total),
             estimate.line().trim_start_matches("memory: ")
@@ -197,6 +218,21 @@ mod tests {
         assert_eq!(check_memory(&huge, None).unwrap(), None);
         let small = MemoryEstimate::of(&settings(4), &[10_000], 100);
         assert_eq!(check_memory(&small, Some(machine)).unwrap(), None);
+        // A picture shrunk to small views but stored at 30000x30000: 18 GB to decode it.
+        let stored_huge = small.before_decoding(900_000_000);
+        assert_eq!(stored_huge.decode, 20.0 * 9e8);
+        assert!(
+            stored_huge.line().ends_with(", decoding 18.0 GB)"),
+            "{}",
+            stored_huge.line()
+        );
+        let err = check_memory(&stored_huge, Some(machine))
+            .unwrap_err()
+            .to_string();
+        assert!(
+            err.contains("stored size counts while it is decoded"),
+            "{err}"
+        );
     }
 
     #[test]
