@@ -42,6 +42,14 @@ pub enum ModelFileError {
         /// What is wrong.
         message: String,
     },
+    /// A file that the safetensors reader or writer refused (truncated, foreign).
+    #[error("{}: not a safetensors file ({source})", path.display())]
+    Safetensors {
+        /// The file.
+        path: PathBuf,
+        /// The reader's or writer's error.
+        source: safetensors::SafeTensorError,
+    },
     /// A tensor file that candle could not read (a truncated or foreign `.pth`).
     #[error("{}: not a readable PyTorch checkpoint ({source})", path.display())]
     Checkpoint {
@@ -139,11 +147,12 @@ pub fn save(
             );
         }
     }
-    let bytes =
-        safetensors::serialize(tensors, Some(metadata)).map_err(|e| ModelFileError::Format {
+    let bytes = safetensors::serialize(tensors, Some(metadata)).map_err(|source| {
+        ModelFileError::Safetensors {
             path: path.to_path_buf(),
-            message: e.to_string(),
-        })?;
+            source,
+        }
+    })?;
     gs_core::fs::write_atomic(path, &bytes).map_err(|source| ModelFileError::Io {
         path: path.to_path_buf(),
         source,
@@ -165,8 +174,11 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
         path: path.to_path_buf(),
         source,
     })?;
-    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes)
-        .map_err(|e| format(format!("not a safetensors file ({e})")))?;
+    let not_safetensors = |source| ModelFileError::Safetensors {
+        path: path.to_path_buf(),
+        source,
+    };
+    let (_, header) = safetensors::SafeTensors::read_metadata(&bytes).map_err(not_safetensors)?;
     let meta = header.metadata().clone().unwrap_or_default();
     if meta.get("format").map(String::as_str) != Some(FORMAT) {
         return Err(format(format!(
@@ -184,8 +196,7 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
         width: number("deform_width")?,
     };
     let deformation = meta.get("deformation").map(String::as_str) != Some("false");
-    let tensors = safetensors::SafeTensors::deserialize(&bytes)
-        .map_err(|e| format(format!("not a safetensors file ({e})")))?;
+    let tensors = safetensors::SafeTensors::deserialize(&bytes).map_err(not_safetensors)?;
     let mut found = HashMap::new();
     for (name, view) in tensors.tensors() {
         if view.dtype() != safetensors::Dtype::F32 {

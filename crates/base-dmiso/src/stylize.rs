@@ -176,7 +176,10 @@ impl DynamicStylizeConfig {
         }
         self.learning_rates.check(&GROUP_NAMES)?;
         if !(self.sweep_fps.is_finite() && self.sweep_fps > 0.0) {
-            return bad(format!("sweep_fps: {} must be positive", self.sweep_fps));
+            return bad(format!(
+                "sweep_fps: {} must be positive (--set sweep_fps=24)",
+                self.sweep_fps
+            ));
         }
         Ok(())
     }
@@ -384,14 +387,14 @@ impl Modality for DynamicStylizeConfig {
     fn out(&self) -> Result<&Path, DynamicError> {
         self.out
             .as_deref()
-            .ok_or_else(|| DynamicError::Config("out: is required".into()))
+            .ok_or_else(|| DynamicError::Config("out: is required (--out FOLDER)".into()))
     }
 
     fn check(&self) -> Result<(), DynamicError> {
         self.check_fields()?;
         if self.data.is_none() {
             return Err(DynamicError::Config(
-                "data: is required (a D-NeRF scene folder)".into(),
+                "data: is required (--data FOLDER, a D-NeRF scene)".into(),
             ));
         }
         Ok(())
@@ -432,7 +435,7 @@ impl Modality for DynamicStylizeConfig {
         check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
         if self.batch_size > train.views.len() {
             return Err(DynamicError::Config(format!(
-                "batch_size: {} is more than the {} training views",
+                "batch_size: {} is more than the {} training views (lower --batch-size)",
                 self.batch_size,
                 train.views.len()
             )));

@@ -129,7 +129,7 @@ impl MirageStylizeConfig {
     fn out_path(&self) -> Result<&Path, MirageError> {
         self.out
             .as_deref()
-            .ok_or_else(|| MirageError::Config("out: is required".into()))
+            .ok_or_else(|| MirageError::Config("out: is required (--out FOLDER)".into()))
     }
 }
 
@@ -243,7 +243,7 @@ impl Modality for MirageStylizeConfig {
     fn check(&self) -> Result<(), MirageError> {
         if self.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
             return Err(MirageError::Config(format!(
-                "background: {:?} must have channels in [0, 1]",
+                "background: {:?} must have channels in [0, 1] (--background R,G,B)",
                 self.background
             )));
         }

@@ -43,12 +43,33 @@ pub struct VideoRecord {
 
 /// Why a model file cannot be read or written.
 #[derive(Debug, thiserror::Error)]
-#[error("model {}: {message}", path.display())]
-pub struct ModelFileError {
-    /// The file.
-    pub path: PathBuf,
-    /// What is wrong.
-    pub message: String,
+pub enum ModelFileError {
+    /// The file cannot be opened, encoded or written.
+    #[error("model {}: {what}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// What failed (`cannot open`, `cannot encode`, `cannot write`).
+        what: &'static str,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// A file that is not a readable PLY file.
+    #[error("model {}: not a readable PLY file: {source}", path.display())]
+    Unreadable {
+        /// The file.
+        path: PathBuf,
+        /// The PLY parser's error.
+        source: ply_rs_bw::parser::ParseError,
+    },
+    /// A file that reads but is not a VeGaS model (missing or bad values).
+    #[error("model {}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        message: String,
+    },
 }
 
 /// The vertex properties, in VeGaS's order.
@@ -77,9 +98,12 @@ pub fn write_model(
     model: &FoldedGaussians,
     video: Option<VideoRecord>,
 ) -> Result<(), ModelFileError> {
-    let fail = |message: String| ModelFileError {
-        path: path.to_path_buf(),
-        message,
+    let io = |what: &'static str| {
+        move |source: std::io::Error| ModelFileError::Io {
+            path: path.to_path_buf(),
+            what,
+            source,
+        }
     };
     let p = model.params();
     let mut ply = Ply::<DefaultElement>::new();
@@ -140,20 +164,30 @@ pub fn write_model(
     let mut bytes = Vec::new();
     Writer::new()
         .write_ply(&mut bytes, &mut ply)
-        .map_err(|e| fail(format!("cannot encode: {e}")))?;
-    gs_core::fs::write_atomic(path, &bytes).map_err(|e| fail(e.to_string()))
+        .map_err(io("cannot encode"))?;
+    gs_core::fs::write_atomic(path, &bytes).map_err(io("cannot write"))
 }
 
 /// Reads a VeGaS model and, when the file records it, its video.
 pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>), ModelFileError> {
-    let fail = |message: String| ModelFileError {
+    let fail = |message: String| ModelFileError::Format {
         path: path.to_path_buf(),
         message,
     };
-    let file = std::fs::File::open(path).map_err(|e| fail(e.to_string()))?;
+    let io = |what: &'static str| {
+        move |source: std::io::Error| ModelFileError::Io {
+            path: path.to_path_buf(),
+            what,
+            source,
+        }
+    };
+    let file = std::fs::File::open(path).map_err(io("cannot open"))?;
     let ply = Parser::<DefaultElement>::new()
         .read_ply(&mut BufReader::new(file))
-        .map_err(|e| fail(format!("not a readable PLY file: {e}")))?;
+        .map_err(|source| ModelFileError::Unreadable {
+            path: path.to_path_buf(),
+            source,
+        })?;
     let vertices = ply
         .payload
         .get("vertex")

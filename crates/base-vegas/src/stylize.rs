@@ -244,19 +244,19 @@ impl Modality for VideoStylizeConfig {
     fn out(&self) -> Result<&Path, VideoError> {
         self.out
             .as_deref()
-            .ok_or_else(|| VideoError::Config("out: is required".into()))
+            .ok_or_else(|| VideoError::Config("out: is required (--out FOLDER)".into()))
     }
 
     /// Checks the video path, the frame rate and the learning rates.
     fn check(&self) -> Result<(), VideoError> {
         if self.video.is_none() {
             return Err(VideoError::Config(
-                "video: is required (a frames folder or a video file)".into(),
+                "video: is required (--video PATH, a frames folder or a video file)".into(),
             ));
         }
         if !(self.fps.is_finite() && self.fps > 0.0) {
             return Err(VideoError::Config(format!(
-                "fps: {} must be positive",
+                "fps: {} must be positive (--fps)",
                 self.fps
             )));
         }

@@ -115,9 +115,13 @@ impl StylizeConfig {
     /// ([`StyleSettings::validate`]), the learning rates and the resolution divisor.
     pub fn validate(&self) -> Result<(), StylizeError> {
         let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
-        for (field, value) in [("ply", &self.ply), ("data", &self.data), ("out", &self.out)] {
+        for (field, value, flag) in [
+            ("ply", &self.ply, "--model PLY"),
+            ("data", &self.data, "--data FOLDER"),
+            ("out", &self.out, "--out FOLDER"),
+        ] {
             if value.is_none() {
-                return bad(field, "is required");
+                return bad(field, &format!("is required ({flag})"));
             }
         }
         self.style.validate()?;
@@ -125,7 +129,7 @@ impl StylizeConfig {
         if self.resolution == 0 {
             return bad(
                 "resolution",
-                "must be at least 1 (1 keeps the images as they are)",
+                "must be at least 1 (-r 1 keeps the images as they are)",
             );
         }
         Ok(())
