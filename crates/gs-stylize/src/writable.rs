@@ -13,7 +13,12 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// An output that cannot be written.
 #[derive(Debug, thiserror::Error)]
-#[error("output {} {}: {problem}", if *.folder { "folder" } else { "file" }, path.display())]
+#[error(
+    "output {} {}: {problem}{}",
+    if *.folder { "folder" } else { "file" },
+    path.display(),
+    source.as_ref().map_or(String::new(), |e| format!(" ({e})"))
+)]
 pub struct OutputError {
     /// Whether the output is a folder (else a file).
     pub folder: bool,
@@ -21,36 +26,48 @@ pub struct OutputError {
     pub path: PathBuf,
     /// What is wrong with it.
     pub problem: String,
+    /// The operating system's error behind it, when there is one.
+    pub source: Option<std::io::Error>,
+}
+
+/// What is wrong with an output: a description, and the operating system's error behind it.
+type Problem = (String, Option<std::io::Error>);
+
+/// A problem without an operating-system error.
+fn plain(problem: impl Into<String>) -> Problem {
+    (problem.into(), None)
 }
 
 /// Checks that `dir` can be the output folder: an existing folder this process can write in,
 /// or a path that does not exist yet whose nearest existing ancestor is such a folder (the
 /// run creates the rest). Nothing is created.
 pub fn check_output_folder(dir: &Path) -> Result<(), OutputError> {
-    let bad = |problem: String| OutputError {
+    let bad = |(problem, source): Problem| OutputError {
         folder: true,
         path: dir.to_path_buf(),
         problem,
+        source,
     };
     if dir.as_os_str().is_empty() {
-        return Err(bad("the path is empty".into()));
+        return Err(bad(plain("the path is empty")));
     }
     match std::fs::metadata(dir) {
         Ok(m) if m.is_dir() => try_write_in(dir).map_err(bad),
-        Ok(_) => Err(bad(
-            "it is a file; the output must be a folder (name a new or existing folder)".into(),
-        )),
+        Ok(_) => Err(bad(plain(
+            "it is a file; the output must be a folder (name a new or existing folder)",
+        ))),
         Err(e) if missing(&e) => {
             let (ancestor, is_dir) = nearest_existing(dir).map_err(bad)?;
             if !is_dir {
-                return Err(bad(format!(
+                return Err(bad(plain(format!(
                     "{} is a file, so no folder can be made in it",
                     ancestor.display()
-                )));
+                ))));
             }
-            try_write_in(&ancestor).map_err(|e| bad(format!("it cannot be created: {e}")))
+            try_write_in(&ancestor)
+                .map_err(|(why, e)| bad((format!("it cannot be created: {why}"), e)))
         }
-        Err(e) => Err(bad(e.to_string())),
+        Err(e) => Err(bad(("it cannot be read".into(), Some(e)))),
     }
 }
 
@@ -58,32 +75,36 @@ pub fn check_output_folder(dir: &Path) -> Result<(), OutputError> {
 /// process can write in it (files are written under a temporary name and renamed, so that is
 /// what writing needs). Nothing is created.
 pub fn check_output_file(file: &Path) -> Result<(), OutputError> {
-    let bad = |problem: String| OutputError {
+    let bad = |(problem, source): Problem| OutputError {
         folder: false,
         path: file.to_path_buf(),
         problem,
+        source,
     };
     if file.as_os_str().is_empty() {
-        return Err(bad("the path is empty".into()));
+        return Err(bad(plain("the path is empty")));
     }
     if file.is_dir() {
-        return Err(bad("it is a folder; the output must be a file name".into()));
+        return Err(bad(plain("it is a folder; the output must be a file name")));
     }
     let parent = folder_of(file);
     match std::fs::metadata(&parent) {
         Ok(m) if m.is_dir() => try_write_in(&parent).map_err(bad),
-        Ok(_) => Err(bad(format!("{} is a file, not a folder", parent.display()))),
+        Ok(_) => Err(bad(plain(format!(
+            "{} is a file, not a folder",
+            parent.display()
+        )))),
         Err(e) if missing(&e) => match nearest_existing(&parent).map_err(bad)? {
-            (ancestor, false) => Err(bad(format!(
+            (ancestor, false) => Err(bad(plain(format!(
                 "{} is a file, not a folder",
                 ancestor.display()
-            ))),
-            (_, true) => Err(bad(format!(
+            )))),
+            (_, true) => Err(bad(plain(format!(
                 "the folder {} does not exist",
                 parent.display()
-            ))),
+            )))),
         },
-        Err(e) => Err(bad(e.to_string())),
+        Err(e) => Err(bad((format!("{} cannot be read", parent.display()), Some(e)))),
     }
 }
 
@@ -101,7 +122,7 @@ fn folder_of(path: &Path) -> PathBuf {
 }
 
 /// The nearest ancestor of `path` that exists, and whether it is a folder.
-fn nearest_existing(path: &Path) -> Result<(PathBuf, bool), String> {
+fn nearest_existing(path: &Path) -> Result<(PathBuf, bool), Problem> {
     for ancestor in path.ancestors().skip(1) {
         let ancestor = if ancestor.as_os_str().is_empty() {
             Path::new(".")
@@ -111,14 +132,14 @@ fn nearest_existing(path: &Path) -> Result<(PathBuf, bool), String> {
         match std::fs::metadata(ancestor) {
             Ok(m) => return Ok((ancestor.to_path_buf(), m.is_dir())),
             Err(e) if missing(&e) => continue,
-            Err(e) => return Err(format!("{}: {e}", ancestor.display())),
+            Err(e) => return Err((format!("{} cannot be read", ancestor.display()), Some(e))),
         }
     }
-    Err("no part of the path exists".into())
+    Err(plain("no part of the path exists"))
 }
 
 /// Creates and removes an empty file in `dir`; the error says that `dir` cannot be written in.
-fn try_write_in(dir: &Path) -> Result<(), String> {
+fn try_write_in(dir: &Path) -> Result<(), Problem> {
     static COUNTER: AtomicUsize = AtomicUsize::new(0);
     let probe = dir.join(format!(
         ".clipgaussian-write-check-{}-{}",
@@ -129,7 +150,7 @@ fn try_write_in(dir: &Path) -> Result<(), String> {
         .write(true)
         .create_new(true)
         .open(&probe)
-        .map_err(|e| format!("cannot write in {} ({e})", dir.display()))?;
+        .map_err(|e| (format!("cannot write in {}", dir.display()), Some(e)))?;
     let _ = std::fs::remove_file(&probe);
     Ok(())
 }
