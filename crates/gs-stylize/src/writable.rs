@@ -104,7 +104,10 @@ pub fn check_output_file(file: &Path) -> Result<(), OutputError> {
                 parent.display()
             )))),
         },
-        Err(e) => Err(bad((format!("{} cannot be read", parent.display()), Some(e)))),
+        Err(e) => Err(bad((
+            format!("{} cannot be read", parent.display()),
+            Some(e),
+        ))),
     }
 }
 
