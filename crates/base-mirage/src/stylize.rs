@@ -221,6 +221,26 @@ impl PictureInput {
     }
 }
 
+impl MirageStylizeConfig {
+    /// `model` seen by the front camera at `picture`'s size, over the run's background.
+    fn front_view(
+        &self,
+        model: &mut FlatGaussians,
+        picture: &Image,
+        run: &PreparedRun,
+    ) -> Result<Image, MirageError> {
+        Ok(render_picture(
+            model,
+            picture.width,
+            picture.height,
+            self.distance,
+            false,
+            self.background,
+            run.backend(),
+        )?)
+    }
+}
+
 impl Modality for MirageStylizeConfig {
     type Model = FlatGaussians;
     type Inputs = PictureInput;
@@ -344,17 +364,8 @@ impl Modality for MirageStylizeConfig {
         model: &mut FlatGaussians,
         run: &PreparedRun,
     ) -> Result<Option<f64>, MirageError> {
-        let picture = &inputs.picture;
-        let render = render_picture(
-            model,
-            picture.width,
-            picture.height,
-            self.distance,
-            false,
-            self.background,
-            run.backend(),
-        )?;
-        Ok(Some(psnr(&render, picture)))
+        let render = self.front_view(model, &inputs.picture, run)?;
+        Ok(Some(psnr(&render, &inputs.picture)))
     }
 
     /// Both mirror cameras, the picture and its mirror image, one view per step.
@@ -393,15 +404,7 @@ impl Modality for MirageStylizeConfig {
         let fitted_to = inputs.fitted_to(self.distance);
         let picture = inputs.picture;
         let mut model = outcome.model;
-        let stylized = render_picture(
-            &mut model,
-            picture.width,
-            picture.height,
-            self.distance,
-            false,
-            self.background,
-            run.backend(),
-        )?;
+        let stylized = self.front_view(&mut model, &picture, run)?;
         write_model(&out.join(MODEL_PLY), &model, &fitted_to)?;
         let save = |image: &Image, name: &str| {
             image
