@@ -58,7 +58,9 @@ pub struct StyleArgs {
     #[arg(long)]
     pub device: Option<DeviceChoice>,
     /// Any configuration field, e.g. `--set num_patches=16`; `FIELD.KEY=VALUE` sets one key of
-    /// an object field, e.g. one group's learning rate: `--set learning_rates.sh_dc=0.005`.
+    /// an object field, e.g. one parameter group's learning rate: `--set
+    /// learning_rates.GROUP=0.005` (or `=frozen`; the groups are listed in the configuration's
+    /// `learning_rates`).
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     pub set: Vec<String>,
     /// Continue the run from `<out>/checkpoint/` (a finished run: only with more --steps).
