@@ -40,12 +40,12 @@ pub enum RenderError {
         message: String,
     },
     /// A camera file that cannot be read, does not parse, or describes an invalid camera.
-    #[error("camera {}: {message}", path.display())]
+    #[error("camera {}: {source}", path.display())]
     Camera {
         /// The camera file.
         path: PathBuf,
-        /// What is wrong.
-        message: String,
+        /// What is wrong: the file system's, the JSON reader's or the camera's error.
+        source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// Two views whose pictures would have the same file name.
     #[error("two views would both be written to {0}")]
@@ -106,13 +106,14 @@ pub struct CameraFile {
 impl CameraFile {
     /// The camera this describes; an error when the transform is not rigid or the intrinsics
     /// are invalid.
-    pub fn camera(&self) -> Result<Camera, String> {
+    pub fn camera(&self) -> Result<Camera, Box<dyn std::error::Error + Send + Sync>> {
         let m = &self.world_to_camera;
         if m[3] != [0.0, 0.0, 0.0, 1.0] {
             return Err(format!(
                 "the last row of world_to_camera is {:?}, expected [0, 0, 0, 1]",
                 m[3]
-            ));
+            )
+            .into());
         }
         let r = [
             [m[0][0], m[0][1], m[0][2]],
@@ -143,19 +144,19 @@ impl CameraFile {
             self.width,
             self.height,
         )
-        .map_err(|e| e.to_string())
+        .map_err(Into::into)
     }
 }
 
 /// The camera of the JSON file `path` (see [`CameraFile`]), its picture named
 /// [`CAMERA_RENDER_PNG`].
 pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
-    let bad = |message: String| RenderError::Camera {
+    let bad = |source: Box<dyn std::error::Error + Send + Sync>| RenderError::Camera {
         path: path.to_path_buf(),
-        message,
+        source,
     };
-    let text = std::fs::read_to_string(path).map_err(|e| bad(e.to_string()))?;
-    let file: CameraFile = serde_json::from_str(&text).map_err(|e| bad(e.to_string()))?;
+    let text = std::fs::read_to_string(path).map_err(|e| bad(e.into()))?;
+    let file: CameraFile = serde_json::from_str(&text).map_err(|e| bad(e.into()))?;
     Ok(NamedCamera {
         name: CAMERA_RENDER_PNG.into(),
         camera: file.camera().map_err(bad)?,

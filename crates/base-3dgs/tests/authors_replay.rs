@@ -118,7 +118,7 @@ fn our_run(
         other => panic!("ground truth {other}"),
     };
     let config = StylizeConfig {
-        ply: Some(data.join("scene.ply")),
+        model: Some(data.join("scene.ply")),
         data: Some(data.join("data")),
         out: Some(out),
         preview_views: vec![0],

@@ -76,7 +76,7 @@ fn render_from_a_dataset_writes_one_picture_per_view_as_gs_core_renders_it() {
         "white",
     ]);
     let set = read_ply(&ply).unwrap().gaussians;
-    let mut names: Vec<String> = std::fs::read_dir(&out)
+    let mut names: Vec<String> = std::fs::read_dir(out.join("frames"))
         .unwrap()
         .map(|e| e.unwrap().file_name().into_string().unwrap())
         .collect();
@@ -84,7 +84,7 @@ fn render_from_a_dataset_writes_one_picture_per_view_as_gs_core_renders_it() {
     let expected: Vec<String> = (0..VIEWS).map(|k| format!("r_{k}.png")).collect();
     assert_eq!(names, expected);
     for k in 0..VIEWS {
-        let written = png(&out.join(format!("r_{k}.png")));
+        let written = png(&out.join("frames").join(format!("r_{k}.png")));
         assert_eq!(written.dimensions(), (SIZE, SIZE));
         let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
         assert!(written == render(&set, &camera, [1.0; 3]).image.to_rgb8());
@@ -103,7 +103,7 @@ fn render_from_a_dataset_writes_one_picture_per_view_as_gs_core_renders_it() {
         s(&half),
     ]);
     assert_eq!(
-        png(&half.join("r_0.png")).dimensions(),
+        png(&half.join("frames/r_0.png")).dimensions(),
         (SIZE / 2, SIZE / 2)
     );
 
@@ -168,7 +168,7 @@ fn render_from_a_colmap_dataset_names_pictures_after_its_images() {
     ]);
     let set = read_ply(&ply).unwrap().gaussians;
     for k in 0..VIEWS {
-        let written = png(&out.join(format!("r_{k}.png")));
+        let written = png(&out.join("frames").join(format!("r_{k}.png")));
         let camera = Camera::from_nerf(c2w(k), FOV_X, SIZE, SIZE).unwrap();
         // Over black by default, as stylize renders.
         let want = render(&set, &camera, [0.0; 3]).image.to_rgb8();
@@ -216,7 +216,7 @@ fn render_from_a_camera_file_writes_render_png() {
         s(&out),
     ]);
     let set = read_ply(&ply).unwrap().gaussians;
-    assert!(png(&out.join("render.png")) == render(&set, &camera, [0.0; 3]).image.to_rgb8());
+    assert!(png(&out.join("frames/render.png")) == render(&set, &camera, [0.0; 3]).image.to_rgb8());
 
     let bad = dir.path().join("bad.json");
     std::fs::write(&bad, file([0.0, 0.0, 1.0, 1.0])).unwrap();
@@ -359,7 +359,7 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
     let dir = TempDir::new("cli-eval");
     let (ply, data) = write_scene(dir.path());
     let clip = write_tiny_clip(dir.path());
-    let renders = dir.path().join("renders");
+    let out = dir.path().join("renders");
     succeeds(&[
         "render",
         "--ply",
@@ -367,8 +367,9 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
         "--data",
         s(&data),
         "--out",
-        s(&renders),
+        s(&out),
     ]);
+    let renders = out.join("frames");
     let gt = data.join("train");
     std::fs::write(gt.join("notes.txt"), "not a picture").unwrap();
 

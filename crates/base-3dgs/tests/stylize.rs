@@ -45,7 +45,7 @@ impl Setup {
         let (ply, data) = write_scene(dir.path());
         let (clip_config, clip_weights) = write_tiny_clip(dir.path());
         let config = StylizeConfig {
-            ply: Some(ply),
+            model: Some(ply),
             data: Some(data),
             out: Some(dir.path().join("out")),
             preview_views: vec![0, 2],
@@ -170,7 +170,7 @@ fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
     let out = setup.config.out.clone().unwrap();
     let summary = run(&setup.config, &quiet()).unwrap();
 
-    let input = read_ply(setup.config.ply.as_ref().unwrap()).unwrap();
+    let input = read_ply(setup.config.model.as_ref().unwrap()).unwrap();
     let stylized = read_ply(&summary.stylized_ply).unwrap();
     assert_eq!(stylized.gaussians.len(), input.gaussians.len());
     assert_eq!(stylized.gaussians, summary.gaussians);
@@ -390,14 +390,14 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
 fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
     let root = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..");
     let required = [
-        Override::new("ply", "scene.ply"),
+        Override::new("model", "scene.ply"),
         Override::new("data", "data"),
         Override::new("out", "out"),
         Override::parse("style_prompt=fire").unwrap(),
     ];
     let paper = StylizeConfig::resolve(Some(&root.join("configs/3d.json")), &required).unwrap();
     let expected = StylizeConfig {
-        ply: Some("scene.ply".into()),
+        model: Some("scene.ply".into()),
         data: Some("data".into()),
         out: Some("out".into()),
         style: StyleSettings {
@@ -542,7 +542,7 @@ fn bad_inputs_are_named_and_leave_no_output() {
     )
     .unwrap();
     fails_cleanly(
-        &setup.with(|c| c.ply = Some(partial.clone())),
+        &setup.with(|c| c.model = Some(partial.clone())),
         &["partial.ply", "missing"],
     );
 
@@ -564,7 +564,7 @@ fn bad_inputs_are_named_and_leave_no_output() {
     bytes[body..body + 4].copy_from_slice(&f32::NAN.to_le_bytes());
     std::fs::write(&nan, bytes).unwrap();
     fails_cleanly(
-        &setup.with(|c| c.ply = Some(nan.clone())),
+        &setup.with(|c| c.model = Some(nan.clone())),
         &["nan.ply", "not finite"],
     );
 
@@ -582,8 +582,8 @@ fn the_binary_takes_flags_and_set_overrides() {
     let path = |p: &Option<PathBuf>| p.as_ref().unwrap().display().to_string();
     let args = |extra: &[&str]| {
         let mut v: Vec<String> = vec![
-            "--ply".into(),
-            path(&c.ply),
+            "--model".into(),
+            path(&c.model),
             "--data".into(),
             path(&c.data),
             "--out".into(),

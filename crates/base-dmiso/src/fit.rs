@@ -353,8 +353,7 @@ where
                     self.settings.seed ^ end,
                 )
                 .map_err(FitError::Settings)?;
-                bytes = rearrange_state(&bytes, &groups, &lens, &rows)
-                    .map_err(|e| FitError::Settings(e.to_string()))?;
+                bytes = rearrange_state(&bytes, &groups, &lens, &rows)?;
                 next = dense;
                 // The statistics restart after a densification only.
                 stats = None;
@@ -362,8 +361,7 @@ where
             if self.resets_opacity(end) {
                 let lens = trained_lens(&next, &groups);
                 let rows = reset_opacity(&mut next);
-                bytes = rearrange_state(&bytes, &groups, &lens, &rows)
-                    .map_err(|e| FitError::Settings(e.to_string()))?;
+                bytes = rearrange_state(&bytes, &groups, &lens, &rows)?;
             }
             if end == to {
                 return Ok((next, stats));
@@ -400,9 +398,7 @@ where
     ) -> Result<(M, Vec<u8>), FitError> {
         let mut trainer = Trainer::new(self.backend, model, groups.to_vec(), AdamHyper::default())?;
         if let Some(bytes) = &state {
-            trainer
-                .restore_optimizer(bytes)
-                .map_err(|e| FitError::Settings(e.to_string()))?;
+            trainer.restore_optimizer(bytes)?;
         }
         let config = TrainConfig {
             steps: end - from,

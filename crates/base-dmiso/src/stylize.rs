@@ -24,7 +24,7 @@ use gs_core::model::View;
 use gs_core::train::BatchOrder;
 use gs_core::Image;
 use gs_stylize::animation::{
-    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, PREVIEW_GIF,
+    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
 };
 use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
@@ -44,8 +44,6 @@ use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
 pub const MODEL_FILE: &str = "model.safetensors";
 /// The model fitted by this run.
 pub const BASE_FILE: &str = "base.safetensors";
-/// The renders of the test views: `frames/`, the folder name of rendered views in every binary.
-pub const TEST_DIR: &str = gs_stylize::animation::FRAMES_DIR;
 /// The frames of the sweep through time.
 pub const SWEEP_DIR: &str = "sweep";
 /// The sweep as a video, when `ffmpeg` is installed.
@@ -96,8 +94,8 @@ pub struct DynamicStylizeConfig {
     pub sweep_frames: usize,
     /// Frame rate of the sweep's preview and video.
     pub sweep_fps: f64,
-    /// The fit (when no model is given).
-    pub fit_points: usize,
+    /// Cores of the fit (when no model is given; `--gaussians`).
+    pub fit_gaussians: usize,
     /// Steps of the fit.
     pub fit_steps: u64,
     /// Static warm-up steps of the fit.
@@ -132,7 +130,7 @@ impl Default for DynamicStylizeConfig {
             learning_rates: stylize_rates(),
             sweep_frames: 60,
             sweep_fps: 24.0,
-            fit_points: fit.points,
+            fit_gaussians: fit.points,
             fit_steps: fit.steps,
             fit_warm_up: fit.warm_up,
             fit_subs_from: fit.subs_from,
@@ -154,7 +152,7 @@ impl DynamicStylizeConfig {
     /// The fit this configuration asks for.
     pub fn fit_settings(&self) -> FitSettings {
         FitSettings {
-            points: self.fit_points,
+            points: self.fit_gaussians,
             steps: self.fit_steps,
             warm_up: self.fit_warm_up,
             subs_from: self.fit_subs_from,
@@ -562,7 +560,7 @@ impl Modality for DynamicStylizeConfig {
         let test_renders = match &scene.test {
             Some(test) => {
                 let renders = render_views(&mut model, &test.views, background, backend)?;
-                write_frames(&out.join(TEST_DIR), &renders)?;
+                write_frames(&out.join(FRAMES_DIR), &renders)?;
                 renders
             }
             None => Vec::new(),

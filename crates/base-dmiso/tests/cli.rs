@@ -90,6 +90,9 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         "{text}"
     );
     assert_eq!(count_pngs(&fitted.join("frames")), 3);
+    for preview in ["preview.png", "preview.gif"] {
+        assert!(fitted.join(preview).is_file(), "the fit writes {preview}");
+    }
     let base = load(&fitted.join("model.safetensors"));
     assert_eq!(
         (base.cores(), base.subs_per_core(), base.net().width),
@@ -222,7 +225,7 @@ fn a_run_that_fits_first_resumes_with_its_fit() {
     let data = scene(dir.path());
     let out = dir.path().join("out");
     let fit_settings = [
-        "fit_points=150",
+        "fit_gaussians=150",
         "fit_steps=20",
         "fit_warm_up=5",
         "fit_subs_from=10",

@@ -290,7 +290,7 @@ impl Modality for VideoStylizeConfig {
             return Err(VideoError::ModelMismatch {
                 path: path.to_path_buf(),
                 reason: format!(
-                    "this run's fit holds {} Gaussians, but fit_gaussians is {}; resume with \
+                    "this run's fit holds {} Gaussians, but --gaussians is {}; resume with \
                      the same settings",
                     model.params().len(),
                     self.fit_gaussians

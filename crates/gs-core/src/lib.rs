@@ -1,7 +1,12 @@
 //! gs-core: the shared machinery of every CLIPGaussian base model.
 //!
-//! - [`GaussianSet`]: structure-of-arrays Gaussian parameters (count fixed after construction).
-//! - [`Camera`]: pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
+//! - [`GaussianSet`] ([`gaussians`]): structure-of-arrays Gaussian parameters (count fixed after
+//!   construction); [`sh`]: their spherical-harmonics colour.
+//! - [`Camera`] ([`camera`]): pinhole cameras in OpenCV axes, from NeRF/Blender or COLMAP poses.
+//! - [`Image`] ([`image`]): linear RGB pictures, read and written as 8-bit files, and a
+//!   picture's size from its header.
+//! - [`mat`] and [`real`]: the small 3x3 algebra and the `f32`/`f64` trait the rasterizer is
+//!   written over.
 //! - [`dataset`]: posed ground-truth images: NeRF-synthetic (and D-NeRF, with a time per frame)
 //!   and COLMAP scenes, with background masks and the scene extent.
 //! - [`mirror_pair`]: the two cameras of Gaussians on a plane (MiraGe pictures, VeGaS frames).
@@ -17,8 +22,8 @@
 //! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
 //! - [`pil_resize`] and [`wide_pictures`]: Pillow's bicubic resize of 8-bit pictures, bit for
 //!   bit, and the authors' loaders' shrinking of pictures wider than 1600 pixels.
-//!
 //! - [`device`]: the device a run asks for (`cpu|gpu|auto`).
+//! - [`GsError`]: this crate's error.
 //!
 //! The GPU backend, and the opening of the device a run asks for, are the gs-wgpu crate
 //! beside this one.

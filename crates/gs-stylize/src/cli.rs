@@ -170,39 +170,51 @@ impl EvalStyleArgs {
     }
 }
 
-/// Arguments of `interpolate`: blends two PLY files of the same Gaussians (e.g. two
-/// stylizations of one base model) parameter by parameter.
+/// Arguments of `interpolate`, the same in every binary: blends two models of the same
+/// Gaussians (e.g. two stylizations of one base model) parameter by parameter.
 #[derive(clap::Args, Debug)]
 pub struct InterpolateArgs {
-    /// The first PLY (t = 0); its extra properties and format are kept.
+    /// The first model (t = 0); a PLY's extra properties and format are kept.
     #[arg(long)]
     pub a: PathBuf,
-    /// The second PLY (t = 1), with as many Gaussians of the same SH degree as A.
+    /// The second model (t = 1), of the same Gaussians (and frames, cores, network) as A.
     #[arg(long)]
     pub b: PathBuf,
     /// The interpolation parameter; values outside [0, 1] extrapolate.
     #[arg(long, allow_negative_numbers = true)]
     pub t: f32,
-    /// The output PLY.
+    /// The output model.
     #[arg(long)]
     pub out: PathBuf,
 }
 
 impl InterpolateArgs {
-    /// Writes `(1 - t) A + t B` to `out` (checked first: [`check_output_file`]) and returns a
-    /// line saying what was written. A model that another binary than `binary` opens is
-    /// refused naming that binary ([`check_model`]).
-    pub fn run(&self, binary: Binary) -> Result<String, Box<dyn Error>> {
+    /// Checks before any work that `--a` and `--b` are models `binary` opens (another
+    /// binary's are refused naming it: [`check_model`]) and that `--out` can be written
+    /// ([`check_output_file`]).
+    pub fn check(&self, binary: Binary) -> Result<(), Box<dyn Error>> {
         check_model(binary, "--a", &self.a)?;
         check_model(binary, "--b", &self.b)?;
         check_output_file(&self.out)?;
-        let (a, format) = read_ply_with_format(&self.a)?;
-        let b = read_ply(&self.b)?;
-        let blended = interpolate_ply(&a, &b, self.t).map_err(|e| StylizeError::Interpolate {
+        Ok(())
+    }
+
+    /// Why `--a` and `--b` do not blend: `source`, naming both files.
+    pub fn mismatch(&self, source: impl Into<Box<dyn Error + Send + Sync>>) -> StylizeError {
+        StylizeError::Interpolate {
             a: self.a.clone(),
             b: self.b.clone(),
-            source: Box::new(e),
-        })?;
+            source: source.into(),
+        }
+    }
+
+    /// Blends two INRIA PLY models (2D and 3D): writes `(1 - t) A + t B` to `out`, checked
+    /// first ([`InterpolateArgs::check`]), and returns a line saying what was written.
+    pub fn run(&self, binary: Binary) -> Result<String, Box<dyn Error>> {
+        self.check(binary)?;
+        let (a, format) = read_ply_with_format(&self.a)?;
+        let b = read_ply(&self.b)?;
+        let blended = interpolate_ply(&a, &b, self.t).map_err(|e| self.mismatch(e))?;
         write_ply(&self.out, &blended, format)?;
         Ok(format!(
             "wrote {} ({} Gaussians, t = {})",

@@ -450,7 +450,7 @@ mod tests {
     /// A modality configuration with the 3D fields, so `configs/3d.json` reads into it.
     #[derive(Debug, PartialEq, Serialize, Deserialize)]
     struct Modality {
-        ply: Option<PathBuf>,
+        model: Option<PathBuf>,
         data: Option<PathBuf>,
         out: Option<PathBuf>,
         resolution: u32,
@@ -469,7 +469,7 @@ mod tests {
     impl Default for Modality {
         fn default() -> Self {
             Self {
-                ply: None,
+                model: None,
                 data: None,
                 out: None,
                 resolution: 1,

@@ -1,10 +1,10 @@
-//! The stylization driver of every modality, in two phases. [`prepare`] checks everything a
-//! run needs before any long work (settings, output folder, weights, style image, CLIP
-//! configuration, device) and reports every problem at once; the modality then loads or fits
-//! its model and views and calls [`PreparedRun::stylize`], which checks the job, builds the
-//! style objective and the optimizer, resumes or refuses an earlier run's checkpoint, then (and
-//! only then) creates the output folder, trains with checkpoints and progress, and writes the
-//! loss log and plot. The modality writes its own results after.
+//! The stylization of every modality, in two phases, which [`crate::drive::run`] calls in its
+//! order. [`prepare`] checks everything a run needs before any long work (settings, output
+//! folder, weights, style image, CLIP configuration, device) and reports every problem at once;
+//! once the modality has loaded or fitted its model and views, [`PreparedRun::stylize`] checks
+//! the job, builds the style objective and the optimizer, resumes or refuses an earlier run's
+//! checkpoint, then (and only then) creates the output folder, trains with checkpoints and
+//! progress, and writes the loss log and plot.
 
 use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
@@ -413,7 +413,7 @@ fn check_job<M: BaseModel>(
     }
     if job.batches.size == 0 || job.batches.size > count {
         return Err(StylizeError::Input(format!(
-            "a batch of {} views for {count} views; it must be 1 to {count}",
+            "a batch of {} views for {count} views; it must be 1 to {count} (--batch-size)",
             job.batches.size
         )));
     }

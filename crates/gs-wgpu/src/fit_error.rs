@@ -11,9 +11,9 @@ pub enum FitError {
     /// A setting out of its range.
     #[error("{0}")]
     Settings(String),
-    /// A camera that could not be built.
+    /// gs-core's error: a camera that could not be built, optimizer state that does not fit.
     #[error("{0}")]
-    Camera(#[from] GsError),
+    Core(#[from] GsError),
     /// Training stopped with an error.
     #[error("fitting: {0}")]
     Train(#[from] TrainError<GsError>),

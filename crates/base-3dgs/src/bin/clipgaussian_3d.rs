@@ -18,6 +18,7 @@ use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folde
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::ply::read_ply;
+use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
@@ -33,7 +34,7 @@ use gs_wgpu::backend::DeviceChoice;
 #[command(
     name = "clipgaussian-3d",
     version,
-    about = "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, evaluate"
+    about = "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, eval"
 )]
 struct Cli {
     /// What to do.
@@ -59,8 +60,9 @@ enum Command {
     Stylize(StylizeArgs),
     /// Render a PLY from the cameras of a dataset or from one camera file.
     ///
-    /// Writes one PNG per dataset view, named after the dataset's image, or `render.png` for a
-    /// camera file. Inputs are checked before the output folder is created.
+    /// Writes into `--out`'s `frames/` (the folder of rendered views in every binary) one PNG
+    /// per dataset view, named after the dataset's image, or `render.png` for a camera file.
+    /// Inputs are checked before the output folder is created.
     Render(RenderArgs),
     /// Interpolate two PLY files of the same Gaussians parameter by parameter.
     ///
@@ -118,7 +120,7 @@ impl StylizeArgs {
     /// The flags as overrides, then the `--set` ones.
     fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
         self.style.overrides(vec![
-            ("ply", path_value(&self.ply)),
+            ("model", path_value(&self.ply)),
             ("data", path_value(&self.data)),
             ("out", path_value(&self.out)),
             ("resolution", self.resolution.map(Into::into)),
@@ -253,18 +255,9 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         (None, None) => return Err("one of --data and --camera is required".into()),
     };
     let backend = open_device(args.device)?;
-    let written = render_to_folder(
-        &ply.gaussians,
-        &cameras,
-        args.background,
-        &args.out,
-        &backend,
-    )?;
-    println!(
-        "wrote {} picture(s) to {}",
-        written.len(),
-        args.out.display()
-    );
+    let frames = args.out.join(FRAMES_DIR);
+    let written = render_to_folder(&ply.gaussians, &cameras, args.background, &frames, &backend)?;
+    println!("wrote {} picture(s) to {}", written.len(), frames.display());
     Ok(())
 }
 

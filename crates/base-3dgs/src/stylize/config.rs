@@ -30,7 +30,7 @@ pub enum BackgroundPixels {
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct StylizeConfig {
     /// The trained 3DGS scene (INRIA PLY).
-    pub ply: Option<PathBuf>,
+    pub model: Option<PathBuf>,
     /// The dataset folder: NeRF-synthetic when it has `transforms_train.json`, else COLMAP.
     pub data: Option<PathBuf>,
     /// The output folder.
@@ -84,7 +84,7 @@ pub struct StylizeConfig {
 impl Default for StylizeConfig {
     fn default() -> Self {
         Self {
-            ply: None,
+            model: None,
             data: None,
             out: None,
             resolution: 1,
@@ -116,7 +116,7 @@ impl StylizeConfig {
     pub fn validate(&self) -> Result<(), StylizeError> {
         let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
         for (field, value, flag) in [
-            ("ply", &self.ply, "--model PLY"),
+            ("model", &self.model, "--model PLY"),
             ("data", &self.data, "--data FOLDER"),
             ("out", &self.out, "--out FOLDER"),
         ] {
@@ -135,9 +135,9 @@ impl StylizeConfig {
         Ok(())
     }
 
-    /// The required `ply` path ([`StylizeConfig::validate`] checked it is set).
-    pub fn ply_path(&self) -> &Path {
-        self.ply.as_deref().expect("validated: ply is set")
+    /// The required `model` path ([`StylizeConfig::validate`] checked it is set).
+    pub fn model_path(&self) -> &Path {
+        self.model.as_deref().expect("validated: model is set")
     }
 
     /// The required `data` path.

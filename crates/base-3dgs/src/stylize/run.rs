@@ -76,7 +76,7 @@ impl Modality for StylizeConfig {
     }
 
     fn given_model(&self) -> Option<&Path> {
-        Some(self.ply_path())
+        Some(self.model_path())
     }
 
     /// The PLY and the dataset, with the preview views checked against it.
@@ -85,12 +85,13 @@ impl Modality for StylizeConfig {
         _run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<SceneInput, StylizeError> {
-        let (ply, format) = read_ply_with_format(self.ply_path())?;
+        let (ply, format) = read_ply_with_format(self.model_path())?;
         let dataset = load_dataset(self)?;
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
             return Err(StylizeError::Input(format!(
-                "preview_views: view {v} does not exist (the dataset has {count})"
+                "preview_views: view {v} does not exist (the dataset has {count}; set them \
+                 with --set preview_views=[0])"
             )));
         }
         Ok(SceneInput {

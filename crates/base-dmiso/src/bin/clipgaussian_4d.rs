@@ -17,7 +17,7 @@ use base_dmiso::fit::{self, mean_psnr, render_views, FitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
     background_of, load_scene, read_model, run, sweep_views, DynamicError, DynamicStylizeConfig,
-    MODEL_FILE, SWEEP_DIR, SWEEP_MP4, TEST_DIR,
+    MODEL_FILE, SWEEP_DIR, SWEEP_MP4,
 };
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
@@ -25,17 +25,19 @@ use clap::{Args, Parser, Subcommand};
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_core::Image;
-use gs_stylize::animation::{write_frames, write_mp4, FRAMES_DIR};
+use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
+use gs_stylize::cli::{
+    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
+};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::outputs::create_folder;
+use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use gs_wgpu::backend::DeviceChoice;
 use style_loss::compute_device;
 use style_loss::image_layout::hwc_to_tensor;
@@ -73,8 +75,9 @@ enum Command {
     Stylize(Box<StylizeArgs>),
     /// Fit a D-NeRF scene with D-MiSo (no stylization).
     ///
-    /// Writes to --out: model.safetensors and frames/ (the test views at their times; the
-    /// training views, when the scene has no test split), and prints their mean PSNR.
+    /// Writes to --out: model.safetensors, frames/ (the test views at their times; the
+    /// training views, when the scene has no test split), preview.png (the first of them:
+    /// picture | fit) and preview.gif (all of them, picture | fit), and prints their mean PSNR.
     Fit(FitArgs),
     /// Render a model at the views and times of a dataset split, and optionally through time
     /// from the split's first camera (sweep/ and, with ffmpeg, sweep.mp4).
@@ -230,23 +233,6 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `interpolate`.
-#[derive(Args, Debug)]
-struct InterpolateArgs {
-    /// The first model (t = 0): a .safetensors file or an authors' folder.
-    #[arg(long)]
-    a: PathBuf,
-    /// The second model (t = 1), of the same cores, sub-Gaussians and network.
-    #[arg(long)]
-    b: PathBuf,
-    /// The interpolation parameter; values outside [0, 1] extrapolate.
-    #[arg(long, allow_negative_numbers = true)]
-    t: f32,
-    /// The output model (.safetensors).
-    #[arg(long)]
-    out: PathBuf,
-}
-
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 struct EvalArgs {
@@ -307,7 +293,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
             "background",
             args.background.map(|b| serde_json::Value::from(b.to_vec())),
         ),
-        ("fit_points", args.points.map(Into::into)),
+        ("fit_gaussians", args.points.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
     ])?;
     let config: DynamicStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
@@ -319,7 +305,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         summary.model.cores(),
         summary.model.subs_per_core(),
         summary.test_renders.len(),
-        out.join(TEST_DIR).display(),
+        out.join(FRAMES_DIR).display(),
         summary.sweep.len(),
         out.join(SWEEP_DIR).display(),
         if summary.wrote_mp4 {
@@ -334,6 +320,9 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     );
     Ok(())
 }
+
+/// Frame rate of the fit's `preview.gif` (its views, one after another).
+const FIT_PREVIEW_FPS: f64 = 12.0;
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
@@ -388,7 +377,14 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         None => (&train.views, &train.images, "training"),
     };
     let renders = render_views(&mut model, views, bg.rgb(), &backend)?;
-    write_frames(&args.out.join(TEST_DIR), &renders)?;
+    write_frames(&args.out.join(FRAMES_DIR), &renders)?;
+    write_pair(&args.out.join(PREVIEW_PNG), &images[0], &renders[0])?;
+    write_preview_gif(
+        &args.out.join(PREVIEW_GIF),
+        images,
+        &renders,
+        FIT_PREVIEW_FPS,
+    )?;
     println!(
         "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, mean PSNR \
          {:.2} dB over the {which} views; wrote {}",
@@ -458,17 +454,11 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `interpolate`.
 fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    check_model(Binary::DynamicScene, "--a", &args.a)?;
-    check_model(Binary::DynamicScene, "--b", &args.b)?;
-    check_output_file(&args.out)?;
+    args.check(Binary::DynamicScene)?;
     let read =
         |p: &Path| -> Result<Dmiso, Box<dyn Error>> { Ok(read_model(p, None, &Device::Cpu)?) };
     let (a, b) = (read(&args.a)?, read(&args.b)?);
-    let blended = interpolate(&a, &b, args.t).map_err(|e| StylizeError::Interpolate {
-        a: args.a.clone(),
-        b: args.b.clone(),
-        source: e.into(),
-    })?;
+    let blended = interpolate(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
     model_file::save(
         &blended,
         &args.out,
@@ -539,10 +529,8 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &args.style.source_prompt,
         bg.rgb(),
     )?;
-    let text = serde_json::to_string_pretty(&metrics)?;
-    println!("{text}");
-    gs_core::fs::write_atomic(&args.out, (text + "\n").as_bytes())
-        .map_err(|e| format!("{}: {e}", args.out.display()))?;
+    println!("{}", serde_json::to_string_pretty(&metrics)?);
+    write_json(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }

@@ -4,8 +4,10 @@
 //!   picture style; with no picture, the embedded default one. Ctrl-C stops after the current
 //!   step and writes a checkpoint to resume from.
 //! - `fit`: fits a picture and writes its model.
-//! - `render`: renders a model at a chosen size, from the front or the mirror camera.
+//! - `render`: renders a model at the size it records (or a chosen one), from the front or
+//!   the mirror camera.
 //! - `interpolate`: blends two models of the same Gaussians.
+//! - `eval`: the paper's CLIP metrics of a stylized picture against the original.
 
 use std::error::Error;
 use std::path::{Path, PathBuf};
@@ -42,7 +44,7 @@ use gs_wgpu::backend::{Backend, DeviceChoice};
 #[command(
     name = "clipgaussian-2d",
     version,
-    about = "CLIPGaussian on pictures (MiraGe flat Gaussians): stylize, fit, render, interpolate"
+    about = "CLIPGaussian on pictures (MiraGe flat Gaussians): stylize, fit, render, interpolate, eval"
 )]
 struct Cli {
     /// What to do.

@@ -25,16 +25,17 @@ use gs_stylize::animation::{
     write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{exit_code, path_value, EvalStyleArgs, SelftestArgs, StyleArgs};
+use gs_stylize::cli::{
+    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
+};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::outputs::create_folder;
-use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
+use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_stylize::{open_device, resolve_config, Override, RunOptions};
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
 use style_loss::image_layout::hwc_to_tensor;
@@ -159,6 +160,10 @@ struct FitArgs {
     /// frame at its size.
     #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
     max_width: u32,
+    /// The colour behind transparent pixels and behind the Gaussians: white, black (VeGaS's)
+    /// or R,G,B in [0, 1].
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
     /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
@@ -196,23 +201,6 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `interpolate`.
-#[derive(Args, Debug)]
-struct InterpolateArgs {
-    /// The first model (t = 0).
-    #[arg(long)]
-    a: PathBuf,
-    /// The second model (t = 1), of the same Gaussians and frames.
-    #[arg(long)]
-    b: PathBuf,
-    /// The interpolation parameter; values outside [0, 1] extrapolate.
-    #[arg(long, allow_negative_numbers = true)]
-    t: f32,
-    /// The output model.
-    #[arg(long)]
-    out: PathBuf,
-}
-
 /// Arguments of `eval`.
 #[derive(Args, Debug)]
 struct EvalArgs {
@@ -226,6 +214,10 @@ struct EvalArgs {
     /// The style and the CLIP model.
     #[command(flatten)]
     style: EvalStyleArgs,
+    /// The colour behind transparent pixels of both videos' frames: white, black or R,G,B in
+    /// [0, 1] (black by default, the background stylize renders over unless told otherwise).
+    #[arg(long, value_parser = parse_background, default_value = "black")]
+    background: [f32; 3],
     /// Where to write the scores as JSON, printed too (metrics.json by default, as every
     /// binary's eval; its folder must exist; checked before any work).
     #[arg(long, default_value = "metrics.json")]
@@ -279,6 +271,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         gaussians: args.gaussians,
         steps: args.steps,
         seed: args.seed,
+        background: args.background,
         ..FitSettings::default()
     };
     if !(args.fps.is_finite() && args.fps > 0.0) {
@@ -403,16 +396,10 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `interpolate`.
 fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    check_model(Binary::Video, "--a", &args.a)?;
-    check_model(Binary::Video, "--b", &args.b)?;
-    check_output_file(&args.out)?;
+    args.check(Binary::Video)?;
     let (a, record) = read_model(&args.a)?;
     let (b, _) = read_model(&args.b)?;
-    let blended = interpolate(&a, &b, args.t).map_err(|e| StylizeError::Interpolate {
-        a: args.a.clone(),
-        b: args.b.clone(),
-        source: e.into(),
-    })?;
+    let blended = interpolate(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
     write_model(&args.out, &blended, record)?;
     println!("wrote {} (t = {})", args.out.display(), args.t);
     Ok(())
@@ -432,9 +419,14 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
-    let renders = load_video(&args.renders, [0.0; 3], DEFAULT_FOLDER_FPS, 0)?;
+    let renders = load_video(&args.renders, args.background, DEFAULT_FOLDER_FPS, 0)?;
     // The frames at the renders' width when wider, as the run that made them shrank them.
-    let video = load_video(&args.video, [0.0; 3], DEFAULT_FOLDER_FPS, renders.size().0)?;
+    let video = load_video(
+        &args.video,
+        args.background,
+        DEFAULT_FOLDER_FPS,
+        renders.size().0,
+    )?;
     if renders.frames.len() != video.frames.len() {
         return Err(format!(
             "{} holds {} frames, {} holds {}",
@@ -468,10 +460,8 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         )?,
         temporal,
     };
-    let text = serde_json::to_string_pretty(&metrics)?;
-    println!("{text}");
-    gs_core::fs::write_atomic(&args.out, (text + "\n").as_bytes())
-        .map_err(|e| format!("{}: {e}", args.out.display()))?;
+    println!("{}", serde_json::to_string_pretty(&metrics)?);
+    write_json(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }
