@@ -451,7 +451,7 @@ fn a_gpu_run_without_a_desktop_session_prints_no_error_line() {
     );
     let errors: Vec<&str> = stderr.lines().filter(|l| l.starts_with("error:")).collect();
     assert!(errors.is_empty(), "a successful run printed {errors:?}");
-    assert!(out.join("r_0.png").is_file());
+    assert!(out.join("frames/r_0.png").is_file());
 }
 
 #[test]

@@ -274,6 +274,25 @@ fn a_run_that_fits_first_resumes_with_its_fit() {
     let losses: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("losses.json")).unwrap()).unwrap();
     assert_eq!(losses.as_array().unwrap().len(), 4);
+    // The same run without the interruption ends with the same bytes.
+    let whole = dir.path().join("whole");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 4);
+    with_fit(&mut cmd);
+    run(cmd.args([
+        "--data",
+        s(&data),
+        "--out",
+        s(&whole),
+        "--background",
+        "black",
+    ]));
+    // (Compared as models: the file's metadata order is not fixed.)
+    assert_eq!(
+        load(&whole.join("model.safetensors")),
+        load(&out.join("model.safetensors")),
+        "a run resumed at step 2 ends where an uninterrupted one does"
+    );
 }
 
 #[test]

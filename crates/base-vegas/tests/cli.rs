@@ -182,6 +182,21 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         serde_json::from_str(&std::fs::read_to_string(inside.join("losses.json")).unwrap())
             .unwrap();
     assert_eq!(losses.as_array().unwrap().len(), 6);
+    // The same run without the interruption ends with the same bytes.
+    let whole = dir.path().join("whole");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 6);
+    run(cmd.args(["--video", s(&clip), "--out", s(&whole)]).args([
+        "--gaussians",
+        "200",
+        "--fit-steps",
+        "20",
+    ]));
+    assert_eq!(
+        std::fs::read(whole.join("model.ply")).unwrap(),
+        std::fs::read(inside.join("model.ply")).unwrap(),
+        "a run resumed at step 3 ends where an uninterrupted one does"
+    );
 }
 
 #[test]
