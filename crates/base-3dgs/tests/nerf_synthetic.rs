@@ -6,7 +6,9 @@ mod common;
 use std::path::Path;
 
 use base_3dgs::dataset::nerf_synthetic::{self, Split, TrainSplits};
-use base_3dgs::dataset::{composite_8bit, scene_extent, Background, DatasetError, LoadOptions};
+use base_3dgs::dataset::{
+    composite_8bit, scene_extent, Background, DatasetError, ImageProgress, LoadOptions,
+};
 use common::TempDir;
 
 const W: u32 = 8;
@@ -84,6 +86,27 @@ fn a_tiny_scene_loads_with_cameras_that_project_known_points() {
     );
     assert_eq!(data.views[0].time, 0.0);
     assert!(data.points.is_none());
+}
+
+/// The loader tells its progress of every picture: each count once, out of the split's size.
+#[test]
+fn every_picture_loaded_is_reported_once() {
+    use std::sync::{Arc, Mutex};
+    let dir = TempDir::new("nerf-progress");
+    write_scene(dir.path(), "train");
+    let seen = Arc::new(Mutex::new(Vec::new()));
+    let record = seen.clone();
+    let options = LoadOptions {
+        progress: Some(ImageProgress::new(move |done, total| {
+            record.lock().unwrap().push((done, total))
+        })),
+        ..LoadOptions::default()
+    };
+    let data = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+    let mut seen = seen.lock().unwrap().clone();
+    seen.sort_unstable();
+    assert_eq!(seen, vec![(1, 3), (2, 3), (3, 3)]);
+    assert_eq!(data.views.len(), 3);
 }
 
 #[test]

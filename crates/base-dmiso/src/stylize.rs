@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 use candle_core::Device;
 use gs_core::adam::{GroupConfig, RateAt};
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split, TrainSplits};
-use gs_core::dataset::{Background, Dataset, DatasetError, LoadOptions};
+use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOptions};
 use gs_core::model::View;
 use gs_core::train::BatchOrder;
 use gs_core::Image;
@@ -28,6 +28,7 @@ use gs_stylize::animation::{
 };
 use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
+use gs_stylize::progress::LoadingProgress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -284,16 +285,19 @@ pub struct DynamicSummary {
 }
 
 /// The training and (when present) test splits of the D-NeRF scene in `data`, pictures wider
-/// than `max_width` shrunk to it (0 keeps every size; see [`LoadOptions::max_width`]).
+/// than `max_width` shrunk to it (0 keeps every size; see [`LoadOptions::max_width`]), each
+/// picture told to `progress` as it is decoded.
 pub fn load_scene(
     data: &Path,
     background: Background,
     max_width: u32,
+    progress: Option<ImageProgress>,
 ) -> Result<(Dataset, Option<Dataset>), DatasetError> {
     let options = LoadOptions {
         background,
         downscale: 1,
         max_width,
+        progress,
         ..LoadOptions::default()
     };
     let train = load_with_times(data, Split::Train, &options)?;
@@ -421,7 +425,10 @@ impl Modality for DynamicStylizeConfig {
             Some(true) => TrainSplits::Train,
             Some(false) | None => TrainSplits::TrainAndTest,
         });
-        let (mut train, test) = load_scene(data, background, self.max_width)?;
+        let loading = LoadingProgress::new(run.options().progress, "loading pictures");
+        let loaded = load_scene(data, background, self.max_width, Some(loading.reporter()));
+        loading.finish();
+        let (mut train, test) = loaded?;
         if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
             train.append(test.clone());
         }

@@ -22,6 +22,7 @@ use gs_core::model::BaseModel;
 use gs_core::Image;
 use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
+use gs_stylize::progress::LoadingProgress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -35,7 +36,7 @@ use crate::fit::{
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
-use crate::video_input::{load_video, Video, VideoInputError, DEFAULT_FOLDER_FPS};
+use crate::video_input::{load_video_with_progress, Video, VideoInputError, DEFAULT_FOLDER_FPS};
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
@@ -269,9 +270,19 @@ impl Modality for VideoStylizeConfig {
     }
 
     /// The frames, checked against the patch size.
-    fn load_inputs(&self, _run: &PreparedRun, _model: Option<&Path>) -> Result<Video, VideoError> {
+    fn load_inputs(&self, run: &PreparedRun, _model: Option<&Path>) -> Result<Video, VideoError> {
         let path = self.video.as_deref().expect("checked: the video is given");
-        let video = load_video(path, self.background, self.fps, self.max_width)?;
+        let loading = LoadingProgress::new(run.options().progress, "loading frames");
+        let reporter = loading.reporter();
+        let loaded = load_video_with_progress(
+            path,
+            self.background,
+            self.fps,
+            self.max_width,
+            Some(&reporter),
+        );
+        loading.finish();
+        let video = loaded?;
         check_patches_fit(&self.style, &video.frames[..1], &video.labels[..1])?;
         Ok(video)
     }

@@ -6,7 +6,9 @@
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
+use gs_core::dataset::ImageProgress;
 use gs_core::wide_pictures::shrink_wide;
 use gs_core::{GsError, Image};
 use rayon::prelude::*;
@@ -105,7 +107,18 @@ pub fn load_video(
     folder_fps: f64,
     max_width: u32,
 ) -> Result<Video, VideoInputError> {
-    let mut video = read_video(path, background, folder_fps)?;
+    load_video_with_progress(path, background, folder_fps, max_width, None)
+}
+
+/// [`load_video`], each frame told to `progress` as it is decoded.
+pub fn load_video_with_progress(
+    path: &Path,
+    background: [f32; 3],
+    folder_fps: f64,
+    max_width: u32,
+    progress: Option<&ImageProgress>,
+) -> Result<Video, VideoInputError> {
+    let mut video = read_video(path, background, folder_fps, progress)?;
     video.frames = std::mem::take(&mut video.frames)
         .into_par_iter()
         .map(|f| shrink_wide(f, max_width))
@@ -118,10 +131,13 @@ fn read_video(
     path: &Path,
     background: [f32; 3],
     folder_fps: f64,
+    progress: Option<&ImageProgress>,
 ) -> Result<Video, VideoInputError> {
     if path.is_dir() {
         let files = frame_files(path)?;
-        let video = decode_frames(&files, background, folder_fps, |f| f.display().to_string())?;
+        let video = decode_frames(&files, background, folder_fps, progress, |f| {
+            f.display().to_string()
+        })?;
         return check_count(video, path);
     }
     if !path.exists() {
@@ -145,7 +161,7 @@ fn read_video(
             .arg(dir.path().join("%06d.png")),
     )?;
     let files = frame_files(dir.path())?;
-    let video = decode_frames(&files, background, fps, |f| {
+    let video = decode_frames(&files, background, fps, progress, |f| {
         let stem = f
             .file_stem()
             .map(|s| s.to_string_lossy().into_owned())
@@ -178,24 +194,31 @@ pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, VideoInputError> {
     Ok(files)
 }
 
-/// Decodes `files` in parallel, checking that every frame has the first one's size.
+/// Decodes `files` in parallel, telling `progress` of each, checking that every frame has the
+/// first one's size.
 fn decode_frames(
     files: &[PathBuf],
     background: [f32; 3],
     fps: f64,
+    progress: Option<&ImageProgress>,
     label: impl Fn(&Path) -> String + Sync,
 ) -> Result<Video, VideoInputError> {
     let labels: Vec<String> = files.iter().map(|f| label(f)).collect();
+    let done = AtomicUsize::new(0);
     let frames = files
         .par_iter()
         .zip(&labels)
         .map(|(f, l)| {
-            Image::load_8bit_composite(f, background).map_err(|source| {
+            let frame = Image::load_8bit_composite(f, background).map_err(|source| {
                 VideoInputError::Unreadable {
                     label: l.clone(),
                     source,
                 }
-            })
+            });
+            if let Some(progress) = progress {
+                progress.report(done.fetch_add(1, Ordering::Relaxed) + 1, files.len());
+            }
+            frame
         })
         .collect::<Result<Vec<Image>, _>>()?;
     let first_size = (frames[0].width, frames[0].height);

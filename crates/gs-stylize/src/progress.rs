@@ -15,8 +15,10 @@ use std::cell::{Cell, RefCell};
 use std::io::IsTerminal;
 use std::ops::ControlFlow;
 use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use gs_core::dataset::ImageProgress;
 use gs_core::train::StepReport;
 
 use indicatif::{ProgressBar, ProgressStyle};
@@ -254,6 +256,57 @@ pub fn fit_with_progress<T, E: From<StylizeError>>(
     Ok(fitted)
 }
 
+/// The progress of loading pictures (a dataset's, a video's frames), shown as [`Progress`]
+/// lines or a bar labelled `label` as the loaders report each picture decoded
+/// ([`gs_core::dataset::ImageProgress`]); a loading of several parts (a scene's splits) shows
+/// each part as it comes.
+pub struct LoadingProgress {
+    show: bool,
+    label: String,
+    current: Arc<Mutex<Option<(usize, Progress)>>>,
+}
+
+impl LoadingProgress {
+    /// A loading's progress, shown when `show`.
+    pub fn new(show: bool, label: &str) -> Self {
+        Self {
+            show,
+            label: label.to_string(),
+            current: Arc::new(Mutex::new(None)),
+        }
+    }
+
+    /// What the loaders report to (`LoadOptions::progress`).
+    pub fn reporter(&self) -> ImageProgress {
+        let (show, label, current) = (self.show, self.label.clone(), self.current.clone());
+        ImageProgress::new(move |done, total| {
+            let mut current = current.lock().unwrap_or_else(|e| e.into_inner());
+            // A new part when none is shown, the total changed, or the part shown is complete
+            // (parallel loaders may report their counts out of order within a part).
+            let new_part = current.as_ref().is_none_or(|(part_total, part)| {
+                *part_total != total || part.last.borrow().0 >= *part_total as u64
+            });
+            if new_part {
+                if let Some((_, part)) = current.take() {
+                    part.finish();
+                }
+                *current = Some((total, Progress::new(show, &label, total as u64, 0)));
+            }
+            if let Some((_, part)) = current.as_ref() {
+                part.update(done as u64, &format!("picture {done} of {total}"));
+            }
+        })
+    }
+
+    /// Ends the display (call it once the loading is done, before printing anything else).
+    pub fn finish(&self) {
+        let mut current = self.current.lock().unwrap_or_else(|e| e.into_inner());
+        if let Some((_, part)) = current.take() {
+            part.finish();
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -278,6 +331,39 @@ mod tests {
         // No step of the third stage yet: the whole loop's speed, 410 s for 600 steps.
         let line = p.line(600, "", Duration::from_secs(410));
         assert!(line.contains("about 0:04:33 left"), "{line}");
+    }
+
+    /// A loading of two parts (a scene's splits) shows each part as it comes, and the display
+    /// ends with `finish`.
+    #[test]
+    fn a_loading_starts_a_new_part_when_the_count_starts_again() {
+        let loading = LoadingProgress::new(false, "loading pictures");
+        let report = loading.reporter();
+        let part = |loading: &LoadingProgress| {
+            let current = loading.current.lock().unwrap();
+            current
+                .as_ref()
+                .map(|(total, p)| (*total, p.last.borrow().0))
+        };
+        report.report(2, 3);
+        report.report(1, 3);
+        assert_eq!(
+            part(&loading),
+            Some((3, 1)),
+            "counts out of order stay in their part"
+        );
+        report.report(3, 3);
+        assert_eq!(part(&loading), Some((3, 3)));
+        report.report(1, 3);
+        assert_eq!(
+            part(&loading),
+            Some((3, 1)),
+            "a split of the same size is a new part"
+        );
+        report.report(1, 2);
+        assert_eq!(part(&loading), Some((2, 1)), "so is one of another size");
+        loading.finish();
+        assert_eq!(part(&loading), None);
     }
 
     #[test]

@@ -10,6 +10,7 @@ use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::drive::{Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
+use gs_stylize::progress::LoadingProgress;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
     StylizeOutcome,
@@ -82,11 +83,11 @@ impl Modality for StylizeConfig {
     /// The PLY and the dataset, with the preview views checked against it.
     fn load_inputs(
         &self,
-        _run: &PreparedRun,
+        run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<SceneInput, StylizeError> {
         let (ply, format) = read_ply_with_format(self.model_path())?;
-        let dataset = load_dataset(self)?;
+        let dataset = load_dataset(self, run.options().progress)?;
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
             return Err(StylizeError::Input(format!(
@@ -213,23 +214,36 @@ fn no_fit() -> StylizeError {
 
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
 /// `sparse/` is.
-fn load_dataset(config: &StylizeConfig) -> Result<Dataset, StylizeError> {
+fn load_dataset(config: &StylizeConfig, show: bool) -> Result<Dataset, StylizeError> {
     let data = config.data_path();
+    let loading = LoadingProgress::new(show, "loading pictures");
     let options = LoadOptions {
         background: Background::from_rgb(config.background),
         ground_truth: config.ground_truth,
         downscale: config.resolution,
         max_width: config.max_width,
+        progress: Some(loading.reporter()),
     };
+    let loaded = load_layout(config, data, &options);
+    loading.finish();
+    loaded
+}
+
+/// The dataset in `data` with `options`, of the layout found there.
+fn load_layout(
+    config: &StylizeConfig,
+    data: &Path,
+    options: &LoadOptions,
+) -> Result<Dataset, StylizeError> {
     let wrap = |source: DatasetError| StylizeError::Dataset {
         path: data.to_path_buf(),
         source: Box::new(source),
     };
     match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
-            nerf_synthetic::load_training(data, config.train_splits, &options).map_err(wrap)
+            nerf_synthetic::load_training(data, config.train_splits, options).map_err(wrap)
         }
-        Some(Layout::Colmap) => colmap::load(data, &options).map_err(wrap),
+        Some(Layout::Colmap) => colmap::load(data, options).map_err(wrap),
         None => Err(StylizeError::Input(format!(
             "dataset {}: neither {} (NeRF-synthetic) nor sparse/ (COLMAP) was found",
             data.display(),

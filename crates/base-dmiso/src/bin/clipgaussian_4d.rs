@@ -34,7 +34,7 @@ use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
-use gs_stylize::progress::fit_with_progress;
+use gs_stylize::progress::{fit_with_progress, LoadingProgress};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -342,7 +342,10 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         ..FitSettings::default()
     };
     settings.check()?;
-    let (train, test) = load_scene(&args.data, bg, args.max_width)?;
+    let loading = LoadingProgress::new(!args.quiet, "loading pictures");
+    let loaded = load_scene(&args.data, bg, args.max_width, Some(loading.reporter()));
+    loading.finish();
+    let (train, test) = loaded?;
     let options = RunOptions {
         resume: false,
         progress: !args.quiet,

@@ -17,7 +17,7 @@ use base_vegas::folded::interpolate;
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoError, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
-use base_vegas::video_input::{load_video, DEFAULT_FOLDER_FPS};
+use base_vegas::video_input::{load_video, load_video_with_progress, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
@@ -32,7 +32,7 @@ use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
-use gs_stylize::progress::fit_with_progress;
+use gs_stylize::progress::{fit_with_progress, LoadingProgress};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override, RunOptions};
@@ -277,7 +277,17 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
-    let video = load_video(&args.video, settings.background, args.fps, args.max_width)?;
+    let loading = LoadingProgress::new(!args.quiet, "loading frames");
+    let reporter = loading.reporter();
+    let loaded = load_video_with_progress(
+        &args.video,
+        settings.background,
+        args.fps,
+        args.max_width,
+        Some(&reporter),
+    );
+    loading.finish();
+    let video = loaded?;
     let options = RunOptions {
         resume: false,
         progress: !args.quiet,

@@ -95,8 +95,58 @@ pub enum GroundTruth {
     FileColour,
 }
 
+/// Told of each picture a loader has decoded: `(decoded, total)` of the split or scene being
+/// loaded (pictures load in parallel, so it may be called from several threads). What a run
+/// shows as the loading's progress.
+#[derive(Clone)]
+pub struct ImageProgress(std::sync::Arc<dyn Fn(usize, usize) + Send + Sync>);
+
+impl ImageProgress {
+    /// The progress that calls `report(decoded, total)`.
+    pub fn new(report: impl Fn(usize, usize) + Send + Sync + 'static) -> Self {
+        Self(std::sync::Arc::new(report))
+    }
+
+    /// Tells that `done` of `total` pictures are decoded.
+    pub fn report(&self, done: usize, total: usize) {
+        (self.0)(done, total)
+    }
+}
+
+impl std::fmt::Debug for ImageProgress {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("ImageProgress")
+    }
+}
+
+/// Counts the pictures of one loading of `total` and tells `progress` of each.
+pub(crate) struct ImageCounter<'a> {
+    progress: Option<&'a ImageProgress>,
+    done: std::sync::atomic::AtomicUsize,
+    total: usize,
+}
+
+impl<'a> ImageCounter<'a> {
+    /// A count of `total` pictures for `options`'s progress.
+    pub(crate) fn new(options: &'a LoadOptions, total: usize) -> Self {
+        Self {
+            progress: options.progress.as_ref(),
+            done: std::sync::atomic::AtomicUsize::new(0),
+            total,
+        }
+    }
+
+    /// One more picture decoded.
+    pub(crate) fn one_done(&self) {
+        if let Some(progress) = self.progress {
+            let done = self.done.fetch_add(1, std::sync::atomic::Ordering::Relaxed) + 1;
+            progress.report(done, self.total);
+        }
+    }
+}
+
 /// How to load a dataset.
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct LoadOptions {
     /// Background that alpha is composited over.
     pub background: Background,
@@ -111,6 +161,8 @@ pub struct LoadOptions {
     /// with them, as INRIA 3DGS's (and D-MiSo's) loader does at its default `-r -1`
     /// ([`crate::wide_pictures::shrunk_size`]; default 1600); 0 keeps every size (INRIA's `-r 1`).
     pub max_width: u32,
+    /// Told of every picture decoded (none: nothing is told).
+    pub progress: Option<ImageProgress>,
 }
 
 impl Default for LoadOptions {
@@ -120,6 +172,7 @@ impl Default for LoadOptions {
             ground_truth: GroundTruth::Composited,
             downscale: 1,
             max_width: crate::wide_pictures::AUTHORS_MAX_WIDTH,
+            progress: None,
         }
     }
 }

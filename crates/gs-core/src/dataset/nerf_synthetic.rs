@@ -15,7 +15,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::images::{self, Composite, ExpectedSize};
-use super::{check_options, training_camera, Dataset, DatasetError, LoadOptions};
+use super::{check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions};
 
 /// Which transforms file to load.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -183,6 +183,7 @@ fn load_split(
         _ => images::dimensions(&image_path(root, &first.file_path))?,
     };
     let background = options.background.rgb();
+    let counter = ImageCounter::new(options, transforms.frames.len());
     let loaded: Vec<_> = transforms
         .frames
         .par_iter()
@@ -202,6 +203,7 @@ fn load_split(
                 background,
                 Composite::of(options.ground_truth, true),
             )?;
+            counter.one_done();
             Ok((
                 View {
                     camera,

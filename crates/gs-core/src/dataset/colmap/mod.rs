@@ -15,7 +15,9 @@ use crate::Camera;
 use rayon::prelude::*;
 
 use super::images::{self, Composite, ExpectedSize};
-use super::{check_options, training_camera, Dataset, DatasetError, LoadOptions, PointCloud};
+use super::{
+    check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions, PointCloud,
+};
 
 /// COLMAP's camera models by id: name and number of parameters.
 const CAMERA_MODELS: [(&str, usize); 12] = [
@@ -192,6 +194,7 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
     let mut order: Vec<&ColmapImage> = model.images.iter().collect();
     order.sort_by(|a, b| a.name.cmp(&b.name));
     let background = options.background.rgb();
+    let counter = ImageCounter::new(options, order.len());
     let frames = order
         .par_iter()
         .map(|img| {
@@ -247,6 +250,7 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
                 )?;
                 (scaled, image, mask)
             };
+            counter.one_done();
             Ok((View::still(camera), image, mask, path))
         })
         // Gathered in order first, so the error reported is that of the first failing frame.
