@@ -109,6 +109,30 @@ fn every_picture_loaded_is_reported_once() {
     assert_eq!(data.views.len(), 3);
 }
 
+/// The sizes a run checks against its memory come from the json and one header, and agree
+/// with what loading gives, at full size and downscaled.
+#[test]
+fn training_pixels_agree_with_the_loaded_views() {
+    let dir = TempDir::new("nerf-pixels");
+    write_scene(dir.path(), "train");
+    for downscale in [1, 2] {
+        let options = LoadOptions {
+            downscale,
+            ..LoadOptions::default()
+        };
+        let (views, largest) =
+            nerf_synthetic::training_pixels(dir.path(), &[Split::Train], &options).unwrap();
+        let data = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+        let loaded: Vec<u64> = data
+            .images
+            .iter()
+            .map(|i| u64::from(i.width) * u64::from(i.height))
+            .collect();
+        assert_eq!(views, loaded, "downscale {downscale}");
+        assert_eq!(largest, u64::from(W * H));
+    }
+}
+
 #[test]
 fn alpha_is_composited_over_the_chosen_background_and_gives_the_mask() {
     let dir = TempDir::new("nerf-alpha");

@@ -18,7 +18,7 @@ use std::path::{Path, PathBuf};
 
 use candle_core::Device;
 use gs_core::adam::{GroupConfig, RateAt};
-use gs_core::dataset::nerf_synthetic::{load_with_times, Split, TrainSplits};
+use gs_core::dataset::nerf_synthetic::{self, load_with_times, Split, TrainSplits};
 use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOptions};
 use gs_core::model::View;
 use gs_core::train::BatchOrder;
@@ -26,7 +26,7 @@ use gs_core::Image;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
 };
-use gs_stylize::drive::{Modality, OnStep};
+use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::LoadingProgress;
 use gs_stylize::rates::{GroupRate, GroupRates};
@@ -404,6 +404,27 @@ impl Modality for DynamicStylizeConfig {
 
     fn given_model(&self) -> Option<&Path> {
         self.model.as_deref()
+    }
+
+    /// The D-NeRF scene's sizes from its json files (and one picture header a split), every
+    /// split counted (the test split is rendered either way); none when they do not read
+    /// (the loading reports them).
+    fn input_pixels(&self) -> Result<Option<InputPixels>, DynamicError> {
+        let data = self.data.as_deref().expect("checked: the data is given");
+        let mut splits = vec![Split::Train];
+        if data.join(Split::Test.file_name()).is_file() {
+            splits.push(Split::Test);
+        }
+        let options = LoadOptions {
+            max_width: self.max_width,
+            ..LoadOptions::default()
+        };
+        Ok(nerf_synthetic::training_pixels(data, &splits, &options)
+            .ok()
+            .map(|(views, largest_stored)| InputPixels {
+                views,
+                largest_stored,
+            }))
     }
 
     /// The scene over the background this configuration or the model (`model`) records, with

@@ -20,7 +20,7 @@ use std::path::{Path, PathBuf};
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::model::BaseModel;
 use gs_core::Image;
-use gs_stylize::drive::{Modality, OnStep};
+use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::LoadingProgress;
 use gs_stylize::rates::{GroupRate, GroupRates};
@@ -36,8 +36,11 @@ use crate::fit::{
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
-use crate::video_input::{load_video_with_progress, Video, VideoInputError, DEFAULT_FOLDER_FPS};
-use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
+use crate::video_input::{
+    frame_files, load_video_with_progress, Video, VideoInputError, DEFAULT_FOLDER_FPS,
+};
+use gs_core::image::picture_size;
+use gs_core::wide_pictures::{shrunk_size, AUTHORS_MAX_WIDTH};
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
     STYLIZED_MP4,
@@ -267,6 +270,26 @@ impl Modality for VideoStylizeConfig {
 
     fn given_model(&self) -> Option<&Path> {
         self.model.as_deref()
+    }
+
+    /// A frames folder's sizes from its first frame's header: every frame and its mirror
+    /// image at that size once shrunk to `max_width`; none for a video file (ffmpeg decodes
+    /// it) or a folder whose first frame's header does not read (the loading reports it).
+    fn input_pixels(&self) -> Result<Option<InputPixels>, VideoError> {
+        let Some(path) = self.video.as_deref().filter(|p| p.is_dir()) else {
+            return Ok(None);
+        };
+        let Ok(files) = frame_files(path) else {
+            return Ok(None);
+        };
+        let Ok((w, h)) = picture_size(&files[0]) else {
+            return Ok(None);
+        };
+        let (vw, vh) = shrunk_size(w, h, self.max_width);
+        Ok(Some(InputPixels {
+            views: vec![u64::from(vw) * u64::from(vh); 2 * files.len()],
+            largest_stored: u64::from(w) * u64::from(h),
+        }))
     }
 
     /// The frames, checked against the patch size.

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use gs_core::model::BaseModel;
 use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
-use gs_stylize::drive::{Modality, OnStep};
+use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
 use gs_stylize::progress::LoadingProgress;
 use gs_stylize::{
@@ -18,7 +18,7 @@ use gs_stylize::{
 
 use super::config::BackgroundPixels;
 use super::StylizeConfig;
-use crate::dataset::nerf_synthetic::{self, Split};
+use crate::dataset::nerf_synthetic::{self, Split, TrainSplits};
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
 
 /// The stylized PLY in the output folder.
@@ -78,6 +78,32 @@ impl Modality for StylizeConfig {
 
     fn given_model(&self) -> Option<&Path> {
         Some(self.model_path())
+    }
+
+    /// A NeRF-synthetic scene's sizes from its json files (and one picture header a split);
+    /// none for a COLMAP scene or one whose files do not read (the loading reports them).
+    fn input_pixels(&self) -> Result<Option<InputPixels>, StylizeError> {
+        let data = self.data_path();
+        if !matches!(Layout::detect(data), Some(Layout::NerfSynthetic)) {
+            return Ok(None);
+        }
+        let mut splits = vec![Split::Train];
+        if self.train_splits == TrainSplits::TrainAndTest
+            && data.join(Split::Test.file_name()).is_file()
+        {
+            splits.push(Split::Test);
+        }
+        let options = LoadOptions {
+            downscale: self.resolution,
+            max_width: self.max_width,
+            ..LoadOptions::default()
+        };
+        Ok(nerf_synthetic::training_pixels(data, &splits, &options)
+            .ok()
+            .map(|(views, largest_stored)| InputPixels {
+                views,
+                largest_stored,
+            }))
     }
 
     /// The PLY and the dataset, with the preview views checked against it.

@@ -118,13 +118,45 @@ pub fn load_with_times(
     load_split(root, split, options, true)
 }
 
-fn load_split(
+/// The pixels of every view of `splits` of the scene in `root` as [`load`] would train them
+/// with `options` (downscaled or shrunk), and the pixels of the largest picture as stored,
+/// from the json files and at most one picture header a split, without decoding any picture:
+/// what a run checks against its memory before loading.
+pub fn training_pixels(
     root: &Path,
-    split: Split,
+    splits: &[Split],
     options: &LoadOptions,
-    with_times: bool,
-) -> Result<Dataset, DatasetError> {
-    check_options(options)?;
+) -> Result<(Vec<u64>, u64), DatasetError> {
+    let mut views = Vec::new();
+    let mut largest = 0u64;
+    for &split in splits {
+        let (json_path, transforms) = read_transforms(root, split)?;
+        let (w, h) = match (transforms.w, transforms.h, transforms.frames.first()) {
+            (Some(w), Some(h), _) => (w, h),
+            (_, _, Some(first)) => images::dimensions(&image_path(root, &first.file_path))?,
+            (_, _, None) => continue,
+        };
+        let identity = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+            [0.0, 0.0, 0.0, 1.0],
+        ];
+        let trained = Camera::from_nerf(identity, transforms.camera_angle_x, w, h)
+            .and_then(|c| training_camera(&c, options))
+            .map_err(|source| DatasetError::Camera {
+                context: json_path.display().to_string(),
+                source,
+            })?;
+        let pixels = u64::from(trained.width) * u64::from(trained.height);
+        views.extend(std::iter::repeat_n(pixels, transforms.frames.len()));
+        largest = largest.max(u64::from(w) * u64::from(h));
+    }
+    Ok((views, largest))
+}
+
+/// The transforms file of `split` in `root`, parsed, and its path.
+fn read_transforms(root: &Path, split: Split) -> Result<(PathBuf, Transforms), DatasetError> {
     let json_path = root.join(split.file_name());
     let text = std::fs::read_to_string(&json_path).map_err(|source| {
         if source.kind() == std::io::ErrorKind::NotFound {
@@ -144,6 +176,17 @@ fn load_split(
             path: json_path.clone(),
             source,
         })?;
+    Ok((json_path, transforms))
+}
+
+fn load_split(
+    root: &Path,
+    split: Split,
+    options: &LoadOptions,
+    with_times: bool,
+) -> Result<Dataset, DatasetError> {
+    check_options(options)?;
+    let (json_path, transforms) = read_transforms(root, split)?;
     let format_error = |message: String| DatasetError::Format {
         path: json_path.clone(),
         message,
