@@ -421,10 +421,7 @@ impl Modality for DynamicStylizeConfig {
         };
         Ok(nerf_synthetic::training_pixels(data, &splits, &options)
             .ok()
-            .map(|(views, largest_stored)| InputPixels {
-                views,
-                largest_stored,
-            }))
+            .map(InputPixels::new))
     }
 
     /// The scene over the background this configuration or the model (`model`) records, with

@@ -162,6 +162,17 @@ pub struct InputPixels {
     pub largest_stored: u64,
 }
 
+impl InputPixels {
+    /// The pixels of `views` (as trained) and of the largest picture as stored, the pair a
+    /// dataset reader gives (`gs_core::dataset::nerf_synthetic::training_pixels`).
+    pub fn new((views, largest_stored): (Vec<u64>, u64)) -> Self {
+        Self {
+            views,
+            largest_stored,
+        }
+    }
+}
+
 /// Runs the stylization `modality` describes, in the order of the module documentation.
 pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs, M::Error> {
     modality.check()?;

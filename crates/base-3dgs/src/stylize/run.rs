@@ -100,10 +100,7 @@ impl Modality for StylizeConfig {
         };
         Ok(nerf_synthetic::training_pixels(data, &splits, &options)
             .ok()
-            .map(|(views, largest_stored)| InputPixels {
-                views,
-                largest_stored,
-            }))
+            .map(InputPixels::new))
     }
 
     /// The PLY and the dataset, with the preview views checked against it.
