@@ -17,21 +17,33 @@
 //!    configuration's `learning_rates`) and the stylization ([`PreparedRun::stylize`]);
 //! 5. the modality's outputs ([`Modality::write_outputs`]), then the checkpoint is marked
 //!    finished ([`mark_finished`]).
+//!
+//! A binary's `fit` subcommand runs in one order too ([`run_fit`]): the output folder checked,
+//! the inputs loaded with their progress, the device opened, the fit with progress (Ctrl-C
+//! ends it with nothing written), then the folder made and the outputs written (the folder
+//! removed again when this run made it and writing fails).
 
+use std::error::Error;
 use std::ops::ControlFlow;
 use std::path::Path;
 use std::time::Instant;
 
+use gs_core::dataset::ImageProgress;
+use gs_core::device::DeviceChoice;
 use gs_core::train::StepReport;
+use gs_wgpu::backend::Backend;
 use gs_wgpu::GpuModel;
 use serde::Serialize;
 
 use crate::checkpoint::mark_finished;
+use crate::interrupt::stop_on_ctrl_c;
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
 use crate::outputs::{create_folder, write_json, FitReport, FIT_JSON};
-use crate::progress::fit_with_progress;
+use crate::progress::{fit_with_progress, LoadingProgress};
+use crate::writable::check_output_folder;
 use crate::{
-    prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob, StylizeOutcome,
+    open_device, prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob,
+    StylizeOutcome,
 };
 
 /// The per-step callback a fit calls: it shows the progress and asks the fit to stop (Ctrl-C).
@@ -216,4 +228,69 @@ pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs
     let outputs = modality.write_outputs(inputs, outcome, &prepared)?;
     mark_finished(out, modality.settings().steps)?;
     Ok(outputs)
+}
+
+/// What a binary's `fit` subcommand asks of [`run_fit`].
+#[derive(Clone, Debug)]
+pub struct FitCommand<'a> {
+    /// The output folder.
+    pub out: &'a Path,
+    /// The device the fit runs on.
+    pub device: DeviceChoice,
+    /// Whether the progress is shown (not `--quiet`).
+    pub progress: bool,
+    /// What is fitted, in messages (`the picture`).
+    pub what: &'static str,
+    /// Steps of the fit.
+    pub steps: u64,
+    /// Step counts after which the fit's later stages begin (see [`Modality::fit_stages`]).
+    pub stages: Vec<u64>,
+}
+
+/// Runs a `fit` subcommand in the order of the module documentation: `load` reads the inputs
+/// (reporting each picture to the progress it is given), `fit` fits them on the opened
+/// device calling its per-step callback, and `write` writes the outputs into `command.out`
+/// (made by then) from the inputs, the fit, the device and the fit's wall time in seconds,
+/// returning the line to print.
+pub fn run_fit<I, F>(
+    command: &FitCommand<'_>,
+    load: impl FnOnce(&ImageProgress) -> Result<I, Box<dyn Error>>,
+    fit: impl FnOnce(&I, &Backend, OnStep<'_>) -> Result<F, Box<dyn Error>>,
+    write: impl FnOnce(&I, F, &Backend, f64) -> Result<String, Box<dyn Error>>,
+) -> Result<(), Box<dyn Error>> {
+    let out = command.out;
+    check_output_folder(out)?;
+    let loading = LoadingProgress::new(command.progress, "loading pictures");
+    let inputs = load(&loading.reporter());
+    loading.finish();
+    let inputs = inputs?;
+    let options = RunOptions {
+        resume: false,
+        progress: command.progress,
+        stop: stop_on_ctrl_c()?,
+    };
+    let backend = open_device(command.device)?;
+    let started = Instant::now();
+    let fitted = fit_with_progress(
+        command.what,
+        command.steps,
+        &command.stages,
+        &options,
+        |on_step| fit(&inputs, &backend, on_step),
+    )?;
+    let seconds = started.elapsed().as_secs_f64();
+    let made = !out.exists();
+    create_folder(out)?;
+    match write(&inputs, fitted, &backend, seconds) {
+        Ok(line) => {
+            println!("{line}");
+            Ok(())
+        }
+        Err(e) => {
+            if made {
+                let _ = std::fs::remove_dir_all(out);
+            }
+            Err(e)
+        }
+    }
 }

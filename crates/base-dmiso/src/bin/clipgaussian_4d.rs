@@ -11,13 +11,12 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 use base_dmiso::fit::{self, mean_psnr, render_views, FitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
-    background_of, load_scene, read_model, run, sweep_views, DynamicError, DynamicStylizeConfig,
-    MODEL_FILE, SWEEP_DIR, SWEEP_MP4,
+    background_of, load_scene, read_model, run, sweep_views, DynamicStylizeConfig, MODEL_FILE,
+    SWEEP_DIR, SWEEP_MP4,
 };
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
@@ -30,14 +29,13 @@ use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
+use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
-use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
-use gs_stylize::progress::{fit_with_progress, LoadingProgress};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
 use style_loss::compute_device;
 use style_loss::image_layout::hwc_to_tensor;
@@ -326,7 +324,6 @@ const FIT_PREVIEW_FPS: f64 = 12.0;
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
-    check_output_folder(&args.out)?;
     let bg = Background::from_rgb(args.background);
     let settings = FitSettings {
         points: args.points,
@@ -342,63 +339,63 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         ..FitSettings::default()
     };
     settings.check()?;
-    let loading = LoadingProgress::new(!args.quiet, "loading pictures");
-    let loaded = load_scene(&args.data, bg, args.max_width, Some(loading.reporter()));
-    loading.finish();
-    let (train, test) = loaded?;
-    let options = RunOptions {
-        resume: false,
-        progress: !args.quiet,
-        stop: stop_on_ctrl_c()?,
-    };
-    let backend = open_device(args.device)?;
     let device = net_device(args.device)?;
-    let start = Instant::now();
-    let mut model = fit_with_progress(
-        "the scene",
-        settings.steps,
-        &settings.stages(),
-        &options,
-        |on_step| {
-            fit::fit(
+    let command = FitCommand {
+        out: &args.out,
+        device: args.device,
+        progress: !args.quiet,
+        what: "the scene",
+        steps: settings.steps,
+        stages: settings.stages().to_vec(),
+    };
+    run_fit(
+        &command,
+        |progress| {
+            Ok(load_scene(
+                &args.data,
+                bg,
+                args.max_width,
+                Some(progress.clone()),
+            )?)
+        },
+        |(train, _), backend, on_step| {
+            Ok(fit::fit(
                 &train.views,
                 &train.images,
                 train.extent,
                 &settings,
-                &backend,
+                backend,
                 &device,
                 on_step,
-            )
-            .map_err(DynamicError::from)
+            )?)
         },
-    )?;
-    let seconds = start.elapsed().as_secs_f64();
-    create_folder(&args.out)?;
-    model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;
-    let (views, images, which) = match &test {
-        Some(test) => (&test.views, &test.images, "test"),
-        None => (&train.views, &train.images, "training"),
-    };
-    let renders = render_views(&mut model, views, bg.rgb(), &backend)?;
-    write_frames(&args.out.join(FRAMES_DIR), &renders)?;
-    write_pair(&args.out.join(PREVIEW_PNG), &images[0], &renders[0])?;
-    write_preview_gif(
-        &args.out.join(PREVIEW_GIF),
-        images,
-        &renders,
-        FIT_PREVIEW_FPS,
-    )?;
-    println!(
-        "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, mean PSNR \
-         {:.2} dB over the {which} views; wrote {}",
-        args.data.display(),
-        train.views.len(),
-        model.cores(),
-        model.subs_per_core(),
-        mean_psnr(&renders, images),
-        args.out.display()
-    );
-    Ok(())
+        |(train, test), mut model, backend, seconds| {
+            model_file::save(&model, &args.out.join(MODEL_FILE), Some(bg))?;
+            let (views, images, which) = match test {
+                Some(test) => (&test.views, &test.images, "test"),
+                None => (&train.views, &train.images, "training"),
+            };
+            let renders = render_views(&mut model, views, bg.rgb(), backend)?;
+            write_frames(&args.out.join(FRAMES_DIR), &renders)?;
+            write_pair(&args.out.join(PREVIEW_PNG), &images[0], &renders[0])?;
+            write_preview_gif(
+                &args.out.join(PREVIEW_GIF),
+                images,
+                &renders,
+                FIT_PREVIEW_FPS,
+            )?;
+            Ok(format!(
+                "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, \
+                 mean PSNR {:.2} dB over the {which} views; wrote {}",
+                args.data.display(),
+                train.views.len(),
+                model.cores(),
+                model.subs_per_core(),
+                mean_psnr(&renders, images),
+                args.out.display()
+            ))
+        },
+    )
 }
 
 /// Runs `render`.

@@ -12,7 +12,6 @@
 use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
-use std::time::Instant;
 
 use base_mirage::fit::{
     fit_logged, render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG,
@@ -20,7 +19,7 @@ use base_mirage::fit::{
 use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
-use base_mirage::stylize::{run, MirageError, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
+use base_mirage::stylize::{run, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
 use clap::{Args, Parser, Subcommand};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
@@ -29,14 +28,12 @@ use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
+use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
-use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::outputs::create_folder;
-use gs_stylize::progress::fit_with_progress;
 use gs_stylize::summary::write_summary;
-use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions, StylizeError};
+use gs_stylize::writable::check_output_file;
+use gs_stylize::{open_device, resolve_config, Override, StylizeError};
 use gs_wgpu::backend::{Backend, DeviceChoice};
 
 /// Command-line arguments.
@@ -296,8 +293,6 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
-    check_output_folder(&args.out)?;
-    let picture = load_picture(&args.picture, args.background, args.max_width)?;
     let settings = FitSettings {
         gaussians: args.gaussians,
         steps: args.steps,
@@ -307,51 +302,53 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         distance: args.distance,
         ..FitSettings::default()
     };
-    let options = RunOptions {
-        resume: false,
+    let command = FitCommand {
+        out: &args.out,
+        device: args.device,
         progress: !args.quiet,
-        stop: stop_on_ctrl_c()?,
+        what: "the picture",
+        steps: settings.steps,
+        stages: Vec::new(),
     };
-    let backend = open_device(args.device)?;
-    // The folder is made first, so one that cannot be made costs no fit, and removed again
-    // when this run made it and anything fails, so nothing partial is left.
-    let created = !args.out.exists();
-    create_folder(&args.out)?;
-    let result = fit_into_folder(&picture, &settings, &options, &backend, &args.out);
-    if result.is_err() && created {
-        let _ = std::fs::remove_dir_all(&args.out);
-    }
-    let (psnr_db, seconds) = result?;
-    println!(
-        "fitted {} ({}x{}) with {} Gaussians in {seconds:.1} s: PSNR {psnr_db:.2} dB; wrote {}",
-        args.picture.display(),
-        picture.width,
-        picture.height,
-        settings.gaussians,
-        args.out.display()
-    );
-    Ok(())
+    run_fit(
+        &command,
+        |_| {
+            Ok(load_picture(
+                &args.picture,
+                args.background,
+                args.max_width,
+            )?)
+        },
+        |picture, backend, on_step| Ok(fit_logged(picture, &settings, backend, on_step)?),
+        |picture, fitted, backend, seconds| {
+            let psnr_db = write_fit(picture, fitted, &settings, backend, &args.out)?;
+            Ok(format!(
+                "fitted {} ({}x{}) with {} Gaussians in {seconds:.1} s: PSNR {psnr_db:.2} dB; \
+                 wrote {}",
+                args.picture.display(),
+                picture.width,
+                picture.height,
+                settings.gaussians,
+                args.out.display()
+            ))
+        },
+    )
 }
 
-/// Fits `picture` and writes model.ply, fitted.png, fit_psnr.png and preview.png into
-/// `out`; returns
-/// the fit's PSNR (dB) and its time (s).
-fn fit_into_folder(
+/// Writes the fit of `picture` into `out`: model.ply, fitted.png, fit_psnr.png and
+/// preview.png; returns the fitted picture's PSNR, dB.
+fn write_fit(
     picture: &Image,
+    fitted: Fitted,
     settings: &FitSettings,
-    options: &RunOptions,
     backend: &Backend,
     out: &Path,
-) -> Result<(f64, f64), Box<dyn Error>> {
-    let start = Instant::now();
+) -> Result<f64, Box<dyn Error>> {
     let Fitted {
         mut model,
         psnr: log,
-    } = fit_with_progress("the picture", settings.steps, &[], options, |on_step| {
-        fit_logged(picture, settings, backend, on_step).map_err(MirageError::from)
-    })?;
-    let seconds = start.elapsed().as_secs_f64();
-    let fitted = render_picture(
+    } = fitted;
+    let render = render_picture(
         &mut model,
         picture.width,
         picture.height,
@@ -366,10 +363,10 @@ fn fit_into_folder(
         distance: settings.distance,
     };
     write_model(&out.join("model.ply"), &model, &fitted_to)?;
-    fitted.save_png(&out.join("fitted.png"))?;
+    render.save_png(&out.join("fitted.png"))?;
     write_psnr_plot(&out.join(FIT_PSNR_PNG), &log)?;
-    Image::side_by_side(&[picture, &fitted]).save_png(&out.join(PREVIEW_PNG))?;
-    Ok((psnr(&fitted, picture), seconds))
+    Image::side_by_side(&[picture, &render]).save_png(&out.join(PREVIEW_PNG))?;
+    Ok(psnr(&render, picture))
 }
 
 /// Runs `render`.

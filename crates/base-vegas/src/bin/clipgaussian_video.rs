@@ -10,12 +10,11 @@
 use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::time::Instant;
 
 use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings};
 use base_vegas::folded::interpolate;
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
-use base_vegas::stylize::{run, VideoError, VideoStylizeConfig, MODEL_PLY};
+use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
 use base_vegas::video_input::{load_video, load_video_with_progress, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
@@ -28,14 +27,13 @@ use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
+use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
-use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
-use gs_stylize::progress::{fit_with_progress, LoadingProgress};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
-use gs_stylize::{open_device, resolve_config, Override, RunOptions};
+use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
 use style_loss::image_layout::hwc_to_tensor;
@@ -266,7 +264,6 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
-    check_output_folder(&args.out)?;
     let settings = FitSettings {
         gaussians: args.gaussians,
         steps: args.steps,
@@ -277,62 +274,62 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());
     }
-    let loading = LoadingProgress::new(!args.quiet, "loading frames");
-    let reporter = loading.reporter();
-    let loaded = load_video_with_progress(
-        &args.video,
-        settings.background,
-        args.fps,
-        args.max_width,
-        Some(&reporter),
-    );
-    loading.finish();
-    let video = loaded?;
-    let options = RunOptions {
-        resume: false,
+    let command = FitCommand {
+        out: &args.out,
+        device: args.device,
         progress: !args.quiet,
-        stop: stop_on_ctrl_c()?,
+        what: "the video",
+        steps: settings.steps,
+        stages: Vec::new(),
     };
-    let backend = open_device(args.device)?;
-    let start = Instant::now();
-    let mut model = fit_with_progress("the video", settings.steps, &[], &options, |on_step| {
-        fit::fit(&video.frames, &settings, &backend, on_step).map_err(VideoError::from)
-    })?;
-    let seconds = start.elapsed().as_secs_f64();
-    let (w, h) = video.size();
-    let fitted = render_frames(
-        &mut model,
-        w,
-        h,
-        settings.distance,
-        settings.background,
-        &backend,
-    )?;
-    create_folder(&args.out)?;
-    let record = VideoRecord {
-        width: w,
-        height: h,
-        fps: video.fps,
-        distance: settings.distance,
-    };
-    write_model(&args.out.join(MODEL_PLY), &model, Some(record))?;
-    write_frames(&args.out.join(FRAMES_DIR), &fitted)?;
-    write_pair(&args.out.join(PREVIEW_PNG), &video.frames[0], &fitted[0])?;
-    write_preview_gif(
-        &args.out.join(PREVIEW_GIF),
-        &video.frames,
-        &fitted,
-        video.fps,
-    )?;
-    println!(
-        "fitted {} ({} frames of {w}x{h}) with {} Gaussians in {seconds:.1} s: mean PSNR {:.2} dB; wrote {}",
-        args.video.display(),
-        video.frames.len(),
-        settings.gaussians,
-        mean_psnr(&fitted, &video.frames),
-        args.out.display()
-    );
-    Ok(())
+    run_fit(
+        &command,
+        |progress| {
+            Ok(load_video_with_progress(
+                &args.video,
+                settings.background,
+                args.fps,
+                args.max_width,
+                Some(progress),
+            )?)
+        },
+        |video, backend, on_step| Ok(fit::fit(&video.frames, &settings, backend, on_step)?),
+        |video, mut model, backend, seconds| {
+            let (w, h) = video.size();
+            let fitted = render_frames(
+                &mut model,
+                w,
+                h,
+                settings.distance,
+                settings.background,
+                backend,
+            )?;
+            let record = VideoRecord {
+                width: w,
+                height: h,
+                fps: video.fps,
+                distance: settings.distance,
+            };
+            write_model(&args.out.join(MODEL_PLY), &model, Some(record))?;
+            write_frames(&args.out.join(FRAMES_DIR), &fitted)?;
+            write_pair(&args.out.join(PREVIEW_PNG), &video.frames[0], &fitted[0])?;
+            write_preview_gif(
+                &args.out.join(PREVIEW_GIF),
+                &video.frames,
+                &fitted,
+                video.fps,
+            )?;
+            Ok(format!(
+                "fitted {} ({} frames of {w}x{h}) with {} Gaussians in {seconds:.1} s: mean PSNR \
+                 {:.2} dB; wrote {}",
+                args.video.display(),
+                video.frames.len(),
+                settings.gaussians,
+                mean_psnr(&fitted, &video.frames),
+                args.out.display()
+            ))
+        },
+    )
 }
 
 /// Runs `render`.
