@@ -32,7 +32,7 @@ pub enum StylizeError {
     Device(#[from] gs_wgpu::backend::DeviceError),
     /// The style loss's GPU (candle's CUDA or Metal device) is missing or failed.
     #[error("{0}")]
-    LossDevice(String),
+    LossDevice(#[from] style_loss::compute_device::LossDeviceError),
     /// Rendering a model failed.
     #[error("render: {0}")]
     Render(#[from] gs_wgpu::backend::RenderError),

@@ -57,7 +57,7 @@ pub type ExtraCheck = Box<dyn FnOnce(&Device) -> Result<Check, String>>;
 /// fails to run.
 pub fn run_selftest(choice: DeviceChoice, extra: Vec<ExtraCheck>) -> Result<Vec<Check>, String> {
     let backend = choice.open().map_err(|e| e.to_string())?;
-    let (loss_device, _) = compute_device::open_for(choice)?;
+    let (loss_device, _) = compute_device::open_for(choice).map_err(|e| e.to_string())?;
     let mut checks = vec![render_check(&backend)?, adam_check(&backend)?];
     checks.extend(loss_checks(&loss_device)?);
     for check in extra {

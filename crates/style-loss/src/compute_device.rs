@@ -7,10 +7,23 @@ use gs_core::device::DeviceChoice;
 
 use crate::matmul::checked_matmul;
 
+/// Why the style loss's GPU cannot be used: what failed, candle's error behind it (when there
+/// is one), and a note on this build or on what to do.
+#[derive(Debug, thiserror::Error)]
+#[error("{what}{}{note}", source.as_ref().map_or(String::new(), |e| format!(" ({e})")))]
+pub struct LossDeviceError {
+    /// What failed (`CUDA device 0 does not open`).
+    pub what: String,
+    /// candle's error.
+    pub source: Option<candle_core::Error>,
+    /// What this build was made for, or what to do (may be empty).
+    pub note: String,
+}
+
 /// A GPU for the style loss: `Ok(None)` when this build has neither the `cuda` nor the `metal`
 /// feature, an error when it has one and the device does not open (no driver, no GPU) or fails
 /// its [`self_check`].
-pub fn open_gpu() -> Result<Option<Device>, String> {
+pub fn open_gpu() -> Result<Option<Device>, LossDeviceError> {
     match open_built_gpu()? {
         Some(device) => self_check(&device).map(|()| Some(device)),
         None => Ok(None),
@@ -21,7 +34,7 @@ pub fn open_gpu() -> Result<Option<Device>, String> {
 /// their values. A device can open and still not run this build's kernels (built for another
 /// compute capability, a driver older than the toolkit): that fails here, named, instead of in
 /// the first step.
-pub fn self_check(device: &Device) -> Result<(), String> {
+pub fn self_check(device: &Device) -> Result<(), LossDeviceError> {
     let run = || -> candle_core::Result<(f32, Vec<Vec<f32>>)> {
         let x = Tensor::arange(0f32, 6f32, device)?.reshape((2, 3))?;
         let y = Tensor::arange(0f32, 6f32, device)?.reshape((3, 2))?;
@@ -31,14 +44,18 @@ pub fn self_check(device: &Device) -> Result<(), String> {
     let name = describe(device);
     match run() {
         Ok((sum, product)) if sum == 36.0 && product == [[10.0, 13.0], [28.0, 40.0]] => Ok(()),
-        Ok((sum, product)) => Err(format!(
-            "{name}: the self-check computed wrong values (sum {sum}, product {product:?}){}",
-            build_note()
-        )),
-        Err(e) => Err(format!(
-            "{name}: the kernels do not run ({e}){}",
-            build_note()
-        )),
+        Ok((sum, product)) => Err(LossDeviceError {
+            what: format!(
+                "{name}: the self-check computed wrong values (sum {sum}, product {product:?})"
+            ),
+            source: None,
+            note: build_note(),
+        }),
+        Err(e) => Err(LossDeviceError {
+            what: format!("{name}: the kernels do not run"),
+            source: Some(e),
+            note: build_note(),
+        }),
     }
 }
 
@@ -54,21 +71,25 @@ fn build_note() -> String {
 }
 
 #[cfg(feature = "cuda")]
-fn open_built_gpu() -> Result<Option<Device>, String> {
-    Device::new_cuda(0)
-        .map(Some)
-        .map_err(|e| format!("CUDA device 0 does not open: {e}{}", build_note()))
+fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
+    Device::new_cuda(0).map(Some).map_err(|e| LossDeviceError {
+        what: "CUDA device 0 does not open".into(),
+        source: Some(e),
+        note: build_note(),
+    })
 }
 
 #[cfg(all(feature = "metal", not(feature = "cuda")))]
-fn open_built_gpu() -> Result<Option<Device>, String> {
-    Device::new_metal(0)
-        .map(Some)
-        .map_err(|e| format!("Metal device 0 does not open: {e}"))
+fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
+    Device::new_metal(0).map(Some).map_err(|e| LossDeviceError {
+        what: "Metal device 0 does not open".into(),
+        source: Some(e),
+        note: String::new(),
+    })
 }
 
 #[cfg(not(any(feature = "cuda", feature = "metal")))]
-fn open_built_gpu() -> Result<Option<Device>, String> {
+fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
     Ok(None)
 }
 
@@ -77,7 +98,7 @@ fn open_built_gpu() -> Result<Option<Device>, String> {
 /// and it opens, else the cpu; `gpu` that GPU, an error when the build has one that does not
 /// open, and the cpu with a note saying why when the build has none (the rasterizer still runs
 /// on wgpu).
-pub fn open_for(choice: DeviceChoice) -> Result<(Device, String), String> {
+pub fn open_for(choice: DeviceChoice) -> Result<(Device, String), LossDeviceError> {
     if choice == DeviceChoice::Cpu {
         return Ok((Device::Cpu, String::new()));
     }
@@ -87,8 +108,8 @@ pub fn open_for(choice: DeviceChoice) -> Result<(Device, String), String> {
 /// [`open_for`] given what opening the GPU gave.
 fn choose(
     choice: DeviceChoice,
-    opened: Result<Option<Device>, String>,
-) -> Result<(Device, String), String> {
+    opened: Result<Option<Device>, LossDeviceError>,
+) -> Result<(Device, String), LossDeviceError> {
     let cpu = |note: &str| (Device::Cpu, note.to_string());
     match (choice, opened) {
         (_, Ok(Some(gpu))) => Ok((gpu, String::new())),
@@ -96,9 +117,14 @@ fn choose(
             " (this build has neither the cuda nor the metal feature: scripts/build_cuda.sh \
              builds one with cuda)",
         )),
-        (DeviceChoice::Gpu, Err(why)) => Err(format!(
-            "--device gpu: the style loss: {why}; use --device auto or cpu to run it on the cpu"
-        )),
+        (DeviceChoice::Gpu, Err(why)) => Err(LossDeviceError {
+            what: format!("--device gpu: the style loss: {}", why.what),
+            note: format!(
+                "{}; use --device auto or cpu to run it on the cpu",
+                why.note
+            ),
+            source: why.source,
+        }),
         (_, Ok(None)) => Ok(cpu("")),
         (_, Err(why)) => Ok(cpu(&format!(" ({why})"))),
     }
@@ -143,13 +169,24 @@ mod tests {
     fn the_self_check_passes_on_the_cpu_and_its_failure_is_named() {
         self_check(&Device::Cpu).unwrap();
         // A GPU that opened but whose kernels do not load: auto falls back saying why, gpu stops.
-        let why = "cuda:0: the kernels do not run (CUDA_ERROR_NO_BINARY_FOR_GPU)".to_string();
-        let (device, note) = choose(DeviceChoice::Auto, Err(why.clone())).unwrap();
+        let why = || LossDeviceError {
+            what: "cuda:0: the kernels do not run".into(),
+            source: Some(candle_core::Error::Msg(
+                "CUDA_ERROR_NO_BINARY_FOR_GPU".into(),
+            )),
+            note: String::new(),
+        };
+        let (device, note) = choose(DeviceChoice::Auto, Err(why())).unwrap();
         assert!(
             device.is_cpu() && note.contains("CUDA_ERROR_NO_BINARY_FOR_GPU"),
             "{note}"
         );
-        let e = choose(DeviceChoice::Gpu, Err(why)).unwrap_err();
+        let e = choose(DeviceChoice::Gpu, Err(why())).unwrap_err();
+        assert!(
+            matches!(&e.source, Some(candle_core::Error::Msg(m)) if m.contains("NO_BINARY")),
+            "candle's error is kept as the source: {e:?}"
+        );
+        let e = e.to_string();
         assert!(
             e.contains("--device gpu") && e.contains("kernels do not run") && e.contains("auto"),
             "{e}"
