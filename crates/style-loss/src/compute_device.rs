@@ -15,7 +15,7 @@ pub struct LossDeviceError {
     /// What failed (`CUDA device 0 does not open`).
     pub what: String,
     /// candle's error.
-    pub source: Option<candle_core::Error>,
+    pub source: Option<Box<candle_core::Error>>,
     /// What this build was made for, or what to do (may be empty).
     pub note: String,
 }
@@ -53,7 +53,7 @@ pub fn self_check(device: &Device) -> Result<(), LossDeviceError> {
         }),
         Err(e) => Err(LossDeviceError {
             what: format!("{name}: the kernels do not run"),
-            source: Some(e),
+            source: Some(Box::new(e)),
             note: build_note(),
         }),
     }
@@ -74,7 +74,7 @@ fn build_note() -> String {
 fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
     Device::new_cuda(0).map(Some).map_err(|e| LossDeviceError {
         what: "CUDA device 0 does not open".into(),
-        source: Some(e),
+        source: Some(Box::new(e)),
         note: build_note(),
     })
 }
@@ -83,7 +83,7 @@ fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
 fn open_built_gpu() -> Result<Option<Device>, LossDeviceError> {
     Device::new_metal(0).map(Some).map_err(|e| LossDeviceError {
         what: "Metal device 0 does not open".into(),
-        source: Some(e),
+        source: Some(Box::new(e)),
         note: String::new(),
     })
 }
@@ -171,9 +171,9 @@ mod tests {
         // A GPU that opened but whose kernels do not load: auto falls back saying why, gpu stops.
         let why = || LossDeviceError {
             what: "cuda:0: the kernels do not run".into(),
-            source: Some(candle_core::Error::Msg(
+            source: Some(Box::new(candle_core::Error::Msg(
                 "CUDA_ERROR_NO_BINARY_FOR_GPU".into(),
-            )),
+            ))),
             note: String::new(),
         };
         let (device, note) = choose(DeviceChoice::Auto, Err(why())).unwrap();
@@ -183,7 +183,7 @@ mod tests {
         );
         let e = choose(DeviceChoice::Gpu, Err(why())).unwrap_err();
         assert!(
-            matches!(&e.source, Some(candle_core::Error::Msg(m)) if m.contains("NO_BINARY")),
+            matches!(e.source.as_deref(), Some(candle_core::Error::Msg(m)) if m.contains("NO_BINARY")),
             "candle's error is kept as the source: {e:?}"
         );
         let e = e.to_string();
