@@ -75,9 +75,24 @@ pub enum VideoInputError {
         /// The first frame's size.
         first_size: (u32, u32),
     },
-    /// A video file, and no `ffmpeg` program to decode it.
-    #[error("video {}: reading a video file needs the ffmpeg program, which is not on PATH; install ffmpeg, or give a folder of numbered PNG or JPEG frames instead", .0.display())]
-    NoFfmpeg(PathBuf),
+    /// A video file, and no `ffmpeg` or `ffprobe` program to read it.
+    #[error("video {}: reading a video file needs the {program} program, which is not on PATH; install FFmpeg (it brings ffmpeg and ffprobe), or give a folder of numbered PNG or JPEG frames instead", path.display())]
+    MissingProgram {
+        /// The video file.
+        path: PathBuf,
+        /// `ffmpeg` or `ffprobe`.
+        program: &'static str,
+    },
+    /// A folder holding two frames of the same number (a PNG and a JPEG copy of the frames).
+    #[error("video {}: {} and {} are the same frame in two formats; keep one format in the folder", dir.display(), first.display(), second.display())]
+    MixedFormats {
+        /// The folder.
+        dir: PathBuf,
+        /// One copy of the frame.
+        first: PathBuf,
+        /// The other.
+        second: PathBuf,
+    },
     /// `ffmpeg` or `ffprobe` failed on the file.
     #[error("video {}: {program} failed: {message}", path.display())]
     Decoder {
@@ -157,7 +172,8 @@ fn read_video(
         Command::new("ffmpeg")
             .args(["-nostdin", "-v", "error", "-i"])
             .arg(path)
-            .args(["-vsync", "passthrough", "-pix_fmt", "rgb24"])
+            .args(sync_option(&ffmpeg_version(path)?))
+            .args(["-pix_fmt", "rgb24"])
             .arg(dir.path().join("%06d.png")),
     )?;
     let files = frame_files(dir.path())?;
@@ -191,6 +207,16 @@ pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, VideoInputError> {
         let name = |p: &PathBuf| p.file_name().map(|n| n.to_string_lossy().into_owned());
         natord::compare(&name(a).unwrap_or_default(), &name(b).unwrap_or_default())
     });
+    let stem = |p: &PathBuf| p.file_stem().map(|s| s.to_ascii_lowercase());
+    let mut by_stem: Vec<&PathBuf> = files.iter().collect();
+    by_stem.sort_by_key(|p| stem(p));
+    if let Some(pair) = by_stem.windows(2).find(|w| stem(w[0]) == stem(w[1])) {
+        return Err(VideoInputError::MixedFormats {
+            dir: dir.to_path_buf(),
+            first: pair[0].clone(),
+            second: pair[1].clone(),
+        });
+    }
     Ok(files)
 }
 
@@ -249,6 +275,41 @@ fn check_count(video: Video, path: &Path) -> Result<Video, VideoInputError> {
     Ok(video)
 }
 
+/// The first line of `ffmpeg -version` (`ffmpeg version 6.1.1 ...`), run for the file `path`
+/// (errors name it).
+fn ffmpeg_version(path: &Path) -> Result<String, VideoInputError> {
+    let text = run_tool(path, "ffmpeg", Command::new("ffmpeg").arg("-version"))?;
+    Ok(text.lines().next().unwrap_or_default().to_string())
+}
+
+/// The option that keeps every decoded frame as it is (no frame dropped or duplicated) for the
+/// ffmpeg whose `-version` line is `version_line`: `-fps_mode passthrough` from FFmpeg 5.1 on,
+/// where `-vsync` is deprecated (and gone in 7), `-vsync passthrough` before. A version that
+/// does not parse as `N.M` (a git build, `N-12345-g...`) is taken as a recent one.
+fn sync_option(version_line: &str) -> [&'static str; 2] {
+    let version = version_line
+        .split_whitespace()
+        .skip_while(|w| *w != "version")
+        .nth(1)
+        .unwrap_or_default()
+        .trim_start_matches('n');
+    let mut numbers = version
+        .split(|c: char| !c.is_ascii_digit())
+        .map(|n| n.parse::<u32>().ok());
+    let (major, minor) = (numbers.next().flatten(), numbers.next().flatten());
+    let old = match (major, minor) {
+        (Some(major), Some(minor)) if version.starts_with(|c: char| c.is_ascii_digit()) => {
+            (major, minor) < (5, 1)
+        }
+        _ => false,
+    };
+    if old {
+        ["-vsync", "passthrough"]
+    } else {
+        ["-fps_mode", "passthrough"]
+    }
+}
+
 /// The frame rate of the first video stream of `path`, by `ffprobe`: its average rate, or its
 /// base rate where a container reports no average (`0/0`).
 fn probe_fps(path: &Path) -> Result<f64, VideoInputError> {
@@ -294,7 +355,10 @@ fn run_tool(
     command: &mut Command,
 ) -> Result<String, VideoInputError> {
     let out = command.output().map_err(|e| match e.kind() {
-        std::io::ErrorKind::NotFound => VideoInputError::NoFfmpeg(path.to_path_buf()),
+        std::io::ErrorKind::NotFound => VideoInputError::MissingProgram {
+            path: path.to_path_buf(),
+            program,
+        },
         _ => VideoInputError::Decoder {
             path: path.to_path_buf(),
             program,
@@ -316,4 +380,30 @@ fn has_extension(path: &Path, extensions: &[&str]) -> bool {
     path.extension()
         .and_then(|e| e.to_str())
         .is_some_and(|e| extensions.iter().any(|x| x.eq_ignore_ascii_case(e)))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// FFmpeg 4.4 to 9 as they print their version: `-vsync` before 5.1, `-fps_mode` since
+    /// (7 removed `-vsync`), and a git build taken as recent.
+    #[test]
+    fn the_frame_sync_option_follows_the_ffmpeg_version() {
+        for (line, option) in [
+            (
+                "ffmpeg version 4.4.2-0ubuntu0.22.04.1 Copyright (c) 2000-2021",
+                "-vsync",
+            ),
+            ("ffmpeg version 5.0.3 Copyright", "-vsync"),
+            ("ffmpeg version 5.1.6-0+deb12u1 Copyright", "-fps_mode"),
+            ("ffmpeg version 6.1.1-3ubuntu5 Copyright", "-fps_mode"),
+            ("ffmpeg version n7.1 Copyright", "-fps_mode"),
+            ("ffmpeg version 8.0 Copyright", "-fps_mode"),
+            ("ffmpeg version N-117563-g5b5a5d5 Copyright", "-fps_mode"),
+            ("", "-fps_mode"),
+        ] {
+            assert_eq!(sync_option(line), [option, "passthrough"], "{line}");
+        }
+    }
 }

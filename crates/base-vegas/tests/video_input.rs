@@ -85,6 +85,23 @@ fn bad_folders_are_answered_with_clear_errors() {
     assert!(e.contains("clip.txt") && e.contains("mp4"), "{e}");
 }
 
+/// A folder holding a PNG and a JPEG copy of the same frames is refused, naming both copies,
+/// instead of being read as a video of twice the length.
+#[test]
+fn a_folder_of_one_frame_in_two_formats_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    for name in ["0001.png", "0002.png", "0001.jpg", "0002.JPG"] {
+        std::fs::write(dir.path().join(name), b"not decoded").unwrap();
+    }
+    let e = load_video(dir.path(), [0.0; 3], DEFAULT_FOLDER_FPS, 0).unwrap_err();
+    assert!(matches!(e, VideoInputError::MixedFormats { .. }), "{e}");
+    let text = e.to_string();
+    assert!(
+        text.contains("0001.jpg") && text.contains("0001.png") && text.contains("one format"),
+        "{text}"
+    );
+}
+
 /// A video file goes through ffmpeg: without it, the error names the program and the frames
 /// alternative; with it, a file it cannot decode is its error, naming the file.
 #[test]
@@ -100,7 +117,16 @@ fn a_video_file_needs_ffmpeg_and_says_so() {
     if has_ffmpeg {
         assert!(matches!(e, VideoInputError::Decoder { .. }), "{e}");
     } else {
-        assert!(matches!(e, VideoInputError::NoFfmpeg(_)), "{e}");
+        assert!(
+            matches!(
+                e,
+                VideoInputError::MissingProgram {
+                    program: "ffprobe",
+                    ..
+                }
+            ),
+            "{e}"
+        );
         let text = e.to_string();
         assert!(
             text.contains("ffmpeg") && text.contains("folder of numbered"),
