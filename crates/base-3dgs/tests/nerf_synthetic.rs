@@ -88,6 +88,63 @@ fn a_tiny_scene_loads_with_cameras_that_project_known_points() {
     assert!(data.points.is_none());
 }
 
+/// nerfstudio / instant-ngp files: sizes as whole floats, pixel intrinsics for the file and
+/// for a frame, no `camera_angle_x`; a distorted camera or one without any focal length is
+/// refused naming the frame.
+#[test]
+fn nerfstudio_intrinsics_and_float_sizes_are_read() {
+    let dir = TempDir::new("nerf-intrinsics");
+    for i in 0..2 {
+        write_rgba(&dir.path().join(format!("images/f_{i}.png")), W, H);
+    }
+    let pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]];
+    let write = |json: serde_json::Value| {
+        std::fs::write(
+            dir.path().join("transforms_train.json"),
+            serde_json::to_string(&json).unwrap(),
+        )
+        .unwrap();
+        nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default())
+    };
+    let data = write(serde_json::json!({
+        "w": 8.0, "h": 6.0, "fl_x": 7.5, "fl_y": 7.0, "cx": 4.25, "cy": 2.75,
+        "frames": [
+            {"file_path": "images/f_0.png", "transform_matrix": pose},
+            {"file_path": "images/f_1.png", "transform_matrix": pose, "fl_x": 9.0, "cx": 3.5},
+        ]
+    }))
+    .unwrap();
+    let k = |i: usize| {
+        let c = &data.views[i].camera;
+        [c.fx, c.fy, c.cx, c.cy]
+    };
+    assert_eq!(k(0), [7.5, 7.0, 4.25, 2.75]);
+    assert_eq!(k(1), [9.0, 7.0, 3.5, 2.75], "a frame's own intrinsics win");
+    let e = write(serde_json::json!({
+        "fl_x": 7.5, "k1": -0.02,
+        "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
+    }))
+    .unwrap_err()
+    .to_string();
+    assert!(
+        e.contains("frame 0") && e.contains("k1 = -0.02") && e.contains("undistort"),
+        "{e}"
+    );
+    let e = write(serde_json::json!({
+        "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
+    }))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("neither fl_x nor camera_angle_x"), "{e}");
+    let e = write(serde_json::json!({
+        "w": 8.5, "fl_x": 7.5,
+        "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
+    }))
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("8.5 is not a picture size"), "{e}");
+}
+
 /// The loader tells its progress of every picture: each count once, out of the split's size.
 #[test]
 fn every_picture_loaded_is_reported_once() {
@@ -235,7 +292,12 @@ fn missing_files_bad_json_and_size_mismatches_are_clear_errors() {
     );
 
     let json = dir.path().join("transforms_val.json");
-    std::fs::write(&json, r#"{"frames": []}"#).unwrap();
+    std::fs::write(
+        &json,
+        r#"{"frames": [{"file_path": "train/r_0", "transform_matrix":
+            [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]}"#,
+    )
+    .unwrap();
     let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
     assert!(
         e.to_string().contains("camera_angle_x") && e.to_string().contains("transforms_val.json"),
@@ -244,7 +306,12 @@ fn missing_files_bad_json_and_size_mismatches_are_clear_errors() {
     std::fs::write(&json, r#"{"camera_angle_x": 0.7, "frames": []}"#).unwrap();
     let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
     assert!(e.to_string().contains("no frames"), "{e}");
-    std::fs::write(&json, r#"{"camera_angle_x": -1, "frames": []}"#).unwrap();
+    std::fs::write(
+        &json,
+        r#"{"camera_angle_x": -1, "frames": [{"file_path": "train/r_0", "transform_matrix":
+            [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}]}"#,
+    )
+    .unwrap();
     let e = nerf_synthetic::load(dir.path(), Split::Val, &LoadOptions::default()).unwrap_err();
     assert!(e.to_string().contains("camera_angle_x is -1"), "{e}");
 

@@ -101,6 +101,32 @@ impl Camera {
         Self::from_centre(r_c2w, centre, focal, focal, width, height)
     }
 
+    /// A camera from a NeRF/Blender camera-to-world matrix (OpenGL axes) with its own
+    /// intrinsics `[fx, fy, cx, cy]` in pixels (nerfstudio's and instant-ngp's `fl_x`, `fl_y`,
+    /// `cx`, `cy`).
+    pub fn from_nerf_intrinsics(
+        c2w: [[f64; 4]; 4],
+        intrinsics: [f64; 4],
+        width: u32,
+        height: u32,
+    ) -> Result<Self, GsError> {
+        let r_c2w: M3<f64> = [
+            [c2w[0][0], -c2w[0][1], -c2w[0][2]],
+            [c2w[1][0], -c2w[1][1], -c2w[1][2]],
+            [c2w[2][0], -c2w[2][1], -c2w[2][2]],
+        ];
+        let rotation = mat::transpose(&r_c2w);
+        let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
+        let rc = mat::mul_vec(&rotation, &centre);
+        Self::new(
+            rotation,
+            [-rc[0], -rc[1], -rc[2]],
+            intrinsics,
+            width,
+            height,
+        )
+    }
+
     /// A camera from a COLMAP image pose: `qvec` `(w, x, y, z)` and `tvec` are the
     /// world-to-camera rotation and translation (OpenCV axes), intrinsics in pixels.
     pub fn from_colmap(

@@ -9,6 +9,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::camera::fov_to_focal;
 use crate::model::View;
 use crate::Camera;
 use rayon::prelude::*;
@@ -41,12 +42,100 @@ impl Split {
 
 #[derive(Deserialize)]
 struct Transforms {
-    camera_angle_x: f64,
-    /// Image width some exporters add; when present every image must have it.
+    /// Horizontal field of view, radians (NeRF-synthetic); optional where `fl_x` is given.
+    camera_angle_x: Option<f64>,
+    /// Image width some exporters add; when present every image must have it. An integer, or
+    /// a whole float as nerfstudio and instant-ngp write it (`1080.0`).
+    #[serde(default, deserialize_with = "whole_pixels")]
     w: Option<u32>,
-    /// Image height some exporters add; when present every image must have it.
+    /// Image height, as `w`.
+    #[serde(default, deserialize_with = "whole_pixels")]
     h: Option<u32>,
+    /// The intrinsics of every frame, pixels (nerfstudio, instant-ngp); a frame may give its own.
+    #[serde(flatten)]
+    intrinsics: Intrinsics,
     frames: Vec<Frame>,
+}
+
+/// Pixel intrinsics as nerfstudio and instant-ngp write them, each optional; and the lens
+/// distortion they may record, which this reader does not undo (a distorted camera is refused).
+#[derive(Clone, Copy, Default, Deserialize)]
+struct Intrinsics {
+    fl_x: Option<f64>,
+    fl_y: Option<f64>,
+    cx: Option<f64>,
+    cy: Option<f64>,
+    k1: Option<f64>,
+    k2: Option<f64>,
+    k3: Option<f64>,
+    p1: Option<f64>,
+    p2: Option<f64>,
+}
+
+impl Intrinsics {
+    /// These, each field not given taken from `global`.
+    fn over(self, global: Intrinsics) -> Intrinsics {
+        Intrinsics {
+            fl_x: self.fl_x.or(global.fl_x),
+            fl_y: self.fl_y.or(global.fl_y),
+            cx: self.cx.or(global.cx),
+            cy: self.cy.or(global.cy),
+            k1: self.k1.or(global.k1),
+            k2: self.k2.or(global.k2),
+            k3: self.k3.or(global.k3),
+            p1: self.p1.or(global.p1),
+            p2: self.p2.or(global.p2),
+        }
+    }
+
+    /// `[fx, fy, cx, cy]` of a `width x height` picture: `fl_x` (`fl_y` defaults to it, the
+    /// principal point to the centre), else the focal of `fov_x`; an error naming what is
+    /// missing or why the camera is refused (lens distortion, which is not undone here).
+    fn pixels(&self, fov_x: Option<f64>, width: u32, height: u32) -> Result<[f64; 4], String> {
+        let distortion = [("k1", self.k1), ("k2", self.k2), ("k3", self.k3)]
+            .into_iter()
+            .chain([("p1", self.p1), ("p2", self.p2)])
+            .find(|(_, v)| v.is_some_and(|v| v != 0.0));
+        if let Some((name, Some(v))) = distortion {
+            return Err(format!(
+                "the camera has lens distortion ({name} = {v}), which this reader does not \
+                 undo; undistort the pictures first (e.g. nerfstudio's ns-process-data or \
+                 COLMAP's image_undistorter)"
+            ));
+        }
+        let fx = match (self.fl_x, fov_x) {
+            (Some(fx), _) => fx,
+            (None, Some(fov)) if fov > 0.0 && fov < std::f64::consts::PI => {
+                fov_to_focal(fov, width)
+            }
+            (None, Some(fov)) => {
+                return Err(format!(
+                    "camera_angle_x is {fov}; a field of view in radians in (0, pi) is expected"
+                ))
+            }
+            (None, None) => {
+                return Err("neither fl_x nor camera_angle_x gives the focal length".into())
+            }
+        };
+        Ok([
+            fx,
+            self.fl_y.unwrap_or(fx),
+            self.cx.unwrap_or(0.5 * f64::from(width)),
+            self.cy.unwrap_or(0.5 * f64::from(height)),
+        ])
+    }
+}
+
+/// A picture size written as an integer or as a whole float (`1080.0`).
+fn whole_pixels<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<u32>, D::Error> {
+    use serde::de::Error;
+    match Option::<f64>::deserialize(d)? {
+        None => Ok(None),
+        Some(v) if v.fract() == 0.0 && v >= 1.0 && v <= f64::from(u32::MAX) => Ok(Some(v as u32)),
+        Some(v) => Err(D::Error::custom(format!(
+            "{v} is not a picture size (a whole number of pixels)"
+        ))),
+    }
 }
 
 #[derive(Deserialize)]
@@ -55,6 +144,9 @@ struct Frame {
     transform_matrix: [[f64; 4]; 4],
     /// D-NeRF's normalized time of the frame.
     time: Option<f64>,
+    /// The frame's own intrinsics, over the file's.
+    #[serde(flatten)]
+    intrinsics: Intrinsics,
 }
 
 /// The image file of a frame: `file_path` relative to the scene folder, with ".png" appended
@@ -142,7 +234,9 @@ pub fn training_pixels(
             [0.0, 0.0, 1.0, 0.0],
             [0.0, 0.0, 0.0, 1.0],
         ];
-        let trained = Camera::from_nerf(identity, transforms.camera_angle_x, w, h)
+        // The trained size depends on the picture's size and the options only.
+        let (fw, fh) = (f64::from(w), f64::from(h));
+        let trained = Camera::from_nerf_intrinsics(identity, [fw, fw, fw / 2.0, fh / 2.0], w, h)
             .and_then(|c| training_camera(&c, options))
             .map_err(|source| DatasetError::Camera {
                 context: json_path.display().to_string(),
@@ -192,11 +286,6 @@ fn load_split(
         message,
     };
     let fov = transforms.camera_angle_x;
-    if !(fov > 0.0 && fov < std::f64::consts::PI) {
-        return Err(format_error(format!(
-            "camera_angle_x is {fov}; a field of view in radians in (0, pi) is expected"
-        )));
-    }
     let Some(first) = transforms.frames.first() else {
         return Err(format_error("no frames".into()));
     };
@@ -225,6 +314,18 @@ fn load_split(
         (Some(w), Some(h)) => (w, h),
         _ => images::dimensions(&image_path(root, &first.file_path))?,
     };
+    let intrinsics = transforms
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(i, frame)| {
+            frame
+                .intrinsics
+                .over(transforms.intrinsics)
+                .pixels(fov, size.0, size.1)
+                .map_err(|why| format_error(format!("frame {i} ({}): {why}", frame.file_path)))
+        })
+        .collect::<Result<Vec<_>, _>>()?;
     let background = options.background.rgb();
     let counter = ImageCounter::new(options, transforms.frames.len());
     let loaded: Vec<_> = transforms
@@ -232,12 +333,13 @@ fn load_split(
         .par_iter()
         .enumerate()
         .map(|(i, frame)| {
-            let camera = Camera::from_nerf(frame.transform_matrix, fov, size.0, size.1)
-                .and_then(|c| training_camera(&c, options))
-                .map_err(|source| DatasetError::Camera {
-                    context: format!("{} frame {i}", json_path.display()),
-                    source,
-                })?;
+            let camera =
+                Camera::from_nerf_intrinsics(frame.transform_matrix, intrinsics[i], size.0, size.1)
+                    .and_then(|c| training_camera(&c, options))
+                    .map_err(|source| DatasetError::Camera {
+                        context: format!("{} frame {i}", json_path.display()),
+                        source,
+                    })?;
             let path = image_path(root, &frame.file_path);
             let (image, mask) = images::load(
                 &path,
