@@ -30,6 +30,12 @@ pub fn fov_to_focal(fov: f64, pixels: u32) -> f64 {
     0.5 * pixels as f64 / (0.5 * fov).tan()
 }
 
+/// The intrinsics `[f, f, cx, cy]` of a `width x height` picture with focal length `focal`
+/// along both axes and the principal point at its centre.
+fn centred(focal: f64, width: u32, height: u32) -> [f64; 4] {
+    [focal, focal, 0.5 * width as f64, 0.5 * height as f64]
+}
+
 impl Camera {
     /// A camera from a world-to-camera transform (OpenCV axes) and intrinsics; checks that the
     /// size is non-zero, the focal lengths positive and everything finite.
@@ -91,14 +97,7 @@ impl Camera {
         height: u32,
     ) -> Result<Self, GsError> {
         let focal = fov_to_focal(fov_x, width);
-        // OpenGL to OpenCV axes: negate the camera's y and z axes (columns 1 and 2).
-        let r_c2w: M3<f64> = [
-            [c2w[0][0], -c2w[0][1], -c2w[0][2]],
-            [c2w[1][0], -c2w[1][1], -c2w[1][2]],
-            [c2w[2][0], -c2w[2][1], -c2w[2][2]],
-        ];
-        let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
-        Self::from_centre(r_c2w, centre, focal, focal, width, height)
+        Self::from_nerf_intrinsics(c2w, centred(focal, width, height), width, height)
     }
 
     /// A camera from a NeRF/Blender camera-to-world matrix (OpenGL axes) with its own
@@ -110,21 +109,14 @@ impl Camera {
         width: u32,
         height: u32,
     ) -> Result<Self, GsError> {
+        // OpenGL to OpenCV axes: negate the camera's y and z axes (columns 1 and 2).
         let r_c2w: M3<f64> = [
             [c2w[0][0], -c2w[0][1], -c2w[0][2]],
             [c2w[1][0], -c2w[1][1], -c2w[1][2]],
             [c2w[2][0], -c2w[2][1], -c2w[2][2]],
         ];
-        let rotation = mat::transpose(&r_c2w);
         let centre = [c2w[0][3], c2w[1][3], c2w[2][3]];
-        let rc = mat::mul_vec(&rotation, &centre);
-        Self::new(
-            rotation,
-            [-rc[0], -rc[1], -rc[2]],
-            intrinsics,
-            width,
-            height,
-        )
+        Self::from_centre(r_c2w, centre, intrinsics, width, height)
     }
 
     /// A camera from a COLMAP image pose: `qvec` `(w, x, y, z)` and `tvec` are the
@@ -172,20 +164,20 @@ impl Camera {
             [right[2], down[2], forward[2]],
         ];
         let focal = fov_to_focal(fov_x, width);
-        Self::from_centre(r_c2w, eye, focal, focal, width, height)
+        Self::from_centre(r_c2w, eye, centred(focal, width, height), width, height)
     }
 
+    /// The camera at world point `centre` whose camera-to-world rotation (OpenCV axes) is
+    /// `r_c2w`, with `intrinsics`.
     fn from_centre(
         r_c2w: M3<f64>,
         centre: V3<f64>,
-        fx: f64,
-        fy: f64,
+        intrinsics: [f64; 4],
         width: u32,
         height: u32,
     ) -> Result<Self, GsError> {
         let rotation = mat::transpose(&r_c2w);
         let rc = mat::mul_vec(&rotation, &centre);
-        let intrinsics = [fx, fy, 0.5 * width as f64, 0.5 * height as f64];
         Self::new(
             rotation,
             [-rc[0], -rc[1], -rc[2]],
