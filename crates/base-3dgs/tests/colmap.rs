@@ -220,6 +220,30 @@ fn text_and_binary_models_load_to_the_same_scene() {
     assert!(da.masks.iter().all(Option::is_none), "no alpha, no mask");
 }
 
+/// `image_undistorter` writes its model straight into `sparse/` (no `0/`): the same scene
+/// loads from there; a `sparse/` holding no model is named with both places looked in.
+#[test]
+fn a_model_directly_in_sparse_loads_as_from_sparse_0() {
+    let dir = scene("colmap-flat-sparse", false);
+    let nested = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    let sparse = dir.path().join("sparse");
+    for entry in std::fs::read_dir(sparse.join("0")).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::rename(&path, sparse.join(path.file_name().unwrap())).unwrap();
+    }
+    std::fs::remove_dir(sparse.join("0")).unwrap();
+    let flat = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    assert_eq!(flat.views, nested.views);
+    assert_eq!(flat.image_paths, nested.image_paths);
+    for name in ["cameras.txt", "images.txt", "points3D.txt"] {
+        std::fs::remove_file(sparse.join(name)).unwrap();
+    }
+    let e = colmap::load(dir.path(), &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("sparse/0") && e.contains("cameras.bin"), "{e}");
+}
+
 #[test]
 fn a_known_point_projects_to_the_expected_pixel() {
     let dir = scene("colmap-project", true);

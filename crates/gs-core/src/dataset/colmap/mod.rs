@@ -175,19 +175,37 @@ fn image_folder(root: &Path, downscale: u32) -> Result<(PathBuf, bool), DatasetE
     }
 }
 
+/// The folder of the sparse model of the COLMAP scene in `root`: `sparse/0/` (COLMAP's
+/// mapper), else `sparse/` itself when it holds the model (`image_undistorter`'s output).
+fn sparse_model_dir(root: &Path) -> Result<PathBuf, DatasetError> {
+    let sparse = root.join("sparse");
+    let first = sparse.join("0");
+    let holds_model = |dir: &Path| {
+        ["cameras.bin", "cameras.txt"]
+            .iter()
+            .any(|name| dir.join(name).is_file())
+    };
+    if first.is_dir() {
+        Ok(first)
+    } else if holds_model(&sparse) {
+        Ok(sparse)
+    } else {
+        Err(DatasetError::Missing {
+            path: first,
+            what: "the COLMAP sparse model folder (sparse/0/, or sparse/ holding cameras.bin \
+                   or cameras.txt)"
+                .into(),
+        })
+    }
+}
+
 /// Loads the COLMAP scene in `root`: views sorted by image name, images loaded in parallel,
 /// the sparse points. With `downscale = f > 1`, images come from `images_<f>/` when it exists
 /// (each within one pixel of the downscaled camera size, the intrinsics scaled to the file's
 /// exact size), else from `images/` (exactly the camera size), resized.
 pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError> {
     check_options(options)?;
-    let sparse = root.join("sparse").join("0");
-    if !sparse.is_dir() {
-        return Err(DatasetError::Missing {
-            path: sparse,
-            what: "the COLMAP sparse model folder".into(),
-        });
-    }
+    let sparse = sparse_model_dir(root)?;
     let model = read_sparse_model(&sparse)?;
     let cameras: HashMap<i64, &ColmapCamera> = model.cameras.iter().map(|c| (c.id, c)).collect();
     let (folder, prescaled) = image_folder(root, options.downscale)?;
