@@ -178,7 +178,7 @@ fn training_pixels_agree_with_the_loaded_views() {
             ..LoadOptions::default()
         };
         let (views, largest) =
-            nerf_synthetic::training_pixels(dir.path(), &[Split::Train], &options).unwrap();
+            nerf_synthetic::training_pixels(dir.path(), TrainSplits::Train, &options).unwrap();
         let data = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
         let loaded: Vec<u64> = data
             .images

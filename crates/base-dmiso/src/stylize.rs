@@ -406,22 +406,20 @@ impl Modality for DynamicStylizeConfig {
         self.model.as_deref()
     }
 
-    /// The D-NeRF scene's sizes from its json files (and one picture header a split), every
-    /// split counted (the test split is rendered either way); none when they do not read
-    /// (the loading reports them).
+    /// The D-NeRF scene's sizes from its json files (and one picture header a split), the
+    /// test split counted whichever splits train (it is rendered either way); none when they
+    /// do not read (the loading reports them).
     fn input_pixels(&self) -> Result<Option<InputPixels>, DynamicError> {
         let data = self.data.as_deref().expect("checked: the data is given");
-        let mut splits = vec![Split::Train];
-        if data.join(Split::Test.file_name()).is_file() {
-            splits.push(Split::Test);
-        }
         let options = LoadOptions {
             max_width: self.max_width,
             ..LoadOptions::default()
         };
-        Ok(nerf_synthetic::training_pixels(data, &splits, &options)
-            .ok()
-            .map(InputPixels::new))
+        Ok(
+            nerf_synthetic::training_pixels(data, TrainSplits::TrainAndTest, &options)
+                .ok()
+                .map(InputPixels::new),
+        )
     }
 
     /// The scene over the background this configuration or the model (`model`) records, with

@@ -18,7 +18,7 @@ use gs_stylize::{
 
 use super::config::BackgroundPixels;
 use super::StylizeConfig;
-use crate::dataset::nerf_synthetic::{self, Split, TrainSplits};
+use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
 
 /// The stylized PLY in the output folder.
@@ -87,20 +87,16 @@ impl Modality for StylizeConfig {
         if !matches!(Layout::detect(data), Some(Layout::NerfSynthetic)) {
             return Ok(None);
         }
-        let mut splits = vec![Split::Train];
-        if self.train_splits == TrainSplits::TrainAndTest
-            && data.join(Split::Test.file_name()).is_file()
-        {
-            splits.push(Split::Test);
-        }
         let options = LoadOptions {
             downscale: self.resolution,
             max_width: self.max_width,
             ..LoadOptions::default()
         };
-        Ok(nerf_synthetic::training_pixels(data, &splits, &options)
-            .ok()
-            .map(InputPixels::new))
+        Ok(
+            nerf_synthetic::training_pixels(data, self.train_splits, &options)
+                .ok()
+                .map(InputPixels::new),
+        )
     }
 
     /// The PLY and the dataset, with the preview views checked against it.

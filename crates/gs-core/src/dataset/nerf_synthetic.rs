@@ -210,18 +210,23 @@ pub fn load_with_times(
     load_split(root, split, options, true)
 }
 
-/// The pixels of every view of `splits` of the scene in `root` as [`load`] would train them
-/// with `options` (downscaled or shrunk), and the pixels of the largest picture as stored,
+/// The pixels of every view of the scene in `root` as [`load_training`] would train it with
+/// `splits` and `options` (the train split, then the test split when `splits` takes it and
+/// the scene has one; downscaled or shrunk), and the pixels of the largest picture as stored,
 /// from the json files and at most one picture header a split, without decoding any picture:
 /// what a run checks against its memory before loading.
 pub fn training_pixels(
     root: &Path,
-    splits: &[Split],
+    splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<(Vec<u64>, u64), DatasetError> {
+    let mut read = vec![Split::Train];
+    if splits == TrainSplits::TrainAndTest && root.join(Split::Test.file_name()).is_file() {
+        read.push(Split::Test);
+    }
     let mut views = Vec::new();
     let mut largest = 0u64;
-    for &split in splits {
+    for split in read {
         let (json_path, transforms) = read_transforms(root, split)?;
         let (w, h) = match (transforms.w, transforms.h, transforms.frames.first()) {
             (Some(w), Some(h), _) => (w, h),
