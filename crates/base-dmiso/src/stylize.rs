@@ -28,7 +28,7 @@ use gs_stylize::animation::{
 };
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
-use gs_stylize::progress::LoadingProgress;
+use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -441,10 +441,10 @@ impl Modality for DynamicStylizeConfig {
             Some(true) => TrainSplits::Train,
             Some(false) | None => TrainSplits::TrainAndTest,
         });
-        let loading = LoadingProgress::new(run.options().progress, "loading pictures");
-        let loaded = load_scene(data, background, self.max_width, Some(loading.reporter()));
-        loading.finish();
-        let (mut train, test) = loaded?;
+        let (mut train, test) =
+            with_loading_progress(run.options().progress, "loading pictures", |progress| {
+                load_scene(data, background, self.max_width, Some(progress.clone()))
+            })?;
         if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
             train.append(test.clone());
         }

@@ -22,7 +22,7 @@ use gs_core::model::BaseModel;
 use gs_core::Image;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
-use gs_stylize::progress::LoadingProgress;
+use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::run::check_patches_fit;
 use gs_stylize::{
@@ -295,17 +295,15 @@ impl Modality for VideoStylizeConfig {
     /// The frames, checked against the patch size.
     fn load_inputs(&self, run: &PreparedRun, _model: Option<&Path>) -> Result<Video, VideoError> {
         let path = self.video.as_deref().expect("checked: the video is given");
-        let loading = LoadingProgress::new(run.options().progress, "loading frames");
-        let reporter = loading.reporter();
-        let loaded = load_video_with_progress(
-            path,
-            self.background,
-            self.fps,
-            self.max_width,
-            Some(&reporter),
-        );
-        loading.finish();
-        let video = loaded?;
+        let video = with_loading_progress(run.options().progress, "loading frames", |progress| {
+            load_video_with_progress(
+                path,
+                self.background,
+                self.fps,
+                self.max_width,
+                Some(progress),
+            )
+        })?;
         check_patches_fit(&self.style, &video.frames[..1], &video.labels[..1])?;
         Ok(video)
     }

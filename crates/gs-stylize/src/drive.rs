@@ -39,7 +39,7 @@ use crate::checkpoint::mark_finished;
 use crate::interrupt::stop_on_ctrl_c;
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
 use crate::outputs::{create_folder, write_json, FitReport, FIT_JSON};
-use crate::progress::{fit_with_progress, LoadingProgress};
+use crate::progress::{fit_with_progress, with_loading_progress};
 use crate::writable::check_output_folder;
 use crate::{
     open_device, prepare, PreparedRun, RunOptions, StyleSettings, StylizeError, StylizeJob,
@@ -260,10 +260,7 @@ pub fn run_fit<I, F>(
 ) -> Result<(), Box<dyn Error>> {
     let out = command.out;
     check_output_folder(out)?;
-    let loading = LoadingProgress::new(command.progress, "loading pictures");
-    let inputs = load(&loading.reporter());
-    loading.finish();
-    let inputs = inputs?;
+    let inputs = with_loading_progress(command.progress, "loading pictures", load)?;
     let options = RunOptions {
         resume: false,
         progress: command.progress,

@@ -256,6 +256,19 @@ pub fn fit_with_progress<T, E: From<StylizeError>>(
     Ok(fitted)
 }
 
+/// Runs `load` with the progress of its pictures shown as a [`LoadingProgress`] labelled
+/// `label` (when `show`), and ends the display once `load` returns, whatever it returns.
+pub fn with_loading_progress<T>(
+    show: bool,
+    label: &str,
+    load: impl FnOnce(&ImageProgress) -> T,
+) -> T {
+    let loading = LoadingProgress::new(show, label);
+    let loaded = load(&loading.reporter());
+    loading.finish();
+    loaded
+}
+
 /// The progress of loading pictures (a dataset's, a video's frames), shown as [`Progress`]
 /// lines or a bar labelled `label` as the loaders report each picture decoded
 /// ([`gs_core::dataset::ImageProgress`]); a loading of several parts (a scene's splits) shows

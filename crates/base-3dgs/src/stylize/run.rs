@@ -10,7 +10,7 @@ use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
 use gs_core::GaussianSet;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
-use gs_stylize::progress::LoadingProgress;
+use gs_stylize::progress::with_loading_progress;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
     StylizeOutcome,
@@ -232,20 +232,19 @@ fn no_fit() -> StylizeError {
 }
 
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
-/// `sparse/` is.
+/// `sparse/` is; the progress of its pictures shown when `show`.
 fn load_dataset(config: &StylizeConfig, show: bool) -> Result<Dataset, StylizeError> {
     let data = config.data_path();
-    let loading = LoadingProgress::new(show, "loading pictures");
-    let options = LoadOptions {
-        background: Background::from_rgb(config.background),
-        ground_truth: config.ground_truth,
-        downscale: config.resolution,
-        max_width: config.max_width,
-        progress: Some(loading.reporter()),
-    };
-    let loaded = load_layout(config, data, &options);
-    loading.finish();
-    loaded
+    with_loading_progress(show, "loading pictures", |progress| {
+        let options = LoadOptions {
+            background: Background::from_rgb(config.background),
+            ground_truth: config.ground_truth,
+            downscale: config.resolution,
+            max_width: config.max_width,
+            progress: Some(progress.clone()),
+        };
+        load_layout(config, data, &options)
+    })
 }
 
 /// The dataset in `data` with `options`, of the layout found there.
