@@ -172,7 +172,7 @@ fn train_in_batches(
         targets,
         lambda: 0.2,
     };
-    let mut trainer = Trainer::new(backend, start, groups(), AdamHyper::default()).unwrap();
+    let mut trainer = Trainer::new(backend, start, groups(), adam()).unwrap();
     let mut losses = Vec::new();
     let result = trainer.train(
         &views,
@@ -359,5 +359,17 @@ fn a_differentiable_render_has_the_same_gradient_on_both_devices() {
         );
         assert!(cpu.iter().any(|v| *v != 0.0), "{name}: a gradient");
         assert!(relative_worst(cpu, gpu) < 1e-3, "{name}");
+    }
+}
+
+/// Adam with an epsilon of 1e-8 instead of 3DGS's 1e-15. With 1e-15 a colour whose gradient
+/// cancels to almost nothing still steps by the whole learning rate, in the direction its
+/// rounding gives; the GPU's atomic sums round in another order than the CPU's, so about one run
+/// in twenty parted by 0.007 in one colour. 1e-8 damps only such cancelled gradients; the loss
+/// and shift checks above show the training itself unchanged.
+fn adam() -> AdamHyper {
+    AdamHyper {
+        eps: 1e-8,
+        ..AdamHyper::default()
     }
 }
