@@ -192,11 +192,7 @@ pub fn dataset_cameras(
             }
             colmap::load(data, options).map_err(wrap)?
         }
-        None => {
-            return Err(layout(
-                "neither transforms_*.json (NeRF-synthetic) nor sparse/ (COLMAP) was found".into(),
-            ))
-        }
+        None => return Err(layout(Layout::LOOKED_FOR.into())),
     };
     let mut names = BTreeSet::new();
     dataset

@@ -328,12 +328,48 @@ fn downscale_2_halves_intrinsics_and_image_sizes() {
 }
 
 #[test]
-fn distorted_cameras_ask_for_undistortion() {
+fn distorted_cameras_are_undistorted_and_cropped_and_other_models_refused() {
     let dir = scene("colmap-radial", false);
     let path = dir.path().join("sparse/0/cameras.txt");
     std::fs::write(
         &path,
-        format!("1 PINHOLE {W} {H} 20 18 8 6\n7 SIMPLE_RADIAL {W} {H} 15 7.5 6.5 0.01\n"),
+        format!("1 PINHOLE {W} {H} 20 18 8 6\n7 SIMPLE_RADIAL {W} {H} 15 7.5 6.5 -0.05\n"),
+    )
+    .unwrap();
+    let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    // a.png is camera 7's: barrel distortion undone, its border bulges outwards, so the
+    // pinhole picture of only valid pixels sees more than the same focal length would (a shorter
+    // one) and loses its last column and row (OpenCV's rounding at alpha 0); b.png and c.png are
+    // the pinhole camera's.
+    let a = &data.views[0].camera;
+    assert_eq!((a.width, a.height), (W - 1, H - 1));
+    assert!(a.fx < 15.0 && a.fy < 15.0, "{} {}", a.fx, a.fy);
+    assert_eq!(
+        (data.images[0].width, data.images[0].height),
+        (a.width, a.height)
+    );
+    assert_eq!(data.undistorted[0].as_ref().unwrap().model, "SIMPLE_RADIAL");
+    assert!(data.undistorted[1].is_none() && data.undistorted[2].is_none());
+    let b = &data.views[1].camera;
+    assert_eq!([b.fx, b.fy, b.cx, b.cy], [20.0, 18.0, 8.0, 6.0]);
+    let summary = data.undistortion_summary();
+    assert_eq!(summary.len(), 1, "{summary:?}");
+    assert!(
+        summary[0].starts_with("1 view(s): SIMPLE_RADIAL 16x12 undistorted and cropped to"),
+        "{summary:?}"
+    );
+
+    let bin = scene("colmap-radial-bin", true);
+    let (mut cams, imgs) = model();
+    cams[0].model_id = 4;
+    cams[0].params = vec![20.0, 18.0, 8.0, 6.0, 0.1, 0.0, 0.01, 0.0];
+    write_binary(&bin.path().join("sparse/0"), &cams, &imgs);
+    let data = colmap::load(bin.path(), &LoadOptions::default()).unwrap();
+    assert_eq!(data.undistorted[1].as_ref().unwrap().model, "OPENCV");
+
+    std::fs::write(
+        &path,
+        format!("1 PINHOLE {W} {H} 20 18 8 6\n7 FOV {W} {H} 15 15 7.5 6.5 0.9\n"),
     )
     .unwrap();
     let e = colmap::load(dir.path(), &LoadOptions::default()).unwrap_err();
@@ -346,19 +382,162 @@ fn distorted_cameras_ask_for_undistortion() {
     );
     let message = e.to_string();
     assert!(
-        message.contains("SIMPLE_RADIAL") && message.contains("image_undistorter"),
+        message.contains("FOV")
+            && message.contains("cameras.txt")
+            && message.contains("image_undistorter"),
         "{message}"
     );
+}
 
-    let bin = scene("colmap-radial-bin", true);
-    let (mut cams, imgs) = model();
-    cams[0].model_id = 4;
-    cams[0].params = vec![20.0, 18.0, 8.0, 6.0, 0.1, 0.0, 0.0, 0.0];
-    write_binary(&bin.path().join("sparse/0"), &cams, &imgs);
-    let e = colmap::load(bin.path(), &LoadOptions::default()).unwrap_err();
-    assert!(
-        e.to_string().contains("OPENCV") && e.to_string().contains("cameras.bin"),
-        "{e}"
+/// The undistorted normalized point of distorted `(xd, yd)`, solved to convergence by Newton's
+/// method (independent of the reader's OpenCV-style iteration).
+fn undistort_exactly(lens: Lens, xd: f64, yd: f64) -> (f64, f64) {
+    let (mut x, mut y) = (xd, yd);
+    for _ in 0..100 {
+        let h = 1e-7;
+        let (fx, fy) = distort(lens, x, y);
+        let (ax, ay) = distort(lens, x + h, y);
+        let (bx, by) = distort(lens, x, y + h);
+        let j = [
+            [(ax - fx) / h, (bx - fx) / h],
+            [(ay - fy) / h, (by - fy) / h],
+        ];
+        let det = j[0][0] * j[1][1] - j[0][1] * j[1][0];
+        let (rx, ry) = (fx - xd, fy - yd);
+        x -= (j[1][1] * rx - j[0][1] * ry) / det;
+        y -= (j[0][0] * ry - j[1][0] * rx) / det;
+    }
+    (x, y)
+}
+
+#[derive(Clone, Copy)]
+enum Lens {
+    Radial(f64, f64),
+    Fisheye([f64; 4]),
+}
+
+fn distort(lens: Lens, x: f64, y: f64) -> (f64, f64) {
+    match lens {
+        Lens::Radial(k1, k2) => {
+            let r2 = x * x + y * y;
+            let f = 1.0 + k1 * r2 + k2 * r2 * r2;
+            (x * f, y * f)
+        }
+        Lens::Fisheye(k) => {
+            let r = (x * x + y * y).sqrt();
+            let t = r.atan();
+            let t2 = t * t;
+            let td = t * (1.0 + k[0] * t2 + k[1] * t2 * t2 + k[2] * t2.powi(3) + k[3] * t2.powi(4));
+            (x * td / r, y * td / r)
+        }
+    }
+}
+
+/// A smooth pattern over undistorted normalized coordinates.
+fn pattern(x: f64, y: f64) -> [f64; 3] {
+    [
+        0.5 + 0.4 * (3.0 * x + 2.0 * y).sin(),
+        0.5 + 0.4 * (2.5 * y - 1.5 * x).cos(),
+        0.5 + 0.3 * (4.0 * x * y).sin(),
+    ]
+}
+
+/// A one-image COLMAP scene whose picture is `pattern` seen through `lens`: each stored pixel
+/// holds the pattern at the undistorted point of its ray. After loading, every pixel of the
+/// undistorted picture must hold the pattern at its own pinhole ray.
+#[test]
+fn undistorted_pictures_show_what_a_pinhole_camera_sees() {
+    let (w, h) = (72u32, 54u32);
+    let cases = [
+        (
+            "SIMPLE_RADIAL",
+            "50 35.5 26.0 -0.12",
+            Lens::Radial(-0.12, 0.0),
+        ),
+        (
+            "RADIAL",
+            "48 36.2 27.3 0.08 -0.02",
+            Lens::Radial(0.08, -0.02),
+        ),
+        (
+            "OPENCV_FISHEYE",
+            "40 41 35.0 26.5 0.05 -0.01 0.002 0.0",
+            Lens::Fisheye([0.05, -0.01, 0.002, 0.0]),
+        ),
+    ];
+    for (model, params, lens) in cases {
+        let dir = TempDir::new("colmap-undistort-content");
+        let sparse = dir.path().join("sparse/0");
+        std::fs::create_dir_all(&sparse).unwrap();
+        std::fs::write(
+            sparse.join("cameras.txt"),
+            format!("1 {model} {w} {h} {params}\n"),
+        )
+        .unwrap();
+        std::fs::write(sparse.join("images.txt"), "1 1 0 0 0 0 0 3 1 a.png\n\n").unwrap();
+        std::fs::write(sparse.join("points3D.txt"), "").unwrap();
+        let p: Vec<f64> = params.split(' ').map(|v| v.parse().unwrap()).collect();
+        let [fx, fy, cx, cy] = if p.len() == 4 || p.len() == 5 {
+            [p[0], p[0], p[1], p[2]]
+        } else {
+            [p[0], p[1], p[2], p[3]]
+        };
+        let picture = image::RgbImage::from_fn(w, h, |u, v| {
+            let (x, y) =
+                undistort_exactly(lens, (f64::from(u) - cx) / fx, (f64::from(v) - cy) / fy);
+            image::Rgb(pattern(x, y).map(|c| (c * 255.0).round() as u8))
+        });
+        std::fs::create_dir_all(dir.path().join("images")).unwrap();
+        picture.save(dir.path().join("images/a.png")).unwrap();
+        let options = LoadOptions {
+            max_width: 0,
+            ..LoadOptions::default()
+        };
+        let data = colmap::load(dir.path(), &options).unwrap();
+        let camera = &data.views[0].camera;
+        let image = &data.images[0];
+        assert!(camera.width < w && camera.height < h, "{model}: cropped");
+        let mut worst = 0.0f64;
+        for j in 0..image.height {
+            for i in 0..image.width {
+                let x = (f64::from(i) - camera.cx) / camera.fx;
+                let y = (f64::from(j) - camera.cy) / camera.fy;
+                let want = pattern(x, y);
+                let got = image.pixel(i, j);
+                for c in 0..3 {
+                    worst = worst.max((f64::from(got[c]) - want[c]).abs());
+                }
+            }
+        }
+        // Bilinear resampling of a smooth pattern stored in 8-bit levels.
+        assert!(worst < 0.02, "{model}: worst {worst}");
+    }
+}
+
+#[test]
+fn a_dense_folder_from_image_undistorter_is_read_when_there_is_no_sparse() {
+    let dir = TempDir::new("colmap-dense");
+    let dense = dir.path().join("dense");
+    let (cams, imgs) = model();
+    write_binary(&dense.join("sparse"), &cams, &imgs);
+    write_images(&dense.join("images"), W, H);
+    std::fs::create_dir_all(dense.join("stereo")).unwrap();
+    assert_eq!(
+        base_3dgs::dataset::Layout::detect(dir.path()),
+        Some(base_3dgs::dataset::Layout::Colmap)
+    );
+    let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    assert_eq!(data.views.len(), 3);
+    assert!(data.image_paths[0].starts_with(&dense));
+    // A scene's own sparse/ wins over dense/.
+    let theirs = scene("colmap-dense-own", true);
+    write_binary(&theirs.path().join("dense/sparse"), &cams, &imgs[..1]);
+    assert_eq!(
+        colmap::load(theirs.path(), &LoadOptions::default())
+            .unwrap()
+            .views
+            .len(),
+        3
     );
 }
 

@@ -89,8 +89,8 @@ fn a_tiny_scene_loads_with_cameras_that_project_known_points() {
 }
 
 /// nerfstudio / instant-ngp files: sizes as whole floats, pixel intrinsics for the file and
-/// for a frame, no `camera_angle_x`; a distorted camera or one without any focal length is
-/// refused naming the frame.
+/// for a frame, no `camera_angle_x`; a distorted camera is undistorted, one whose distortion
+/// cannot be undone or without any focal length is refused naming the frame.
 #[test]
 fn nerfstudio_intrinsics_and_float_sizes_are_read() {
     let dir = TempDir::new("nerf-intrinsics");
@@ -120,16 +120,36 @@ fn nerfstudio_intrinsics_and_float_sizes_are_read() {
     };
     assert_eq!(k(0), [7.5, 7.0, 4.25, 2.75]);
     assert_eq!(k(1), [9.0, 7.0, 3.5, 2.75], "a frame's own intrinsics win");
-    let e = write(serde_json::json!({
-        "fl_x": 7.5, "k1": -0.02,
+    let undistorted = write(serde_json::json!({
+        "fl_x": 7.5, "k1": -0.02, "p1": 0.001,
         "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
     }))
-    .unwrap_err()
-    .to_string();
-    assert!(
-        e.contains("frame 0") && e.contains("k1 = -0.02") && e.contains("undistort"),
-        "{e}"
-    );
+    .unwrap();
+    let report = undistorted.undistorted[0].as_ref().unwrap();
+    assert_eq!((report.model.as_str(), report.stored), ("OPENCV", (W, H)));
+    assert_eq!(undistorted.views[0].camera.width, W - 1);
+    let fisheye = write(serde_json::json!({
+        "fl_x": 7.5, "k1": 0.01, "k4": 0.001, "camera_model": "OPENCV_FISHEYE",
+        "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
+    }))
+    .unwrap();
+    let report = fisheye.undistorted[0].as_ref().unwrap();
+    assert_eq!(report.model, "OPENCV_FISHEYE");
+    for (json, want) in [
+        (
+            serde_json::json!({"fl_x": 7.5, "k4": 0.01, "frames": [
+                {"file_path": "images/f_0.png", "transform_matrix": pose}]}),
+            "k4 = 0.01",
+        ),
+        (
+            serde_json::json!({"fl_x": 7.5, "camera_model": "EQUIRECTANGULAR", "frames": [
+                {"file_path": "images/f_0.png", "transform_matrix": pose}]}),
+            "\"EQUIRECTANGULAR\" is not one this reader undoes",
+        ),
+    ] {
+        let e = write(json).unwrap_err().to_string();
+        assert!(e.contains("frame 0") && e.contains(want), "{e}");
+    }
     let e = write(serde_json::json!({
         "frames": [{"file_path": "images/f_0.png", "transform_matrix": pose}]
     }))
@@ -361,4 +381,125 @@ fn training_views_are_the_train_then_the_test_frames_with_the_extent_of_both() {
         both.extent,
         train.extent
     );
+}
+
+/// nerfstudio's and instant-ngp's single `transforms.json`: every frame trains without split
+/// lists (and there is no test split); with them each split is its list, in the file's frame
+/// order, a listed name with no frame refused; `aabb_scale`, `scale` and `offset` move no camera.
+#[test]
+fn a_single_transforms_json_gives_its_splits() {
+    let dir = TempDir::new("nerfstudio-single");
+    for i in 0..4 {
+        write_rgba(&dir.path().join(format!("images/frame_{i:05}.png")), W, H);
+    }
+    let frame = |i: usize, x: f64| {
+        serde_json::json!({"file_path": format!("images/frame_{i:05}.png"),
+            "transform_matrix": [[1, 0, 0, x], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]})
+    };
+    let frames: Vec<_> = (0..4).map(|i| frame(i, i as f64)).collect();
+    let write = |json: serde_json::Value| {
+        std::fs::write(
+            dir.path().join("transforms.json"),
+            serde_json::to_string(&json).unwrap(),
+        )
+        .unwrap();
+    };
+    write(serde_json::json!({
+        "fl_x": 7.0, "w": 8, "h": 6, "aabb_scale": 16, "scale": 0.33, "offset": [0.5, 0.5, 0.5],
+        "frames": frames,
+    }));
+    assert_eq!(
+        base_3dgs::dataset::Layout::detect(dir.path()),
+        Some(base_3dgs::dataset::Layout::NerfSynthetic)
+    );
+    let options = LoadOptions::default();
+    let all = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+    assert_eq!(all.views.len(), 4);
+    assert!(
+        close(all.views[2].camera.centre()[0], 2.0),
+        "the file's own frame"
+    );
+    assert!(!nerf_synthetic::has_split(dir.path(), Split::Test).unwrap());
+    let both = nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options);
+    assert_eq!(both.unwrap().views.len(), 4);
+    let e = nerf_synthetic::load(dir.path(), Split::Test, &options).unwrap_err();
+    assert!(e.to_string().contains("test_filenames"), "{e}");
+
+    write(serde_json::json!({
+        "fl_x": 7.0, "frames": frames,
+        "train_filenames": ["images/frame_00003.png", "./images/frame_00000.png"],
+        "test_filenames": ["images/frame_00002.png"],
+    }));
+    let train = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+    let names: Vec<_> = train
+        .image_paths
+        .iter()
+        .map(|p| p.file_name().unwrap().to_str().unwrap().to_string())
+        .collect();
+    assert_eq!(names, ["frame_00000.png", "frame_00003.png"]);
+    assert!(nerf_synthetic::has_split(dir.path(), Split::Test).unwrap());
+    assert!(!nerf_synthetic::has_split(dir.path(), Split::Val).unwrap());
+    let training =
+        nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
+    assert_eq!(training.views.len(), 3);
+    let (pixels, _) =
+        nerf_synthetic::training_pixels(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
+    assert_eq!(pixels, vec![u64::from(W * H); 3]);
+
+    write(serde_json::json!({
+        "fl_x": 7.0, "frames": frames, "train_filenames": ["images/frame_00009.png"],
+    }));
+    let e = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap_err();
+    assert!(
+        e.to_string().contains("transforms.json")
+            && e.to_string()
+                .contains("train_filenames names \"images/frame_00009.png\""),
+        "{e}"
+    );
+}
+
+/// With a downscale `f`, pictures come from `images_<f>/` by file name when it exists (as
+/// nerfstudio's `ns-process-data` writes them), the intrinsics scaled to each file's size;
+/// per-frame sizes are each frame's own.
+#[test]
+fn downscaled_folders_and_per_frame_sizes_are_used() {
+    let dir = TempDir::new("nerfstudio-images-2");
+    write_rgba(&dir.path().join("images/frame_00000.png"), 16, 12);
+    write_rgba(&dir.path().join("images/frame_00001.png"), 12, 16);
+    let pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]];
+    std::fs::write(
+        dir.path().join("transforms.json"),
+        serde_json::json!({
+            "fl_x": 14.0, "cx": 8.0, "cy": 6.0, "w": 16, "h": 12,
+            "frames": [
+                {"file_path": "images/frame_00000.png", "transform_matrix": pose},
+                {"file_path": "images/frame_00001.png", "transform_matrix": pose,
+                 "w": 12, "h": 16, "cx": 6.0, "cy": 8.0},
+            ]
+        })
+        .to_string(),
+    )
+    .unwrap();
+    let full = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default()).unwrap();
+    assert_eq!(
+        (full.images[1].width, full.images[1].height),
+        (12, 16),
+        "a frame's own size"
+    );
+    let options = LoadOptions {
+        downscale: 2,
+        ..LoadOptions::default()
+    };
+    let resized = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+    assert!(resized.image_paths[0].parent().unwrap().ends_with("images"));
+    write_rgba(&dir.path().join("images_2/frame_00000.png"), 8, 6);
+    write_rgba(&dir.path().join("images_2/frame_00001.png"), 7, 8);
+    let prescaled = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
+    assert!(prescaled.image_paths[0].ends_with("images_2/frame_00000.png"));
+    let c = &prescaled.views[1].camera;
+    assert_eq!((c.width, c.height), (7, 8));
+    assert!(close(c.fx, 14.0 * 7.0 / 12.0) && close(c.cy, 4.0), "{c:?}");
+    write_rgba(&dir.path().join("images_2/frame_00001.png"), 9, 8);
+    let e = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap_err();
+    assert!(e.to_string().contains("images_2/frame_00001.png"), "{e}");
 }

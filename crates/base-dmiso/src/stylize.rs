@@ -301,7 +301,7 @@ pub fn load_scene(
         ..LoadOptions::default()
     };
     let train = load_with_times(data, Split::Train, &options)?;
-    let test = if data.join(Split::Test.file_name()).is_file() {
+    let test = if nerf_synthetic::has_split(data, Split::Test)? {
         let test = load_with_times(data, Split::Test, &options)?;
         let (tw, th) = (train.images[0].width, train.images[0].height);
         if let Some((i, image)) = test

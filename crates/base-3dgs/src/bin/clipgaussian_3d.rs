@@ -93,14 +93,16 @@ struct StylizeArgs {
     /// The trained scene, INRIA PLY (`--ply` is the same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: Option<PathBuf>,
-    /// The dataset folder (NeRF-synthetic or COLMAP).
+    /// The dataset folder: NeRF-synthetic, nerfstudio / instant-ngp (transforms.json) or
+    /// COLMAP (sparse/, or dense/ from image_undistorter); distorted cameras are undistorted.
     #[arg(long)]
     data: Option<PathBuf>,
     /// The output folder (created when absent).
     #[arg(long)]
     out: Option<PathBuf>,
     /// Resolution divisor of the dataset images (3DGS's -r; default 1, the images as they
-    /// are up to --max-width, or the configuration's `resolution`).
+    /// are up to --max-width, or the configuration's `resolution`); images_<r>/ is read when the
+    /// dataset has it.
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
     /// With resolution 1, a picture wider than this is shrunk to it, pixels (Pillow's bicubic,
@@ -154,10 +156,12 @@ struct RenderArgs {
     /// is named after its dataset image, with the extension .png.
     #[arg(long, required_unless_present = "camera", conflicts_with = "camera")]
     data: Option<PathBuf>,
-    /// The NeRF-synthetic split (default train); COLMAP scenes have none.
+    /// The split (default train): NeRF-synthetic's transforms_<split>.json, or the split lists
+    /// of a transforms.json; COLMAP scenes have none.
     #[arg(long, value_enum, requires = "data")]
     split: Option<SplitArg>,
-    /// Resolution divisor of the dataset's cameras (3DGS's -r).
+    /// Resolution divisor of the dataset's cameras (3DGS's -r); images_<r>/ is read when the
+    /// dataset has it.
     #[arg(short = 'r', long, default_value_t = 1, requires = "data")]
     resolution: u32,
     /// With resolution 1, a dataset camera wider than this is shrunk to it, pixels (as INRIA's

@@ -18,7 +18,7 @@ use gs_stylize::{
 
 use super::config::BackgroundPixels;
 use super::StylizeConfig;
-use crate::dataset::nerf_synthetic::{self, Split};
+use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
 
 /// The stylized PLY in the output folder.
@@ -245,6 +245,13 @@ fn load_dataset(config: &StylizeConfig, show: bool) -> Result<Dataset, StylizeEr
         };
         load_layout(config, data, &options)
     })
+    .inspect(|dataset| {
+        if show {
+            for line in dataset.undistortion_summary() {
+                eprintln!("lens undone for {line}");
+            }
+        }
+    })
 }
 
 /// The dataset in `data` with `options`, of the layout found there.
@@ -263,9 +270,9 @@ fn load_layout(
         }
         Some(Layout::Colmap) => colmap::load(data, options).map_err(wrap),
         None => Err(StylizeError::Input(format!(
-            "dataset {}: neither {} (NeRF-synthetic) nor sparse/ (COLMAP) was found",
+            "dataset {}: {}",
             data.display(),
-            Split::Train.file_name()
+            Layout::LOOKED_FOR
         ))),
     }
 }
@@ -324,6 +331,7 @@ mod tests {
             background,
             extent: 1.0,
             points: None,
+            undistorted: vec![None],
         }
     }
 

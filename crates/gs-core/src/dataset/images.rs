@@ -7,6 +7,7 @@ use crate::pil_resize::{pil_bicubic_resize, pil_rgba_resize};
 use crate::Image;
 use image::imageops::FilterType;
 
+use super::undistort::Undistortion;
 use super::DatasetError;
 
 /// A pixel is background when its alpha is below this value: 0.5/255, so an 8-bit alpha of 0
@@ -30,14 +31,6 @@ impl BackgroundMask {
     pub fn background_count(&self) -> usize {
         self.data.iter().filter(|&&v| v == 1.0).count()
     }
-}
-
-/// What the file's size must be.
-pub(crate) enum ExpectedSize {
-    /// Exactly this size.
-    Exact(u32, u32),
-    /// Within one pixel of this size per axis (pre-downscaled folders: tools round differently).
-    Near(u32, u32),
 }
 
 /// Width and height of an image file, read from its header only.
@@ -98,58 +91,61 @@ pub fn composite_8bit(rgb: [u8; 3], alpha: u8, background: [f32; 3]) -> [u8; 3] 
     [level(0), level(1), level(2)]
 }
 
-/// Loads `path`, checks its size against `expected`, composites alpha over `background` as
+/// Loads `path`, checks that its size is `expected`, composites alpha over `background` as
 /// `composite` says, and resizes to `target` when it is given and differs from the file's size:
 /// 8-bit levels by Pillow's bicubic `Image.resize`, as INRIA 3DGS's `PILtoTorch` resizes
 /// ([`Composite::Stored`]: the RGBA picture, premultiplied as Pillow resizes RGBA;
 /// [`Composite::EightBit`]: the composited RGB picture, its alpha resized beside it for the
-/// mask); [`Composite::Float`] values with a Catmull-Rom filter. The mask is present when the
-/// file has alpha.
+/// mask); [`Composite::Float`] values with a Catmull-Rom filter. With `undistortion` the
+/// picture is first resampled to its pinhole camera; its values are then no longer 8-bit
+/// levels, so it is composited in `f32` (unless [`Composite::Stored`]) and resized with the
+/// Catmull-Rom filter. The mask is present when the file has alpha.
 pub(crate) fn load(
     path: &Path,
-    expected: ExpectedSize,
+    expected: (u32, u32),
     target: Option<(u32, u32)>,
     background: [f32; 3],
     composite: Composite,
+    undistortion: Option<&Undistortion>,
 ) -> Result<(Image, Option<BackgroundMask>), DatasetError> {
     let decoded = image::open(path).map_err(|e| image_error(path, e))?;
     let found = (decoded.width(), decoded.height());
-    let fits = match expected {
-        ExpectedSize::Exact(w, h) => found == (w, h),
-        ExpectedSize::Near(w, h) => found.0.abs_diff(w) <= 1 && found.1.abs_diff(h) <= 1,
-    };
-    if !fits {
-        let (ExpectedSize::Exact(w, h) | ExpectedSize::Near(w, h)) = expected;
+    if found != expected {
         return Err(DatasetError::ImageSize {
             path: path.to_path_buf(),
-            expected: (w, h),
+            expected,
             found,
         });
     }
     let has_alpha = decoded.color().has_alpha();
-    let resize_to = target.filter(|&t| t != found);
-    let rgba = match composite {
-        Composite::Float => {
-            let mut rgba = decoded.to_rgba32f();
+    let resampled = undistortion.map(|u| u.apply(&decoded.to_rgba32f()));
+    let stored_size = resampled.as_ref().map_or(found, |r| r.dimensions());
+    let resize_to = target.filter(|&t| t != stored_size);
+    let in_float = |mut rgba: image::Rgba32FImage, composited: bool| {
+        if composited {
             for p in rgba.pixels_mut() {
                 let a = p[3];
                 for c in 0..3 {
                     p[c] = p[c] * a + background[c] * (1.0 - a);
                 }
             }
-            match resize_to {
-                Some((w, h)) => image::imageops::resize(&rgba, w, h, FilterType::CatmullRom),
-                None => rgba,
-            }
         }
-        Composite::EightBit => {
+        match resize_to {
+            Some((w, h)) => image::imageops::resize(&rgba, w, h, FilterType::CatmullRom),
+            None => rgba,
+        }
+    };
+    let rgba = match (composite, resampled) {
+        (composite, Some(resampled)) => in_float(resampled, composite != Composite::Stored),
+        (Composite::Float, None) => in_float(decoded.to_rgba32f(), true),
+        (Composite::EightBit, None) => {
             let levels = composited_levels(&decoded, background);
             as_unit_values(&match resize_to {
                 Some(size) => pil_resize_planes(&levels, size),
                 None => levels,
             })
         }
-        Composite::Stored => {
+        (Composite::Stored, None) => {
             let levels = pil_levels(&decoded);
             as_unit_values(&match resize_to {
                 Some(size) => pil_resize_rgba(&levels, size),

@@ -1,9 +1,13 @@
-//! Datasets of posed ground-truth images: NeRF-synthetic ([`nerf_synthetic`]) and COLMAP
-//! ([`colmap`]), loaded into gs-core views and images with the options 3DGS users know.
+//! Datasets of posed ground-truth images: NeRF-synthetic, D-NeRF, nerfstudio and instant-ngp
+//! `transforms` files ([`nerf_synthetic`]) and COLMAP ([`colmap`]), loaded into gs-core views
+//! and images with the options 3DGS users know; distorted cameras undistorted at load
+//! ([`undistort`]).
 
 pub mod colmap;
 mod images;
 pub mod nerf_synthetic;
+pub mod undistort;
+mod view_picture;
 
 use std::path::{Path, PathBuf};
 
@@ -11,6 +15,7 @@ use crate::model::View;
 use crate::wide_pictures::shrunk_size;
 use crate::{Camera, GsError, Image};
 use serde::{Deserialize, Serialize};
+use undistort::Undistorted;
 
 pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
 pub(crate) use images::{composited_8bit, stored_levels};
@@ -18,28 +23,36 @@ pub(crate) use images::{composited_8bit, stored_levels};
 /// The two dataset layouts a folder can have.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Layout {
-    /// `transforms_{train,test,val}.json` and RGBA pictures.
+    /// `transforms_{train,test,val}.json` (NeRF-synthetic, D-NeRF) or one `transforms.json`
+    /// (nerfstudio, instant-ngp), and their pictures.
     NerfSynthetic,
-    /// A COLMAP sparse model in `sparse/` and pictures in `images/`.
+    /// A COLMAP sparse model in `sparse/` (or `dense/sparse/`) and pictures in `images/`.
     Colmap,
 }
 
 impl Layout {
-    /// NeRF-synthetic when `data` holds any `transforms_*.json` of the three splits, else COLMAP
-    /// when it holds `sparse/`, else `None`.
+    /// NeRF-synthetic when `data` holds any `transforms_*.json` of the three splits or a
+    /// `transforms.json`, else COLMAP when it holds `sparse/` or `dense/sparse/`, else `None`.
     pub fn detect(data: &Path) -> Option<Self> {
-        use nerf_synthetic::Split;
+        use nerf_synthetic::{Split, SINGLE_FILE};
         if [Split::Train, Split::Test, Split::Val]
             .iter()
-            .any(|s| data.join(s.file_name()).is_file())
+            .map(|s| s.file_name())
+            .chain([SINGLE_FILE])
+            .any(|name| data.join(name).is_file())
         {
             Some(Self::NerfSynthetic)
-        } else if data.join("sparse").is_dir() {
+        } else if colmap::scene_folder(data).join("sparse").is_dir() {
             Some(Self::Colmap)
         } else {
             None
         }
     }
+
+    /// What [`Layout::detect`] looks for, for messages when it finds neither.
+    pub const LOOKED_FOR: &'static str = "neither transforms_train.json or transforms.json \
+        (NeRF-synthetic, D-NeRF, nerfstudio, instant-ngp) nor sparse/ or dense/sparse/ (COLMAP) \
+        was found";
 }
 
 /// The colour that transparent pixels are composited over.
@@ -205,10 +218,19 @@ pub struct Dataset {
     pub extent: f64,
     /// COLMAP sparse points; `None` for NeRF-synthetic.
     pub points: Option<PointCloud>,
+    /// What undistorting each view's picture did (`None` for a pinhole camera's).
+    pub undistorted: Vec<Option<Undistorted>>,
 }
 
-/// One loaded frame: its view, ground-truth image, background mask and image file.
-pub(crate) type LoadedFrame = (View, Image, Option<BackgroundMask>, PathBuf);
+/// One loaded frame: its view, ground-truth image, background mask, image file and what
+/// undistorting it did.
+pub(crate) struct LoadedFrame {
+    pub view: View,
+    pub image: Image,
+    pub mask: Option<BackgroundMask>,
+    pub path: PathBuf,
+    pub undistorted: Option<Undistorted>,
+}
 
 impl Dataset {
     /// A dataset of `frames` in order, with the extent of their cameras.
@@ -225,12 +247,14 @@ impl Dataset {
             background,
             extent: 0.0,
             points,
+            undistorted: Vec::with_capacity(frames.len()),
         };
-        for (view, image, mask, path) in frames {
-            dataset.views.push(view);
-            dataset.images.push(image);
-            dataset.masks.push(mask);
-            dataset.image_paths.push(path);
+        for frame in frames {
+            dataset.views.push(frame.view);
+            dataset.images.push(frame.image);
+            dataset.masks.push(frame.mask);
+            dataset.image_paths.push(frame.path);
+            dataset.undistorted.push(frame.undistorted);
         }
         dataset.extent = scene_extent(&dataset.views);
         dataset
@@ -243,7 +267,30 @@ impl Dataset {
         self.images.extend(other.images);
         self.masks.extend(other.masks);
         self.image_paths.extend(other.image_paths);
+        self.undistorted.extend(other.undistorted);
         self.extent = scene_extent(&self.views);
+    }
+
+    /// One line a run shows per distinct undistortion of its pictures (camera model, stored
+    /// size, crop, new intrinsics) with how many views it applies to; empty when no picture was
+    /// undistorted.
+    pub fn undistortion_summary(&self) -> Vec<String> {
+        let mut lines: Vec<(String, usize)> = Vec::new();
+        for line in self
+            .undistorted
+            .iter()
+            .flatten()
+            .map(Undistorted::to_string)
+        {
+            match lines.iter_mut().find(|(l, _)| *l == line) {
+                Some((_, n)) => *n += 1,
+                None => lines.push((line, 1)),
+            }
+        }
+        lines
+            .into_iter()
+            .map(|(line, n)| format!("{n} view(s): {line}"))
+            .collect()
     }
 }
 
@@ -303,10 +350,11 @@ pub enum DatasetError {
         /// What is wrong and where (line, record, field, value).
         message: String,
     },
-    /// A COLMAP camera with lens distortion.
+    /// A COLMAP camera of a model this reader cannot undistort.
     #[error(
-        "{}: camera {camera_id} uses the {model} model; only PINHOLE and SIMPLE_PINHOLE are \
-         supported: undistort the images first (colmap image_undistorter)",
+        "{}: camera {camera_id} uses the {model} model, which this reader cannot undistort \
+         (it reads SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV and \
+         OPENCV_FISHEYE): undistort the images first (colmap image_undistorter)",
         path.display()
     )]
     UnsupportedCameraModel {

@@ -1,9 +1,24 @@
-//! NeRF-synthetic (Blender) scenes: `transforms_{train,test,val}.json` with `camera_angle_x`
-//! (horizontal field of view, radians) and frames of `file_path` and `transform_matrix`
-//! (camera-to-world, OpenGL axes). Images are RGBA PNGs; alpha is composited over the chosen
-//! background and the result cut to whole 8-bit levels, as D-MiSo and INRIA 3DGS before August
-//! 2024 read these scenes ([`composite_8bit`](super::composite_8bit)), or the stored colours are
-//! kept ([`GroundTruth`](super::GroundTruth)); alpha gives the background mask.
+//! `transforms` files: NeRF-synthetic (Blender) scenes' `transforms_{train,test,val}.json`, and
+//! nerfstudio's and instant-ngp's single `transforms.json`.
+//!
+//! A file holds the camera (`camera_angle_x`, the horizontal field of view in radians, or pixel
+//! intrinsics `fl_x, fl_y, cx, cy`, optionally `w, h` as integers or whole floats, each
+//! overridable per frame) and frames of `file_path` (relative to the folder) and
+//! `transform_matrix` (camera-to-world, OpenGL axes), in the file's own frame of reference:
+//! instant-ngp's `aabb_scale`, `scale` and `offset` place the scene in instant-ngp's unit cube
+//! and move no camera relative to the pictures, so they are read and left alone.
+//!
+//! Lens distortion (`k1, k2, k3, p1, p2`, or `k1..k4` with `camera_model: "OPENCV_FISHEYE"`)
+//! is undone at load ([`undistort`](super::undistort)). A single `transforms.json` gives its
+//! splits by nerfstudio's `train_filenames`, `val_filenames` and `test_filenames`; without
+//! them every frame is a training frame and there is no test or val split.
+//!
+//! Pictures with alpha are composited over the chosen background and the result cut to whole
+//! 8-bit levels, as D-MiSo and INRIA 3DGS before August 2024 read these scenes
+//! ([`composite_8bit`](super::composite_8bit)), or the stored colours are kept
+//! ([`GroundTruth`](super::GroundTruth)); alpha gives the background mask. With a downscale `f`,
+//! pictures come from `images_<f>/` (same file names) when the folder exists, as nerfstudio reads
+//! them.
 //!
 //! D-NeRF scenes are the same layout with a `time` in `[0, 1]` per frame ([`load_with_times`]).
 
@@ -15,8 +30,12 @@ use crate::Camera;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use super::images::{self, Composite, ExpectedSize};
-use super::{check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions};
+use super::images::{self, Composite};
+use super::undistort::LensDistortion;
+use super::view_picture::{self, prescaled_folder, PictureFile};
+use super::{
+    check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions, LoadedFrame,
+};
 
 /// Which transforms file to load.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -30,7 +49,7 @@ pub enum Split {
 }
 
 impl Split {
-    /// The transforms file name.
+    /// The transforms file name of the split (NeRF-synthetic's).
     pub fn file_name(self) -> &'static str {
         match self {
             Self::Train => "transforms_train.json",
@@ -38,36 +57,110 @@ impl Split {
             Self::Val => "transforms_val.json",
         }
     }
+
+    /// nerfstudio's field listing the split's pictures in a single `transforms.json`.
+    fn list_field(self) -> &'static str {
+        match self {
+            Self::Train => "train_filenames",
+            Self::Test => "test_filenames",
+            Self::Val => "val_filenames",
+        }
+    }
 }
+
+/// The one transforms file of nerfstudio and instant-ngp scenes, read where a split's own file
+/// (`transforms_<split>.json`) is absent.
+pub const SINGLE_FILE: &str = "transforms.json";
 
 #[derive(Deserialize)]
 struct Transforms {
     /// Horizontal field of view, radians (NeRF-synthetic); optional where `fl_x` is given.
     camera_angle_x: Option<f64>,
-    /// Image width some exporters add; when present every image must have it. An integer, or
-    /// a whole float as nerfstudio and instant-ngp write it (`1080.0`).
-    #[serde(default, deserialize_with = "whole_pixels")]
-    w: Option<u32>,
-    /// Image height, as `w`.
-    #[serde(default, deserialize_with = "whole_pixels")]
-    h: Option<u32>,
     /// The intrinsics of every frame, pixels (nerfstudio, instant-ngp); a frame may give its own.
     #[serde(flatten)]
     intrinsics: Intrinsics,
+    /// nerfstudio's lens model: `OPENCV` (the default) or `OPENCV_FISHEYE`.
+    camera_model: Option<String>,
     frames: Vec<Frame>,
+    /// nerfstudio's split lists of `file_path`s.
+    train_filenames: Option<Vec<String>>,
+    val_filenames: Option<Vec<String>>,
+    test_filenames: Option<Vec<String>>,
 }
 
-/// Pixel intrinsics as nerfstudio and instant-ngp write them, each optional; and the lens
-/// distortion they may record, which this reader does not undo (a distorted camera is refused).
+impl Transforms {
+    /// The split list of `split`.
+    fn split_list(&self, split: Split) -> Option<&Vec<String>> {
+        match split {
+            Split::Train => self.train_filenames.as_ref(),
+            Split::Test => self.test_filenames.as_ref(),
+            Split::Val => self.val_filenames.as_ref(),
+        }
+    }
+
+    /// The lens of a frame's intrinsics under this file's `camera_model`; an error says why it
+    /// cannot be undone.
+    fn lens(&self, intrinsics: &Intrinsics) -> Result<Option<LensDistortion>, String> {
+        let k =
+            [intrinsics.k1, intrinsics.k2, intrinsics.k3, intrinsics.k4].map(|v| v.unwrap_or(0.0));
+        let p = [intrinsics.p1, intrinsics.p2].map(|v| v.unwrap_or(0.0));
+        match self.camera_model.as_deref() {
+            None | Some("OPENCV") | Some("PINHOLE") | Some("SIMPLE_PINHOLE") => {
+                if k[3] != 0.0 {
+                    return Err(format!(
+                        "k4 = {} with the {} model: nerfstudio's fourth radial term is not \
+                         OpenCV's, and this reader undoes only k1, k2, k3, p1, p2 (or k1..k4 \
+                         with camera_model OPENCV_FISHEYE)",
+                        k[3],
+                        self.camera_model.as_deref().unwrap_or("OPENCV")
+                    ));
+                }
+                let lens = LensDistortion::Perspective {
+                    k: [k[0], k[1], k[2], 0.0, 0.0, 0.0],
+                    p,
+                };
+                Ok((!lens.is_none()).then_some(lens))
+            }
+            Some("OPENCV_FISHEYE") => {
+                if p != [0.0; 2] {
+                    return Err(format!(
+                        "p1, p2 = {p:?} with the OPENCV_FISHEYE model, which has no \
+                         tangential terms"
+                    ));
+                }
+                Ok(Some(LensDistortion::Fisheye { k }))
+            }
+            Some(other) => Err(format!(
+                "camera_model {other:?} is not one this reader undoes (OPENCV, \
+                 OPENCV_FISHEYE, PINHOLE)"
+            )),
+        }
+    }
+
+    /// The model name reported for an undistorted frame.
+    fn model_name(&self) -> &str {
+        self.camera_model.as_deref().unwrap_or("OPENCV")
+    }
+}
+
+/// Pixel intrinsics as nerfstudio and instant-ngp write them, each optional, with the picture
+/// size and the lens distortion they may record.
 #[derive(Clone, Copy, Default, Deserialize)]
 struct Intrinsics {
     fl_x: Option<f64>,
     fl_y: Option<f64>,
     cx: Option<f64>,
     cy: Option<f64>,
+    /// Picture width, an integer or a whole float as nerfstudio and instant-ngp write it.
+    #[serde(default, deserialize_with = "whole_pixels")]
+    w: Option<u32>,
+    /// Picture height, as `w`.
+    #[serde(default, deserialize_with = "whole_pixels")]
+    h: Option<u32>,
     k1: Option<f64>,
     k2: Option<f64>,
     k3: Option<f64>,
+    k4: Option<f64>,
     p1: Option<f64>,
     p2: Option<f64>,
 }
@@ -80,9 +173,12 @@ impl Intrinsics {
             fl_y: self.fl_y.or(global.fl_y),
             cx: self.cx.or(global.cx),
             cy: self.cy.or(global.cy),
+            w: self.w.or(global.w),
+            h: self.h.or(global.h),
             k1: self.k1.or(global.k1),
             k2: self.k2.or(global.k2),
             k3: self.k3.or(global.k3),
+            k4: self.k4.or(global.k4),
             p1: self.p1.or(global.p1),
             p2: self.p2.or(global.p2),
         }
@@ -90,19 +186,8 @@ impl Intrinsics {
 
     /// `[fx, fy, cx, cy]` of a `width x height` picture: `fl_x` (`fl_y` defaults to it, the
     /// principal point to the centre), else the focal of `fov_x`; an error naming what is
-    /// missing or why the camera is refused (lens distortion, which is not undone here).
+    /// missing.
     fn pixels(&self, fov_x: Option<f64>, width: u32, height: u32) -> Result<[f64; 4], String> {
-        let distortion = [("k1", self.k1), ("k2", self.k2), ("k3", self.k3)]
-            .into_iter()
-            .chain([("p1", self.p1), ("p2", self.p2)])
-            .find(|(_, v)| v.is_some_and(|v| v != 0.0));
-        if let Some((name, Some(v))) = distortion {
-            return Err(format!(
-                "the camera has lens distortion ({name} = {v}), which this reader does not \
-                 undo; undistort the pictures first (e.g. nerfstudio's ns-process-data or \
-                 COLMAP's image_undistorter)"
-            ));
-        }
         let fx = match (self.fl_x, fov_x) {
             (Some(fx), _) => fx,
             (None, Some(fov)) if fov > 0.0 && fov < std::f64::consts::PI => {
@@ -176,25 +261,38 @@ pub enum TrainSplits {
     Train,
 }
 
-/// The training views of the NeRF-synthetic scene in `root` as `splits` says, train first (as
-/// INRIA's `train_cam_infos.extend(test_cam_infos)`), the extent that of all of them; each
-/// split as [`load`] reads it.
+/// The training views of the scene in `root` as `splits` says, train first (as INRIA's
+/// `train_cam_infos.extend(test_cam_infos)`), the extent that of all of them; each split as
+/// [`load`] reads it.
 pub fn load_training(
     root: &Path,
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<Dataset, DatasetError> {
     let mut dataset = load(root, Split::Train, options)?;
-    if splits == TrainSplits::TrainAndTest && root.join(Split::Test.file_name()).is_file() {
+    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
         dataset.append(load(root, Split::Test, options)?);
     }
     Ok(dataset)
 }
 
-/// Loads one split of the NeRF-synthetic scene in `root`. Every image must have the size given by
-/// the json's `w`/`h` when present, else the size of the first frame's image. Images load in
-/// parallel. The extent is that of this split's cameras (3DGS uses the training split's).
-/// Frame times, when present, are ignored: the views are at time 0.
+/// Whether the scene in `root` has `split`: its `transforms_<split>.json`, or a
+/// `transforms.json` whose frames make the split (see the module's documentation).
+pub fn has_split(root: &Path, split: Split) -> Result<bool, DatasetError> {
+    if root.join(split.file_name()).is_file() {
+        return Ok(true);
+    }
+    if !root.join(SINGLE_FILE).is_file() {
+        return Ok(false);
+    }
+    let (path, transforms) = parse_file(&root.join(SINGLE_FILE))?;
+    Ok(split_frames(&path, transforms, split)?.is_some())
+}
+
+/// Loads one split of the scene in `root`. Every picture must have the size its frame gives
+/// (`w`/`h` of the frame or of the file), else the size of the first frame's picture. Pictures
+/// load in parallel. The extent is that of this split's cameras (3DGS uses the training
+/// split's). Frame times, when present, are ignored: the views are at time 0.
 pub fn load(root: &Path, split: Split, options: &LoadOptions) -> Result<Dataset, DatasetError> {
     load_split(root, split, options, false)
 }
@@ -214,68 +312,150 @@ pub fn load_with_times(
 /// `splits` and `options` (the train split, then the test split when `splits` takes it and
 /// the scene has one; downscaled or shrunk), and the pixels of the largest picture as stored,
 /// from the json files and at most one picture header a split, without decoding any picture:
-/// what a run checks against its memory before loading.
+/// what a run checks against its memory before loading. Undistortion, which only crops, is
+/// not counted.
 pub fn training_pixels(
     root: &Path,
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<(Vec<u64>, u64), DatasetError> {
     let mut read = vec![Split::Train];
-    if splits == TrainSplits::TrainAndTest && root.join(Split::Test.file_name()).is_file() {
+    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
         read.push(Split::Test);
     }
     let mut views = Vec::new();
     let mut largest = 0u64;
     for split in read {
         let (json_path, transforms) = read_transforms(root, split)?;
-        let (w, h) = match (transforms.w, transforms.h, transforms.frames.first()) {
-            (Some(w), Some(h), _) => (w, h),
-            (_, _, Some(first)) => images::dimensions(&image_path(root, &first.file_path))?,
-            (_, _, None) => continue,
-        };
         let identity = [
             [1.0, 0.0, 0.0, 0.0],
             [0.0, 1.0, 0.0, 0.0],
             [0.0, 0.0, 1.0, 0.0],
             [0.0, 0.0, 0.0, 1.0],
         ];
-        // The trained size depends on the picture's size and the options only.
-        let (fw, fh) = (f64::from(w), f64::from(h));
-        let trained = Camera::from_nerf_intrinsics(identity, [fw, fw, fw / 2.0, fh / 2.0], w, h)
-            .and_then(|c| training_camera(&c, options))
-            .map_err(|source| DatasetError::Camera {
-                context: json_path.display().to_string(),
-                source,
-            })?;
-        let pixels = u64::from(trained.width) * u64::from(trained.height);
-        views.extend(std::iter::repeat_n(pixels, transforms.frames.len()));
-        largest = largest.max(u64::from(w) * u64::from(h));
+        for (w, h) in frame_sizes(root, &transforms)? {
+            // The trained size depends on the picture's size and the options only.
+            let (fw, fh) = (f64::from(w), f64::from(h));
+            let trained =
+                Camera::from_nerf_intrinsics(identity, [fw, fw, fw / 2.0, fh / 2.0], w, h)
+                    .and_then(|c| training_camera(&c, options))
+                    .map_err(|source| DatasetError::Camera {
+                        context: json_path.display().to_string(),
+                        source,
+                    })?;
+            views.push(u64::from(trained.width) * u64::from(trained.height));
+            largest = largest.max(u64::from(w) * u64::from(h));
+        }
     }
     Ok((views, largest))
 }
 
-/// The transforms file of `split` in `root`, parsed, and its path.
-fn read_transforms(root: &Path, split: Split) -> Result<(PathBuf, Transforms), DatasetError> {
-    let json_path = root.join(split.file_name());
-    let text = std::fs::read_to_string(&json_path).map_err(|source| {
-        if source.kind() == std::io::ErrorKind::NotFound {
-            DatasetError::Missing {
-                path: json_path.clone(),
-                what: format!("the NeRF-synthetic {split:?} split"),
+/// The stored size of each frame's picture: the frame's `w`/`h`, else the file's, else the
+/// size of the first frame's picture (read from its header only when needed).
+fn frame_sizes(root: &Path, transforms: &Transforms) -> Result<Vec<(u32, u32)>, DatasetError> {
+    let mut first = None;
+    transforms
+        .frames
+        .iter()
+        .map(|frame| {
+            let given = frame.intrinsics.over(transforms.intrinsics);
+            match (given.w, given.h) {
+                (Some(w), Some(h)) => Ok((w, h)),
+                _ => match first {
+                    Some(size) => Ok(size),
+                    None => {
+                        let frame = &transforms.frames[0];
+                        let size = images::dimensions(&image_path(root, &frame.file_path))?;
+                        first = Some(size);
+                        Ok(size)
+                    }
+                },
             }
-        } else {
-            DatasetError::Io {
-                path: json_path.clone(),
-                source,
-            }
-        }
+        })
+        .collect()
+}
+
+/// `path` parsed as a transforms file.
+fn parse_file(path: &Path) -> Result<(PathBuf, Transforms), DatasetError> {
+    let text = std::fs::read_to_string(path).map_err(|source| DatasetError::Io {
+        path: path.to_path_buf(),
+        source,
     })?;
-    let transforms: Transforms =
-        serde_json::from_str(&text).map_err(|source| DatasetError::Json {
-            path: json_path.clone(),
-            source,
-        })?;
-    Ok((json_path, transforms))
+    let transforms = serde_json::from_str(&text).map_err(|source| DatasetError::Json {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok((path.to_path_buf(), transforms))
+}
+
+/// The frames of `split` in the single file `transforms`: those its split list names (each
+/// name must be a frame's), every frame for the train split of a file without lists, and
+/// `None` where the file has no such split.
+fn split_frames(
+    path: &Path,
+    mut transforms: Transforms,
+    split: Split,
+) -> Result<Option<Transforms>, DatasetError> {
+    let has_lists = [Split::Train, Split::Test, Split::Val]
+        .iter()
+        .any(|&s| transforms.split_list(s).is_some());
+    let Some(names) = transforms.split_list(split) else {
+        return Ok((split == Split::Train && !has_lists).then_some(transforms));
+    };
+    let key = |name: &str| -> PathBuf {
+        Path::new(name)
+            .components()
+            .filter(|c| *c != std::path::Component::CurDir)
+            .collect()
+    };
+    let wanted: std::collections::HashSet<PathBuf> = names.iter().map(|n| key(n)).collect();
+    let present: std::collections::HashSet<PathBuf> = transforms
+        .frames
+        .iter()
+        .map(|f| key(&f.file_path))
+        .collect();
+    if let Some(missing) = names.iter().find(|n| !present.contains(&key(n))) {
+        return Err(DatasetError::Format {
+            path: path.to_path_buf(),
+            message: format!(
+                "{} names {missing:?}, which no frame's file_path is",
+                split.list_field()
+            ),
+        });
+    }
+    transforms
+        .frames
+        .retain(|frame| wanted.contains(&key(&frame.file_path)));
+    Ok(Some(transforms))
+}
+
+/// The transforms of `split` in `root`, parsed, and the path of their file: the split's own
+/// file, else the split's frames of [`SINGLE_FILE`].
+fn read_transforms(root: &Path, split: Split) -> Result<(PathBuf, Transforms), DatasetError> {
+    let split_path = root.join(split.file_name());
+    let single_path = root.join(SINGLE_FILE);
+    if split_path.is_file() || !single_path.is_file() {
+        return parse_file(&split_path).map_err(|e| match e {
+            DatasetError::Io { source, .. } if source.kind() == std::io::ErrorKind::NotFound => {
+                DatasetError::Missing {
+                    path: split_path.clone(),
+                    what: format!("the {split:?} split (nor is there a {SINGLE_FILE})"),
+                }
+            }
+            e => e,
+        });
+    }
+    let (path, transforms) = parse_file(&single_path)?;
+    match split_frames(&path, transforms, split)? {
+        Some(frames) => Ok((path, frames)),
+        None => Err(DatasetError::Missing {
+            path: split_path,
+            what: format!(
+                "the {split:?} split; {SINGLE_FILE} has no {}",
+                split.list_field()
+            ),
+        }),
+    }
 }
 
 fn load_split(
@@ -290,10 +470,9 @@ fn load_split(
         path: json_path.clone(),
         message,
     };
-    let fov = transforms.camera_angle_x;
-    let Some(first) = transforms.frames.first() else {
+    if transforms.frames.is_empty() {
         return Err(format_error("no frames".into()));
-    };
+    }
     let mut times = vec![0.0; transforms.frames.len()];
     if with_times {
         for (i, (frame, time)) in transforms.frames.iter().zip(&mut times).enumerate() {
@@ -315,58 +494,71 @@ fn load_split(
             };
         }
     }
-    let size = match (transforms.w, transforms.h) {
-        (Some(w), Some(h)) => (w, h),
-        _ => images::dimensions(&image_path(root, &first.file_path))?,
-    };
-    let intrinsics = transforms
+    let sizes = frame_sizes(root, &transforms)?;
+    let cameras = transforms
         .frames
         .iter()
+        .zip(&sizes)
         .enumerate()
-        .map(|(i, frame)| {
-            frame
-                .intrinsics
-                .over(transforms.intrinsics)
-                .pixels(fov, size.0, size.1)
-                .map_err(|why| format_error(format!("frame {i} ({}): {why}", frame.file_path)))
+        .map(|(i, (frame, &(w, h)))| {
+            let given = frame.intrinsics.over(transforms.intrinsics);
+            let frame_error =
+                |why: String| format_error(format!("frame {i} ({}): {why}", frame.file_path));
+            let intrinsics = given
+                .pixels(transforms.camera_angle_x, w, h)
+                .map_err(frame_error)?;
+            let lens = transforms.lens(&given).map_err(frame_error)?;
+            let full = Camera::from_nerf_intrinsics(frame.transform_matrix, intrinsics, w, h)
+                .map_err(|source| DatasetError::Camera {
+                    context: format!("{} frame {i}", json_path.display()),
+                    source,
+                })?;
+            Ok((full, lens))
         })
-        .collect::<Result<Vec<_>, _>>()?;
-    let background = options.background.rgb();
+        .collect::<Result<Vec<_>, DatasetError>>()?;
+    let prescaled = prescaled_folder(root, options.downscale);
     let counter = ImageCounter::new(options, transforms.frames.len());
     let loaded: Vec<_> = transforms
         .frames
         .par_iter()
         .enumerate()
         .map(|(i, frame)| {
-            let camera =
-                Camera::from_nerf_intrinsics(frame.transform_matrix, intrinsics[i], size.0, size.1)
-                    .and_then(|c| training_camera(&c, options))
-                    .map_err(|source| DatasetError::Camera {
-                        context: format!("{} frame {i}", json_path.display()),
-                        source,
-                    })?;
-            let path = image_path(root, &frame.file_path);
-            let (image, mask) = images::load(
-                &path,
-                ExpectedSize::Exact(size.0, size.1),
-                Some((camera.width, camera.height)),
-                background,
+            let full_size = image_path(root, &frame.file_path);
+            let picture = match &prescaled {
+                Some(folder) => PictureFile {
+                    path: folder.join(full_size.file_name().unwrap_or_default()),
+                    prescaled: true,
+                },
+                None => PictureFile {
+                    path: full_size,
+                    prescaled: false,
+                },
+            };
+            let (full, lens) = &cameras[i];
+            let context = || format!("{} frame {i}", json_path.display());
+            let (camera, image, mask, undistortion) = view_picture::load(
+                &picture,
+                full,
+                *lens,
+                options,
                 Composite::of(options.ground_truth, true),
+                &context,
             )?;
             counter.one_done();
-            Ok((
-                View {
+            Ok(LoadedFrame {
+                view: View {
                     camera,
                     time: times[i],
                 },
                 image,
                 mask,
-                path,
-            ))
+                path: picture.path,
+                undistorted: undistortion.map(|u| u.report(transforms.model_name())),
+            })
         })
         // Gathered in order first, so the error reported is that of the first failing frame.
         .collect::<Vec<Result<_, DatasetError>>>()
         .into_iter()
         .collect::<Result<Vec<_>, _>>()?;
-    Ok(Dataset::from_frames(loaded, background, None))
+    Ok(Dataset::from_frames(loaded, options.background.rgb(), None))
 }

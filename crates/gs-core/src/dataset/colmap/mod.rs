@@ -1,8 +1,12 @@
-//! COLMAP scenes: the sparse model in `sparse/0/` (`cameras`, `images`, `points3D`, each `.bin`
-//! or `.txt`, binary preferred as 3DGS does) and the images in `images/`.
+//! COLMAP scenes: the sparse model in `sparse/0/` or `sparse/` (`cameras`, `images`, `points3D`,
+//! each `.bin` or `.txt`, binary preferred as 3DGS does) and the images in `images/`; a folder
+//! with neither `sparse/` but a `dense/` holding them (`image_undistorter`'s output) is read
+//! from `dense/`.
 //!
-//! Only undistorted cameras (PINHOLE, SIMPLE_PINHOLE) are accepted; any other model is an error
-//! that says to run COLMAP's `image_undistorter` first.
+//! Pinhole cameras (PINHOLE, SIMPLE_PINHOLE) are used as they are. Distorted ones
+//! (SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV, OPENCV_FISHEYE) have their pictures undistorted
+//! once at load to a pinhole camera and cropped to the valid pixels
+//! ([`undistort`](super::undistort)); COLMAP's other models are refused.
 
 mod binary;
 mod text;
@@ -14,9 +18,11 @@ use crate::model::View;
 use crate::Camera;
 use rayon::prelude::*;
 
-use super::images::{self, Composite, ExpectedSize};
+use super::images::Composite;
+use super::undistort::LensDistortion;
+use super::view_picture::{self, prescaled_folder, PictureFile};
 use super::{
-    check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions, PointCloud,
+    check_options, Dataset, DatasetError, ImageCounter, LoadOptions, LoadedFrame, PointCloud,
 };
 
 /// COLMAP's camera models by id: name and number of parameters.
@@ -56,6 +62,43 @@ pub struct ColmapCamera {
     pub height: u32,
     /// Model parameters (PINHOLE: fx fy cx cy; SIMPLE_PINHOLE: f cx cy), pixels.
     pub params: Vec<f64>,
+}
+
+impl ColmapCamera {
+    /// The intrinsics `[fx, fy, cx, cy]` (pixels) of this camera and its lens distortion
+    /// (`None` for the pinhole models), by COLMAP's parameter order of each model; `None` for a
+    /// model this reader cannot undistort or parameters of the wrong count.
+    pub fn intrinsics(&self) -> Option<([f64; 4], Option<LensDistortion>)> {
+        let perspective = |k: [f64; 6], p: [f64; 2]| Some(LensDistortion::Perspective { k, p });
+        let zero = [0.0; 2];
+        Some(match (self.model.as_str(), self.params.as_slice()) {
+            ("PINHOLE", &[fx, fy, cx, cy]) => ([fx, fy, cx, cy], None),
+            ("SIMPLE_PINHOLE", &[f, cx, cy]) => ([f, f, cx, cy], None),
+            ("SIMPLE_RADIAL", &[f, cx, cy, k]) => (
+                [f, f, cx, cy],
+                perspective([k, 0.0, 0.0, 0.0, 0.0, 0.0], zero),
+            ),
+            ("RADIAL", &[f, cx, cy, k1, k2]) => (
+                [f, f, cx, cy],
+                perspective([k1, k2, 0.0, 0.0, 0.0, 0.0], zero),
+            ),
+            ("OPENCV", &[fx, fy, cx, cy, k1, k2, p1, p2]) => (
+                [fx, fy, cx, cy],
+                perspective([k1, k2, 0.0, 0.0, 0.0, 0.0], [p1, p2]),
+            ),
+            ("FULL_OPENCV", &[fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6]) => (
+                [fx, fy, cx, cy],
+                perspective([k1, k2, k3, k4, k5, k6], [p1, p2]),
+            ),
+            ("OPENCV_FISHEYE", &[fx, fy, cx, cy, k1, k2, k3, k4]) => (
+                [fx, fy, cx, cy],
+                Some(LensDistortion::Fisheye {
+                    k: [k1, k2, k3, k4],
+                }),
+            ),
+            _ => return None,
+        })
+    }
 }
 
 /// A registered image of `images.{bin,txt}`.
@@ -144,24 +187,10 @@ pub fn read_sparse_model(dir: &Path) -> Result<SparseModel, DatasetError> {
     })
 }
 
-/// Pinhole intrinsics `[fx, fy, cx, cy]` of an undistorted camera.
-fn pinhole(camera: &ColmapCamera, path: &Path) -> Result<[f64; 4], DatasetError> {
-    match (camera.model.as_str(), camera.params.as_slice()) {
-        ("PINHOLE", &[fx, fy, cx, cy]) => Ok([fx, fy, cx, cy]),
-        ("SIMPLE_PINHOLE", &[f, cx, cy]) => Ok([f, f, cx, cy]),
-        _ => Err(DatasetError::UnsupportedCameraModel {
-            path: path.to_path_buf(),
-            camera_id: camera.id,
-            model: camera.model.clone(),
-        }),
-    }
-}
-
 /// The image folder and whether it is pre-downscaled: `images_<f>/` when downscaling by `f` and
 /// it exists, else `images/`.
 fn image_folder(root: &Path, downscale: u32) -> Result<(PathBuf, bool), DatasetError> {
-    let scaled = root.join(format!("images_{downscale}"));
-    if downscale > 1 && scaled.is_dir() {
+    if let Some(scaled) = prescaled_folder(root, downscale) {
         return Ok((scaled, true));
     }
     let full = root.join("images");
@@ -172,6 +201,17 @@ fn image_folder(root: &Path, downscale: u32) -> Result<(PathBuf, bool), DatasetE
             path: full,
             what: "the folder of the COLMAP scene's images".into(),
         })
+    }
+}
+
+/// The folder a COLMAP scene's `sparse/` and `images/` are in: `root`, or `root/dense/` when
+/// `root` has no `sparse/` and `dense/` has (`image_undistorter --output_path dense`).
+pub fn scene_folder(root: &Path) -> PathBuf {
+    let dense = root.join("dense");
+    if !root.join("sparse").is_dir() && dense.join("sparse").is_dir() {
+        dense
+    } else {
+        root.to_path_buf()
     }
 }
 
@@ -199,81 +239,78 @@ fn sparse_model_dir(root: &Path) -> Result<PathBuf, DatasetError> {
     }
 }
 
-/// Loads the COLMAP scene in `root`: views sorted by image name, images loaded in parallel,
-/// the sparse points. With `downscale = f > 1`, images come from `images_<f>/` when it exists
-/// (each within one pixel of the downscaled camera size, the intrinsics scaled to the file's
-/// exact size), else from `images/` (exactly the camera size), resized.
+/// Loads the COLMAP scene in `root` (or in `root/dense/`, see [`scene_folder`]): views sorted
+/// by image name, images loaded in parallel, the sparse points. With `downscale = f > 1`,
+/// images come from `images_<f>/` when it exists (each within one pixel of the downscaled
+/// camera size, the intrinsics scaled to the file's exact size), else from `images/` (exactly
+/// the camera size), resized. Distorted cameras' pictures are undistorted first.
 pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError> {
     check_options(options)?;
+    let root = &scene_folder(root);
     let sparse = sparse_model_dir(root)?;
     let model = read_sparse_model(&sparse)?;
     let cameras: HashMap<i64, &ColmapCamera> = model.cameras.iter().map(|c| (c.id, c)).collect();
     let (folder, prescaled) = image_folder(root, options.downscale)?;
     let mut order: Vec<&ColmapImage> = model.images.iter().collect();
     order.sort_by(|a, b| a.name.cmp(&b.name));
-    let background = options.background.rgb();
     let counter = ImageCounter::new(options, order.len());
-    let frames = order
-        .par_iter()
-        .map(|img| {
-            let camera_error = |source| DatasetError::Camera {
-                context: format!("image {:?} (id {})", img.name, img.id),
-                source,
-            };
-            let colmap_camera =
-                cameras
-                    .get(&img.camera_id)
-                    .ok_or_else(|| DatasetError::Format {
+    let frames =
+        order
+            .par_iter()
+            .map(|img| {
+                let context = || format!("image {:?} (id {})", img.name, img.id);
+                let colmap_camera =
+                    cameras
+                        .get(&img.camera_id)
+                        .ok_or_else(|| DatasetError::Format {
+                            path: model.cameras_path.clone(),
+                            message: format!(
+                                "no camera {} for image {:?} (id {})",
+                                img.camera_id, img.name, img.id
+                            ),
+                        })?;
+                let (intrinsics, lens) = colmap_camera.intrinsics().ok_or_else(|| {
+                    DatasetError::UnsupportedCameraModel {
                         path: model.cameras_path.clone(),
-                        message: format!(
-                            "no camera {} for image {:?} (id {})",
-                            img.camera_id, img.name, img.id
-                        ),
-                    })?;
-            let intrinsics = pinhole(colmap_camera, &model.cameras_path)?;
-            let (w, h) = (colmap_camera.width, colmap_camera.height);
-            let full =
-                Camera::from_colmap(img.qvec, img.tvec, intrinsics, w, h).map_err(camera_error)?;
-            let scaled = training_camera(&full, options).map_err(camera_error)?;
-            let path = folder.join(&img.name);
-            let (camera, image, mask) = if prescaled {
-                let (image, mask) = images::load(
-                    &path,
-                    ExpectedSize::Near(scaled.width, scaled.height),
-                    None,
-                    background,
-                    Composite::of(options.ground_truth, false),
+                        camera_id: colmap_camera.id,
+                        model: colmap_camera.model.clone(),
+                    }
+                })?;
+                let (w, h) = (colmap_camera.width, colmap_camera.height);
+                let full = Camera::from_colmap(img.qvec, img.tvec, intrinsics, w, h).map_err(
+                    |source| DatasetError::Camera {
+                        context: context(),
+                        source,
+                    },
                 )?;
-                let (sx, sy) = (
-                    image.width as f64 / w as f64,
-                    image.height as f64 / h as f64,
-                );
-                let [fx, fy, cx, cy] = intrinsics;
-                let camera = Camera::new(
-                    full.rotation,
-                    full.translation,
-                    [fx * sx, fy * sy, cx * sx, cy * sy],
-                    image.width,
-                    image.height,
-                )
-                .map_err(camera_error)?;
-                (camera, image, mask)
-            } else {
-                let (image, mask) = images::load(
-                    &path,
-                    ExpectedSize::Exact(w, h),
-                    Some((scaled.width, scaled.height)),
-                    background,
+                let picture = PictureFile {
+                    path: folder.join(&img.name),
+                    prescaled,
+                };
+                let (camera, image, mask, undistortion) = view_picture::load(
+                    &picture,
+                    &full,
+                    lens,
+                    options,
                     Composite::of(options.ground_truth, false),
+                    &context,
                 )?;
-                (scaled, image, mask)
-            };
-            counter.one_done();
-            Ok((View::still(camera), image, mask, path))
-        })
-        // Gathered in order first, so the error reported is that of the first failing frame.
-        .collect::<Vec<Result<_, DatasetError>>>()
-        .into_iter()
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(Dataset::from_frames(frames, background, Some(model.points)))
+                counter.one_done();
+                Ok(LoadedFrame {
+                    view: View::still(camera),
+                    image,
+                    mask,
+                    path: picture.path,
+                    undistorted: undistortion.map(|u| u.report(&colmap_camera.model)),
+                })
+            })
+            // Gathered in order first, so the error reported is that of the first failing frame.
+            .collect::<Vec<Result<_, DatasetError>>>()
+            .into_iter()
+            .collect::<Result<Vec<_>, _>>()?;
+    Ok(Dataset::from_frames(
+        frames,
+        options.background.rgb(),
+        Some(model.points),
+    ))
 }

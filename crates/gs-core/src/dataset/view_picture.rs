@@ -1,0 +1,98 @@
+//! One view's ground truth and the camera it is trained with, whatever the layout: the picture
+//! from the full-size folder or a pre-downscaled one, undistorted when its lens is, resized to
+//! the training size.
+
+use std::path::{Path, PathBuf};
+
+use crate::{Camera, GsError, Image};
+
+use super::images::{self, Composite};
+use super::undistort::{LensDistortion, Undistortion};
+use super::{training_camera, BackgroundMask, DatasetError, LoadOptions};
+
+/// Where a view's picture is.
+pub(crate) struct PictureFile {
+    /// The file.
+    pub path: PathBuf,
+    /// Whether it is in a pre-downscaled folder (`images_<f>/`): its size is then within one
+    /// pixel of the downscaled camera's per axis (tools round differently), its intrinsics are
+    /// scaled to its exact size, and it is not resized.
+    pub prescaled: bool,
+}
+
+/// The folder `root/images_<f>` when downscaling by `f > 1` and it exists: pictures downscaled
+/// beforehand (COLMAP's and nerfstudio's `images_2/4/8`), read by file name.
+pub(crate) fn prescaled_folder(root: &Path, downscale: u32) -> Option<PathBuf> {
+    let folder = root.join(format!("images_{downscale}"));
+    (downscale > 1 && folder.is_dir()).then_some(folder)
+}
+
+/// A view's picture: `picture`, stored at the size of `full` (or pre-downscaled), its lens
+/// `lens` undone first when given (`full`'s intrinsics are then the distorted camera's), then
+/// resized to the training size of `options`. Returns the camera of the loaded picture, the
+/// picture composited as `composite` says, its background mask, and the undistortion used.
+/// `context` names the frame or image in errors about its camera.
+pub(crate) fn load(
+    picture: &PictureFile,
+    full: &Camera,
+    lens: Option<LensDistortion>,
+    options: &LoadOptions,
+    composite: Composite,
+    context: &dyn Fn() -> String,
+) -> Result<(Camera, Image, Option<BackgroundMask>, Option<Undistortion>), DatasetError> {
+    let camera_error = |source| DatasetError::Camera {
+        context: context(),
+        source,
+    };
+    let stored = if picture.prescaled {
+        let scaled = training_camera(full, options).map_err(camera_error)?;
+        let found = images::dimensions(&picture.path)?;
+        if found.0.abs_diff(scaled.width) > 1 || found.1.abs_diff(scaled.height) > 1 {
+            return Err(DatasetError::ImageSize {
+                path: picture.path.clone(),
+                expected: (scaled.width, scaled.height),
+                found,
+            });
+        }
+        full.resized(found.0, found.1).map_err(camera_error)?
+    } else {
+        full.clone()
+    };
+    let undistortion = lens
+        .filter(|lens| !lens.is_none())
+        .map(|lens| {
+            Undistortion::new(
+                [stored.fx, stored.fy, stored.cx, stored.cy],
+                lens,
+                stored.width,
+                stored.height,
+            )
+            .map_err(|why| camera_error(GsError::InvalidCamera(why)))
+        })
+        .transpose()?;
+    let pinhole = match &undistortion {
+        Some(u) => Camera::new(
+            stored.rotation,
+            stored.translation,
+            u.intrinsics,
+            u.width,
+            u.height,
+        )
+        .map_err(camera_error)?,
+        None => stored.clone(),
+    };
+    let camera = if picture.prescaled {
+        pinhole
+    } else {
+        training_camera(&pinhole, options).map_err(camera_error)?
+    };
+    let (image, mask) = images::load(
+        &picture.path,
+        (stored.width, stored.height),
+        Some((camera.width, camera.height)),
+        options.background.rgb(),
+        composite,
+        undistortion.as_ref(),
+    )?;
+    Ok((camera, image, mask, undistortion))
+}
