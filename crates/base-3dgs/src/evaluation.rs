@@ -4,16 +4,12 @@
 //! first (the prompts, as stylization checks them; the folders; the model files), the pictures
 //! and CLIP after.
 
-use std::collections::BTreeSet;
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
+use gs_stylize::evaluation::{check_prompts, check_sizes, picture_names, resolve_clip, score};
 pub use gs_stylize::evaluation::{write_metrics, ClipFiles, EvalError, Metrics, Style};
 use gs_stylize::picture::load_picture;
-
-/// File extensions (lower case) of the pictures a folder is searched for.
-const IMAGE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
 
 /// Orders names as people number views: runs of digits compare by value, so `r_2` comes before
 /// `r_10` (CLIP-CONS and CLIP-F pair each view with the next one in this order).
@@ -35,28 +31,6 @@ fn natural_key(name: &str) -> Vec<(String, u128)> {
     }
     key.push((text, 0));
     key
-}
-
-/// The picture names (files with an extension of [`IMAGE_EXTENSIONS`], any case) in `dir`.
-fn picture_names(dir: &Path) -> Result<BTreeSet<String>, EvalError> {
-    let io = |source| EvalError::Io {
-        path: dir.to_path_buf(),
-        source,
-    };
-    let mut names = BTreeSet::new();
-    for entry in std::fs::read_dir(dir).map_err(io)? {
-        let path = entry.map_err(io)?.path();
-        let ext = path
-            .extension()
-            .map(|e| e.to_string_lossy().to_lowercase())
-            .unwrap_or_default();
-        if path.is_file() && IMAGE_EXTENSIONS.contains(&ext.as_str()) {
-            if let Some(name) = path.file_name() {
-                names.insert(name.to_string_lossy().into_owned());
-            }
-        }
-    }
-    Ok(names)
 }
 
 /// The names present in both folders in natural order (`r_2` before `r_10`); an error naming
@@ -102,6 +76,16 @@ pub fn evaluate_folders(
     };
     let rendered = load_all(renders)?;
     let truths = load_all(ground_truths)?;
+    let labels: Vec<(String, String)> = names
+        .iter()
+        .map(|n| {
+            (
+                renders.join(n).display().to_string(),
+                ground_truths.join(n).display().to_string(),
+            )
+        })
+        .collect();
+    check_sizes(&labels, &rendered, &truths)?;
     score(&clip, &rendered, &truths, style, source_prompt, background)
 }
 

@@ -406,6 +406,17 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
         ],
         &missing,
     );
+    std::fs::rename(renders.join("extra.png"), renders.join("r_1.png")).unwrap();
+    let small = image::open(renders.join("r_2.png"))
+        .unwrap()
+        .thumbnail(4, 4);
+    small.save(renders.join("r_2.png")).unwrap();
+    let args = eval_args(&clip, &renders, &gt, &missing);
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["r_2.png: the render is 4x4 but its ground truth", "-r"],
+        &missing,
+    );
     let empty = dir.path().join("empty");
     std::fs::create_dir_all(&empty).unwrap();
     let args = eval_args(&clip, &empty, &empty, &missing);

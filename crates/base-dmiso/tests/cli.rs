@@ -444,7 +444,30 @@ fn help_configs_and_eval() {
             .args(["--clip-weights", s(&models.clip_weights)])
             .args(["--tokenizer", s(&models.tokenizer)]),
     );
-    assert!(e.contains("00002.png"), "{e}");
+    assert!(
+        e.contains("holds 2 pictures") && e.contains("(missing: 00002.png)"),
+        "{e}"
+    );
+    // A folder holding more renders than the test split has views: refused, not cut short.
+    for i in [2, 3] {
+        std::fs::copy(
+            renders.join("00000.png"),
+            renders.join(format!("{i:05}.png")),
+        )
+        .unwrap();
+    }
+    let e = fails(
+        bin()
+            .args(["eval", "--renders", s(&renders), "--data", s(&data)])
+            .args(["--style-prompt", "a red fire"])
+            .args(["--clip-config", s(&models.clip_config)])
+            .args(["--clip-weights", s(&models.clip_weights)])
+            .args(["--tokenizer", s(&models.tokenizer)]),
+    );
+    assert!(
+        e.contains("holds 4 pictures but the test split") && e.contains("unexpected: 00003.png"),
+        "{e}"
+    );
 }
 
 #[test]

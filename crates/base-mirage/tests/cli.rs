@@ -886,6 +886,23 @@ fn eval_scores_a_picture_against_its_original() {
             .args(["--tokenizer", s(&models.tokenizer)]),
     );
     assert!(err.contains("missing.png"), "{err}");
+    let small = dir.path().join("small.png");
+    image::RgbaImage::from_pixel(W / 2, H, image::Rgba([9, 9, 9, 255]))
+        .save(&small)
+        .unwrap();
+    let err = fails(
+        bin()
+            .args(["eval", "--renders", s(&small), "--gt", s(&picture)])
+            .args(["--style-prompt", "fire"])
+            .args(["--out", s(&dir.path().join("m3.json"))])
+            .args(["--clip-config", s(&models.clip_config)])
+            .args(["--clip-weights", s(&models.clip_weights)])
+            .args(["--tokenizer", s(&models.tokenizer)]),
+    );
+    assert!(
+        err.contains("small.png: the render is 20x32 but its ground truth"),
+        "{err}"
+    );
 }
 
 /// Every subcommand has the flags the four binaries share, under the same names.

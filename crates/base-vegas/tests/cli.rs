@@ -350,7 +350,22 @@ fn eval_scores_stylized_frames_against_the_video() {
         .unwrap();
     }
     let e = fails(&mut eval(&short));
-    assert!(e.contains("holds 3 frames") && e.contains("holds 6"), "{e}");
+    assert!(e.contains("holds 3 pictures") && e.contains("has 6"), "{e}");
+    // Frames of another shape (as wide, not as high): refused naming the frame.
+    let cropped = dir.path().join("cropped");
+    std::fs::create_dir(&cropped).unwrap();
+    for f in 1..=FRAMES {
+        let frame = image::open(clip.join(format!("{f}.png"))).unwrap();
+        frame
+            .crop_imm(0, 0, W, H / 2)
+            .save(cropped.join(format!("{f}.png")))
+            .unwrap();
+    }
+    let e = fails(&mut eval(&cropped));
+    assert!(
+        e.contains("frame 0: the render is 40x16 but its ground truth"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -45,6 +45,41 @@ pub enum EvalError {
         /// The renders folder.
         path: PathBuf,
     },
+    /// A renders folder holding another number of pictures than its reference has views.
+    #[error(
+        "{} holds {found} pictures but {reference} has {expected}{detail}: pass the folder the \
+         render of that reference wrote",
+        renders.display()
+    )]
+    Count {
+        /// The renders folder.
+        renders: PathBuf,
+        /// Pictures found there.
+        found: usize,
+        /// The reference (ground-truth folder, video or split) it is scored against.
+        reference: String,
+        /// Views of the reference.
+        expected: usize,
+        /// The names missing and unexpected, where the names are known (`" (missing: ...)"`),
+        /// else empty.
+        detail: String,
+    },
+    /// A render whose size is not its ground truth's.
+    #[error(
+        "{render}: the render is {}x{} but its ground truth {truth} is {}x{}: render at the \
+         ground truth's size (the same --max-width and -r)",
+        render_size.0, render_size.1, truth_size.0, truth_size.1
+    )]
+    Size {
+        /// The render (file, or frame of a folder).
+        render: String,
+        /// Its width and height, pixels.
+        render_size: (usize, usize),
+        /// Its ground truth.
+        truth: String,
+        /// The ground truth's width and height, pixels.
+        truth_size: (usize, usize),
+    },
     /// A picture that could not be read.
     #[error("{0}")]
     Image(#[from] gs_core::GsError),
@@ -115,6 +150,111 @@ impl Metrics {
             optional(self.clip_f)
         )
     }
+}
+
+/// File extensions (lower case) of the pictures a renders or ground-truth folder holds.
+pub const PICTURE_EXTENSIONS: [&str; 3] = ["png", "jpg", "jpeg"];
+
+/// The picture names (files with an extension of [`PICTURE_EXTENSIONS`], any case) in `dir`,
+/// sorted.
+pub fn picture_names(dir: &Path) -> Result<std::collections::BTreeSet<String>, EvalError> {
+    let io = |source| EvalError::Io {
+        path: dir.to_path_buf(),
+        source,
+    };
+    let mut names = std::collections::BTreeSet::new();
+    for entry in std::fs::read_dir(dir).map_err(io)? {
+        let path = entry.map_err(io)?.path();
+        let ext = path
+            .extension()
+            .map(|e| e.to_string_lossy().to_lowercase())
+            .unwrap_or_default();
+        if path.is_file() && PICTURE_EXTENSIONS.contains(&ext.as_str()) {
+            if let Some(name) = path.file_name() {
+                names.insert(name.to_string_lossy().into_owned());
+            }
+        }
+    }
+    Ok(names)
+}
+
+/// Refuses a renders folder `renders` of `found` pictures scored against `reference` of
+/// `expected` views.
+pub fn check_count(
+    renders: &Path,
+    found: usize,
+    reference: &str,
+    expected: usize,
+) -> Result<(), EvalError> {
+    if found == expected {
+        return Ok(());
+    }
+    Err(EvalError::Count {
+        renders: renders.to_path_buf(),
+        found,
+        reference: reference.to_string(),
+        expected,
+        detail: String::new(),
+    })
+}
+
+/// Refuses a renders folder `renders` whose pictures are not exactly `expected` (the names the
+/// render of `reference` writes), naming the missing and the unexpected ones.
+pub fn check_names(
+    renders: &Path,
+    expected: &std::collections::BTreeSet<String>,
+    reference: &str,
+) -> Result<(), EvalError> {
+    let found = picture_names(renders)?;
+    if &found == expected {
+        return Ok(());
+    }
+    let list = |names: Vec<&String>| {
+        names
+            .iter()
+            .map(|n| n.as_str())
+            .collect::<Vec<_>>()
+            .join(", ")
+    };
+    let missing = list(expected.difference(&found).collect());
+    let extra = list(found.difference(expected).collect());
+    let detail = match (missing.is_empty(), extra.is_empty()) {
+        (false, false) => format!(" (missing: {missing}; unexpected: {extra})"),
+        (false, true) => format!(" (missing: {missing})"),
+        _ => format!(" (unexpected: {extra})"),
+    };
+    Err(EvalError::Count {
+        renders: renders.to_path_buf(),
+        found: found.len(),
+        reference: reference.to_string(),
+        expected: expected.len(),
+        detail,
+    })
+}
+
+/// Refuses a render (`[1, 3, h, w]`, named `labels.0` in errors) whose size is not its ground
+/// truth's (named `labels.1`), pair by pair; CLIP would otherwise resize both and score
+/// pictures of different framing without a word.
+pub fn check_sizes(
+    labels: &[(String, String)],
+    rendered: &[Tensor],
+    truths: &[Tensor],
+) -> Result<(), EvalError> {
+    let size = |t: &Tensor| {
+        let dims = t.dims();
+        (dims[dims.len() - 1], dims[dims.len() - 2])
+    };
+    for ((render, truth), (r, t)) in labels.iter().zip(rendered.iter().zip(truths)) {
+        if size(r) != size(t) {
+            return Err(EvalError::Size {
+                render: render.clone(),
+                render_size: size(r),
+                truth: truth.clone(),
+                truth_size: size(t),
+            });
+        }
+    }
+    Ok(())
 }
 
 /// Refuses an empty style prompt or source prompt, as stylization does.

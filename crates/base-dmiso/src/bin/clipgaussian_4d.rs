@@ -30,7 +30,7 @@ use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
+use gs_stylize::evaluation::{check_names, check_prompts, check_sizes, resolve_clip, score};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -468,8 +468,11 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// The pictures `00000.png ...` of `dir`, `count` of them.
-fn read_renders(dir: &Path, count: usize) -> Result<Vec<Image>, Box<dyn Error>> {
+/// The pictures `00000.png ...` of `dir`, which must hold `count` pictures (those of the test
+/// split `reference`).
+fn read_renders(dir: &Path, count: usize, reference: &str) -> Result<Vec<Image>, Box<dyn Error>> {
+    let names = (0..count).map(|i| format!("{i:05}.png")).collect();
+    check_names(dir, &names, reference)?;
     (0..count)
         .map(|i| {
             let path = dir.join(format!("{i:05}.png"));
@@ -491,26 +494,11 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         ..LoadOptions::default()
     };
     let test = load_with_times(&args.data, Split::Test, &options)?;
-    let renders = read_renders(&args.renders, test.views.len())?;
-    if let Some((i, r)) = renders
-        .iter()
-        .enumerate()
-        .find(|(i, r)| (r.width, r.height) != (test.images[*i].width, test.images[*i].height))
-    {
-        return Err(format!(
-            "{}: render {i} is {}x{}, its test picture {}x{}",
-            args.renders.display(),
-            r.width,
-            r.height,
-            test.images[i].width,
-            test.images[i].height
-        )
-        .into());
-    }
+    let reference = format!("the test split of {}", args.data.display());
+    let renders = read_renders(&args.renders, test.views.len(), &reference)?;
     // Consecutive pairs in time order.
     let mut order: Vec<usize> = (0..test.views.len()).collect();
     order.sort_by(|&a, &b| test.views[a].time.total_cmp(&test.views[b].time));
-    let clip = resolve_clip(&args.style.clip_files())?;
     let tensors = |images: &[Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
         order
             .iter()
@@ -521,10 +509,25 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
             })
             .collect()
     };
+    let (rendered, truths) = (tensors(&renders)?, tensors(&test.images)?);
+    let labels: Vec<(String, String)> = order
+        .iter()
+        .map(|&i| {
+            (
+                args.renders
+                    .join(format!("{i:05}.png"))
+                    .display()
+                    .to_string(),
+                test.image_paths[i].display().to_string(),
+            )
+        })
+        .collect();
+    check_sizes(&labels, &rendered, &truths)?;
+    let clip = resolve_clip(&args.style.clip_files())?;
     let metrics = score(
         &clip,
-        &tensors(&renders)?,
-        &tensors(&test.images)?,
+        &rendered,
+        &truths,
         &style,
         &args.style.source_prompt,
         bg.rgb(),

@@ -29,7 +29,7 @@ use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score, write_metrics};
+use gs_stylize::evaluation::{check_prompts, check_sizes, resolve_clip, score, write_metrics};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::check_output_file;
@@ -244,7 +244,6 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
     let style = args.style.style();
     check_prompts(&style, &args.style.source_prompt)?;
-    let clip = resolve_clip(&args.style.clip_files())?;
     let load = |path: &Path| {
         gs_stylize::picture::load_picture(
             path,
@@ -252,10 +251,17 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
             &style_loss::candle_core::Device::Cpu,
         )
     };
+    let (rendered, truth) = ([load(&args.renders)?], [load(&args.gt)?]);
+    let labels = [(
+        args.renders.display().to_string(),
+        args.gt.display().to_string(),
+    )];
+    check_sizes(&labels, &rendered, &truth)?;
+    let clip = resolve_clip(&args.style.clip_files())?;
     let metrics = score(
         &clip,
-        &[load(&args.renders)?],
-        &[load(&args.gt)?],
+        &rendered,
+        &truth,
         &style,
         &args.style.source_prompt,
         args.background,

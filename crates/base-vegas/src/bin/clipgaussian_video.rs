@@ -28,7 +28,7 @@ use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_prompts, resolve_clip, score};
+use gs_stylize::evaluation::{check_count, check_prompts, check_sizes, resolve_clip, score};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -434,18 +434,12 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         DEFAULT_FOLDER_FPS,
         renders.size().0,
     )?;
-    if renders.frames.len() != video.frames.len() {
-        return Err(format!(
-            "{} holds {} frames, {} holds {}",
-            args.renders.display(),
-            renders.frames.len(),
-            args.video.display(),
-            video.frames.len()
-        )
-        .into());
-    }
-    let clip = resolve_clip(&args.style.clip_files())?;
-    let temporal = temporal_consistency(&renders.frames, &video.frames);
+    check_count(
+        &args.renders,
+        renders.frames.len(),
+        &args.video.display().to_string(),
+        video.frames.len(),
+    )?;
     let tensors = |frames: &[gs_core::Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
         frames
             .iter()
@@ -456,6 +450,17 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
             .collect()
     };
     let (rendered, truths) = (tensors(&renders.frames)?, tensors(&video.frames)?);
+    let labels: Vec<(String, String)> = (0..rendered.len())
+        .map(|i| {
+            (
+                format!("{} frame {i}", args.renders.display()),
+                format!("{} frame {i}", args.video.display()),
+            )
+        })
+        .collect();
+    check_sizes(&labels, &rendered, &truths)?;
+    let temporal = temporal_consistency(&renders.frames, &video.frames);
+    let clip = resolve_clip(&args.style.clip_files())?;
     let metrics = VideoMetrics {
         clip: score(
             &clip,
