@@ -153,10 +153,37 @@ pub fn save(
             source,
         }
     })?;
+    let bytes = with_sorted_header(bytes);
     gs_core::fs::write_atomic(path, &bytes).map_err(|source| ModelFileError::Io {
         path: path.to_path_buf(),
         source,
     })
+}
+
+/// `file` (safetensors bytes) with every object of its json header in key order, the header's
+/// length kept (its padding spaces absorb nothing: the same keys and values in another order
+/// are the same number of bytes). The safetensors crate writes the metadata from a `HashMap`,
+/// in another order at every run; sorted, the same model is the same bytes.
+fn with_sorted_header(mut file: Vec<u8>) -> Vec<u8> {
+    let Some(length) = file
+        .get(..8)
+        .and_then(|b| usize::try_from(u64::from_le_bytes(b.try_into().ok()?)).ok())
+    else {
+        return file;
+    };
+    let Some(Ok(mut header)) = file
+        .get(8..8 + length)
+        .map(serde_json::from_slice::<serde_json::Value>)
+    else {
+        return file;
+    };
+    header.sort_all_objects();
+    let sorted = serde_json::to_vec(&header).expect("a json value serializes");
+    if sorted.len() <= length {
+        file[8..8 + sorted.len()].copy_from_slice(&sorted);
+        file[8 + sorted.len()..8 + length].fill(b' ');
+    }
+    file
 }
 
 /// The little-endian bytes of `values`.
@@ -241,9 +268,29 @@ fn fill_groups(
             );
             return Err((name, message));
         }
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            let message = format!(
+                "{name}{:?} is {} (a model's values must be finite numbers)",
+                unravel(i, &shape),
+                values[i]
+            );
+            return Err((name, message));
+        }
         groups[g][offset..offset + values.len()].copy_from_slice(&values);
     }
     Ok(DmisoParams { groups })
+}
+
+/// The index of element `flat` of a row-major tensor of `shape`.
+fn unravel(mut flat: usize, shape: &[usize]) -> Vec<usize> {
+    let mut index = vec![0; shape.len()];
+    for (k, &n) in shape.iter().enumerate().rev() {
+        if n > 0 {
+            index[k] = flat % n;
+            flat /= n;
+        }
+    }
+    index
 }
 
 /// Tensors by name: shape and f32 values.
@@ -579,6 +626,81 @@ mod tests {
             let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
             assert_eq!(header["__metadata__"]["white_background"].as_str(), white);
         }
+    }
+
+    /// The header's objects are in key order, so saving the same model again (with maps of
+    /// other hash seeds) gives the same bytes, and the file still loads.
+    #[test]
+    fn the_same_model_saves_to_the_same_bytes() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
+        let background = Some(Background::Colour([0.25, 0.5, 1.0]));
+        let files: Vec<Vec<u8>> = (0..4)
+            .map(|i| {
+                let path = dir.path().join(format!("model{i}.safetensors"));
+                save(&model, &path, background).unwrap();
+                std::fs::read(&path).unwrap()
+            })
+            .collect();
+        assert!(files.iter().all(|f| *f == files[0]));
+        let len = u64::from_le_bytes(files[0][..8].try_into().unwrap()) as usize;
+        let header = std::str::from_utf8(&files[0][8..8 + len]).unwrap();
+        let keys = [
+            "background",
+            "cores",
+            "deform_width",
+            "deformation",
+            "format",
+        ];
+        let at: Vec<usize> = keys
+            .iter()
+            .map(|k| header.find(&format!("\"{k}\"")).unwrap())
+            .collect();
+        assert!(at.windows(2).all(|w| w[0] < w[1]), "{header}");
+        assert!(header.starts_with("{\"__metadata__\""), "{header}");
+        let path = dir.path().join("model0.safetensors");
+        assert_eq!(recorded_background(&path).unwrap(), background);
+    }
+
+    /// A NaN or infinity anywhere in a model file is refused naming its tensor and index.
+    #[test]
+    fn a_nan_in_a_model_file_is_named_by_tensor_and_index() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
+        let path = dir.path().join("model.safetensors");
+        save(&model, &path, None).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+        let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+        let mut checked = 0;
+        for (name, info) in header.as_object().unwrap() {
+            let Some(shape) = info["shape"].as_array() else {
+                continue;
+            };
+            let shape: Vec<usize> = shape.iter().map(|v| v.as_u64().unwrap() as usize).collect();
+            if shape.len() != 2 || shape.iter().product::<usize>() < 2 {
+                continue;
+            }
+            let start = info["data_offsets"][0].as_u64().unwrap() as usize;
+            // The last element: index [rows - 1, columns - 1].
+            let element = shape[0] * shape[1] - 1;
+            let at = 8 + len + start + 4 * element;
+            for bad in [f32::NAN, f32::INFINITY] {
+                let mut broken = bytes.clone();
+                broken[at..at + 4].copy_from_slice(&bad.to_le_bytes());
+                let file = dir.path().join("broken.safetensors");
+                std::fs::write(&file, &broken).unwrap();
+                let e = load(&file, &Device::Cpu).unwrap_err().to_string();
+                let want = format!("{name}[{}, {}] is {bad}", shape[0] - 1, shape[1] - 1);
+                assert!(e.contains(&want) && e.contains("broken.safetensors"), "{e}");
+            }
+            checked += 1;
+        }
+        assert!(
+            checked >= 2,
+            "two-dimensional tensors (the network's weights) checked"
+        );
+        assert_eq!(unravel(7, &[2, 3, 2]), [1, 0, 1]);
     }
 
     #[test]
