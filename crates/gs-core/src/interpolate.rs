@@ -144,5 +144,6 @@ pub fn interpolate_ply(
         gaussians: interpolate(&a.gaussians, &b.gaussians, t)?,
         extras: a.extras.clone(),
         comments: a.comments.clone(),
+        normals: a.normals,
     })
 }

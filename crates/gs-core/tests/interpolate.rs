@@ -179,11 +179,13 @@ fn ply_interpolation_keeps_the_extras_of_a() {
         gaussians: random_set(4, 3, 1),
         extras: vec![extra("nx", 0.0), extra("confidence", 7.0)],
         comments: vec!["picture 40x32".into()],
+        normals: true,
     };
     let b = PlyGaussians {
         gaussians: random_set(4, 3, 2),
         extras: vec![extra("other", -1.0)],
         comments: Vec::new(),
+        normals: false,
     };
     let out = interpolate_ply(&a, &b, 0.25).unwrap();
     assert_eq!((&out.extras, &out.comments), (&a.extras, &a.comments));

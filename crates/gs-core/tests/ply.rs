@@ -65,6 +65,29 @@ fn every_degree_and_format_round_trips_exactly() {
     }
 }
 
+/// A file without normals (Mip-Splatting's, SuperSplat's exports) is written back without
+/// them: nothing is added to what the input had.
+#[test]
+fn a_file_without_normals_is_written_back_without_them() {
+    let dir = temp_dir("ply-no-normals");
+    let set = random_set(9, 1, 4);
+    let mut ply = PlyGaussians::new(set.clone());
+    ply.normals = false;
+    let path = dir.path().join("plain.ply");
+    write_ply(&path, &ply, PlyFormat::BinaryLittleEndian).unwrap();
+    let text = String::from_utf8_lossy(&std::fs::read(&path).unwrap()).into_owned();
+    assert!(!text.contains("property float nx"), "{text}");
+    let back = read_ply(&path).unwrap();
+    assert!(!back.normals && back.extras.is_empty());
+    assert_eq!(back.gaussians, set);
+    let again = dir.path().join("again.ply");
+    write_ply(&again, &back, PlyFormat::BinaryLittleEndian).unwrap();
+    assert_eq!(
+        std::fs::read(&again).unwrap(),
+        std::fs::read(&path).unwrap()
+    );
+}
+
 #[test]
 fn extra_properties_are_preserved_and_reported() {
     let dir = temp_dir("ply-extras");
@@ -103,6 +126,7 @@ fn extra_properties_are_preserved_and_reported() {
             String::new(),
             "picture 40x32".into(),
         ],
+        normals: true,
     };
     for format in FORMATS {
         let path = dir.path().join(format!("extras-{}.ply", format.name()));

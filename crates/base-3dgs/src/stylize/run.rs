@@ -206,6 +206,7 @@ impl Modality for StylizeConfig {
             gaussians: outcome.model,
             extras: ply.extras,
             comments: ply.comments,
+            normals: ply.normals,
         };
         write_ply(&stylized_ply, &stylized, format)?;
         let mut base = ply.gaussians;

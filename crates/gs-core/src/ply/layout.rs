@@ -165,7 +165,8 @@ impl Layout {
 
     /// The layout written for `ply`: INRIA order (`x y z nx ny nz f_dc_* f_rest_* opacity
     /// scale_* rot_*`, all float), the normals taken from the extras when present (else written
-    /// as float zeros), then the other extras in their order.
+    /// as float zeros; left out when `ply.normals` is false), then the other extras in their
+    /// order.
     pub fn for_writing(ply: &PlyGaussians) -> Self {
         let degree = ply.gaussians.sh_degree();
         let field = |name: &str, ty, slot| Field {
@@ -177,7 +178,7 @@ impl Layout {
         let mut fields = Vec::new();
         for (i, (name, slot)) in required(degree).into_iter().enumerate() {
             fields.push(field(&name, ScalarType::Float32, slot));
-            if i == 2 {
+            if i == 2 && ply.normals {
                 for n in NORMAL_NAMES {
                     fields.push(match extra_index(n) {
                         Some(e) => field(n, ply.extras[e].ty, Slot::Extra(e)),

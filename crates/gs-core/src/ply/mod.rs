@@ -75,6 +75,10 @@ pub struct PlyGaussians {
     pub extras: Vec<ExtraProperty>,
     /// The text of the header's `comment` lines, in file order (one line each).
     pub comments: Vec<String>,
+    /// Whether the file has the INRIA normals `nx ny nz`: written from `extras` when they hold
+    /// them, else as zeros (what INRIA writes); a file read without them (Mip-Splatting,
+    /// SuperSplat exports) is written back without them.
+    pub normals: bool,
 }
 
 impl PlyGaussians {
@@ -84,6 +88,7 @@ impl PlyGaussians {
             gaussians,
             extras: Vec::new(),
             comments: Vec::new(),
+            normals: true,
         }
     }
 
@@ -244,15 +249,19 @@ fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
         Some(be) => binary::read_body(body, &layout, be, &mut gaussians, &mut extras)?,
         None => ascii::read_body(body, header.lines + 1, &layout, &mut gaussians, &mut extras)?,
     }
-    let extras = extra_types
+    let extras: Vec<ExtraProperty> = extra_types
         .into_iter()
         .zip(extras)
         .map(|((name, ty), values)| ExtraProperty { name, ty, values })
         .collect();
+    let normals = extras
+        .iter()
+        .any(|e| NORMAL_NAMES.contains(&e.name.as_str()));
     let ply = PlyGaussians {
         gaussians,
         extras,
         comments: header.comments,
+        normals,
     };
     Ok((ply, header.format))
 }
