@@ -17,6 +17,8 @@
 //! - [`image_loss`]: L1 and SSIM with their gradients.
 //! - [`ply`]: INRIA 3DGS PLY files (read and write, every SH degree, extra properties kept),
 //!   the format of 3DGS and MiraGe models alike.
+//! - [`splats`]: the splat formats viewers open: SuperSplat's compressed PLY, SPZ, `.splat`
+//!   (read and written) and glTF with `KHR_gaussian_splatting` (written).
 //! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
 //! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
 //! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
@@ -51,6 +53,7 @@ pub mod raster;
 pub mod real;
 pub mod render_clamp;
 pub mod sh;
+pub mod splats;
 pub mod train;
 pub mod wide_pictures;
 

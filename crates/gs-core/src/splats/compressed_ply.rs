@@ -1,0 +1,462 @@
+//! SuperSplat's compressed PLY (`.compressed.ply`), as `@playcanvas/splat-transform` writes
+//! and reads it. A binary little-endian PLY of three elements:
+//! - `chunk` (one per 256 Gaussians): 18 floats, the chunk's `min_x..max_z` of the positions,
+//!   `min_scale_x..max_scale_z` of the log-scales (each bound clamped to `[-20, 20]`) and
+//!   `min_r..max_b` of the colours `0.5 + C0 f_dc`;
+//! - `vertex`: four `uint`s: position and log-scale as 11-10-11 bits within the chunk's bounds;
+//!   the rotation as "smallest three" (2 bits for the largest of `(w, x, y, z)`, made positive,
+//!   then the other three, each `q sqrt(1/2) + 1/2` in 10 bits); colour 8-8-8 within the
+//!   bounds and `sigmoid(opacity)` in 8 bits;
+//! - `sh` (when the degree is above 0): one `uchar` per `f_rest_*` (INRIA's channel-major
+//!   order), `trunc((v / 8 + 1/2) 256)`: the range `[-4, 4]` in steps of 1/32.
+//!
+//! The writer sorts the Gaussians in Morton order first (10 bits an axis over the bounding box,
+//! finer within runs of more than 256 equal codes), as splat-transform does, so the file order
+//! is not the input's. A bound pair closer than 1e-5 stores 0.
+
+use super::{check_finite, opacity_of_level, sigmoid};
+use crate::sh::C0;
+use crate::GaussianSet;
+
+/// Gaussians a chunk holds.
+const CHUNK: usize = 256;
+
+/// The chunk properties, in file order.
+const CHUNK_PROPERTIES: [&str; 18] = [
+    "min_x",
+    "min_y",
+    "min_z",
+    "max_x",
+    "max_y",
+    "max_z",
+    "min_scale_x",
+    "min_scale_y",
+    "min_scale_z",
+    "max_scale_x",
+    "max_scale_y",
+    "max_scale_z",
+    "min_r",
+    "min_g",
+    "min_b",
+    "max_r",
+    "max_g",
+    "max_b",
+];
+
+/// The vertex properties, in file order.
+const VERTEX_PROPERTIES: [&str; 4] = [
+    "packed_position",
+    "packed_rotation",
+    "packed_scale",
+    "packed_color",
+];
+
+/// Whether `bytes` is a PLY file with a `chunk` element (the compressed layout).
+pub fn is_compressed(bytes: &[u8]) -> bool {
+    let head = &bytes[..bytes.len().min(4096)];
+    let text = String::from_utf8_lossy(head);
+    text.starts_with("ply")
+        && text
+            .lines()
+            .take_while(|l| l.trim() != "end_header")
+            .any(|l| l.split_whitespace().take(2).eq(["element", "chunk"]))
+}
+
+/// `v` in `[min, max]` as a fraction (0 at or below, 1 at or above; 0 for a range under 1e-5).
+fn normalize(v: f64, min: f64, max: f64) -> f64 {
+    if v <= min {
+        0.0
+    } else if v >= max {
+        1.0
+    } else if max - min < 1e-5 {
+        0.0
+    } else {
+        (v - min) / (max - min)
+    }
+}
+
+/// `t` in `[0, 1]` as an unsigned `bits`-bit integer, rounded.
+fn unorm(t: f64, bits: u32) -> u32 {
+    let top = f64::from((1u32 << bits) - 1);
+    (t * top + 0.5).floor().clamp(0.0, top) as u32
+}
+
+/// Three fractions as 11-10-11 bits.
+fn pack_11_10_11(t: [f64; 3]) -> u32 {
+    unorm(t[0], 11) << 21 | unorm(t[1], 10) << 11 | unorm(t[2], 11)
+}
+
+/// The smallest-three packing of quaternion `q` (`w, x, y, z`, any norm but 0).
+fn pack_rotation(q: [f64; 4]) -> u32 {
+    let norm = q.iter().map(|v| v * v).sum::<f64>().sqrt();
+    let mut a = q.map(|v| v / norm);
+    let largest = (1..4).fold(
+        0,
+        |best, i| {
+            if a[i].abs() > a[best].abs() {
+                i
+            } else {
+                best
+            }
+        },
+    );
+    if a[largest] < 0.0 {
+        a = a.map(|v| -v);
+    }
+    let half_sqrt2 = std::f64::consts::SQRT_2 * 0.5;
+    (0..4)
+        .filter(|&i| i != largest)
+        .fold(largest as u32, |packed, i| {
+            packed << 10 | unorm(a[i] * half_sqrt2 + 0.5, 10)
+        })
+}
+
+/// The order splat-transform writes Gaussians in: Morton codes of 10 bits an axis over the
+/// bounding box of `indices`, sorted stably; a run of more than 256 equal codes is sorted again
+/// over its own box.
+fn morton_sort(means: &[f32], indices: &mut [usize]) {
+    if indices.is_empty() {
+        return;
+    }
+    let mut lo = [f64::INFINITY; 3];
+    let mut hi = [f64::NEG_INFINITY; 3];
+    for &i in indices.iter() {
+        for k in 0..3 {
+            let v = f64::from(means[3 * i + k]);
+            lo[k] = lo[k].min(v);
+            hi[k] = hi[k].max(v);
+        }
+    }
+    let len = [0, 1, 2].map(|k| hi[k] - lo[k]);
+    if len.iter().all(|&l| l == 0.0) || len.iter().any(|l| !l.is_finite()) {
+        return;
+    }
+    let mul = len.map(|l| if l == 0.0 { 0.0 } else { 1024.0 / l });
+    let spread = |v: u32| {
+        let mut v = v & 0x3ff;
+        v = (v ^ (v << 16)) & 0xff00_00ff;
+        v = (v ^ (v << 8)) & 0x0300_f00f;
+        v = (v ^ (v << 4)) & 0x030c_30c3;
+        (v ^ (v << 2)) & 0x0924_9249
+    };
+    let code = |i: usize| {
+        let cell = |k: usize| ((f64::from(means[3 * i + k]) - lo[k]) * mul[k]).min(1023.0) as u32;
+        (spread(cell(2)) << 2) + (spread(cell(1)) << 1) + spread(cell(0))
+    };
+    let mut keyed: Vec<(u32, usize)> = indices.iter().map(|&i| (code(i), i)).collect();
+    keyed.sort_by_key(|&(c, _)| c);
+    for (slot, &(_, i)) in indices.iter_mut().zip(&keyed) {
+        *slot = i;
+    }
+    let mut start = 0;
+    while start < keyed.len() {
+        let end = start
+            + keyed[start..]
+                .iter()
+                .take_while(|k| k.0 == keyed[start].0)
+                .count();
+        if end - start > CHUNK {
+            morton_sort(means, &mut indices[start..end]);
+        }
+        start = end;
+    }
+}
+
+/// The smallest and largest of `values`.
+fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
+    values.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), v| {
+        (lo.min(v), hi.max(v))
+    })
+}
+
+/// The compressed PLY bytes of `set` (Morton order); an error names a value that cannot be
+/// written.
+pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
+    check_finite(set)?;
+    if let Some(i) = (0..set.len()).find(|&i| set.quats[4 * i..4 * i + 4].iter().all(|&v| v == 0.0))
+    {
+        return Err(format!("quats[{i}] is zero: a rotation has no direction"));
+    }
+    let n = set.len();
+    let chunks = n.div_ceil(CHUNK);
+    let rest = 3 * (set.sh_coeffs() - 1);
+    let mut order: Vec<usize> = (0..n).collect();
+    morton_sort(&set.means, &mut order);
+    let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
+    header += "comment Generated by clipgaussian\n";
+    header += &format!("element chunk {chunks}\n");
+    for p in CHUNK_PROPERTIES {
+        header += &format!("property float {p}\n");
+    }
+    header += &format!("element vertex {n}\n");
+    for p in VERTEX_PROPERTIES {
+        header += &format!("property uint {p}\n");
+    }
+    if rest > 0 {
+        header += &format!("element sh {n}\n");
+        for k in 0..rest {
+            header += &format!("property uchar f_rest_{k}\n");
+        }
+    }
+    header += "end_header\n";
+    let mut chunk_data = Vec::with_capacity(chunks * 18 * 4);
+    let mut vertex_data = Vec::with_capacity(n * 16);
+    let mut sh_data = Vec::with_capacity(n * rest);
+    // The colour as splat-transform holds it: computed in f64, stored in f32.
+    let colour =
+        |i: usize, c: usize| f64::from((f64::from(set.sh_dc[3 * i + c]) * C0 + 0.5) as f32);
+    for members in order.chunks(CHUNK) {
+        let axis = |values: &dyn Fn(usize) -> f64| bounds(members.iter().map(|&i| values(i)));
+        let position = [0, 1, 2].map(|k| axis(&|i| f64::from(set.means[3 * i + k])));
+        let scale = [0, 1, 2].map(|k| {
+            let (lo, hi) = axis(&|i| f64::from(set.log_scales[3 * i + k]));
+            (lo.clamp(-20.0, 20.0), hi.clamp(-20.0, 20.0))
+        });
+        let rgb = [0, 1, 2].map(|c| axis(&|i| colour(i, c)));
+        for bound in [position, scale, rgb] {
+            for v in bound.map(|b| b.0).into_iter().chain(bound.map(|b| b.1)) {
+                chunk_data.extend((v as f32).to_le_bytes());
+            }
+        }
+        for &i in members {
+            let fractions = |b: &[(f64, f64); 3], values: [f32; 3]| {
+                [0, 1, 2].map(|k| normalize(f64::from(values[k]), b[k].0, b[k].1))
+            };
+            let m = [0, 1, 2].map(|k| set.means[3 * i + k]);
+            let s = [0, 1, 2].map(|k| set.log_scales[3 * i + k]);
+            let q = [0, 1, 2, 3].map(|k| f64::from(set.quats[4 * i + k]));
+            let c = [0, 1, 2].map(|k| normalize(colour(i, k), rgb[k].0, rgb[k].1));
+            let alpha = sigmoid(f64::from(set.opacity_logits[i]));
+            let packed_colour =
+                unorm(c[0], 8) << 24 | unorm(c[1], 8) << 16 | unorm(c[2], 8) << 8 | unorm(alpha, 8);
+            for word in [
+                pack_11_10_11(fractions(&position, m)),
+                pack_rotation(q),
+                pack_11_10_11(fractions(&scale, s)),
+                packed_colour,
+            ] {
+                vertex_data.extend(word.to_le_bytes());
+            }
+            let coefficients = rest / 3;
+            for k in 0..rest {
+                let (channel, coefficient) = (k / coefficients, k % coefficients);
+                let v = f64::from(set.sh_rest[rest * i + 3 * coefficient + channel]);
+                sh_data.push(((v / 8.0 + 0.5) * 256.0).trunc().clamp(0.0, 255.0) as u8);
+            }
+        }
+    }
+    let mut out = header.into_bytes();
+    out.extend(chunk_data);
+    out.extend(vertex_data);
+    out.extend(sh_data);
+    Ok(out)
+}
+
+/// A PLY element: its name, count and property names with their byte sizes.
+struct Element {
+    name: String,
+    count: usize,
+    properties: Vec<(String, usize)>,
+}
+
+impl Element {
+    /// Bytes a row takes.
+    fn stride(&self) -> usize {
+        self.properties.iter().map(|p| p.1).sum()
+    }
+
+    /// The byte offset of property `name` in a row, with its size.
+    fn offset(&self, name: &str) -> Option<(usize, usize)> {
+        let mut at = 0;
+        for (p, size) in &self.properties {
+            if p == name {
+                return Some((at, *size));
+            }
+            at += size;
+        }
+        None
+    }
+}
+
+/// The elements of the header of `bytes` and where the body starts.
+fn parse_header(bytes: &[u8]) -> Result<(Vec<Element>, usize), String> {
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .ok_or("no end_header line")?;
+    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not text")?;
+    let mut elements: Vec<Element> = Vec::new();
+    for (number, line) in text.lines().enumerate() {
+        let words: Vec<&str> = line.split_whitespace().collect();
+        let bad = |why: &str| format!("header line {} {line:?}: {why}", number + 1);
+        match words.as_slice() {
+            ["ply"] | [] => {}
+            ["comment", ..] | ["obj_info", ..] => {}
+            ["format", "binary_little_endian", "1.0"] => {}
+            ["format", ..] => return Err(bad("only binary_little_endian 1.0 is compressed")),
+            ["element", name, count] => elements.push(Element {
+                name: name.to_string(),
+                count: count.parse().map_err(|_| bad("not a count"))?,
+                properties: Vec::new(),
+            }),
+            ["property", ty, name] => {
+                let size = match *ty {
+                    "char" | "uchar" | "int8" | "uint8" => 1,
+                    "short" | "ushort" | "int16" | "uint16" => 2,
+                    "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
+                    "double" | "float64" => 8,
+                    _ => return Err(bad("unknown property type")),
+                };
+                let element = elements
+                    .last_mut()
+                    .ok_or_else(|| bad("a property before any element"))?;
+                if element.properties.iter().any(|p| p.0 == *name) {
+                    return Err(bad("a property named twice"));
+                }
+                element.properties.push((name.to_string(), size));
+            }
+            _ => return Err(bad("not a line of a compressed PLY header")),
+        }
+    }
+    Ok((elements, end + 11))
+}
+
+/// The Gaussians of compressed PLY bytes, in file order.
+pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
+    let (elements, body) = parse_header(bytes)?;
+    let find = |name: &str| elements.iter().position(|e| e.name == name);
+    let (chunk_e, vertex_e) = match (find("chunk"), find("vertex")) {
+        (Some(c), Some(v)) => (c, v),
+        _ => return Err("a compressed PLY has a chunk and a vertex element".into()),
+    };
+    let mut starts = Vec::new();
+    let mut at = body;
+    for e in &elements {
+        starts.push(at);
+        let size = e
+            .count
+            .checked_mul(e.stride())
+            .and_then(|s| s.checked_add(at))
+            .filter(|&end| end <= bytes.len())
+            .ok_or_else(|| {
+                format!(
+                    "element {}: {} rows run past the end of the file",
+                    e.name, e.count
+                )
+            })?;
+        at = size;
+    }
+    if at != bytes.len() {
+        return Err(format!("{} bytes after the last element", bytes.len() - at));
+    }
+    let (chunk, vertex) = (&elements[chunk_e], &elements[vertex_e]);
+    let n = vertex.count;
+    if chunk.count != n.div_ceil(CHUNK) {
+        return Err(format!(
+            "{} chunks for {n} Gaussians; {} expected",
+            chunk.count,
+            n.div_ceil(CHUNK)
+        ));
+    }
+    let read = |e: usize, row: usize, name: &str| -> Option<f64> {
+        let element = &elements[e];
+        let (offset, size) = element.offset(name)?;
+        let at = starts[e] + row * element.stride() + offset;
+        let b = &bytes[at..at + size];
+        Some(match size {
+            1 => f64::from(b[0]),
+            4 if name.starts_with("packed_") => f64::from(u32::from_le_bytes(b.try_into().ok()?)),
+            4 => f64::from(f32::from_le_bytes(b.try_into().ok()?)),
+            _ => return None,
+        })
+    };
+    if let Some(p) = VERTEX_PROPERTIES
+        .iter()
+        .find(|p| vertex.offset(p).map(|o| o.1) != Some(4))
+    {
+        return Err(format!("vertex has no uint property {p}"));
+    }
+    let sh = find("sh");
+    let rest = match sh {
+        Some(s) => {
+            let count = elements[s].properties.len();
+            if elements[s].count != n || ![0, 9, 24, 45].contains(&count) {
+                return Err(format!(
+                    "element sh: {} rows of {count} values; {n} rows of 9, 24 or 45 expected",
+                    elements[s].count
+                ));
+            }
+            count
+        }
+        None => 0,
+    };
+    let degree = [0, 9, 24, 45].iter().position(|&c| c == rest).unwrap_or(0);
+    let mut set = GaussianSet::zeros(n, degree);
+    let bound = |row: usize, name: &str| -> Result<f64, String> {
+        read(chunk_e, row, name).ok_or_else(|| format!("chunk has no float property {name}"))
+    };
+    for i in 0..n {
+        let c = i / CHUNK;
+        let word = |name: &str| read(vertex_e, i, name).unwrap_or(0.0) as u32;
+        let unpack = |bits: u32, width: u32| {
+            f64::from(bits & ((1 << width) - 1)) / f64::from((1u32 << width) - 1)
+        };
+        let three = |w: u32| [unpack(w >> 21, 11), unpack(w >> 11, 10), unpack(w, 11)];
+        let lerp = |t: f64, lo: f64, hi: f64| lo * (1.0 - t) + hi * t;
+        let p = three(word("packed_position"));
+        let s = three(word("packed_scale"));
+        for (k, axis) in ["x", "y", "z"].iter().enumerate() {
+            let (lo, hi) = (
+                bound(c, &format!("min_{axis}"))?,
+                bound(c, &format!("max_{axis}"))?,
+            );
+            set.means[3 * i + k] = lerp(p[k], lo, hi) as f32;
+            let (lo, hi) = (
+                bound(c, &format!("min_scale_{axis}"))?,
+                bound(c, &format!("max_scale_{axis}"))?,
+            );
+            set.log_scales[3 * i + k] = lerp(s[k], lo, hi) as f32;
+        }
+        let colour = word("packed_color");
+        let levels = [colour >> 24, colour >> 16, colour >> 8].map(|v| f64::from(v & 255) / 255.0);
+        for (k, channel) in ["r", "g", "b"].iter().enumerate() {
+            let value = match (
+                read(chunk_e, c, &format!("min_{channel}")),
+                read(chunk_e, c, &format!("max_{channel}")),
+            ) {
+                (Some(lo), Some(hi)) => lerp(levels[k], lo, hi),
+                _ => levels[k],
+            };
+            set.sh_dc[3 * i + k] = ((value - 0.5) / C0) as f32;
+        }
+        set.opacity_logits[i] = opacity_of_level(colour & 255) as f32;
+        let r = word("packed_rotation");
+        let largest = (r >> 30) as usize;
+        let mut q = [0.0f64; 4];
+        let mut shift = 30;
+        for (k, slot) in q.iter_mut().enumerate() {
+            if k != largest {
+                shift -= 10;
+                *slot = (unpack(r >> shift, 10) - 0.5) * std::f64::consts::SQRT_2;
+            }
+        }
+        q[largest] = (1.0 - q.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
+        for k in 0..4 {
+            set.quats[4 * i + k] = q[k] as f32;
+        }
+        if let Some(s) = sh {
+            let coefficients = rest / 3;
+            for k in 0..rest {
+                let b = read(s, i, &format!("f_rest_{k}")).ok_or("sh rows name f_rest_0..")?;
+                let v = match b as u8 {
+                    0 => -4.0,
+                    255 => 4.0,
+                    b => ((f64::from(b) + 0.5) / 256.0 - 0.5) * 8.0,
+                };
+                let (channel, coefficient) = (k / coefficients, k % coefficients);
+                set.sh_rest[rest * i + 3 * coefficient + channel] = v as f32;
+            }
+        }
+    }
+    Ok(set)
+}

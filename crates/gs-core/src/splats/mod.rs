@@ -1,0 +1,234 @@
+//! Splat files beyond INRIA's PLY, read and written for viewers and other pipelines:
+//! SuperSplat's compressed PLY ([`compressed_ply`]), Niantic's SPZ ([`spz`]), antimatter15's
+//! `.splat` ([`antimatter`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]).
+//!
+//! [`read_splats`] and [`write_splats`] pick the format from the file name
+//! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
+//! element. Every format but INRIA's PLY quantises: what each keeps is stated in its module and
+//! checked against `@playcanvas/splat-transform`'s files. Coordinates are written as they are
+//! held (3DGS's: x right, y down, z forward) in every format, as splat-transform writes them.
+
+pub mod antimatter;
+pub mod compressed_ply;
+pub mod gltf;
+pub mod spz;
+
+use std::path::{Path, PathBuf};
+
+use crate::ply::{read_ply, write_ply, PlyError, PlyFormat, PlyGaussians};
+use crate::GaussianSet;
+
+/// A splat file format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SplatFormat {
+    /// INRIA 3DGS PLY (`.ply`): every value exact.
+    Ply,
+    /// SuperSplat's compressed PLY (`.compressed.ply`).
+    CompressedPly,
+    /// antimatter15's `.splat`: 32 bytes a Gaussian, no view dependence.
+    Splat,
+    /// Niantic's SPZ (`.spz`), version 4 (the current one: zstd streams).
+    Spz,
+    /// Niantic's SPZ version 2 (gzip), which older readers take (`.spz` with `--format
+    /// spz-v2`).
+    SpzV2,
+    /// glTF binary with `KHR_gaussian_splatting` (`.glb`).
+    Glb,
+}
+
+impl SplatFormat {
+    /// Every format, in the order of [`SplatFormat::name`]s a command lists.
+    pub const ALL: [Self; 6] = [
+        Self::Ply,
+        Self::CompressedPly,
+        Self::Splat,
+        Self::Spz,
+        Self::SpzV2,
+        Self::Glb,
+    ];
+
+    /// The format's name on the command line.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Ply => "ply",
+            Self::CompressedPly => "compressed-ply",
+            Self::Splat => "splat",
+            Self::Spz => "spz",
+            Self::SpzV2 => "spz-v2",
+            Self::Glb => "glb",
+        }
+    }
+
+    /// The file name ending the format's files take.
+    pub fn extension(self) -> &'static str {
+        match self {
+            Self::Ply => ".ply",
+            Self::CompressedPly => ".compressed.ply",
+            Self::Splat => ".splat",
+            Self::Spz | Self::SpzV2 => ".spz",
+            Self::Glb => ".glb",
+        }
+    }
+
+    /// The format of a file named `path` by its ending (`.compressed.ply` before `.ply`; SPZ
+    /// files are written in version 4 and read in any), `None` for an unknown ending.
+    pub fn from_path(path: &Path) -> Option<Self> {
+        let name = path.file_name()?.to_str()?.to_ascii_lowercase();
+        [
+            Self::CompressedPly,
+            Self::Ply,
+            Self::Splat,
+            Self::Spz,
+            Self::Glb,
+        ]
+        .into_iter()
+        .find(|f| name.ends_with(f.extension()))
+    }
+
+    /// The format named `name` (see [`SplatFormat::name`]).
+    pub fn from_name(name: &str) -> Option<Self> {
+        Self::ALL.into_iter().find(|f| f.name() == name)
+    }
+}
+
+/// Why a splat file could not be read or written.
+#[derive(Debug, thiserror::Error)]
+pub enum SplatFileError {
+    /// An INRIA PLY file's error.
+    #[error(transparent)]
+    Ply(#[from] PlyError),
+    /// The file could not be read or written.
+    #[error("{}: {source}", path.display())]
+    Io {
+        /// The file.
+        path: PathBuf,
+        /// The underlying error.
+        source: std::io::Error,
+    },
+    /// Content that is not what the format allows.
+    #[error("{}: {message}", path.display())]
+    Format {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong and where.
+        message: String,
+    },
+    /// A file name whose ending names no format.
+    #[error(
+        "{}: no splat format ends this way; use .ply, .compressed.ply, .splat, .spz or .glb \
+         (or --format)",
+        path.display()
+    )]
+    UnknownFormat {
+        /// The file.
+        path: PathBuf,
+    },
+    /// A format this crate writes but does not read.
+    #[error("{}: {format} files are written here but not read", path.display())]
+    WriteOnly {
+        /// The file.
+        path: PathBuf,
+        /// The format's name.
+        format: &'static str,
+    },
+}
+
+/// Reads the splat file `path` in the format its name says (a `.ply` with a `chunk` element as
+/// compressed). Formats other than INRIA's PLY give Gaussians without extras or normals.
+pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
+    let format = SplatFormat::from_path(path).ok_or_else(|| SplatFileError::UnknownFormat {
+        path: path.to_path_buf(),
+    })?;
+    let read = || {
+        std::fs::read(path).map_err(|source| SplatFileError::Io {
+            path: path.to_path_buf(),
+            source,
+        })
+    };
+    let format_error = |message: String| SplatFileError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let gaussians = match format {
+        SplatFormat::Ply | SplatFormat::CompressedPly => {
+            let bytes = read()?;
+            if !compressed_ply::is_compressed(&bytes) {
+                return Ok(read_ply(path)?);
+            }
+            compressed_ply::decode(&bytes).map_err(format_error)?
+        }
+        SplatFormat::Splat => antimatter::decode(&read()?).map_err(format_error)?,
+        SplatFormat::Spz | SplatFormat::SpzV2 => spz::decode(&read()?).map_err(format_error)?,
+        SplatFormat::Glb => {
+            return Err(SplatFileError::WriteOnly {
+                path: path.to_path_buf(),
+                format: "glb",
+            })
+        }
+    };
+    Ok(without_extras(gaussians))
+}
+
+/// Gaussians read from a format that has no extra property and no normals.
+fn without_extras(gaussians: GaussianSet) -> PlyGaussians {
+    let mut ply = PlyGaussians::new(gaussians);
+    ply.normals = false;
+    ply
+}
+
+/// Writes `ply` to `path` in `format` (through a temporary name, renamed when complete).
+/// Formats other than INRIA's PLY keep only the Gaussians.
+pub fn write_splats(
+    path: &Path,
+    ply: &PlyGaussians,
+    format: SplatFormat,
+) -> Result<(), SplatFileError> {
+    let bytes = match format {
+        SplatFormat::Ply => return Ok(write_ply(path, ply, PlyFormat::BinaryLittleEndian)?),
+        SplatFormat::CompressedPly => compressed_ply::encode(&ply.gaussians),
+        SplatFormat::Splat => antimatter::encode(&ply.gaussians),
+        SplatFormat::Spz => spz::encode(&ply.gaussians, spz::Version::V4),
+        SplatFormat::SpzV2 => spz::encode(&ply.gaussians, spz::Version::V2),
+        SplatFormat::Glb => gltf::encode(&ply.gaussians),
+    }
+    .map_err(|message| SplatFileError::Format {
+        path: path.to_path_buf(),
+        message,
+    })?;
+    crate::fs::write_atomic(path, &bytes).map_err(|source| SplatFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    })
+}
+
+/// `1 / (1 + e^-x)`.
+pub(crate) fn sigmoid(x: f64) -> f64 {
+    1.0 / (1.0 + (-x).exp())
+}
+
+/// The opacity logit of an 8-bit alpha level: `logit(level / 255)`, the fraction kept within
+/// `[1e-6, 1 - 1e-6]` as splat-transform's `.splat` and SPZ readers keep it, so levels 0 and
+/// 255 give finite logits (about -13.8 and 13.8).
+pub(crate) fn opacity_of_level(level: u32) -> f64 {
+    let p = (f64::from(level) / 255.0).clamp(1e-6, 1.0 - 1e-6);
+    (p / (1.0 - p)).ln()
+}
+
+/// A non-finite value among the Gaussians, named by array and index: what an encoder refuses
+/// (a quantised format would write nonsense for it).
+pub(crate) fn check_finite(set: &GaussianSet) -> Result<(), String> {
+    let arrays: [(&str, &[f32]); 6] = [
+        ("means", &set.means),
+        ("log_scales", &set.log_scales),
+        ("quats", &set.quats),
+        ("opacity_logits", &set.opacity_logits),
+        ("sh_dc", &set.sh_dc),
+        ("sh_rest", &set.sh_rest),
+    ];
+    for (name, values) in arrays {
+        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+            return Err(format!("{name}[{i}] is {}", values[i]));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,323 @@
+//! Splat formats against `@playcanvas/splat-transform` 3.7.0 (fixtures in `fixtures/splats`,
+//! written by `scripts/make_splat_fixtures.sh`): our readers read its files as it reads them
+//! (its `*.decoded.ply`), our writers write what it writes, and a round trip keeps every value
+//! within the format's quantisation.
+
+use std::path::{Path, PathBuf};
+
+use gs_core::ply::{read_ply, PlyGaussians};
+use gs_core::splats::{read_splats, write_splats, SplatFileError, SplatFormat};
+use gs_core::GaussianSet;
+
+fn fixture(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/fixtures/splats")
+        .join(name)
+}
+
+fn worst(a: &[f32], b: &[f32]) -> f32 {
+    assert_eq!(a.len(), b.len());
+    a.iter()
+        .zip(b)
+        .filter(|(x, y)| x.is_finite() && y.is_finite())
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+/// The largest difference of the rotations of `a` and `b`, each quaternion normalised and
+/// compared up to sign.
+fn worst_rotation(a: &GaussianSet, b: &GaussianSet) -> f32 {
+    let unit = |q: &[f32]| {
+        let n = q.iter().map(|v| v * v).sum::<f32>().sqrt();
+        [q[0] / n, q[1] / n, q[2] / n, q[3] / n]
+    };
+    a.quats
+        .chunks_exact(4)
+        .zip(b.quats.chunks_exact(4))
+        .map(|(p, q)| {
+            let (p, q) = (unit(p), unit(q));
+            let same = (0..4).map(|k| (p[k] - q[k]).abs()).fold(0.0, f32::max);
+            let flipped = (0..4).map(|k| (p[k] + q[k]).abs()).fold(0.0, f32::max);
+            same.min(flipped)
+        })
+        .fold(0.0, f32::max)
+}
+
+/// Every array of `got` within `tolerance` of `want`'s (rotations up to sign).
+fn assert_close(what: &str, got: &GaussianSet, want: &GaussianSet, tolerance: [f32; 6]) {
+    assert_eq!(got.len(), want.len(), "{what}: count");
+    assert_eq!(got.sh_degree(), want.sh_degree(), "{what}: degree");
+    let checks = [
+        ("means", worst(&got.means, &want.means)),
+        ("log_scales", worst(&got.log_scales, &want.log_scales)),
+        ("rotations", worst_rotation(got, want)),
+        (
+            "opacities",
+            worst(&got.opacity_logits, &want.opacity_logits),
+        ),
+        ("sh_dc", worst(&got.sh_dc, &want.sh_dc)),
+        ("sh_rest", worst(&got.sh_rest, &want.sh_rest)),
+    ];
+    for ((name, error), tol) in checks.into_iter().zip(tolerance) {
+        assert!(error <= tol, "{what}: {name} differ by {error} (> {tol})");
+    }
+}
+
+/// The files of every format splat-transform reads and we read, with its reading beside.
+const READ_BY_BOTH: [&str; 6] = [
+    "source.compressed.ply",
+    "source.splat",
+    "unit.splat",
+    "source.v2.spz",
+    "source.v3.spz",
+    "source.v4.spz",
+];
+
+#[test]
+fn every_file_reads_as_splat_transform_reads_it() {
+    for name in READ_BY_BOTH {
+        let ours = read_splats(&fixture(name)).unwrap();
+        let theirs = read_ply(&fixture(&format!("{name}.decoded.ply"))).unwrap();
+        assert!(!ours.normals && ours.extras.is_empty(), "{name}");
+        // The same formulas in f64 on both sides, stored in f32.
+        assert_close(
+            name,
+            &ours.gaussians,
+            &theirs.gaussians,
+            [1e-6, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6],
+        );
+    }
+}
+
+/// `source.ply` written by us in `format`, then read back by us.
+fn round_trip(format: SplatFormat, source: &str) -> (Vec<u8>, GaussianSet) {
+    let dir = tempfile::tempdir().unwrap();
+    let ply = read_ply(&fixture(source)).unwrap();
+    let path = dir.path().join(format!("out{}", format.extension()));
+    write_splats(&path, &ply, format).unwrap();
+    let bytes = std::fs::read(&path).unwrap();
+    let back = read_splats(&path).unwrap().gaussians;
+    (bytes, back)
+}
+
+/// The bytes after a PLY header.
+fn body(bytes: &[u8]) -> &[u8] {
+    let end = bytes
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap();
+    &bytes[end + 11..]
+}
+
+#[test]
+fn compressed_ply_is_written_as_splat_transform_writes_it() {
+    let (ours, back) = round_trip(SplatFormat::CompressedPly, "source.ply");
+    let theirs = std::fs::read(fixture("source.compressed.ply")).unwrap();
+    assert_eq!(
+        body(&ours),
+        body(&theirs),
+        "the same Morton order and packing"
+    );
+    // Read back, it is splat-transform's reading of its own file, in the same (Morton) order.
+    let decoded = read_ply(&fixture("source.compressed.ply.decoded.ply")).unwrap();
+    assert_close(
+        "compressed",
+        &back,
+        &decoded.gaussians,
+        [1e-6, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6],
+    );
+}
+
+#[test]
+fn splat_is_written_as_splat_transform_writes_it() {
+    let (ours, back) = round_trip(SplatFormat::Splat, "unit.ply");
+    assert_eq!(ours, std::fs::read(fixture("unit.splat")).unwrap());
+    assert_eq!(back.sh_degree(), 0, "no view dependence");
+}
+
+/// Decompressed SPZ attribute bytes: byte positions where ours and theirs differ, and by how
+/// much at most (Niantic's encoder rounds in `f32`, ours in `f64`: a tie may fall either way).
+fn spz_differences(ours: &GaussianSet, theirs: &GaussianSet) -> f32 {
+    let mut error = 0.0f32;
+    for (a, b) in [
+        (&ours.means, &theirs.means),
+        (&ours.log_scales, &theirs.log_scales),
+        (&ours.sh_dc, &theirs.sh_dc),
+        (&ours.sh_rest, &theirs.sh_rest),
+    ] {
+        error = error.max(worst(a, b));
+    }
+    error
+}
+
+#[test]
+fn spz_is_written_as_niantics_encoder_writes_it() {
+    for (format, name) in [
+        (SplatFormat::SpzV2, "source.v2.spz"),
+        (SplatFormat::Spz, "source.v4.spz"),
+    ] {
+        let (_, back) = round_trip(format, "source.ply");
+        let theirs = read_splats(&fixture(name)).unwrap().gaussians;
+        // At most one quantisation level apart anywhere, at ties (f32 rounding in Niantic's).
+        let step = spz_differences(&back, &theirs);
+        assert!(step <= 1.0 / 128.0 + 1e-6, "{name}: {step}");
+        let rotation = worst_rotation(&back, &theirs);
+        assert!(rotation < 3e-3, "{name}: rotations {rotation}");
+        assert!(
+            worst(&back.opacity_logits, &theirs.opacity_logits) < 0.05,
+            "{name}"
+        );
+    }
+}
+
+/// What each format keeps of the values, stated: the round trip of `source.ply` stays within
+/// it.
+#[test]
+fn round_trips_stay_within_each_formats_quantisation() {
+    let source = read_ply(&fixture("source.ply")).unwrap().gaussians;
+    let unit = read_ply(&fixture("unit.ply")).unwrap().gaussians;
+    // PLY: exact.
+    let (_, back) = round_trip(SplatFormat::Ply, "source.ply");
+    assert_eq!(back, source);
+    // SPZ: positions 1/4096; log-scales 1/32 (1/16 steps); rotations ~3e-3 (v3/v4), 0.05 (v2,
+    // whose w is derived from 8-bit x, y, z and is poorly conditioned where small); opacities within half an 8-bit level of the sigmoid; colour half of 1/(0.15 255);
+    // SH half a bucket of 16/128 after rounding to 1/128: 8.5/128.
+    for (format, rotation) in [(SplatFormat::Spz, 3e-3), (SplatFormat::SpzV2, 0.05)] {
+        let (_, back) = round_trip(format, "source.ply");
+        assert_close(
+            format.name(),
+            &back,
+            &source,
+            [
+                0.5 / 4096.0 + 1e-6,
+                1.0 / 32.0 + 1e-6,
+                rotation,
+                f32::INFINITY,
+                0.5 / (0.15 * 255.0) + 1e-5,
+                8.5 / 128.0 + 1e-6,
+            ],
+        );
+        let sigmoid = |x: f32| 1.0 / (1.0 + (-x).exp());
+        let alpha = back
+            .opacity_logits
+            .iter()
+            .zip(&source.opacity_logits)
+            .map(|(a, b)| (sigmoid(*a) - sigmoid(*b)).abs())
+            .fold(0.0, f32::max);
+        assert!(
+            alpha <= 0.5 / 255.0 + 1e-6,
+            "{}: alpha {alpha}",
+            format.name()
+        );
+    }
+    // .splat: degree 0; colour and alpha truncated to 1/255 of the sigmoid and of 0.5 + C0 f_dc.
+    let (_, back) = round_trip(SplatFormat::Splat, "unit.ply");
+    assert_eq!(back.means, unit.means);
+    let dc = worst(&back.sh_dc, &unit.sh_dc);
+    assert!(dc <= 1.0 / (255.0 * 0.282_094_8) + 1e-5, "{dc}");
+    assert!(worst(&back.log_scales, &unit.log_scales) < 1e-6);
+}
+
+/// The glTF accessors of `.glb` bytes: name to (component type, bytes).
+fn glb_attributes(bytes: &[u8]) -> Vec<(String, u64, Vec<u8>)> {
+    assert_eq!(&bytes[..4], b"glTF");
+    let json_len = u32::from_le_bytes(bytes[12..16].try_into().unwrap()) as usize;
+    let json: serde_json::Value = serde_json::from_slice(&bytes[20..20 + json_len]).unwrap();
+    let bin = &bytes[20 + json_len + 8..];
+    let attributes = json["meshes"][0]["primitives"][0]["attributes"]
+        .as_object()
+        .unwrap();
+    assert!(json["extensionsUsed"][0] == "KHR_gaussian_splatting");
+    let mut out: Vec<(String, u64, Vec<u8>)> = attributes
+        .iter()
+        .map(|(name, index)| {
+            let accessor = &json["accessors"][index.as_u64().unwrap() as usize];
+            let view = &json["bufferViews"][accessor["bufferView"].as_u64().unwrap() as usize];
+            let start = view["byteOffset"].as_u64().unwrap() as usize;
+            let len = view["byteLength"].as_u64().unwrap() as usize;
+            (
+                name.clone(),
+                accessor["componentType"].as_u64().unwrap(),
+                bin[start..start + len].to_vec(),
+            )
+        })
+        .collect();
+    out.sort_by(|a, b| a.0.cmp(&b.0));
+    out
+}
+
+#[test]
+fn glb_holds_what_splat_transform_writes() {
+    let (ours, _) = {
+        let dir = tempfile::tempdir().unwrap();
+        let ply = read_ply(&fixture("source.ply")).unwrap();
+        let path = dir.path().join("out.glb");
+        write_splats(&path, &ply, SplatFormat::Glb).unwrap();
+        (std::fs::read(&path).unwrap(), ())
+    };
+    let theirs = std::fs::read(fixture("source.glb")).unwrap();
+    let (ours, theirs) = (glb_attributes(&ours), glb_attributes(&theirs));
+    let names: Vec<&str> = ours.iter().map(|a| a.0.as_str()).collect();
+    let their_names: Vec<&str> = theirs.iter().map(|a| a.0.as_str()).collect();
+    assert_eq!(names, their_names);
+    assert_eq!(names.len(), 6 + 15);
+    for ((name, component, a), (_, _, b)) in ours.iter().zip(&theirs) {
+        assert_eq!(a.len(), b.len(), "{name}");
+        if *component == 5121 {
+            assert_eq!(a, b, "{name}: the colour levels");
+            continue;
+        }
+        let values = |bytes: &[u8]| -> Vec<f32> {
+            bytes
+                .chunks_exact(4)
+                .map(|c| f32::from_le_bytes(c.try_into().unwrap()))
+                .collect()
+        };
+        // The half turn of the quaternion is exact here; splat-transform's carries cos(pi/2).
+        let error = worst(&values(a), &values(b));
+        assert!(error < 1e-6, "{name}: {error}");
+    }
+}
+
+#[test]
+fn broken_and_unknown_files_are_refused_naming_the_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let cut = dir.path().join("cut.splat");
+    std::fs::write(&cut, &std::fs::read(fixture("unit.splat")).unwrap()[..100]).unwrap();
+    let e = read_splats(&cut).unwrap_err().to_string();
+    assert!(e.contains("cut.splat") && e.contains("100 bytes"), "{e}");
+    let bad = dir.path().join("bad.spz");
+    std::fs::write(&bad, b"not a splat file at all").unwrap();
+    let e = read_splats(&bad).unwrap_err().to_string();
+    assert!(e.contains("bad.spz") && e.contains("NGSP"), "{e}");
+    let mut short = std::fs::read(fixture("source.v4.spz")).unwrap();
+    short.truncate(short.len() - 10);
+    let path = dir.path().join("short.spz");
+    std::fs::write(&path, short).unwrap();
+    assert!(read_splats(&path).is_err());
+    let unknown = dir.path().join("model.xyz");
+    std::fs::write(&unknown, b"").unwrap();
+    assert!(matches!(
+        read_splats(&unknown),
+        Err(SplatFileError::UnknownFormat { .. })
+    ));
+    let glb = dir.path().join("model.glb");
+    assert!(matches!(
+        read_splats(&glb),
+        Err(SplatFileError::WriteOnly { .. })
+    ));
+    // A NaN is refused by every quantising writer, naming the array and index.
+    let mut ply = PlyGaussians::new(read_ply(&fixture("source.ply")).unwrap().gaussians);
+    ply.gaussians.sh_dc[7] = f32::NAN;
+    for format in [
+        SplatFormat::CompressedPly,
+        SplatFormat::Splat,
+        SplatFormat::Spz,
+        SplatFormat::Glb,
+    ] {
+        let path = dir.path().join(format!("nan{}", format.extension()));
+        let e = write_splats(&path, &ply, format).unwrap_err().to_string();
+        assert!(e.contains("sh_dc[7] is NaN"), "{}: {e}", format.name());
+        assert!(!path.exists(), "nothing written");
+    }
+}
