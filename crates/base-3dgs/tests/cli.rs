@@ -700,3 +700,104 @@ fn the_shared_flags_have_the_same_names_in_every_subcommand() {
         false,
     );
 }
+
+/// `export` writes a scene in every splat format; each reads back with the Gaussians (within
+/// its quantisation), and `render` takes the SPZ as its model, rendering what the PLY renders
+/// within SPZ's quantisation.
+#[test]
+fn export_writes_every_format_and_render_reads_them() {
+    let dir = TempDir::new("cli-export");
+    let (ply, data) = write_scene(dir.path());
+    let scene = read_ply(&ply).unwrap();
+    for name in [
+        "scene.ply",
+        "scene.compressed.ply",
+        "scene.splat",
+        "scene.spz",
+        "scene.glb",
+    ] {
+        let out = dir.path().join(name);
+        let line = succeeds(&["export", "--model", s(&ply), "--out", s(&out)]);
+        assert!(
+            line.contains(&format!("{} Gaussians", scene.gaussians.len())),
+            "{line}"
+        );
+        if name.ends_with(".glb") {
+            assert_eq!(&std::fs::read(&out).unwrap()[..4], b"glTF");
+            continue;
+        }
+        let back = gs_core::splats::read_splats(&out).unwrap();
+        assert_eq!(back.gaussians.len(), scene.gaussians.len(), "{name}");
+    }
+    // The INRIA PLY export keeps every property: the same file.
+    assert_eq!(
+        read_ply(&dir.path().join("scene.ply")).unwrap(),
+        scene,
+        "an exact copy"
+    );
+    let v2 = dir.path().join("old.spz");
+    succeeds(&[
+        "export",
+        "--model",
+        s(&ply),
+        "--format",
+        "spz-v2",
+        "--out",
+        s(&v2),
+    ]);
+    assert_eq!(
+        gs_core::splats::read_splats(&v2).unwrap().gaussians.len(),
+        scene.gaussians.len()
+    );
+    let renders = dir.path().join("renders");
+    let from_spz = dir.path().join("from-spz");
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&ply),
+        "--data",
+        s(&data),
+        "--out",
+        s(&renders),
+    ]);
+    succeeds(&[
+        "render",
+        "--ply",
+        s(&dir.path().join("scene.spz")),
+        "--data",
+        s(&data),
+        "--out",
+        s(&from_spz),
+    ]);
+    let first = |dir: &Path| {
+        let mut names: Vec<_> = std::fs::read_dir(dir.join("frames"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .collect();
+        names.sort();
+        image::open(&names[0]).unwrap().to_rgb8()
+    };
+    let (a, b) = (first(&renders), first(&from_spz));
+    let worst = a
+        .as_raw()
+        .iter()
+        .zip(b.as_raw())
+        .map(|(x, y)| x.abs_diff(*y))
+        .max()
+        .unwrap();
+    assert!(
+        worst <= 6,
+        "SPZ renders what the PLY renders: {worst} levels"
+    );
+    fails(
+        &[
+            "export",
+            "--model",
+            s(&ply),
+            "--out",
+            s(&dir.path().join("scene.obj")),
+        ],
+        &["scene.obj", "--format"],
+        &dir.path().join("scene.obj"),
+    );
+}

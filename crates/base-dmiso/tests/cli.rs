@@ -98,6 +98,39 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         (base.cores(), base.subs_per_core(), base.net().width),
         (50, 3, 16)
     );
+    // Export: the Gaussians at one time to a file, at three times to a folder.
+    let glb = dir.path().join("t.glb");
+    run(bin()
+        .args(["export", "--model", s(&fitted.join("model.safetensors"))])
+        .args(["--time", "0.5", "--out", s(&glb)]));
+    assert_eq!(&std::fs::read(&glb).unwrap()[..4], b"glTF");
+    let times = dir.path().join("times");
+    run(bin()
+        .args(["export", "--model", s(&fitted.join("model.safetensors"))])
+        .args([
+            "--times",
+            "3",
+            "--format",
+            "compressed-ply",
+            "--out",
+            s(&times),
+        ]));
+    let sets: Vec<_> = (0..3)
+        .map(|i| {
+            gs_core::splats::read_splats(&times.join(format!("{i:05}.compressed.ply")))
+                .unwrap()
+                .gaussians
+        })
+        .collect();
+    let gaussians = gs_stylize::export::gaussians_at(&base, &[0.0]).unwrap()[0].len();
+    assert!(sets.iter().all(|g| g.len() == gaussians));
+    assert_ne!(sets[0].means, sets[2].means, "the Gaussians move with time");
+    let e = fails(
+        bin()
+            .args(["export", "--model", s(&fitted.join("model.safetensors"))])
+            .args(["--time", "1.5", "--out", s(&dir.path().join("x.ply"))]),
+    );
+    assert!(e.contains("--time 1.5") && e.contains("[0, 1]"), "{e}");
     let recorded = |p: &Path| model_file::recorded_background(p).unwrap();
     assert_eq!(
         recorded(&fitted.join("model.safetensors")),

@@ -79,6 +79,40 @@ fn fit_then_stylize_from_file_to_file() {
     let base = read_ply(&fit_dir.join("model.ply")).unwrap();
     assert_eq!((base.gaussians.len(), base.gaussians.sh_degree()), (400, 1));
     assert_eq!(png_size(&fit_dir.join("fitted.png")), (W, H));
+    // Export: the flat Gaussians as they render, in the format the name says; a name of no
+    // format is refused naming --format.
+    let spz = dir.path().join("picture.spz");
+    run(bin().args([
+        "export",
+        "--model",
+        s(&fit_dir.join("model.ply")),
+        "--out",
+        s(&spz),
+    ]));
+    let exported = gs_core::splats::read_splats(&spz).unwrap().gaussians;
+    assert_eq!((exported.len(), exported.sh_degree()), (400, 1));
+    let model = base_mirage::model_file::read_model(&fit_dir.join("model.ply")).unwrap();
+    let rendered = gs_stylize::export::gaussians_at(&model.model, &[0.0])
+        .unwrap()
+        .remove(0);
+    let worst = exported
+        .means
+        .iter()
+        .zip(&rendered.means)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(
+        worst <= 0.5 / 4096.0 + 1e-6,
+        "the Gaussians as they render: {worst}"
+    );
+    let e = fails(bin().args([
+        "export",
+        "--model",
+        s(&fit_dir.join("model.ply")),
+        "--out",
+        s(&dir.path().join("picture.xyz")),
+    ]));
+    assert!(e.contains("picture.xyz") && e.contains("--format"), "{e}");
 
     let jpeg = dir.path().join("picture.jpg");
     image::DynamicImage::ImageRgba8(image::open(&picture).unwrap().to_rgba8())

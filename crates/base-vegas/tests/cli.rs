@@ -128,6 +128,38 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         "the Gaussian count is kept"
     );
     assert_eq!(stylized.frames(), FRAMES);
+    // Export: one frame to a file of the format its name says, every frame to a folder.
+    let one = dir.path().join("frame2.splat");
+    run(bin()
+        .args(["export", "--model", s(&styled.join("model.ply"))])
+        .args(["--frame", "2", "--out", s(&one)]));
+    let frame2 = gs_core::splats::read_splats(&one).unwrap().gaussians;
+    let at = |f: usize| {
+        gs_stylize::export::gaussians_at(&stylized, &[base_vegas::folded::view_time(f, FRAMES)])
+            .unwrap()
+            .remove(0)
+    };
+    assert_eq!(frame2.len(), at(2).len());
+    assert_eq!(frame2.means, at(2).means, ".splat keeps positions exactly");
+    assert_ne!(frame2.means, at(0).means, "the frame's own Gaussians");
+    let every = dir.path().join("every");
+    run(bin()
+        .args(["export", "--model", s(&styled.join("model.ply"))])
+        .args(["--all-frames", "--format", "spz", "--out", s(&every)]));
+    for f in 0..FRAMES {
+        let path = every.join(format!("{f:05}.spz"));
+        let set = gs_core::splats::read_splats(&path).unwrap().gaussians;
+        assert_eq!(set.len(), at(f).len(), "{}", path.display());
+    }
+    let e = fails(
+        bin()
+            .args(["export", "--model", s(&styled.join("model.ply"))])
+            .args(["--frame", "6", "--out", s(&dir.path().join("x.ply"))]),
+    );
+    assert!(
+        e.contains("--frame 6") && e.contains("frames 0 to 5"),
+        "{e}"
+    );
     assert_eq!(record.map(|r| (r.width, r.height)), Some((W, H)));
     // Colours only: everything but the SH DC is the fit's.
     assert_eq!(stylized.params().xyz, base.params().xyz);

@@ -76,6 +76,10 @@ pub enum StylizeError {
     /// A model file (INRIA PLY) that cannot be read or written; the error names the file.
     #[error("{0}")]
     Ply(#[from] gs_core::ply::PlyError),
+    /// A splat file of another format (compressed PLY, SPZ, .splat) that cannot be read or
+    /// written; the error names the file.
+    #[error("{0}")]
+    Splats(#[from] gs_core::splats::SplatFileError),
     /// A dataset that cannot be loaded.
     #[error("dataset {}: {source}", path.display())]
     Dataset {

@@ -16,6 +16,8 @@
 //! - [`summary`]: the summary a finished run prints and writes as `summary.json`.
 //! - [`selftest`]: the `selftest` subcommand: each part on the chosen device against the cpu.
 //! - [`evaluation`]: the paper's CLIP metrics of renders against ground truths (`eval`).
+//! - [`export`]: the `export` subcommand: a model's Gaussians in the splat formats viewers
+//!   open.
 //! - [`checkpoint`]: saved parameter groups, optimizer and patch stream, to resume exactly.
 //! - [`outputs`]: the files a run writes, each through a temporary name and a rename.
 //! - [`memory_estimate`]: the memory a run will need, printed first; a run that cannot fit is
@@ -37,6 +39,7 @@ pub mod config;
 pub mod drive;
 pub mod error;
 pub mod evaluation;
+pub mod export;
 pub mod interrupt;
 pub mod memory_estimate;
 pub mod model_kind;

@@ -17,12 +17,13 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
-use gs_core::ply::read_ply;
+use gs_core::splats::read_splats;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
+use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
 use gs_stylize::summary::write_summary;
@@ -69,6 +70,13 @@ enum Command {
     /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
     /// normalized). The output has A's extra properties and PLY format.
     Interpolate(InterpolateArgs),
+    /// Write a scene in a splat format viewers open.
+    ///
+    /// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ,
+    /// .splat) and writes --out in the format its name ends in (or --format): INRIA PLY (every
+    /// property kept), compressed PLY, SPZ, .splat (degree-0 colour only) or glTF (.glb, turned
+    /// y-up).
+    Export(ExportArgs),
     /// The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of renders.
     ///
     /// Scores (x100) a folder of renders against a folder of ground truths and writes them as
@@ -239,7 +247,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     check_model(Binary::Scene, "--model", &args.ply)?;
     check_output_folder(&args.out)?;
-    let ply = read_ply(&args.ply)?;
+    let ply = read_splats(&args.ply)?;
     let cameras = match (&args.data, &args.camera) {
         (Some(data), _) => {
             let split = args.split.map(|s| match s {
@@ -282,6 +290,14 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// Runs `export`.
+fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
+    args.check(Binary::Scene, false)?;
+    let scene = read_splats(&args.model)?;
+    println!("{}", args.write_file(&scene)?);
+    Ok(())
+}
+
 fn main() -> ExitCode {
     // A step frees and re-allocates gigabytes of tensors: keep them in the process.
     style_loss::memory::keep_freed_memory();
@@ -290,6 +306,7 @@ fn main() -> ExitCode {
         Command::Stylize(args) => stylize(args),
         Command::Render(args) => render(args),
         Command::Interpolate(args) => args.run(Binary::Scene).map(|line| println!("{line}")),
+        Command::Export(args) => export(args),
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };

@@ -6,7 +6,8 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::model::BaseModel;
-use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
+use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
+use gs_core::splats::read_splats_with_format;
 use gs_core::GaussianSet;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
@@ -105,7 +106,7 @@ impl Modality for StylizeConfig {
         run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<SceneInput, StylizeError> {
-        let (ply, format) = read_ply_with_format(self.model_path())?;
+        let (ply, format) = read_splats_with_format(self.model_path())?;
         let dataset = load_dataset(self, run.options().progress)?;
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {

@@ -31,6 +31,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_names, check_prompts, check_sizes, resolve_clip, score};
+use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -84,6 +85,13 @@ enum Command {
     /// every Gaussian parameter and every network weight, e.g. between two stylizations of one
     /// fit.
     Interpolate(InterpolateArgs),
+    /// Write the Gaussians at a time (or at many) in a splat format viewers open.
+    ///
+    /// The Gaussians the model renders at --time (in [0, 1]), written to --out in the format
+    /// its name ends in (or --format); with --times N, the Gaussians at N evenly spaced times
+    /// from 0 to 1, one file each, into the folder --out (00000.ply, ...; --format picks the
+    /// format, default ply).
+    Export(DynamicExportArgs),
     /// Score rendered test views against the dataset's test pictures: CLIP-S, CLIP-SIM,
     /// CLIP-CONS and CLIP-F over the views in time order (CLIP ViT-L/14, x100).
     Eval(EvalArgs),
@@ -229,6 +237,20 @@ struct RenderArgs {
     /// The output folder (frames/ and, with --sweep, sweep/ and sweep.mp4 in it).
     #[arg(long)]
     out: PathBuf,
+}
+
+/// Arguments of `export`.
+#[derive(Args, Debug)]
+struct DynamicExportArgs {
+    #[command(flatten)]
+    export: ExportArgs,
+    /// The time to export, in [0, 1].
+    #[arg(long, default_value_t = 0.0, conflicts_with = "times")]
+    time: f64,
+    /// Export the Gaussians at this many evenly spaced times from 0 to 1 (at least 2), one file
+    /// each, into the folder --out.
+    #[arg(long)]
+    times: Option<usize>,
 }
 
 /// Arguments of `eval`.
@@ -468,6 +490,22 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// Runs `export`.
+fn export(args: &DynamicExportArgs) -> Result<(), Box<dyn Error>> {
+    let export = &args.export;
+    export.check(Binary::DynamicScene, args.times.is_some())?;
+    let times: Vec<f64> = match args.times {
+        Some(n) if n >= 2 => (0..n).map(|i| i as f64 / (n - 1) as f64).collect(),
+        Some(n) => return Err(format!("--times {n}: give at least 2 (or --time for one)").into()),
+        None if (0.0..=1.0).contains(&args.time) => vec![args.time],
+        None => return Err(format!("--time {}: times lie in [0, 1]", args.time).into()),
+    };
+    let model = read_model(&export.model, None, &Device::Cpu)?;
+    let sets = gaussians_at(&model, &times)?;
+    println!("{}", export.write_sets(sets, args.times.is_some())?);
+    Ok(())
+}
+
 /// The pictures `00000.png ...` of `dir`, which must hold `count` pictures (those of the test
 /// split `reference`).
 fn read_renders(dir: &Path, count: usize, reference: &str) -> Result<Vec<Image>, Box<dyn Error>> {
@@ -547,6 +585,7 @@ fn main() -> ExitCode {
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
         Command::Interpolate(args) => interpolate_models(args),
+        Command::Export(args) => export(args),
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(vec![Box::new(base_dmiso::deform_net::self_check)]),
     };

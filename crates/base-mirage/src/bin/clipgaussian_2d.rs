@@ -30,6 +30,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_prompts, check_sizes, resolve_clip, score, write_metrics};
+use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::check_output_file;
@@ -81,6 +82,12 @@ enum Command {
     /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
     /// normalized), e.g. between two stylizations of one fit.
     Interpolate(InterpolateArgs),
+    /// Write a model's Gaussians in a splat format viewers open.
+    ///
+    /// The flat Gaussians as they render (in the plane z = 0 of the front camera), written in
+    /// the format --out's name ends in (or --format): INRIA PLY, SuperSplat compressed PLY, SPZ,
+    /// .splat or glTF (.glb).
+    Export(ExportArgs),
     /// The paper's CLIP metrics (CLIP-S, CLIP-SIM) of a stylized picture against the original.
     ///
     /// Scores (x100) the picture `--renders` against `--gt` for the style and writes them as
@@ -412,6 +419,17 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// Runs `export`.
+fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
+    args.check(Binary::Picture, false)?;
+    let file = read_model(&args.model)?;
+    println!(
+        "{}",
+        args.write_sets(gaussians_at(&file.model, &[0.0])?, false)?
+    );
+    Ok(())
+}
+
 fn main() -> ExitCode {
     // A step frees and re-allocates gigabytes of tensors: keep them in the process.
     style_loss::memory::keep_freed_memory();
@@ -422,6 +440,7 @@ fn main() -> ExitCode {
         Command::Render(args) => render(args),
         Command::Eval(args) => eval(args),
         Command::Interpolate(args) => args.run(Binary::Picture).map(|line| println!("{line}")),
+        Command::Export(args) => export(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };
     exit_code(result)

@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings};
-use base_vegas::folded::interpolate;
+use base_vegas::folded::{interpolate, view_time};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::temporal::temporal_consistency;
@@ -29,6 +29,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_count, check_prompts, check_sizes, resolve_clip, score};
+use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -79,6 +80,12 @@ enum Command {
     ///
     /// Writes `(1 - t) A + t B` of every stored value, e.g. between two stylizations of one fit.
     Interpolate(InterpolateArgs),
+    /// Write the Gaussians of a frame (or of every frame) in a splat format viewers open.
+    ///
+    /// The Gaussians of --frame as they render, written to --out in the format its name ends
+    /// in (or --format); with --all-frames, one file per frame into the folder --out
+    /// (00000.ply, ...; --format picks the format, default ply).
+    Export(VideoExportArgs),
     /// Score stylized frames against the original video: CLIP-S, CLIP-SIM, CLIP-CONS and
     /// CLIP-F over consecutive frames (CLIP ViT-L/14, x100), and temporal consistency: the RMSE
     /// between frames 1 and 7 apart (short and long range, values in [0, 1]) of the stylized
@@ -197,6 +204,19 @@ struct RenderArgs {
     /// The output folder (frames/ and stylized.mp4 in it).
     #[arg(long)]
     out: PathBuf,
+}
+
+/// Arguments of `export`.
+#[derive(Args, Debug)]
+struct VideoExportArgs {
+    #[command(flatten)]
+    export: ExportArgs,
+    /// The frame to export, from 0.
+    #[arg(long, default_value_t = 0, conflicts_with = "all_frames")]
+    frame: usize,
+    /// Export every frame, one file each, into the folder --out.
+    #[arg(long)]
+    all_frames: bool,
 }
 
 /// Arguments of `eval`.
@@ -412,6 +432,31 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// Runs `export`.
+fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
+    let export = &args.export;
+    export.check(Binary::Video, args.all_frames)?;
+    let (model, _) = read_model(&export.model)?;
+    let frames = model.frames();
+    let chosen: Vec<usize> = if args.all_frames {
+        (0..frames).collect()
+    } else if args.frame < frames {
+        vec![args.frame]
+    } else {
+        return Err(format!(
+            "--frame {}: {} has frames 0 to {}",
+            args.frame,
+            export.model.display(),
+            frames - 1
+        )
+        .into());
+    };
+    let times: Vec<f64> = chosen.iter().map(|&f| view_time(f, frames)).collect();
+    let sets = gaussians_at(&model, &times)?;
+    println!("{}", export.write_sets(sets, args.all_frames)?);
+    Ok(())
+}
+
 /// The scores `eval` prints and writes.
 #[derive(Serialize)]
 struct VideoMetrics {
@@ -487,6 +532,7 @@ fn main() -> ExitCode {
         Command::Fit(args) => fit(args),
         Command::Render(args) => render(args),
         Command::Interpolate(args) => interpolate_models(args),
+        Command::Export(args) => export(args),
         Command::Eval(args) => eval(args),
         Command::Selftest(args) => args.run(Vec::new()),
     };

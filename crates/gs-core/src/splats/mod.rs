@@ -15,7 +15,7 @@ pub mod spz;
 
 use std::path::{Path, PathBuf};
 
-use crate::ply::{read_ply, write_ply, PlyError, PlyFormat, PlyGaussians};
+use crate::ply::{read_ply_with_format, write_ply, PlyError, PlyFormat, PlyGaussians};
 use crate::GaussianSet;
 
 /// A splat file format.
@@ -113,16 +113,6 @@ pub enum SplatFileError {
         /// What is wrong and where.
         message: String,
     },
-    /// A file name whose ending names no format.
-    #[error(
-        "{}: no splat format ends this way; use .ply, .compressed.ply, .splat, .spz or .glb \
-         (or --format)",
-        path.display()
-    )]
-    UnknownFormat {
-        /// The file.
-        path: PathBuf,
-    },
     /// A format this crate writes but does not read.
     #[error("{}: {format} files are written here but not read", path.display())]
     WriteOnly {
@@ -134,11 +124,16 @@ pub enum SplatFileError {
 }
 
 /// Reads the splat file `path` in the format its name says (a `.ply` with a `chunk` element as
-/// compressed). Formats other than INRIA's PLY give Gaussians without extras or normals.
+/// compressed; a name of no known ending as INRIA PLY, whose reader names what is wrong).
+/// Formats other than INRIA's PLY give Gaussians without extras or normals.
 pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
-    let format = SplatFormat::from_path(path).ok_or_else(|| SplatFileError::UnknownFormat {
-        path: path.to_path_buf(),
-    })?;
+    read_splats_with_format(path).map(|(ply, _)| ply)
+}
+
+/// [`read_splats`], with the body format of an INRIA PLY (binary little-endian for every other
+/// format), so a modified copy can be written as the input was.
+pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat), SplatFileError> {
+    let format = SplatFormat::from_path(path).unwrap_or(SplatFormat::Ply);
     let read = || {
         std::fs::read(path).map_err(|source| SplatFileError::Io {
             path: path.to_path_buf(),
@@ -153,7 +148,7 @@ pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
         SplatFormat::Ply | SplatFormat::CompressedPly => {
             let bytes = read()?;
             if !compressed_ply::is_compressed(&bytes) {
-                return Ok(read_ply(path)?);
+                return Ok(read_ply_with_format(path)?);
             }
             compressed_ply::decode(&bytes).map_err(format_error)?
         }
@@ -166,7 +161,7 @@ pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
             })
         }
     };
-    Ok(without_extras(gaussians))
+    Ok((without_extras(gaussians), PlyFormat::BinaryLittleEndian))
 }
 
 /// Gaussians read from a format that has no extra property and no normals.
