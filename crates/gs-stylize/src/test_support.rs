@@ -361,6 +361,7 @@ pub const SHARED_FLAGS: &[(&str, &[&str])] = &[
     ),
     ("render", &["--model", "--out", "--background", "--device"]),
     ("interpolate", &["--a", "--b", "--t", "--out"]),
+    ("export", &["--model", "--out", "--format"]),
     (
         "eval",
         &[

@@ -358,23 +358,31 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             n.div_ceil(CHUNK)
         ));
     }
-    let read = |e: usize, row: usize, name: &str| -> Option<f64> {
-        let element = &elements[e];
-        let (offset, size) = element.offset(name)?;
-        let at = starts[e] + row * element.stride() + offset;
-        let b = &bytes[at..at + size];
-        Some(match size {
-            1 => f64::from(b[0]),
-            4 if name.starts_with("packed_") => f64::from(u32::from_le_bytes(b.try_into().ok()?)),
-            4 => f64::from(f32::from_le_bytes(b.try_into().ok()?)),
-            _ => return None,
-        })
+    // Every property's place, found once: the chunk bounds by name (a colour range may be
+    // absent in older files: the 8-bit colour is then the colour), the packed words, the SH.
+    let word_at = |e: usize, name: &str| -> Result<Option<usize>, String> {
+        match elements[e].offset(name) {
+            Some((offset, 4)) => Ok(Some(offset)),
+            Some(_) => Err(format!(
+                "{} property {name} is not 4 bytes",
+                elements[e].name
+            )),
+            None => Ok(None),
+        }
     };
-    if let Some(p) = VERTEX_PROPERTIES
-        .iter()
-        .find(|p| vertex.offset(p).map(|o| o.1) != Some(4))
-    {
-        return Err(format!("vertex has no uint property {p}"));
+    let mut bound_offsets = [0usize; 18];
+    let mut has_colour_range = true;
+    for (k, name) in CHUNK_PROPERTIES.iter().enumerate() {
+        match word_at(chunk_e, name)? {
+            Some(offset) => bound_offsets[k] = offset,
+            None if k >= 12 => has_colour_range = false,
+            None => return Err(format!("chunk has no float property {name}")),
+        }
+    }
+    let mut word_offsets = [0usize; 4];
+    for (k, name) in VERTEX_PROPERTIES.iter().enumerate() {
+        word_offsets[k] =
+            word_at(vertex_e, name)?.ok_or(format!("vertex has no uint property {name}"))?;
     }
     let sh = find("sh");
     let rest = match sh {
@@ -390,54 +398,56 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         }
         None => 0,
     };
+    let sh_offsets: Vec<usize> = match sh {
+        Some(s) => (0..rest)
+            .map(|k| match elements[s].offset(&format!("f_rest_{k}")) {
+                Some((offset, 1)) => Ok(offset),
+                _ => Err(format!("sh has no uchar property f_rest_{k}")),
+            })
+            .collect::<Result<_, _>>()?,
+        None => Vec::new(),
+    };
+    let f32_at = |at: usize| f64::from(f32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()));
+    let u32_at = |at: usize| u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+    let bounds: Vec<[f64; 18]> = (0..chunk.count)
+        .map(|c| {
+            let row = starts[chunk_e] + c * chunk.stride();
+            bound_offsets.map(|offset| f32_at(row + offset))
+        })
+        .collect();
     let degree = [0, 9, 24, 45].iter().position(|&c| c == rest).unwrap_or(0);
     let mut set = GaussianSet::zeros(n, degree);
-    let bound = |row: usize, name: &str| -> Result<f64, String> {
-        read(chunk_e, row, name).ok_or_else(|| format!("chunk has no float property {name}"))
+    let unpack = |bits: u32, width: u32| {
+        f64::from(bits & ((1 << width) - 1)) / f64::from((1u32 << width) - 1)
     };
+    let three = |w: u32| [unpack(w >> 21, 11), unpack(w >> 11, 10), unpack(w, 11)];
+    let lerp = |t: f64, lo: f64, hi: f64| lo * (1.0 - t) + hi * t;
     for i in 0..n {
-        let c = i / CHUNK;
-        let word = |name: &str| read(vertex_e, i, name).unwrap_or(0.0) as u32;
-        let unpack = |bits: u32, width: u32| {
-            f64::from(bits & ((1 << width) - 1)) / f64::from((1u32 << width) - 1)
-        };
-        let three = |w: u32| [unpack(w >> 21, 11), unpack(w >> 11, 10), unpack(w, 11)];
-        let lerp = |t: f64, lo: f64, hi: f64| lo * (1.0 - t) + hi * t;
-        let p = three(word("packed_position"));
-        let s = three(word("packed_scale"));
-        for (k, axis) in ["x", "y", "z"].iter().enumerate() {
-            let (lo, hi) = (
-                bound(c, &format!("min_{axis}"))?,
-                bound(c, &format!("max_{axis}"))?,
-            );
-            set.means[3 * i + k] = lerp(p[k], lo, hi) as f32;
-            let (lo, hi) = (
-                bound(c, &format!("min_scale_{axis}"))?,
-                bound(c, &format!("max_scale_{axis}"))?,
-            );
-            set.log_scales[3 * i + k] = lerp(s[k], lo, hi) as f32;
+        let b = &bounds[i / CHUNK];
+        let row = starts[vertex_e] + i * vertex.stride();
+        let [position, rotation, scale, colour] = word_offsets.map(|offset| u32_at(row + offset));
+        let (p, s) = (three(position), three(scale));
+        for k in 0..3 {
+            set.means[3 * i + k] = lerp(p[k], b[k], b[3 + k]) as f32;
+            set.log_scales[3 * i + k] = lerp(s[k], b[6 + k], b[9 + k]) as f32;
         }
-        let colour = word("packed_color");
         let levels = [colour >> 24, colour >> 16, colour >> 8].map(|v| f64::from(v & 255) / 255.0);
-        for (k, channel) in ["r", "g", "b"].iter().enumerate() {
-            let value = match (
-                read(chunk_e, c, &format!("min_{channel}")),
-                read(chunk_e, c, &format!("max_{channel}")),
-            ) {
-                (Some(lo), Some(hi)) => lerp(levels[k], lo, hi),
-                _ => levels[k],
+        for k in 0..3 {
+            let value = if has_colour_range {
+                lerp(levels[k], b[12 + k], b[15 + k])
+            } else {
+                levels[k]
             };
             set.sh_dc[3 * i + k] = ((value - 0.5) / C0) as f32;
         }
         set.opacity_logits[i] = opacity_of_level(colour & 255) as f32;
-        let r = word("packed_rotation");
-        let largest = (r >> 30) as usize;
+        let largest = (rotation >> 30) as usize;
         let mut q = [0.0f64; 4];
         let mut shift = 30;
         for (k, slot) in q.iter_mut().enumerate() {
             if k != largest {
                 shift -= 10;
-                *slot = (unpack(r >> shift, 10) - 0.5) * std::f64::consts::SQRT_2;
+                *slot = (unpack(rotation >> shift, 10) - 0.5) * std::f64::consts::SQRT_2;
             }
         }
         q[largest] = (1.0 - q.iter().map(|v| v * v).sum::<f64>()).max(0.0).sqrt();
@@ -445,10 +455,10 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             set.quats[4 * i + k] = q[k] as f32;
         }
         if let Some(s) = sh {
+            let row = starts[s] + i * elements[s].stride();
             let coefficients = rest / 3;
-            for k in 0..rest {
-                let b = read(s, i, &format!("f_rest_{k}")).ok_or("sh rows name f_rest_0..")?;
-                let v = match b as u8 {
+            for (k, offset) in sh_offsets.iter().enumerate() {
+                let v = match bytes[row + offset] {
                     0 => -4.0,
                     255 => 4.0,
                     b => ((f64::from(b) + 0.5) / 256.0 - 0.5) * 8.0,
