@@ -75,6 +75,19 @@ pub struct StyleSettings {
     /// The format CLIP runs in: `f32`, or `f16` / `bf16` as the authors' fp16 CLIP (faster on
     /// a GPU; its error against f32 is in docs/benchmarks.md). VGG always runs in f32.
     pub clip_precision: ClipPrecision,
+    /// Megabytes of the views' cached ground truth (CLIP embedding and VGG features, about
+    /// 21 MB a view at 854x480) held in memory; the views past it are written to
+    /// `<out>/view_cache/` and read back when used (removed at the end of the run), so memory
+    /// does not grow with the number of views. The values of the run do not change.
+    #[serde(default = "default_view_cache_mb")]
+    pub view_cache_mb: u64,
+}
+
+/// The default of [`StyleSettings::view_cache_mb`]: 2 GB, about 100 views at 854x480.
+pub const DEFAULT_VIEW_CACHE_MB: u64 = 2048;
+
+fn default_view_cache_mb() -> u64 {
+    DEFAULT_VIEW_CACHE_MB
 }
 
 impl StyleSettings {
@@ -103,6 +116,7 @@ impl StyleSettings {
             vgg_weights: None,
             vgg_widths: [64, 128, 256, 512, 512],
             clip_precision: ClipPrecision::F32,
+            view_cache_mb: DEFAULT_VIEW_CACHE_MB,
         }
     }
 

@@ -6,7 +6,8 @@
 //! (release, 800x800 render, 64 patches, full CLIP ViT-B/32 and VGG-19; docs/benchmarks.md):
 //! the models and the process about 1.3 GB, the content term about 3.2 kB per render pixel
 //! (VGG-19's activations kept for its backward), the patch term about 80 MB per patch (CLIP's
-//! activations of one 224x224 crop), each view's cached ground truth about 60 bytes per pixel,
+//! activations of one 224x224 crop), each view's cached ground truth about 48 bytes per pixel
+//! (VGG features and CLIP embedding, at most `view_cache_mb` in memory) and its picture 12,
 //! and 20 bytes per model parameter (values, Adam's two moments, gradient, a host copy). It
 //! errs high: a machine with less memory than the estimate is refused, one with less memory
 //! available than the estimate is warned about.
@@ -20,8 +21,12 @@ const MODELS: f64 = 1.3e9;
 const CONTENT_PER_PIXEL: f64 = 3.2e3;
 /// Bytes per patch of the patch term (CLIP forward and backward of one crop).
 const PER_PATCH: f64 = 80e6;
-/// Bytes per pixel of a view's cache (VGG features of the ground truth, the picture, a mask).
-const CACHE_PER_PIXEL: f64 = 60.0;
+/// Bytes per pixel of a view's cached ground truth (VGG features, CLIP embedding; measured 21 MB
+/// a view at 854x480 with `view_cache_memory`, 51 bytes a pixel, the embedding included), held
+/// in memory up to `view_cache_mb`.
+const CACHE_PER_PIXEL: f64 = 48.0;
+/// Bytes per pixel of a view's picture (`f32` RGB) and background mask, always in memory.
+const PICTURE_PER_PIXEL: f64 = 12.0;
 /// Bytes per model parameter.
 const PER_PARAMETER: f64 = 20.0;
 /// Bytes per pixel of a picture while it is decoded: its 8-bit RGBA and its `f32` RGBA.
@@ -60,7 +65,11 @@ impl MemoryEstimate {
         Self {
             models: MODELS,
             step: content + patches,
-            views: CACHE_PER_PIXEL * view_pixels.iter().sum::<u64>() as f64,
+            views: {
+                let pixels = view_pixels.iter().sum::<u64>() as f64;
+                let budget = settings.view_cache_mb as f64 * f64::from(1u32 << 20);
+                (CACHE_PER_PIXEL * pixels).min(budget) + PICTURE_PER_PIXEL * pixels
+            },
             model: PER_PARAMETER * parameters as f64,
             decode: 0.0,
         }
@@ -189,6 +198,11 @@ mod tests {
         // Views' caches add up, the step takes the largest view.
         let e = MemoryEstimate::of(&settings(8), &[1000, 4000, 2000], 1000);
         assert_eq!(e.views, 60.0 * 7000.0);
+        // Past view_cache_mb the caches go to disk: only the pictures grow with the views.
+        let mut bounded = settings(8);
+        bounded.view_cache_mb = 1;
+        let b = MemoryEstimate::of(&bounded, &[100_000; 40], 1000);
+        assert_eq!(b.views, f64::from(1u32 << 20) + 12.0 * 4e6);
         assert_eq!(e.model, 20_000.0);
         assert_eq!(e.step, 3.2e3 * 4000.0 + 8.0 * 80e6);
     }

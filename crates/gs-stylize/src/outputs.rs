@@ -23,6 +23,9 @@ pub const LOSSES_PNG: &str = "losses.png";
 pub const CONFIG_JSON: &str = "config.json";
 /// What the fit of the base model did, when the run fitted it ([`FitReport`]).
 pub const FIT_JSON: &str = "fit.json";
+/// The folder of the views' cached ground truth past `view_cache_mb`, there only while a run
+/// is going on.
+pub const VIEW_CACHE_DIR: &str = "view_cache";
 
 /// What a run's fit of its base model did (`fit.json`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

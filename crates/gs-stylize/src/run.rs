@@ -23,13 +23,15 @@ use gs_wgpu::GpuModel;
 use serde::Serialize;
 use style_loss::compute_device;
 use style_loss::{
-    ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection, StyleLoss,
-    StyleObjective, Vgg19Features, Vgg19Widths,
+    CacheBudget, ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection,
+    StyleLoss, StyleObjective, Vgg19Features, Vgg19Widths,
 };
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
-use crate::outputs::{create_folder, write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
+use crate::outputs::{
+    create_folder, write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG, VIEW_CACHE_DIR,
+};
 use crate::picture::load_style_picture;
 use crate::plot::write_loss_plot;
 use crate::progress::Progress;
@@ -267,6 +269,10 @@ impl PreparedRun {
             masks.as_deref(),
             settings.seed.wrapping_add(PATCH_SEED_OFFSET),
             device,
+            &CacheBudget {
+                resident_bytes: settings.view_cache_mb.saturating_mul(1 << 20),
+                spill: Some(out.join(VIEW_CACHE_DIR)),
+            },
             &mut |done, total| caching.update(done as u64, &format!("view {done} of {total}")),
         );
         caching.finish();

@@ -67,7 +67,7 @@ pub use error::{Result, StyleLossError};
 pub use losses::{
     background_mask_from_color, LossTerms, LossWeights, StyleLoss, StyleLossOutput, ViewCache,
 };
-pub use objective::StyleObjective;
+pub use objective::{CacheBudget, StyleObjective};
 pub use patches::{style_rng, PatchAugmentation, PatchSettings, StyleRng};
 pub use style_direction::{StyleDirection, DEFAULT_SOURCE_PROMPT};
 pub use tensor_file::NamedTensors;

@@ -89,6 +89,75 @@ impl ViewCache {
     pub fn clip_embedding(&self) -> Option<&Tensor> {
         self.clip_embedding.as_ref()
     }
+
+    /// The tensors it holds, by name (for [`ViewCache::save`]).
+    fn named_tensors(&self) -> Vec<(&'static str, &Tensor)> {
+        let mut named = Vec::new();
+        if let Some(e) = &self.clip_embedding {
+            named.push(("clip_embedding", e));
+        }
+        if let Some(v) = &self.vgg {
+            named.push(("vgg.relu4_2", &v.relu4_2));
+            named.push(("vgg.relu5_2", &v.relu5_2));
+        }
+        if let Some(b) = &self.background {
+            named.push(("background.gt", &b.gt));
+            named.push(("background.mask", &b.mask));
+        }
+        named
+    }
+
+    /// Bytes of its tensors.
+    pub fn bytes(&self) -> u64 {
+        self.named_tensors()
+            .iter()
+            .map(|(_, t)| (t.elem_count() * t.dtype().size_in_bytes()) as u64)
+            .sum()
+    }
+
+    /// Writes the cache to `path` (safetensors, every value as held: reading it back with
+    /// [`ViewCache::load`] gives the same losses bit for bit).
+    pub fn save(&self, path: &std::path::Path) -> Result<()> {
+        let tensors: std::collections::HashMap<String, Tensor> = self
+            .named_tensors()
+            .into_iter()
+            .map(|(name, t)| (name.to_string(), t.clone()))
+            .collect();
+        candle_core::safetensors::save(&tensors, path)?;
+        Ok(())
+    }
+
+    /// The cache [`ViewCache::save`] wrote to `path`, for a view of `height x width`, its
+    /// tensors on `device`.
+    pub fn load(
+        path: &std::path::Path,
+        height: usize,
+        width: usize,
+        device: &candle_core::Device,
+    ) -> Result<Self> {
+        let mut tensors = candle_core::safetensors::load(path, device)?;
+        let vgg = match (tensors.remove("vgg.relu4_2"), tensors.remove("vgg.relu5_2")) {
+            (Some(relu4_2), Some(relu5_2)) => Some(VggFeatures { relu4_2, relu5_2 }),
+            _ => None,
+        };
+        let background = match (
+            tensors.remove("background.gt"),
+            tensors.remove("background.mask"),
+        ) {
+            (Some(gt), Some(mask)) => {
+                let count = scalar(&mask.sum_all()?)?;
+                Some(BackgroundTarget { gt, mask, count })
+            }
+            _ => None,
+        };
+        Ok(Self {
+            height,
+            width,
+            clip_embedding: tensors.remove("clip_embedding"),
+            vgg,
+            background,
+        })
+    }
 }
 
 /// The background mask the reference derives from a ground-truth image: 1 where every channel
