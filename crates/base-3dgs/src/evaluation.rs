@@ -1,8 +1,8 @@
 //! The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of a folder of renders
 //! against a folder of ground truths: pictures are paired by file name and taken in file-name
 //! order (CLIP-CONS and CLIP-F use consecutive pairs in that order). The cheap checks come
-//! first (the prompts, as stylization checks them; the folders; the model files), the pictures
-//! and CLIP after.
+//! first (the prompts, as stylization checks them; the folders; the pictures' sizes), CLIP's
+//! files and the scoring after.
 
 use std::path::Path;
 
@@ -67,7 +67,6 @@ pub fn evaluate_folders(
 ) -> Result<Metrics, EvalError> {
     check_prompts(style, source_prompt)?;
     let names = matching_names(renders, ground_truths)?;
-    let clip = resolve_clip(clip_files)?;
     let load_all = |dir: &Path| -> Result<Vec<Tensor>, EvalError> {
         names
             .iter()
@@ -86,6 +85,7 @@ pub fn evaluate_folders(
         })
         .collect();
     check_sizes(&labels, &rendered, &truths)?;
+    let clip = resolve_clip(clip_files)?;
     score(&clip, &rendered, &truths, style, source_prompt, background)
 }
 

@@ -529,8 +529,13 @@ fn a_dense_folder_from_image_undistorter_is_read_when_there_is_no_sparse() {
     let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
     assert_eq!(data.views.len(), 3);
     assert!(data.image_paths[0].starts_with(&dense));
-    // A scene's own sparse/ wins over dense/.
+    // A scene's own sparse/ wins over dense/, and over a transforms.json written from it.
     let theirs = scene("colmap-dense-own", true);
+    std::fs::write(theirs.path().join("transforms.json"), r#"{"frames": []}"#).unwrap();
+    assert_eq!(
+        base_3dgs::dataset::Layout::detect(theirs.path()),
+        Some(base_3dgs::dataset::Layout::Colmap)
+    );
     write_binary(&theirs.path().join("dense/sparse"), &cams, &imgs[..1]);
     assert_eq!(
         colmap::load(theirs.path(), &LoadOptions::default())

@@ -29,7 +29,7 @@ pub struct ExportArgs {
     #[arg(long)]
     pub out: PathBuf,
     /// The format: ply (INRIA, exact), compressed-ply (SuperSplat), splat (antimatter15,
-    /// degree-0 colour only), spz (Niantic, version 3), spz-v2 (for older SPZ readers) or glb
+    /// degree-0 colour only), spz (Niantic, version 4), spz-v2 (for older SPZ readers) or glb
     /// (glTF with KHR_gaussian_splatting). Default: from the ending of --out; ply for a folder.
     #[arg(long, value_parser = FORMAT_NAMES)]
     pub format: Option<String>,
@@ -145,4 +145,15 @@ pub fn gaussians_at<M: BaseModel>(model: &M, times: &[f64]) -> Result<Vec<Gaussi
                 .map_err(|e| format!("the Gaussians at time {time}: {e}"))
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_format_names_are_the_formats() {
+        let names: Vec<&str> = SplatFormat::ALL.iter().map(|f| f.name()).collect();
+        assert_eq!(names, FORMAT_NAMES);
+    }
 }

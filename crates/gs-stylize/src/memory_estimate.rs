@@ -6,8 +6,9 @@
 //! (release, 800x800 render, 64 patches, full CLIP ViT-B/32 and VGG-19; docs/benchmarks.md):
 //! the models and the process about 1.3 GB, the content term about 3.2 kB per render pixel
 //! (VGG-19's activations kept for its backward), the patch term about 80 MB per patch (CLIP's
-//! activations of one 224x224 crop), each view's cached ground truth about 48 bytes per pixel
-//! (VGG features and CLIP embedding, at most `view_cache_mb` in memory) and its picture 12,
+//! activations of one 224x224 crop), each view's cached ground truth about 52 bytes per pixel
+//! (VGG features and CLIP embedding; 16 more with the background term's target; at most
+//! `view_cache_mb` in memory) and its picture 12,
 //! and 20 bytes per model parameter (values, Adam's two moments, gradient, a host copy). It
 //! errs high: a machine with less memory than the estimate is refused, one with less memory
 //! available than the estimate is warned about.
@@ -24,7 +25,9 @@ const PER_PATCH: f64 = 80e6;
 /// Bytes per pixel of a view's cached ground truth (VGG features, CLIP embedding; measured 21 MB
 /// a view at 854x480 with `view_cache_memory`, 51 bytes a pixel, the embedding included), held
 /// in memory up to `view_cache_mb`.
-const CACHE_PER_PIXEL: f64 = 48.0;
+const CACHE_PER_PIXEL: f64 = 52.0;
+/// Bytes per pixel the background term adds to a view's cache (its target picture and mask).
+const BACKGROUND_PER_PIXEL: f64 = 16.0;
 /// Bytes per pixel of a view's picture (`f32` RGB) and background mask, always in memory.
 const PICTURE_PER_PIXEL: f64 = 12.0;
 /// Bytes per model parameter.
@@ -68,7 +71,12 @@ impl MemoryEstimate {
             views: {
                 let pixels = view_pixels.iter().sum::<u64>() as f64;
                 let budget = settings.view_cache_mb as f64 * f64::from(1u32 << 20);
-                (CACHE_PER_PIXEL * pixels).min(budget) + PICTURE_PER_PIXEL * pixels
+                let background = if settings.lambda_background > 0.0 {
+                    BACKGROUND_PER_PIXEL
+                } else {
+                    0.0
+                };
+                ((CACHE_PER_PIXEL + background) * pixels).min(budget) + PICTURE_PER_PIXEL * pixels
             },
             model: PER_PARAMETER * parameters as f64,
             decode: 0.0,
@@ -197,7 +205,12 @@ mod tests {
         assert!(e.step < 2.1e9, "{}", e.line());
         // Views' caches add up, the step takes the largest view.
         let e = MemoryEstimate::of(&settings(8), &[1000, 4000, 2000], 1000);
-        assert_eq!(e.views, 60.0 * 7000.0);
+        let cache = if settings(8).lambda_background > 0.0 {
+            80.0
+        } else {
+            64.0
+        };
+        assert_eq!(e.views, cache * 7000.0);
         // Past view_cache_mb the caches go to disk: only the pictures grow with the views.
         let mut bounded = settings(8);
         bounded.view_cache_mb = 1;

@@ -21,8 +21,9 @@ pub struct CacheBudget {
     /// Bytes of caches held in memory, in view order; the caches past it are written to
     /// `spill` and read back (tens of milliseconds) each time their view is used.
     pub resident_bytes: u64,
-    /// The folder caches past the budget go to (created when absent, removed with the
-    /// objective); `None` holds every cache in memory, whatever the budget.
+    /// The folder caches past the budget go to: the objective's own (whatever a stopped run
+    /// left in it is removed first; it is removed with the objective); `None` holds every cache
+    /// in memory, whatever the budget.
     pub spill: Option<PathBuf>,
 }
 
@@ -48,7 +49,7 @@ enum StoredCache {
 pub struct StyleObjective {
     loss: StyleLoss,
     caches: Vec<StoredCache>,
-    /// The spill folder this objective made, removed when it is dropped.
+    /// The spill folder this objective writes, removed when it is dropped.
     made_spill: Option<PathBuf>,
     sizes: Vec<(u32, u32)>,
     rng: StyleRng,
@@ -120,10 +121,13 @@ impl StyleObjective {
             let bytes = cache.bytes();
             caches.push(match &budget.spill {
                 Some(dir) if resident.saturating_add(bytes) > budget.resident_bytes => {
-                    if made_spill.is_none() && !dir.exists() {
+                    if made_spill.is_none() {
+                        if dir.exists() {
+                            std::fs::remove_dir_all(dir).map_err(|e| spill_error(dir, e))?;
+                        }
+                        std::fs::create_dir_all(dir).map_err(|e| spill_error(dir, e))?;
                         made_spill = Some(dir.clone());
                     }
-                    std::fs::create_dir_all(dir).map_err(|e| spill_error(dir, e))?;
                     let path = dir.join(format!("view{i:05}.safetensors"));
                     cache.save(&path)?;
                     StoredCache::Spilled(path)

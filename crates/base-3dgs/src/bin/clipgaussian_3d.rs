@@ -98,7 +98,8 @@ struct StylizeArgs {
     /// JSON configuration (configs/3d.json, configs/3d-light.json).
     #[arg(long)]
     config: Option<PathBuf>,
-    /// The trained scene, INRIA PLY (`--ply` is the same flag).
+    /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the
+    /// same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: Option<PathBuf>,
     /// The dataset folder: NeRF-synthetic, nerfstudio / instant-ngp (transforms.json) or
@@ -157,7 +158,8 @@ enum SplitArg {
 /// Arguments of `render`.
 #[derive(Args, Debug)]
 struct RenderArgs {
-    /// The scene, INRIA PLY (`--ply` is the same flag).
+    /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the same
+    /// flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: PathBuf,
     /// A dataset folder (NeRF-synthetic or COLMAP) whose cameras to render from; each picture

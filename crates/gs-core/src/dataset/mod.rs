@@ -31,19 +31,21 @@ pub enum Layout {
 }
 
 impl Layout {
-    /// NeRF-synthetic when `data` holds any `transforms_*.json` of the three splits or a
-    /// `transforms.json`, else COLMAP when it holds `sparse/` or `dense/sparse/`, else `None`.
+    /// NeRF-synthetic when `data` holds any `transforms_*.json` of the three splits; else COLMAP
+    /// when it holds `sparse/` or `dense/sparse/` (a COLMAP folder keeps its own cameras even
+    /// beside a `transforms.json` that colmap2nerf or ns-process-data wrote from them, re-centred
+    /// and re-scaled); else a `transforms.json` (nerfstudio, instant-ngp); else `None`.
     pub fn detect(data: &Path) -> Option<Self> {
         use nerf_synthetic::{Split, SINGLE_FILE};
         if [Split::Train, Split::Test, Split::Val]
             .iter()
-            .map(|s| s.file_name())
-            .chain([SINGLE_FILE])
-            .any(|name| data.join(name).is_file())
+            .any(|s| data.join(s.file_name()).is_file())
         {
             Some(Self::NerfSynthetic)
         } else if colmap::scene_folder(data).join("sparse").is_dir() {
             Some(Self::Colmap)
+        } else if data.join(SINGLE_FILE).is_file() {
+            Some(Self::NerfSynthetic)
         } else {
             None
         }

@@ -3,8 +3,10 @@
 //! COLMAP parser does with OpenCV (`getOptimalNewCameraMatrix` at `alpha = 0`, then
 //! `initUndistortRectifyMap` and a bilinear `remap`).
 //!
-//! Coordinates: pixel centres at whole numbers (OpenCV's convention, which COLMAP's and
-//! nerfstudio's intrinsics use); normalized coordinates `x = X / Z`, `y = Y / Z`.
+//! Coordinates: OpenCV's, pixel centres at whole numbers. COLMAP and nerfstudio put the first
+//! pixel's centre at 0.5; their intrinsics are passed to the distortion model unshifted, as
+//! gsplat passes them to OpenCV (half a pixel in where the lens centre is, which moves the
+//! distortion by far less than a pixel). Normalized coordinates are `x = X / Z`, `y = Y / Z`.
 
 /// A lens distortion in normalized camera coordinates, with OpenCV's conventions (which
 /// COLMAP's camera models and nerfstudio's `k1..k4, p1, p2` share).

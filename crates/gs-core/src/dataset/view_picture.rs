@@ -56,6 +56,17 @@ pub(crate) fn load(
         }
         full.resized(found.0, found.1).map_err(camera_error)?
     } else {
+        if lens.is_some_and(|l| !l.is_none()) {
+            // Checked before the undistortion's map (8 bytes a pixel) is built for it.
+            let found = images::dimensions(&picture.path)?;
+            if found != (full.width, full.height) {
+                return Err(DatasetError::ImageSize {
+                    path: picture.path.clone(),
+                    expected: (full.width, full.height),
+                    found,
+                });
+            }
+        }
         full.clone()
     };
     let undistortion = lens

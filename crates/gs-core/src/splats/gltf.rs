@@ -11,7 +11,7 @@
 //! negated, the rotations and SH coefficients with them), as `@playcanvas/splat-transform`
 //! writes it, so viewers show it upright.
 
-use super::{check_finite, sigmoid};
+use super::{check_finite, check_linear_scales, sigmoid};
 use crate::sh::C0;
 use crate::GaussianSet;
 
@@ -45,6 +45,7 @@ fn floats(values: impl IntoIterator<Item = f32>) -> Vec<u8> {
 /// The `.glb` bytes of `set`; an error names a value that cannot be written.
 pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
     check_finite(set)?;
+    check_linear_scales(set)?;
     let n = set.len();
     let turned: Vec<[f32; 3]> = set
         .means

@@ -6,7 +6,8 @@
 //! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
 //! element. Every format but INRIA's PLY quantises: what each keeps is stated in its module and
 //! checked against `@playcanvas/splat-transform`'s files. Coordinates are written as they are
-//! held (3DGS's: x right, y down, z forward) in every format, as splat-transform writes them.
+//! held (3DGS's: x right, y down, z forward) in every format but glTF, which is y-up (the scene
+//! turned half a turn about z), as splat-transform writes them.
 
 pub mod antimatter;
 pub mod compressed_ply;
@@ -146,11 +147,10 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
     };
     let gaussians = match format {
         SplatFormat::Ply | SplatFormat::CompressedPly => {
-            let bytes = read()?;
-            if !compressed_ply::is_compressed(&bytes) {
+            if !compressed_ply::is_compressed(&head(path)?) {
                 return Ok(read_ply_with_format(path)?);
             }
-            compressed_ply::decode(&bytes).map_err(format_error)?
+            compressed_ply::decode(&read()?).map_err(format_error)?
         }
         SplatFormat::Splat => antimatter::decode(&read()?).map_err(format_error)?,
         SplatFormat::Spz | SplatFormat::SpzV2 => spz::decode(&read()?).map_err(format_error)?,
@@ -162,6 +162,23 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
         }
     };
     Ok((without_extras(gaussians), PlyFormat::BinaryLittleEndian))
+}
+
+/// The first 4 KiB of `path` (a PLY header fits), to tell a compressed PLY from an INRIA one
+/// without reading the whole file.
+fn head(path: &Path) -> Result<Vec<u8>, SplatFileError> {
+    use std::io::Read;
+    let io = |source| SplatFileError::Io {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut head = Vec::new();
+    std::fs::File::open(path)
+        .map_err(io)?
+        .take(4096)
+        .read_to_end(&mut head)
+        .map_err(io)?;
+    Ok(head)
 }
 
 /// Gaussians read from a format that has no extra property and no normals.
@@ -207,6 +224,22 @@ pub(crate) fn sigmoid(x: f64) -> f64 {
 pub(crate) fn opacity_of_level(level: u32) -> f64 {
     let p = (f64::from(level) / 255.0).clamp(1e-6, 1.0 - 1e-6);
     (p / (1.0 - p)).ln()
+}
+
+/// A log-scale whose linear scale (`exp`) is not a finite `f32`, named by index: what the
+/// formats of linear scales (`.splat`, glTF) refuse.
+pub(crate) fn check_linear_scales(set: &GaussianSet) -> Result<(), String> {
+    match set
+        .log_scales
+        .iter()
+        .position(|&s| !(f64::from(s).exp() as f32).is_finite())
+    {
+        Some(i) => Err(format!(
+            "log_scales[{i}] is {}: its linear scale does not fit a float",
+            set.log_scales[i]
+        )),
+        None => Ok(()),
+    }
 }
 
 /// A non-finite value among the Gaussians, named by array and index: what an encoder refuses

@@ -223,27 +223,34 @@ fn header(b: &[u8]) -> Result<(u32, usize, usize, u8), String> {
 /// The Gaussians of SPZ bytes (versions 2, 3 and 4).
 pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
     if bytes.starts_with(&[0x1f, 0x8b]) {
-        let mut plain = Vec::new();
-        flate2::read::GzDecoder::new(bytes)
-            .read_to_end(&mut plain)
+        // The header first, then no more than the attributes it announces: a small file whose
+        // stream unpacks to far more is refused without holding it.
+        let mut stream = flate2::read::GzDecoder::new(bytes);
+        let mut head = [0u8; 16];
+        stream
+            .read_exact(&mut head)
             .map_err(|e| format!("the gzip stream: {e}"))?;
-        let (version, n, degree, bits) = header(&plain)?;
+        let (version, n, degree, bits) = header(&head)?;
         if !(2..=3).contains(&version) {
             return Err(format!(
                 "version {version} in a gzip stream; 2 and 3 are gzip"
             ));
         }
         let sizes = stream_sizes(n, degree, version);
-        let total: usize = sizes.iter().sum::<usize>() + 16;
+        let total: usize = sizes.iter().sum();
+        let mut plain = Vec::new();
+        stream
+            .take(total as u64 + 1)
+            .read_to_end(&mut plain)
+            .map_err(|e| format!("the gzip stream: {e}"))?;
         if plain.len() != total {
             return Err(format!(
-                "{} bytes of attributes for {n} Gaussians of degree {degree}; {} expected",
-                plain.len() - 16.min(plain.len()),
-                total - 16
+                "{} bytes of attributes for {n} Gaussians of degree {degree}; {total} expected",
+                plain.len()
             ));
         }
         let mut streams = Vec::new();
-        let mut at = 16;
+        let mut at = 0;
         for size in sizes {
             streams.push(&plain[at..at + size]);
             at += size;
@@ -281,7 +288,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             .checked_add(packed)
             .filter(|&e| e <= bytes.len())
             .ok_or_else(|| format!("stream {k} runs past the end"))?;
-        let mut out = Vec::with_capacity(size);
+        let mut out = Vec::new();
         ruzstd::decoding::StreamingDecoder::new(&bytes[at..end])
             .map_err(|e| format!("stream {k}: {e}"))?
             .take(size as u64 + 1)
