@@ -8,6 +8,7 @@ use std::path::Path;
 use base_3dgs::dataset::colmap::{self, read_sparse_model};
 use base_3dgs::dataset::{Background, DatasetError, LoadOptions};
 use common::TempDir;
+use gs_stylize::test_support::copy_dir;
 
 const W: u32 = 16;
 const H: u32 = 12;
@@ -593,20 +594,6 @@ fn malformed_models_and_mismatched_images_are_clear_errors() {
     let empty = TempDir::new("colmap-empty");
     let e = colmap::load(empty.path(), &LoadOptions::default()).unwrap_err();
     assert!(e.to_string().contains("sparse"), "{e}");
-}
-
-/// Copies `from` into `to`, recursively.
-fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
 }
 
 /// A scene written by pycolmap (COLMAP's own writers, text and binary, with the rigs and frames

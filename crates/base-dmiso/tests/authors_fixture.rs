@@ -168,7 +168,7 @@ fn the_backward_gives_pytorchs_gradient_of_every_group() {
 fn broken_or_foreign_checkpoints_are_refused_by_name() {
     let dir = tempfile::tempdir().unwrap();
     let copy = dir.path().join("model");
-    common::copy_dir(&fixture("dmiso_small"), &copy);
+    gs_stylize::test_support::copy_dir(&fixture("dmiso_small"), &copy);
     let files = AuthorsFiles::find(&copy, Some("best")).unwrap();
     // Truncated deformation network.
     let bytes = std::fs::read(&files.deform).unwrap();
@@ -189,7 +189,7 @@ fn broken_or_foreign_checkpoints_are_refused_by_name() {
         &files.time_net,
     )
     .unwrap();
-    common::copy_dir(
+    gs_stylize::test_support::copy_dir(
         &fixture("dmiso_zero_bias").join("deform"),
         &copy.join("deform"),
     );

@@ -373,7 +373,7 @@ fn bad_inputs_are_refused_with_nothing_written() {
     std::fs::write(&picture, keep).unwrap();
     // A truncated deformation network.
     let broken = dir.path().join("broken");
-    common::copy_dir(&model, &broken);
+    gs_stylize::test_support::copy_dir(&model, &broken);
     let pth = broken.join("deform/iteration_best/deform.pth");
     let bytes = std::fs::read(&pth).unwrap();
     std::fs::write(&pth, &bytes[..bytes.len() / 3]).unwrap();
@@ -395,7 +395,7 @@ fn bad_inputs_are_refused_with_nothing_written() {
     let cfg = std::fs::read_to_string(model.join("cfg_args")).unwrap();
     assert!(cfg.contains("eval=True"), "{cfg}");
     let without_eval = dir.path().join("without-eval");
-    common::copy_dir(&model, &without_eval);
+    gs_stylize::test_support::copy_dir(&model, &without_eval);
     std::fs::write(
         without_eval.join("cfg_args"),
         cfg.replace("eval=True", "eval=False"),
@@ -469,14 +469,17 @@ fn help_configs_and_eval() {
     assert_eq!(m["views"], 3);
     assert!((m["clip_f"].as_f64().unwrap() - 100.0).abs() < 1e-3, "{m}");
     std::fs::remove_file(renders.join("00002.png")).unwrap();
-    let e = fails(
-        bin()
-            .args(["eval", "--renders", s(&renders), "--data", s(&data)])
-            .args(["--style-prompt", "a red fire"])
-            .args(["--clip-config", s(&models.clip_config)])
-            .args(["--clip-weights", s(&models.clip_weights)])
-            .args(["--tokenizer", s(&models.tokenizer)]),
-    );
+    let eval_fails = || {
+        fails(
+            bin()
+                .args(["eval", "--renders", s(&renders), "--data", s(&data)])
+                .args(["--style-prompt", "a red fire"])
+                .args(["--clip-config", s(&models.clip_config)])
+                .args(["--clip-weights", s(&models.clip_weights)])
+                .args(["--tokenizer", s(&models.tokenizer)]),
+        )
+    };
+    let e = eval_fails();
     assert!(
         e.contains("holds 2 pictures") && e.contains("(missing: 00002.png)"),
         "{e}"
@@ -489,14 +492,7 @@ fn help_configs_and_eval() {
         )
         .unwrap();
     }
-    let e = fails(
-        bin()
-            .args(["eval", "--renders", s(&renders), "--data", s(&data)])
-            .args(["--style-prompt", "a red fire"])
-            .args(["--clip-config", s(&models.clip_config)])
-            .args(["--clip-weights", s(&models.clip_weights)])
-            .args(["--tokenizer", s(&models.tokenizer)]),
-    );
+    let e = eval_fails();
     assert!(
         e.contains("holds 4 pictures but the test split") && e.contains("unexpected: 00003.png"),
         "{e}"

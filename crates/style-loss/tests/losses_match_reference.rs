@@ -6,12 +6,12 @@
 mod common;
 
 use candle_core::{DType, Device, Tensor};
-use common::{fixture, load, load_json, relative_error, values};
-use style_loss::clip::{ClipConfig, ClipModel};
+use common::{load, load_json, relative_error, values};
+use style_loss::clip::ClipModel;
 use style_loss::perspective::Corners;
 use style_loss::{
     background_mask_from_color, style_rng, ClipPrecision, LossWeights, PatchAugmentation,
-    PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
+    PatchSettings, StyleDirection, StyleLoss, Vgg19Features,
 };
 
 struct Setup {
@@ -31,20 +31,7 @@ fn setup() -> Setup {
 
 /// The fixture's models and inputs, CLIP running in `precision`.
 fn setup_in(precision: ClipPrecision) -> Setup {
-    let config = ClipConfig::from_json_file(&fixture("tiny_clip/config.json")).unwrap();
-    let clip = ClipModel::load_with_precision(
-        &config,
-        &fixture("tiny_clip/model.safetensors"),
-        &Device::Cpu,
-        precision,
-    )
-    .unwrap();
-    let vgg = Vgg19Features::load(
-        &fixture("tiny_vgg19_torchvision_init.safetensors"),
-        Vgg19Widths([4, 8, 16, 32, 32]),
-        &Device::Cpu,
-    )
-    .unwrap();
+    let (clip, vgg) = common::tiny_models(precision);
     let tensors = load("loss_reference.safetensors");
     let json = load_json("loss_reference.json");
     let s = &tensors["style_direction"];

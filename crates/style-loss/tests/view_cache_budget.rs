@@ -5,30 +5,15 @@
 mod common;
 
 use candle_core::Device;
-use common::fixture;
 use gs_core::train::Objective;
 use gs_core::Image;
-use style_loss::clip::{ClipConfig, ClipModel};
 use style_loss::{
     CacheBudget, LossWeights, PatchSettings, StyleDirection, StyleLoss, StyleObjective,
-    Vgg19Features, Vgg19Widths,
 };
 
 /// The tiny models with every term on (the background term needs the masks).
 fn loss() -> StyleLoss {
-    let config = ClipConfig::from_json_file(&fixture("tiny_clip/config.json")).unwrap();
-    let clip = ClipModel::load(
-        &config,
-        &fixture("tiny_clip/model.safetensors"),
-        &Device::Cpu,
-    )
-    .unwrap();
-    let vgg = Vgg19Features::load(
-        &fixture("tiny_vgg19_torchvision_init.safetensors"),
-        Vgg19Widths([4, 8, 16, 32, 32]),
-        &Device::Cpu,
-    )
-    .unwrap();
+    let (clip, vgg) = common::tiny_models(style_loss::ClipPrecision::F32);
     let dim = clip.config().projection_dim;
     let style = candle_core::Tensor::ones(dim, candle_core::DType::F32, &Device::Cpu).unwrap();
     let direction = StyleDirection::from_embeddings(&style, &style.zeros_like().unwrap()).unwrap();

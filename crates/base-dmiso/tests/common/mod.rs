@@ -141,17 +141,3 @@ pub fn write_scene(dir: &Path, train: usize, test: usize, size: u32) {
     write_split(dir, "train", &views(train, 0.0, size));
     write_split(dir, "test", &views(test, 0.5, size));
 }
-
-/// Copies the folder `from` (recursively) to `to`.
-pub fn copy_dir(from: &Path, to: &Path) {
-    std::fs::create_dir_all(to).unwrap();
-    for entry in std::fs::read_dir(from).unwrap() {
-        let entry = entry.unwrap();
-        let target = to.join(entry.file_name());
-        if entry.file_type().unwrap().is_dir() {
-            copy_dir(&entry.path(), &target);
-        } else {
-            std::fs::copy(entry.path(), target).unwrap();
-        }
-    }
-}

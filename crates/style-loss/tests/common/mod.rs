@@ -75,3 +75,26 @@ pub fn id_rows(t: &Tensor) -> Vec<Vec<u32>> {
         .map(|row| row.into_iter().map(|v| v as u32).collect())
         .collect()
 }
+
+/// The tiny CLIP (in `precision`) and the tiny VGG-19 as torchvision initialises it, from the
+/// fixtures.
+pub fn tiny_models(
+    precision: style_loss::ClipPrecision,
+) -> (style_loss::clip::ClipModel, style_loss::Vgg19Features) {
+    let config =
+        style_loss::clip::ClipConfig::from_json_file(&fixture("tiny_clip/config.json")).unwrap();
+    let clip = style_loss::clip::ClipModel::load_with_precision(
+        &config,
+        &fixture("tiny_clip/model.safetensors"),
+        &Device::Cpu,
+        precision,
+    )
+    .unwrap();
+    let vgg = style_loss::Vgg19Features::load(
+        &fixture("tiny_vgg19_torchvision_init.safetensors"),
+        style_loss::Vgg19Widths([4, 8, 16, 32, 32]),
+        &Device::Cpu,
+    )
+    .unwrap();
+    (clip, vgg)
+}
