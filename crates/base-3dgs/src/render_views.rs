@@ -17,9 +17,6 @@ use crate::dataset::{colmap, DatasetError, Layout, LoadOptions};
 /// The file name of the picture rendered from a [`CameraFile`].
 pub const CAMERA_RENDER_PNG: &str = "render.png";
 
-/// Largest deviation from orthonormality accepted in a [`CameraFile`]'s rotation.
-const ROTATION_TOLERANCE: f64 = 1e-4;
-
 /// Why views could not be rendered.
 #[derive(Debug, thiserror::Error)]
 pub enum RenderError {
@@ -108,34 +105,12 @@ impl CameraFile {
     /// are invalid.
     pub fn camera(&self) -> Result<Camera, Box<dyn std::error::Error + Send + Sync>> {
         let m = &self.world_to_camera;
-        if m[3] != [0.0, 0.0, 0.0, 1.0] {
-            return Err(format!(
-                "the last row of world_to_camera is {:?}, expected [0, 0, 0, 1]",
-                m[3]
-            )
-            .into());
-        }
+        gs_core::camera::check_rigid(m)?;
         let r = [
             [m[0][0], m[0][1], m[0][2]],
             [m[1][0], m[1][1], m[1][2]],
             [m[2][0], m[2][1], m[2][2]],
         ];
-        let mut worst = 0.0f64;
-        for i in 0..3 {
-            for j in 0..3 {
-                let dot: f64 = (0..3).map(|k| r[i][k] * r[j][k]).sum();
-                let expected = if i == j { 1.0 } else { 0.0 };
-                worst = worst.max((dot - expected).abs());
-            }
-        }
-        let det = r[0][0] * (r[1][1] * r[2][2] - r[1][2] * r[2][1])
-            - r[0][1] * (r[1][0] * r[2][2] - r[1][2] * r[2][0])
-            + r[0][2] * (r[1][0] * r[2][1] - r[1][1] * r[2][0]);
-        if !(worst <= ROTATION_TOLERANCE && det > 0.0) {
-            return Err(
-                "the rotation of world_to_camera is not orthonormal with determinant 1".into(),
-            );
-        }
         let t = [m[0][3], m[1][3], m[2][3]];
         Camera::new(
             r,

@@ -239,9 +239,38 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
             .collect();
         found.insert(name, (view.shape().to_vec(), values));
     }
+    check_counts(&found, cores, subs, &net).map_err(format)?;
     let params = fill_groups(cores, subs, &net, |name| found.remove(name))
         .map_err(|(_, message)| format(message))?;
     Dmiso::new(cores, subs, net, deformation, params, device.clone()).map_err(format)
+}
+
+/// Checks the metadata's counts (`cores`, `subs_per_core`, `deform_width`) against the shapes
+/// of the tensors the file holds, before anything is sized from them: a file whose metadata
+/// claims more than its tensors hold is refused, not allocated for.
+fn check_counts(
+    found: &NamedValues,
+    cores: usize,
+    subs: usize,
+    net: &NetShape,
+) -> Result<(), String> {
+    let expect = |name: &str, want: &[usize]| -> Result<(), String> {
+        match found.get(name).map(|(shape, _)| shape.as_slice()) {
+            Some(shape) if shape == want => Ok(()),
+            Some(shape) => Err(format!(
+                "the metadata says cores {cores}, subs_per_core {subs}, deform_width {}, so \
+                 {name} should have shape {want:?}; it has {shape:?}",
+                net.width
+            )),
+            None => Err(format!("no tensor {name} (of shape {want:?})")),
+        }
+    };
+    expect("pseudomesh", &[cores, 3, 3])?;
+    expect("alpha", &[cores, subs, 3])?;
+    for (name, shape) in net.tensors() {
+        expect(&format!("deform.{name}"), &shape)?;
+    }
+    Ok(())
 }
 
 /// The groups of a model from its tensors, each looked up by name (`get` gives its shape and
@@ -701,6 +730,39 @@ mod tests {
             "two-dimensional tensors (the network's weights) checked"
         );
         assert_eq!(unravel(7, &[2, 3, 2]), [1, 0, 1]);
+    }
+
+    /// Metadata counts that claim more than the tensors hold are refused naming the tensor,
+    /// before anything is sized from them (a huge `cores` once allocated gigabytes).
+    #[test]
+    fn metadata_counts_are_checked_against_the_tensors_first() {
+        let dir = tempfile::tempdir().unwrap();
+        let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
+        let path = dir.path().join("model.safetensors");
+        save(&model, &path, None).unwrap();
+        let bytes = std::fs::read(&path).unwrap();
+        let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
+        let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+        for (key, value) in [
+            ("cores", "4000000000"),
+            ("subs_per_core", "1000000000000"),
+            ("deform_width", "3000000000"),
+        ] {
+            let mut edited = header.clone();
+            edited["__metadata__"][key] = value.into();
+            let mut text = serde_json::to_vec(&edited).unwrap();
+            text.resize(text.len().next_multiple_of(8), b' ');
+            let mut file = (text.len() as u64).to_le_bytes().to_vec();
+            file.extend(&text);
+            file.extend(&bytes[8 + len..]);
+            let broken = dir.path().join(format!("{key}.safetensors"));
+            std::fs::write(&broken, file).unwrap();
+            let e = load(&broken, &Device::Cpu).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("{key}.safetensors")) && e.contains("should have shape"),
+                "{key}: {e}"
+            );
+        }
     }
 
     #[test]

@@ -25,6 +25,47 @@ pub struct Camera {
     pub height: u32,
 }
 
+/// Largest deviation from orthonormality a pose's rotation may have (of the dot products of its
+/// rows from the identity's): pose files print about seven digits.
+pub const ROTATION_TOLERANCE: f64 = 1e-4;
+
+/// The largest picture side a camera may have, pixels: the rasterizer's tile lists index tiles
+/// and Gaussians with `u32`, and no GPU texture is larger.
+pub const MAX_SIDE: u32 = 1 << 16;
+
+/// Checks that `m` (a 4x4 pose, row-major, camera-to-world or world-to-camera) is rigid: the
+/// last row `0 0 0 1`, the rotation orthonormal within [`ROTATION_TOLERANCE`] with determinant
+/// `+1`, every value finite; the error says which it is not.
+pub fn check_rigid(m: &[[f64; 4]; 4]) -> Result<(), GsError> {
+    if m[3] != [0.0, 0.0, 0.0, 1.0] {
+        return Err(GsError::InvalidCamera(format!(
+            "the last row of the pose is {:?}, expected [0, 0, 0, 1]",
+            m[3]
+        )));
+    }
+    if !m.iter().flatten().all(|v| v.is_finite()) {
+        return Err(GsError::InvalidCamera("the pose is not finite".into()));
+    }
+    let mut worst = 0.0f64;
+    for i in 0..3 {
+        for j in 0..3 {
+            let dot: f64 = (0..3).map(|k| m[i][k] * m[j][k]).sum();
+            let expected = if i == j { 1.0 } else { 0.0 };
+            worst = worst.max((dot - expected).abs());
+        }
+    }
+    let det = m[0][0] * (m[1][1] * m[2][2] - m[1][2] * m[2][1])
+        - m[0][1] * (m[1][0] * m[2][2] - m[1][2] * m[2][0])
+        + m[0][2] * (m[1][0] * m[2][1] - m[1][1] * m[2][0]);
+    if !(worst <= ROTATION_TOLERANCE && det > 0.0) {
+        return Err(GsError::InvalidCamera(format!(
+            "the rotation of the pose is not orthonormal with determinant 1 (rows off by \
+             {worst:.2e}, determinant {det:.4}): a pose is a rotation and a translation"
+        )));
+    }
+    Ok(())
+}
+
 /// Focal length in pixels that gives the field of view `fov` (radians) over `pixels`.
 pub fn fov_to_focal(fov: f64, pixels: u32) -> f64 {
     0.5 * pixels as f64 / (0.5 * fov).tan()
@@ -68,6 +109,15 @@ impl Camera {
         if self.width == 0 || self.height == 0 {
             return bad("the image size", format!("{}x{}", self.width, self.height));
         }
+        if self.width > MAX_SIDE || self.height > MAX_SIDE {
+            return bad(
+                "the image size",
+                format!(
+                    "{}x{}; at most {MAX_SIDE} pixels a side are rendered",
+                    self.width, self.height
+                ),
+            );
+        }
         for (name, v) in [("fx", self.fx), ("fy", self.fy)] {
             if !(v.is_finite() && v > 0.0) {
                 return bad(name, v.to_string());
@@ -102,13 +152,14 @@ impl Camera {
 
     /// A camera from a NeRF/Blender camera-to-world matrix (OpenGL axes) with its own
     /// intrinsics `[fx, fy, cx, cy]` in pixels (nerfstudio's and instant-ngp's `fl_x`, `fl_y`,
-    /// `cx`, `cy`).
+    /// `cx`, `cy`). The matrix must be rigid ([`check_rigid`]).
     pub fn from_nerf_intrinsics(
         c2w: [[f64; 4]; 4],
         intrinsics: [f64; 4],
         width: u32,
         height: u32,
     ) -> Result<Self, GsError> {
+        check_rigid(&c2w)?;
         // OpenGL to OpenCV axes: negate the camera's y and z axes (columns 1 and 2).
         let r_c2w: M3<f64> = [
             [c2w[0][0], -c2w[0][1], -c2w[0][2]],

@@ -153,8 +153,53 @@ pub fn picture_size(path: &Path) -> Result<(u32, u32), GsError> {
 
 /// Decodes the picture at `path`; the error names the file.
 fn open_image(path: &Path) -> Result<image::DynamicImage, GsError> {
-    image::open(path).map_err(|e| GsError::Image {
+    decode_picture(path).map_err(|e| GsError::Image {
         path: path.to_path_buf(),
         source: Box::new(e),
     })
+}
+
+/// Pixels of the largest picture decoded (64 megapixels, e.g. 8192 x 8192): decoding and
+/// converting to `f32` take up to 24 bytes a pixel, 1.6 GB.
+pub const MAX_PICTURE_PIXELS: u64 = 1 << 26;
+
+/// Why a picture could not be decoded.
+#[derive(Debug, thiserror::Error)]
+pub enum PictureError {
+    /// The decoder's error.
+    #[error("{0}")]
+    Image(#[from] image::ImageError),
+    /// A picture whose header claims more pixels than [`MAX_PICTURE_PIXELS`].
+    #[error(
+        "the picture is {width}x{height} ({} megapixels), which would take about {:.1} GB to \
+         decode; pictures up to {} megapixels are read: downscale it first (for a dataset, a \
+         downscaled folder such as images_4/ read with -r 4)",
+        u64::from(*width) * u64::from(*height) / 1_000_000,
+        24.0 * f64::from(*width) * f64::from(*height) / 1e9,
+        MAX_PICTURE_PIXELS / 1_000_000
+    )]
+    TooLarge {
+        /// Width its header gives, pixels.
+        width: u32,
+        /// Height its header gives, pixels.
+        height: u32,
+    },
+}
+
+/// Decodes the picture at `path` after reading its size from its header: one of more than
+/// [`MAX_PICTURE_PIXELS`] is refused before any of it is decoded (a few kilobytes of PNG can
+/// claim 23000 x 23000), and the decoder may not allocate more than such a picture needs.
+pub fn decode_picture(path: &Path) -> Result<image::DynamicImage, PictureError> {
+    let open = || -> Result<image::ImageReader<_>, image::ImageError> {
+        Ok(image::ImageReader::open(path)?.with_guessed_format()?)
+    };
+    let (width, height) = open()?.into_dimensions()?;
+    if u64::from(width) * u64::from(height) > MAX_PICTURE_PIXELS {
+        return Err(PictureError::TooLarge { width, height });
+    }
+    let mut reader = open()?;
+    let mut limits = image::Limits::default();
+    limits.max_alloc = Some(8 * MAX_PICTURE_PIXELS + (1 << 20));
+    reader.limits(limits);
+    Ok(reader.decode()?)
 }

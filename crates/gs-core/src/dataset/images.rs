@@ -108,7 +108,13 @@ pub(crate) fn load(
     composite: Composite,
     undistortion: Option<&Undistortion>,
 ) -> Result<(Image, Option<BackgroundMask>), DatasetError> {
-    let decoded = image::open(path).map_err(|e| image_error(path, e))?;
+    let decoded = crate::image::decode_picture(path).map_err(|e| match e {
+        crate::image::PictureError::Image(e) => image_error(path, e),
+        too_large => DatasetError::Format {
+            path: path.to_path_buf(),
+            message: too_large.to_string(),
+        },
+    })?;
     let found = (decoded.width(), decoded.height());
     if found != expected {
         return Err(DatasetError::ImageSize {

@@ -125,6 +125,7 @@ pub(super) fn cameras(path: &Path, bytes: &[u8]) -> Result<Vec<ColmapCamera>, Da
     let mut r = Reader::new(path, bytes);
     let n = r.count("the camera count", 24)?;
     let mut out: Vec<ColmapCamera> = Vec::with_capacity(n);
+    let mut seen = std::collections::HashSet::with_capacity(n);
     for _ in 0..n {
         let id = r.i32("CAMERA_ID")? as i64;
         let model_id = r.i32("the model id")?;
@@ -137,7 +138,7 @@ pub(super) fn cameras(path: &Path, bytes: &[u8]) -> Result<Vec<ColmapCamera>, Da
         let params = (0..count)
             .map(|_| r.f64("PARAMS"))
             .collect::<Result<_, _>>()?;
-        if out.iter().any(|c| c.id == id) {
+        if !seen.insert(id) {
             return Err(r.error(format!("camera {id} appears twice")));
         }
         out.push(ColmapCamera {

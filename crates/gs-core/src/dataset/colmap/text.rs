@@ -35,6 +35,7 @@ fn data_lines(text: &str) -> impl Iterator<Item = (usize, Vec<&str>)> {
 /// Parses `cameras.txt`: `CAMERA_ID MODEL WIDTH HEIGHT PARAMS[]`.
 pub(super) fn cameras(path: &Path, text: &str) -> Result<Vec<ColmapCamera>, DatasetError> {
     let mut out: Vec<ColmapCamera> = Vec::new();
+    let mut seen = std::collections::HashSet::new();
     for (line, tokens) in data_lines(text) {
         let parse = || -> Result<ColmapCamera, String> {
             let model = tokens.get(1).ok_or("MODEL is missing")?.to_string();
@@ -57,7 +58,7 @@ pub(super) fn cameras(path: &Path, text: &str) -> Result<Vec<ColmapCamera>, Data
             })
         };
         let camera = parse().map_err(|m| format_error(path, line, m))?;
-        if out.iter().any(|c| c.id == camera.id) {
+        if !seen.insert(camera.id) {
             return Err(format_error(
                 path,
                 line,

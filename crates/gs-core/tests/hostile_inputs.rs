@@ -1,0 +1,108 @@
+//! Named regressions of broken and hostile files: each is refused with an error naming the file,
+//! before the work or memory it would otherwise cost.
+
+use std::path::Path;
+
+use gs_core::dataset::nerf_synthetic::{self, Split};
+use gs_core::dataset::LoadOptions;
+use gs_core::image::{decode_picture, PictureError};
+use gs_core::{Camera, Image};
+
+/// A 2x2 PNG whose header is rewritten to claim `width x height` (its checksum fixed), the
+/// few bytes of a decompression bomb.
+fn png_claiming(path: &Path, width: u32, height: u32) {
+    let mut bytes = Vec::new();
+    image::RgbImage::from_pixel(2, 2, image::Rgb([9, 9, 9]))
+        .write_to(
+            &mut std::io::Cursor::new(&mut bytes),
+            image::ImageFormat::Png,
+        )
+        .unwrap();
+    // Signature (8), IHDR length (4) and type (4), then width and height.
+    assert_eq!(&bytes[12..16], b"IHDR");
+    bytes[16..20].copy_from_slice(&width.to_be_bytes());
+    bytes[20..24].copy_from_slice(&height.to_be_bytes());
+    let mut crc = flate2::Crc::new();
+    crc.update(&bytes[12..29]);
+    bytes[29..33].copy_from_slice(&crc.sum().to_be_bytes());
+    std::fs::write(path, bytes).unwrap();
+}
+
+#[test]
+fn a_picture_claiming_23000_squared_is_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let bomb = dir.path().join("bomb.png");
+    png_claiming(&bomb, 23000, 23000);
+    assert!(matches!(
+        decode_picture(&bomb),
+        Err(PictureError::TooLarge {
+            width: 23000,
+            height: 23000
+        })
+    ));
+    let e = Image::load(&bomb, [0.0; 3]).unwrap_err().to_string();
+    assert!(
+        e.contains("bomb.png") && e.contains("23000x23000") && e.contains("downscale"),
+        "{e}"
+    );
+    // Within the limit the same trick is an ordinary decoding error, not a 2 GB allocation.
+    let small = dir.path().join("small.png");
+    png_claiming(&small, 4000, 4000);
+    assert!(matches!(
+        decode_picture(&small),
+        Err(PictureError::Image(_))
+    ));
+}
+
+/// A one-frame NeRF-synthetic scene with `matrix` as its pose.
+fn scene_with_pose(dir: &Path, matrix: serde_json::Value) -> String {
+    image::RgbaImage::from_pixel(4, 4, image::Rgba([200, 100, 50, 255]))
+        .save(dir.join("r_0.png"))
+        .unwrap();
+    std::fs::write(
+        dir.join("transforms_train.json"),
+        serde_json::json!({
+            "camera_angle_x": 0.8,
+            "frames": [{"file_path": "r_0", "transform_matrix": matrix}],
+        })
+        .to_string(),
+    )
+    .unwrap();
+    nerf_synthetic::load(dir, Split::Train, &LoadOptions::default())
+        .unwrap_err()
+        .to_string()
+}
+
+#[test]
+fn poses_that_are_not_rigid_are_refused_naming_the_frame() {
+    let dir = tempfile::tempdir().unwrap();
+    let e = scene_with_pose(dir.path(), serde_json::json!([[0.0f64; 4]; 4].to_vec()));
+    assert!(
+        e.contains("transforms_train.json frame 0") && e.contains("last row"),
+        "{e}"
+    );
+    let scaled = serde_json::json!([[2, 0, 0, 0], [0, 2, 0, 0], [0, 0, 2, 4], [0, 0, 0, 1]]);
+    let e = scene_with_pose(dir.path(), scaled);
+    assert!(
+        e.contains("frame 0") && e.contains("not orthonormal"),
+        "{e}"
+    );
+    let mirrored = serde_json::json!([[-1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]);
+    let e = scene_with_pose(dir.path(), mirrored);
+    assert!(e.contains("determinant"), "{e}");
+}
+
+#[test]
+fn a_camera_of_four_billion_pixels_a_side_is_refused() {
+    let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
+    let e = Camera::new(
+        identity,
+        [0.0; 3],
+        [100.0, 100.0, 50.0, 50.0],
+        u32::MAX,
+        u32::MAX,
+    )
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("at most 65536 pixels a side"), "{e}");
+}
