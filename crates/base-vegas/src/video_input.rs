@@ -220,8 +220,8 @@ pub fn frame_files(dir: &Path) -> Result<Vec<PathBuf>, VideoInputError> {
     Ok(files)
 }
 
-/// Decodes `files` in parallel, telling `progress` of each, checking that every frame has the
-/// first one's size.
+/// Decodes `files` in parallel, telling `progress` of each, after checking from their headers
+/// that every frame has the first one's size.
 fn decode_frames(
     files: &[PathBuf],
     background: [f32; 3],
@@ -230,6 +230,26 @@ fn decode_frames(
     label: impl Fn(&Path) -> String + Sync,
 ) -> Result<Video, VideoInputError> {
     let labels: Vec<String> = files.iter().map(|f| label(f)).collect();
+    // Every frame's size from its header first: a frame of another size is refused before
+    // any frame is decoded.
+    let sizes = files
+        .par_iter()
+        .zip(&labels)
+        .map(|(f, l)| {
+            gs_core::image::picture_size(f).map_err(|source| VideoInputError::Unreadable {
+                label: l.clone(),
+                source,
+            })
+        })
+        .collect::<Result<Vec<(u32, u32)>, _>>()?;
+    if let Some(k) = sizes.iter().position(|&s| s != sizes[0]) {
+        return Err(VideoInputError::SizeMismatch {
+            label: labels[k].clone(),
+            size: sizes[k],
+            first: labels[0].clone(),
+            first_size: sizes[0],
+        });
+    }
     let done = AtomicUsize::new(0);
     let frames = files
         .par_iter()
@@ -247,19 +267,6 @@ fn decode_frames(
             frame
         })
         .collect::<Result<Vec<Image>, _>>()?;
-    let first_size = (frames[0].width, frames[0].height);
-    if let Some((k, frame)) = frames
-        .iter()
-        .enumerate()
-        .find(|(_, f)| (f.width, f.height) != first_size)
-    {
-        return Err(VideoInputError::SizeMismatch {
-            label: labels[k].clone(),
-            size: (frame.width, frame.height),
-            first: labels[0].clone(),
-            first_size,
-        });
-    }
     Ok(Video {
         frames,
         labels,
@@ -404,6 +411,39 @@ mod tests {
             ("", "-fps_mode"),
         ] {
             assert_eq!(sync_option(line), [option, "passthrough"], "{line}");
+        }
+    }
+
+    /// A frame of another size is refused from the headers, naming it and the first frame;
+    /// the frames are not decoded (a frame whose body is broken but whose header is of another
+    /// size gives the size error, not a decoding one).
+    #[test]
+    fn a_frame_of_another_size_is_refused_before_decoding() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in 1..=4u32 {
+            let (w, h) = if f == 3 { (20, 16) } else { (24, 16) };
+            image::RgbImage::from_pixel(w, h, image::Rgb([10, 20, 30]))
+                .save(dir.path().join(format!("{f}.png")))
+                .unwrap();
+        }
+        // Frame 3's body cut short: decoding it would fail, its header still reads.
+        let third = dir.path().join("3.png");
+        let bytes = std::fs::read(&third).unwrap();
+        std::fs::write(&third, &bytes[..bytes.len() - 20]).unwrap();
+        match load_video(dir.path(), [0.0; 3], 24.0, 0) {
+            Err(VideoInputError::SizeMismatch {
+                label,
+                size,
+                first,
+                first_size,
+            }) => {
+                assert!(
+                    label.contains("3.png") && first.contains("1.png"),
+                    "{label} {first}"
+                );
+                assert_eq!((size, first_size), ((20, 16), (24, 16)));
+            }
+            other => panic!("expected the size error, got {other:?}"),
         }
     }
 }

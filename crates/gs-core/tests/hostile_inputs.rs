@@ -106,3 +106,52 @@ fn a_camera_of_four_billion_pixels_a_side_is_refused() {
     .to_string();
     assert!(e.contains("at most 65536 pixels a side"), "{e}");
 }
+
+#[test]
+fn colmap_images_without_their_points2d_lines_are_refused_not_halved() {
+    let dir = tempfile::tempdir().unwrap();
+    let sparse = dir.path().join("sparse/0");
+    std::fs::create_dir_all(&sparse).unwrap();
+    std::fs::write(sparse.join("cameras.txt"), "1 PINHOLE 8 6 10 10 4 3\n").unwrap();
+    std::fs::write(sparse.join("points3D.txt"), "").unwrap();
+    // Two images, one line each: the second would be taken as the first's 2D points.
+    std::fs::write(
+        sparse.join("images.txt"),
+        "1 1 0 0 0 0 0 3 1 a.png\n2 1 0 0 0 1 0 3 1 b.png\n",
+    )
+    .unwrap();
+    let e = gs_core::dataset::colmap::read_sparse_model(&sparse)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("images.txt") && e.contains("line 2") && e.contains("POINTS2D"),
+        "{e}"
+    );
+    // With its (empty and full) points lines, the same file reads both images.
+    std::fs::write(
+        sparse.join("images.txt"),
+        "1 1 0 0 0 0 0 3 1 a.png\n\n2 1 0 0 0 1 0 3 1 b.png\n1.5 2.5 -1 3 4 7\n",
+    )
+    .unwrap();
+    let model = gs_core::dataset::colmap::read_sparse_model(&sparse).unwrap();
+    assert_eq!(model.images.len(), 2);
+}
+
+#[test]
+fn a_ply_with_a_zero_quaternion_is_refused_naming_the_vertex() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("zero.ply");
+    let mut set = gs_core::GaussianSet::zeros(3, 0);
+    set.quats[4..8].fill(0.0);
+    gs_core::ply::write_ply(
+        &path,
+        &gs_core::ply::PlyGaussians::new(set),
+        gs_core::ply::PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    let e = gs_core::ply::read_ply(&path).unwrap_err().to_string();
+    assert!(
+        e.contains("zero.ply") && e.contains("vertex 1") && e.contains("quaternion is zero"),
+        "{e}"
+    );
+}

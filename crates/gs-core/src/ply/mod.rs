@@ -136,7 +136,8 @@ pub enum PlyErrorKind {
     /// A number of `f_rest_*` properties that is no SH degree.
     #[error("{0} f_rest_* properties: SH degrees 0 to 3 have 0, 9, 24 or 45")]
     ShRestCount(usize),
-    /// A value that is not finite or not of its property's type (0-based vertex index).
+    /// A value that is not finite or not of its property's type, or a zero quaternion (0-based
+    /// vertex index).
     #[error("vertex {vertex}, property {property:?}: {reason}")]
     BadValue {
         /// Vertex index, from 0.
@@ -248,6 +249,19 @@ fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
     match big_endian {
         Some(be) => binary::read_body(body, &layout, be, &mut gaussians, &mut extras)?,
         None => ascii::read_body(body, header.lines + 1, &layout, &mut gaussians, &mut extras)?,
+    }
+    if let Some(vertex) = gaussians
+        .quats
+        .chunks_exact(4)
+        .position(|q| q.iter().all(|&v| v == 0.0))
+    {
+        return Err(PlyErrorKind::BadValue {
+            vertex,
+            property: "rot_0..rot_3".into(),
+            reason: "the quaternion is zero: a rotation has a direction (such a Gaussian renders \
+                     as nothing, or as NaN)"
+                .into(),
+        });
     }
     let extras: Vec<ExtraProperty> = extra_types
         .into_iter()

@@ -95,9 +95,33 @@ pub(super) fn images(path: &Path, text: &str) -> Result<Vec<ColmapImage>, Datase
             })
         };
         out.push(parse().map_err(|m| format_error(path, i + 1, m))?);
-        lines.next();
+        if let Some((j, points)) = lines.next() {
+            check_points2d(points).map_err(|m| format_error(path, j + 1, m))?;
+        }
     }
     Ok(out)
+}
+
+/// Checks that `line`, the line after an image's, is its `POINTS2D[] as (X, Y, POINT3D_ID)`
+/// (empty for none): a file written without these lines would otherwise lose every other
+/// image silently.
+fn check_points2d(line: &str) -> Result<(), String> {
+    let tokens: Vec<&str> = line.split_whitespace().collect();
+    let triplets = tokens.len() % 3 == 0
+        && tokens.chunks_exact(3).all(|t| {
+            t[0].parse::<f64>().is_ok()
+                && t[1].parse::<f64>().is_ok()
+                && t[2].parse::<i64>().is_ok()
+        });
+    if triplets {
+        Ok(())
+    } else {
+        Err(format!(
+            "{:?} is not a POINTS2D line (X Y POINT3D_ID triplets); images.txt gives every image \
+             two lines, the second its 2D points (empty for none)",
+            line.chars().take(60).collect::<String>()
+        ))
+    }
 }
 
 /// Parses `points3D.txt`: `POINT3D_ID X Y Z R G B ERROR TRACK[]`.
