@@ -107,7 +107,7 @@ pub(super) fn images(path: &Path, text: &str) -> Result<Vec<ColmapImage>, Datase
 /// image silently.
 fn check_points2d(line: &str) -> Result<(), String> {
     let tokens: Vec<&str> = line.split_whitespace().collect();
-    let triplets = tokens.len() % 3 == 0
+    let triplets = tokens.len().is_multiple_of(3)
         && tokens.chunks_exact(3).all(|t| {
             t[0].parse::<f64>().is_ok()
                 && t[1].parse::<f64>().is_ok()
