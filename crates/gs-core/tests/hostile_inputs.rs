@@ -135,6 +135,16 @@ fn colmap_images_without_their_points2d_lines_are_refused_not_halved() {
     .unwrap();
     let model = gs_core::dataset::colmap::read_sparse_model(&sparse).unwrap();
     assert_eq!(model.images.len(), 2);
+    // A value error names the files the image and its camera come from.
+    std::fs::write(sparse.join("images.txt"), "1 0 0 0 0 0 0 3 1 a.png\n\n").unwrap();
+    std::fs::create_dir_all(dir.path().join("images")).unwrap();
+    let e = gs_core::dataset::colmap::load(dir.path(), &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("images.txt") && e.contains("cameras.txt") && e.contains("\"a.png\""),
+        "{e}"
+    );
 }
 
 #[test]

@@ -127,6 +127,8 @@ pub struct SparseModel {
     pub points: PointCloud,
     /// The cameras file read (for messages).
     pub cameras_path: PathBuf,
+    /// The images file read (for messages).
+    pub images_path: PathBuf,
 }
 
 /// `dir/<stem>.bin` if it exists, else `dir/<stem>.txt`, with whether it is binary.
@@ -167,11 +169,11 @@ pub fn read_sparse_model(dir: &Path) -> Result<SparseModel, DatasetError> {
     } else {
         text::cameras(&cameras_path, &read_text(&cameras_path)?)?
     };
-    let (path, bin) = model_file(dir, "images")?;
+    let (images_path, bin) = model_file(dir, "images")?;
     let images = if bin {
-        binary::images(&path, &read_file(&path)?)?
+        binary::images(&images_path, &read_file(&images_path)?)?
     } else {
-        text::images(&path, &read_text(&path)?)?
+        text::images(&images_path, &read_text(&images_path)?)?
     };
     let (path, bin) = model_file(dir, "points3D")?;
     let points = if bin {
@@ -184,6 +186,7 @@ pub fn read_sparse_model(dir: &Path) -> Result<SparseModel, DatasetError> {
         images,
         points,
         cameras_path,
+        images_path,
     })
 }
 
@@ -258,7 +261,16 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
         order
             .par_iter()
             .map(|img| {
-                let context = || format!("image {:?} (id {})", img.name, img.id);
+                let context = || {
+                    format!(
+                        "{}: image {:?} (id {}) with camera {} of {}",
+                        model.images_path.display(),
+                        img.name,
+                        img.id,
+                        img.camera_id,
+                        model.cameras_path.display()
+                    )
+                };
                 let colmap_camera =
                     cameras
                         .get(&img.camera_id)
