@@ -4,7 +4,7 @@
 //! Every input is read and checked (and the output names chosen) before the output folder is
 //! created; each PNG is written under a temporary name and renamed.
 
-use std::collections::BTreeSet;
+use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 
 use gs_core::{Camera, GaussianSet};
@@ -45,8 +45,20 @@ pub enum RenderError {
         source: Box<dyn std::error::Error + Send + Sync>,
     },
     /// Two views whose pictures would have the same file name.
-    #[error("two views would both be written to {0}")]
-    DuplicateName(String),
+    #[error(
+        "dataset {}: the views of {} and {} would both be written to {name}",
+        data.display(), first.display(), second.display()
+    )]
+    DuplicateName {
+        /// The dataset folder.
+        data: PathBuf,
+        /// The first view's picture.
+        first: PathBuf,
+        /// The second view's picture, of the same name.
+        second: PathBuf,
+        /// The render's file name they share.
+        name: String,
+    },
     /// The output folder could not be created.
     #[error("{}: {source}", path.display())]
     Io {
@@ -169,7 +181,7 @@ pub fn dataset_cameras(
         }
         None => return Err(layout(Layout::LOOKED_FOR.into())),
     };
-    let mut names = BTreeSet::new();
+    let mut names = BTreeMap::new();
     dataset
         .views
         .into_iter()
@@ -177,8 +189,13 @@ pub fn dataset_cameras(
         .map(|(view, path)| {
             let stem = path.file_stem().unwrap_or_default().to_string_lossy();
             let name = format!("{stem}.png");
-            if !names.insert(name.clone()) {
-                return Err(RenderError::DuplicateName(name));
+            if let Some(first) = names.insert(name.clone(), path.clone()) {
+                return Err(RenderError::DuplicateName {
+                    data: data.to_path_buf(),
+                    first,
+                    second: path.clone(),
+                    name,
+                });
             }
             Ok(NamedCamera {
                 name,

@@ -503,3 +503,34 @@ fn downscaled_folders_and_per_frame_sizes_are_used() {
     let e = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap_err();
     assert!(e.to_string().contains("images_2/frame_00001.png"), "{e}");
 }
+
+/// Two frames whose pictures share a file name would be rendered to one file: refused naming
+/// the dataset and both pictures.
+#[test]
+fn views_that_would_be_rendered_to_one_file_are_named() {
+    let dir = TempDir::new("nerf-same-names");
+    write_rgba(&dir.path().join("a/r_1.png"), W, H);
+    write_rgba(&dir.path().join("b/r_1.png"), W, H);
+    let pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]];
+    std::fs::write(
+        dir.path().join("transforms_train.json"),
+        serde_json::json!({
+            "camera_angle_x": fov_x(),
+            "frames": [
+                {"file_path": "a/r_1", "transform_matrix": pose},
+                {"file_path": "b/r_1", "transform_matrix": pose},
+            ]
+        })
+        .to_string(),
+    )
+    .unwrap();
+    let e = base_3dgs::render_views::dataset_cameras(dir.path(), None, &LoadOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("a/r_1.png")
+            && e.contains("b/r_1.png")
+            && e.contains("both be written to r_1.png"),
+        "{e}"
+    );
+}
