@@ -12,7 +12,6 @@
 //! Ours also records the video and the camera distance in a header comment,
 //! `clipgaussian-video frames WxH fps R distance D`, which VeGaS ignores.
 
-use std::io::BufReader;
 use std::path::{Path, PathBuf};
 
 use ply_rs_bw::parser::Parser;
@@ -181,9 +180,13 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
             source,
         }
     };
-    let file = std::fs::File::open(path).map_err(io("cannot open"))?;
+    let bytes = std::fs::read(path).map_err(io("cannot open"))?;
+    // The strict reading of the header and the body's length first: a count that is off, a
+    // second property of one name, bytes past the end, another format version.
+    let header = gs_core::ply::elements::parse_elements(&bytes).map_err(&fail)?;
+    gs_core::ply::elements::check_body_length(&header, &bytes).map_err(&fail)?;
     let ply = Parser::<DefaultElement>::new()
-        .read_ply(&mut BufReader::new(file))
+        .read_ply(&mut std::io::Cursor::new(&bytes))
         .map_err(|source| ModelFileError::Unreadable {
             path: path.to_path_buf(),
             source,

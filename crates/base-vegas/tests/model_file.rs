@@ -88,7 +88,10 @@ fn broken_model_files_are_refused_with_the_reason() {
         e
     };
     let truncated = case("truncated.ply", text[..text.len() - 30].to_vec());
-    assert!(truncated.contains("not a readable PLY"), "{truncated}");
+    assert!(
+        truncated.contains("the body is 826 bytes; the header announces 856"),
+        "{truncated}"
+    );
 
     let renamed = header.replace("property float m_0\n", "property float q_0\n");
     let mut bytes = renamed.into_bytes();
@@ -100,7 +103,7 @@ fn broken_model_files_are_refused_with_the_reason() {
     );
 
     let e = case("not_ply.ply", b"hello".to_vec());
-    assert!(e.contains("not a readable PLY"), "{e}");
+    assert!(e.contains("not a PLY file"), "{e}");
 
     // A NaN in the first vertex's x.
     let mut bytes = text.clone();
@@ -122,4 +125,65 @@ fn broken_model_files_are_refused_with_the_reason() {
         e.contains("scene.ply") && e.contains("not a VeGaS model"),
         "{e}"
     );
+}
+
+/// The authors' file with its header edited: a vertex count one short (the time logits would
+/// be read from vertex bytes), a count of 0 with the body kept, bytes after the body, a second
+/// property of one name, format 2.0; each refused naming the file and what is wrong.
+#[test]
+fn files_that_do_not_hold_what_their_header_says_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let original = std::fs::read(fixture("vegas_model.ply")).unwrap();
+    let end = original
+        .windows(11)
+        .position(|w| w == b"end_header\n")
+        .unwrap()
+        + 11;
+    let header = String::from_utf8(original[..end].to_vec()).unwrap();
+    let body = &original[end..];
+    let with = |header: String, body: &[u8]| {
+        let mut bytes = header.into_bytes();
+        bytes.extend(body);
+        bytes
+    };
+    let mut trailing = body.to_vec();
+    trailing.extend([0u8; 4]);
+    let cases = [
+        (
+            "short",
+            with(header.replace("element vertex 7", "element vertex 6"), body),
+            "header announces",
+        ),
+        (
+            "zero",
+            with(header.replace("element vertex 7", "element vertex 0"), body),
+            "bytes after the last element",
+        ),
+        ("trailing", with(header.clone(), &trailing), "4 bytes after"),
+        (
+            "twice",
+            with(
+                header.replace(
+                    "property float m_0",
+                    "property float m_0\nproperty float m_0",
+                ),
+                body,
+            ),
+            "named twice",
+        ),
+        (
+            "format",
+            with(header.replace("1.0", "2.0"), body),
+            "format 1.0",
+        ),
+    ];
+    for (name, bytes, want) in cases {
+        let path = dir.path().join(format!("{name}.ply"));
+        std::fs::write(&path, bytes).unwrap();
+        let e = read_model(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{name}.ply")) && e.contains(want),
+            "{name}: {e}"
+        );
+    }
 }

@@ -20,6 +20,7 @@
 mod ascii;
 mod binary;
 mod columns;
+pub mod elements;
 mod header;
 mod layout;
 mod scalar;

@@ -15,6 +15,7 @@
 //! is not the input's. A bound pair closer than 1e-5 stores 0.
 
 use super::{check_finite, opacity_of_level, sigmoid};
+use crate::ply::elements::parse_elements;
 use crate::sh::C0;
 use crate::GaussianSet;
 
@@ -252,78 +253,16 @@ pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
     Ok(out)
 }
 
-/// A PLY element: its name, count and property names with their byte sizes.
-struct Element {
-    name: String,
-    count: usize,
-    properties: Vec<(String, usize)>,
-}
-
-impl Element {
-    /// Bytes a row takes.
-    fn stride(&self) -> usize {
-        self.properties.iter().map(|p| p.1).sum()
-    }
-
-    /// The byte offset of property `name` in a row, with its size.
-    fn offset(&self, name: &str) -> Option<(usize, usize)> {
-        let mut at = 0;
-        for (p, size) in &self.properties {
-            if p == name {
-                return Some((at, *size));
-            }
-            at += size;
-        }
-        None
-    }
-}
-
-/// The elements of the header of `bytes` and where the body starts.
-fn parse_header(bytes: &[u8]) -> Result<(Vec<Element>, usize), String> {
-    let end = bytes
-        .windows(11)
-        .position(|w| w == b"end_header\n")
-        .ok_or("no end_header line")?;
-    let text = std::str::from_utf8(&bytes[..end]).map_err(|_| "the header is not text")?;
-    let mut elements: Vec<Element> = Vec::new();
-    for (number, line) in text.lines().enumerate() {
-        let words: Vec<&str> = line.split_whitespace().collect();
-        let bad = |why: &str| format!("header line {} {line:?}: {why}", number + 1);
-        match words.as_slice() {
-            ["ply"] | [] => {}
-            ["comment", ..] | ["obj_info", ..] => {}
-            ["format", "binary_little_endian", "1.0"] => {}
-            ["format", ..] => return Err(bad("only binary_little_endian 1.0 is compressed")),
-            ["element", name, count] => elements.push(Element {
-                name: name.to_string(),
-                count: count.parse().map_err(|_| bad("not a count"))?,
-                properties: Vec::new(),
-            }),
-            ["property", ty, name] => {
-                let size = match *ty {
-                    "char" | "uchar" | "int8" | "uint8" => 1,
-                    "short" | "ushort" | "int16" | "uint16" => 2,
-                    "int" | "uint" | "float" | "int32" | "uint32" | "float32" => 4,
-                    "double" | "float64" => 8,
-                    _ => return Err(bad("unknown property type")),
-                };
-                let element = elements
-                    .last_mut()
-                    .ok_or_else(|| bad("a property before any element"))?;
-                if element.properties.iter().any(|p| p.0 == *name) {
-                    return Err(bad("a property named twice"));
-                }
-                element.properties.push((name.to_string(), size));
-            }
-            _ => return Err(bad("not a line of a compressed PLY header")),
-        }
-    }
-    Ok((elements, end + 11))
-}
-
 /// The Gaussians of compressed PLY bytes, in file order.
 pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
-    let (elements, body) = parse_header(bytes)?;
+    let header = parse_elements(bytes)?;
+    if header.format != "binary_little_endian" {
+        return Err(format!(
+            "format {}: a compressed PLY is binary_little_endian",
+            header.format
+        ));
+    }
+    let (elements, body) = (header.elements, header.body_start);
     let find = |name: &str| elements.iter().position(|e| e.name == name);
     let (chunk_e, vertex_e) = match (find("chunk"), find("vertex")) {
         (Some(c), Some(v)) => (c, v),
