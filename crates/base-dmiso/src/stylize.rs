@@ -314,6 +314,10 @@ pub fn load_scene(
                 path: test.image_paths[i].clone(),
                 expected: (tw, th),
                 found: (image.width, image.height),
+                says: format!(
+                    "the train split's first picture, {},",
+                    train.image_paths[0].display()
+                ),
             });
         }
         Some(test)

@@ -121,6 +121,7 @@ pub(crate) fn load(
             path: path.to_path_buf(),
             expected,
             found,
+            says: "its camera".into(),
         });
     }
     let has_alpha = decoded.color().has_alpha();

@@ -369,7 +369,7 @@ pub enum DatasetError {
     },
     /// An image whose size is not the one its camera has.
     #[error(
-        "{}: the image is {}x{} but its camera says {}x{}",
+        "{}: the image is {}x{} but {says} says {}x{}",
         path.display(), found.0, found.1, expected.0, expected.1
     )]
     ImageSize {
@@ -379,6 +379,9 @@ pub enum DatasetError {
         expected: (u32, u32),
         /// Width and height of the file, pixels.
         found: (u32, u32),
+        /// What gives the expected size: the view's frame or image and its file (`its camera`
+        /// where no file is known).
+        says: String,
     },
     /// An image file that could not be decoded.
     #[error("{}: {source}", path.display())]

@@ -46,24 +46,26 @@ pub(crate) fn load(
     };
     let stored = if picture.prescaled {
         let scaled = training_camera(full, options).map_err(camera_error)?;
-        let found = images::dimensions(&picture.path)?;
+        let found = images::dimensions(&picture.path).map_err(|e| of_view(e, context))?;
         if found.0.abs_diff(scaled.width) > 1 || found.1.abs_diff(scaled.height) > 1 {
             return Err(DatasetError::ImageSize {
                 path: picture.path.clone(),
                 expected: (scaled.width, scaled.height),
                 found,
+                says: context(),
             });
         }
         full.resized(found.0, found.1).map_err(camera_error)?
     } else {
         if lens.is_some_and(|l| !l.is_none()) {
             // Checked before the undistortion's map (8 bytes a pixel) is built for it.
-            let found = images::dimensions(&picture.path)?;
+            let found = images::dimensions(&picture.path).map_err(|e| of_view(e, context))?;
             if found != (full.width, full.height) {
                 return Err(DatasetError::ImageSize {
                     path: picture.path.clone(),
                     expected: (full.width, full.height),
                     found,
+                    says: context(),
                 });
             }
         }
@@ -104,6 +106,30 @@ pub(crate) fn load(
         options.background.rgb(),
         composite,
         undistortion.as_ref(),
-    )?;
+    )
+    .map_err(|e| of_view(e, context))?;
     Ok((camera, image, mask, undistortion))
+}
+
+/// `e` with a missing picture, or one of another size, said to be the picture of the view
+/// `context` names (the file and frame or image that refer to it).
+fn of_view(e: DatasetError, context: &dyn Fn() -> String) -> DatasetError {
+    match e {
+        DatasetError::Missing { path, .. } => DatasetError::Missing {
+            path,
+            what: format!("the picture of {}", context()),
+        },
+        DatasetError::ImageSize {
+            path,
+            expected,
+            found,
+            ..
+        } => DatasetError::ImageSize {
+            path,
+            expected,
+            found,
+            says: context(),
+        },
+        e => e,
+    }
 }
