@@ -342,6 +342,10 @@ fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
     tensors
         .into_iter()
         .map(|(name, t): (String, Tensor)| {
+            check_float(&name, t.dtype()).map_err(|message| ModelFileError::Format {
+                path: path.to_path_buf(),
+                message,
+            })?;
             let shape = t.dims().to_vec();
             let values = t
                 .to_dtype(candle_core::DType::F32)
@@ -351,6 +355,19 @@ fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
             Ok((name, (shape, values)))
         })
         .collect()
+}
+
+/// Refuses a tensor `name` stored in a type that is not a float (a checkpoint whose storage was
+/// changed to bytes or integers would otherwise be read as those numbers).
+fn check_float(name: &str, dtype: candle_core::DType) -> Result<(), String> {
+    use candle_core::DType;
+    if matches!(dtype, DType::F16 | DType::BF16 | DType::F32 | DType::F64) {
+        Ok(())
+    } else {
+        Err(format!(
+            "tensor {name} is stored as {dtype:?}; a model's parameters are floats"
+        ))
+    }
 }
 
 /// Where the authors' code saved one iteration of a model in `dir`.
@@ -761,6 +778,21 @@ mod tests {
             assert!(
                 e.contains(&format!("{key}.safetensors")) && e.contains("should have shape"),
                 "{key}: {e}"
+            );
+        }
+    }
+
+    #[test]
+    fn only_float_storages_hold_parameters() {
+        use candle_core::DType;
+        for dtype in [DType::F16, DType::BF16, DType::F32, DType::F64] {
+            assert!(check_float("w", dtype).is_ok());
+        }
+        for dtype in [DType::U8, DType::U32, DType::I64] {
+            let e = check_float("deform.linear.0.weight", dtype).unwrap_err();
+            assert!(
+                e.contains("deform.linear.0.weight") && e.contains("floats"),
+                "{e}"
             );
         }
     }
