@@ -164,6 +164,51 @@ where
     Ok(trainer.into_model())
 }
 
+/// The frames of a model as the front camera sees them, rendered one at a time (so a long
+/// video is written frame by frame, never held whole).
+pub struct FrameRenderer<'m> {
+    renderer: gs_wgpu::backend::ModelRenderer<'m, FoldedGaussians>,
+    camera: gs_core::Camera,
+    frames: usize,
+    background: [f32; 3],
+}
+
+impl<'m> FrameRenderer<'m> {
+    /// Renders `model`'s frames at `width x height` pixels from `distance` over `background`
+    /// on `backend`.
+    pub fn new(
+        model: &'m mut FoldedGaussians,
+        width: u32,
+        height: u32,
+        distance: f64,
+        background: [f32; 3],
+        backend: &Backend,
+    ) -> Result<Self, FitError> {
+        let frames = model.frames();
+        let camera = plane_camera(width, height, distance, false)?;
+        Ok(Self {
+            renderer: backend.model_renderer(model)?,
+            camera,
+            frames,
+            background,
+        })
+    }
+
+    /// The model's number of frames.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// Frame `frame` (from 0).
+    pub fn render(&mut self, frame: usize) -> Result<Image, FitError> {
+        let view = View {
+            camera: self.camera.clone(),
+            time: view_time(frame, self.frames),
+        };
+        Ok(self.renderer.render(&view, self.background)?)
+    }
+}
+
 /// Every frame of `model` as the front camera sees it, at `width x height` pixels.
 pub fn render_frames(
     model: &mut FoldedGaussians,
@@ -173,16 +218,6 @@ pub fn render_frames(
     background: [f32; 3],
     backend: &Backend,
 ) -> Result<Vec<Image>, FitError> {
-    let frames = model.frames();
-    let camera = plane_camera(width, height, distance, false)?;
-    let mut renderer = backend.model_renderer(model)?;
-    (0..frames)
-        .map(|f| {
-            let view = View {
-                camera: camera.clone(),
-                time: view_time(f, frames),
-            };
-            Ok(renderer.render(&view, background)?)
-        })
-        .collect()
+    let mut renderer = FrameRenderer::new(model, width, height, distance, background, backend)?;
+    (0..renderer.frames()).map(|f| renderer.render(f)).collect()
 }

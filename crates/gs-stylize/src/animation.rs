@@ -45,15 +45,32 @@ pub fn frame_name(index: usize) -> String {
 /// Writes `frames` as `dir/00000.png, ...`: into `<dir>.tmp` first, then renamed over `dir`
 /// (a `dir` of an earlier run is replaced).
 pub fn write_frames(dir: &Path, frames: &[Image]) -> Result<(), AnimationError> {
+    write_frames_with(dir, frames.len(), |k| Ok(frames[k].clone()))
+}
+
+/// [`write_frames`] of `count` frames made one at a time by `frame(k)` and written as they
+/// come, so no more than one is held; an error of `frame` stops the writing (the folder is then
+/// left as it was).
+pub fn write_frames_with(
+    dir: &Path,
+    count: usize,
+    mut frame: impl FnMut(usize) -> Result<Image, Box<dyn std::error::Error + Send + Sync>>,
+) -> Result<(), AnimationError> {
     let tmp = gs_core::fs::temporary_path(dir);
     if tmp.exists() {
         std::fs::remove_dir_all(&tmp).map_err(|e| error(&tmp, e))?;
     }
     std::fs::create_dir_all(&tmp).map_err(|e| error(&tmp, e))?;
-    for (k, frame) in frames.iter().enumerate() {
-        frame
+    let written = (0..count).try_for_each(|k| {
+        let image = frame(k).map_err(|e| error(&tmp, e))?;
+        image
             .save_png(&tmp.join(frame_name(k)))
-            .map_err(|e| error(&tmp, e))?;
+            .map_err(|e| error(&tmp, e))
+    });
+    if let Err(e) = written {
+        // The half-written folder goes; `dir` is as it was.
+        let _ = std::fs::remove_dir_all(&tmp);
+        return Err(e);
     }
     if dir.exists() {
         std::fs::remove_dir_all(dir).map_err(|e| error(dir, e))?;
@@ -156,6 +173,36 @@ mod tests {
     use image::AnimationDecoder;
 
     use super::*;
+
+    /// Frames made one at a time are written in order; a frame that fails leaves no folder
+    /// and no temporary one behind, and an existing folder as it was.
+    #[test]
+    fn frames_made_one_at_a_time_are_written_or_nothing_is() {
+        let dir = tempfile::tempdir().unwrap();
+        let frames = dir.path().join("frames");
+        let grey = |k: usize| Image {
+            width: 3,
+            height: 2,
+            data: vec![k as f32 / 4.0; 18],
+        };
+        write_frames_with(&frames, 3, |k| Ok(grey(k))).unwrap();
+        let names: Vec<String> = (0..3).map(frame_name).collect();
+        for (k, name) in names.iter().enumerate() {
+            let back = Image::load(&frames.join(name), [0.0; 3]).unwrap();
+            assert!((back.data[0] - k as f32 / 4.0).abs() < 1.0 / 255.0);
+        }
+        let e = write_frames_with(&frames, 5, |k| {
+            if k == 2 {
+                Err("frame 2 cannot be rendered".into())
+            } else {
+                Ok(grey(k))
+            }
+        })
+        .unwrap_err();
+        assert!(e.to_string().contains("frame 2 cannot be rendered"), "{e}");
+        assert!(!gs_core::fs::temporary_path(&frames).exists());
+        assert_eq!(std::fs::read_dir(&frames).unwrap().count(), 3, "as it was");
+    }
 
     fn frames(n: usize, w: u32, h: u32, base: f32) -> Vec<Image> {
         (0..n)

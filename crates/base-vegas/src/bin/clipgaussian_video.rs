@@ -11,7 +11,7 @@ use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings};
+use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings, FrameRenderer};
 use base_vegas::folded::{interpolate, view_time};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
@@ -21,7 +21,8 @@ use clap::{Args, Parser, Subcommand};
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
-    write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
+    write_frames, write_frames_with, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF,
+    STYLIZED_MP4,
 };
 use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
@@ -394,7 +395,8 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         .or(record.map(|r| r.distance))
         .unwrap_or(DEFAULT_DISTANCE);
     let backend = open_device(args.device)?;
-    let frames = render_frames(
+    // Frame by frame: a long video is never held whole.
+    let mut renderer = FrameRenderer::new(
         &mut model,
         size.0,
         size.1,
@@ -402,13 +404,14 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         args.background,
         &backend,
     )?;
+    let frames = renderer.frames();
     create_folder(&args.out)?;
     let dir = args.out.join(FRAMES_DIR);
-    write_frames(&dir, &frames)?;
+    write_frames_with(&dir, frames, |k| Ok(renderer.render(k)?))?;
     let mp4 = write_mp4(&dir, fps, &args.out.join(STYLIZED_MP4))?;
     println!(
         "wrote {} frames ({}x{}) to {}{}",
-        frames.len(),
+        frames,
         size.0,
         size.1,
         dir.display(),
