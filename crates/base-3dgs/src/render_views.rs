@@ -150,6 +150,28 @@ pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
     })
 }
 
+/// The render's file name of each picture of `paths` (its stem with `.png`); an error names
+/// the dataset `data` and both pictures when two share one.
+fn render_names(data: &Path, paths: &[PathBuf]) -> Result<Vec<String>, RenderError> {
+    let mut names = BTreeMap::new();
+    paths
+        .iter()
+        .map(|path| {
+            let stem = path.file_stem().unwrap_or_default().to_string_lossy();
+            let name = format!("{stem}.png");
+            if let Some(first) = names.insert(name.clone(), path.clone()) {
+                return Err(RenderError::DuplicateName {
+                    data: data.to_path_buf(),
+                    first,
+                    second: path.clone(),
+                    name,
+                });
+            }
+            Ok(name)
+        })
+        .collect()
+}
+
 /// The cameras of the dataset in `data` (NeRF-synthetic when it has `transforms_*.json`, COLMAP
 /// when it has `sparse/`), each named after its image with the extension `.png`. `split`
 /// chooses the NeRF-synthetic transforms file (train when `None`); COLMAP scenes have no split
@@ -167,9 +189,14 @@ pub fn dataset_cameras(
         path: data.to_path_buf(),
         message,
     };
+    // The render names are checked from the json or the sparse model first: two views of one
+    // name are refused before any picture is decoded.
     let dataset = match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
-            nerf_synthetic::load(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
+            let split = split.unwrap_or(Split::Train);
+            let paths = nerf_synthetic::picture_paths(data, split).map_err(wrap)?;
+            render_names(data, &paths)?;
+            nerf_synthetic::load(data, split, options).map_err(wrap)?
         }
         Some(Layout::Colmap) => {
             if split.is_some() {
@@ -177,32 +204,21 @@ pub fn dataset_cameras(
                     "a COLMAP scene has no splits: leave out --split to render every image".into(),
                 ));
             }
+            render_names(data, &colmap::picture_paths(data).map_err(wrap)?)?;
             colmap::load(data, options).map_err(wrap)?
         }
         None => return Err(layout(Layout::LOOKED_FOR.into())),
     };
-    let mut names = BTreeMap::new();
-    dataset
+    let names = render_names(data, &dataset.image_paths)?;
+    Ok(dataset
         .views
         .into_iter()
-        .zip(&dataset.image_paths)
-        .map(|(view, path)| {
-            let stem = path.file_stem().unwrap_or_default().to_string_lossy();
-            let name = format!("{stem}.png");
-            if let Some(first) = names.insert(name.clone(), path.clone()) {
-                return Err(RenderError::DuplicateName {
-                    data: data.to_path_buf(),
-                    first,
-                    second: path.clone(),
-                    name,
-                });
-            }
-            Ok(NamedCamera {
-                name,
-                camera: view.camera,
-            })
+        .zip(names)
+        .map(|(view, name)| NamedCamera {
+            name,
+            camera: view.camera,
         })
-        .collect()
+        .collect())
 }
 
 /// Renders `gaussians` on `backend` from every camera over `background` into `out` (created

@@ -350,6 +350,17 @@ pub fn training_pixels(
     Ok((views, largest))
 }
 
+/// The picture file of every frame of `split` of the scene in `root`, in frame order, from the
+/// json alone (nothing is decoded): what a caller checks before loading.
+pub fn picture_paths(root: &Path, split: Split) -> Result<Vec<PathBuf>, DatasetError> {
+    let (_, transforms) = read_transforms(root, split)?;
+    Ok(transforms
+        .frames
+        .iter()
+        .map(|f| image_path(root, &f.file_path))
+        .collect())
+}
+
 /// The stored size of each frame's picture: the frame's `w`/`h`, else the file's, else the
 /// size of the first frame's picture (read from its header only when needed).
 fn frame_sizes(root: &Path, transforms: &Transforms) -> Result<Vec<(u32, u32)>, DatasetError> {

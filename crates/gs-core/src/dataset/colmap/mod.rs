@@ -242,6 +242,18 @@ fn sparse_model_dir(root: &Path) -> Result<PathBuf, DatasetError> {
     }
 }
 
+/// The picture file of every registered image of the COLMAP scene in `root` (or `root/dense/`),
+/// sorted by name as [`load`] orders the views, from the sparse model alone (nothing is
+/// decoded): what a caller checks before loading.
+pub fn picture_paths(root: &Path) -> Result<Vec<PathBuf>, DatasetError> {
+    let root = &scene_folder(root);
+    let model = read_sparse_model(&sparse_model_dir(root)?)?;
+    let folder = root.join("images");
+    let mut names: Vec<&str> = model.images.iter().map(|i| i.name.as_str()).collect();
+    names.sort();
+    Ok(names.into_iter().map(|n| folder.join(n)).collect())
+}
+
 /// Loads the COLMAP scene in `root` (or in `root/dense/`, see [`scene_folder`]): views sorted
 /// by image name, images loaded in parallel, the sparse points. With `downscale = f > 1`,
 /// images come from `images_<f>/` when it exists (each within one pixel of the downscaled
