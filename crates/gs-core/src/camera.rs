@@ -33,6 +33,10 @@ pub const ROTATION_TOLERANCE: f64 = 1e-4;
 /// and Gaussians with `u32`, and no GPU texture is larger.
 pub const MAX_SIDE: u32 = 1 << 16;
 
+/// The most pixels a camera's picture may have (268 megapixels, e.g. 16384 x 16384): a render
+/// holds about 12 bytes a pixel several times over, 3 GB each at this size.
+pub const MAX_PIXELS: u64 = 1 << 28;
+
 /// Checks that `m` (a 4x4 pose, row-major, camera-to-world or world-to-camera) is rigid: the
 /// last row `0 0 0 1`, the rotation orthonormal within [`ROTATION_TOLERANCE`] with determinant
 /// `+1`, every value finite; the error says which it is not.
@@ -109,12 +113,17 @@ impl Camera {
         if self.width == 0 || self.height == 0 {
             return bad("the image size", format!("{}x{}", self.width, self.height));
         }
-        if self.width > MAX_SIDE || self.height > MAX_SIDE {
+        if self.width > MAX_SIDE
+            || self.height > MAX_SIDE
+            || u64::from(self.width) * u64::from(self.height) > MAX_PIXELS
+        {
             return bad(
                 "the image size",
                 format!(
-                    "{}x{}; at most {MAX_SIDE} pixels a side are rendered",
-                    self.width, self.height
+                    "{}x{}; at most {MAX_SIDE} pixels a side and {} megapixels are rendered",
+                    self.width,
+                    self.height,
+                    MAX_PIXELS / 1_000_000
                 ),
             );
         }

@@ -93,18 +93,23 @@ fn poses_that_are_not_rigid_are_refused_naming_the_frame() {
 }
 
 #[test]
-fn a_camera_of_four_billion_pixels_a_side_is_refused() {
+fn cameras_too_large_to_render_are_refused() {
     let identity = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]];
-    let e = Camera::new(
-        identity,
-        [0.0; 3],
-        [100.0, 100.0, 50.0, 50.0],
-        u32::MAX,
-        u32::MAX,
-    )
-    .unwrap_err()
-    .to_string();
-    assert!(e.contains("at most 65536 pixels a side"), "{e}");
+    let camera = |w, h| Camera::new(identity, [0.0; 3], [100.0, 100.0, 50.0, 50.0], w, h);
+    for (w, h) in [
+        (u32::MAX, u32::MAX),
+        (100_000, 100_000),
+        (65_536, 65_536),
+        (70_000, 2),
+    ] {
+        let e = camera(w, h).unwrap_err().to_string();
+        assert!(
+            e.contains(&format!("{w}x{h}")) && e.contains("at most 65536 pixels a side"),
+            "{e}"
+        );
+    }
+    assert!(camera(16_384, 16_384).is_ok());
+    assert!(camera(65_536, 4_096).is_ok());
 }
 
 #[test]
