@@ -708,9 +708,8 @@ mod tests {
         assert_eq!(recorded_background(&path).unwrap(), background);
     }
 
-    /// A NaN or infinity anywhere in a model file is refused naming its tensor and index.
-    #[test]
-    fn a_nan_in_a_model_file_is_named_by_tensor_and_index() {
+    /// A small saved model: the folder it is in, its bytes, the header's length and the header.
+    fn saved_model() -> (tempfile::TempDir, Vec<u8>, usize, serde_json::Value) {
         let dir = tempfile::tempdir().unwrap();
         let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
         let path = dir.path().join("model.safetensors");
@@ -718,6 +717,13 @@ mod tests {
         let bytes = std::fs::read(&path).unwrap();
         let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
         let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+        (dir, bytes, len, header)
+    }
+
+    /// A NaN or infinity anywhere in a model file is refused naming its tensor and index.
+    #[test]
+    fn a_nan_in_a_model_file_is_named_by_tensor_and_index() {
+        let (dir, bytes, len, header) = saved_model();
         let mut checked = 0;
         for (name, info) in header.as_object().unwrap() {
             let Some(shape) = info["shape"].as_array() else {
@@ -753,13 +759,7 @@ mod tests {
     /// before anything is sized from them (a huge `cores` once allocated gigabytes).
     #[test]
     fn metadata_counts_are_checked_against_the_tensors_first() {
-        let dir = tempfile::tempdir().unwrap();
-        let model = crate::init::initial_model(10, NetShape { width: 4 }, 1, &Device::Cpu).unwrap();
-        let path = dir.path().join("model.safetensors");
-        save(&model, &path, None).unwrap();
-        let bytes = std::fs::read(&path).unwrap();
-        let len = u64::from_le_bytes(bytes[..8].try_into().unwrap()) as usize;
-        let header: serde_json::Value = serde_json::from_slice(&bytes[8..8 + len]).unwrap();
+        let (dir, bytes, len, header) = saved_model();
         for (key, value) in [
             ("cores", "4000000000"),
             ("subs_per_core", "1000000000000"),
