@@ -44,6 +44,7 @@ pub(crate) fn load(
         context: context(),
         source,
     };
+    let lens = lens.filter(|lens| !lens.is_none());
     let stored = if picture.prescaled {
         let scaled = training_camera(full, options).map_err(camera_error)?;
         let found = images::dimensions(&picture.path).map_err(|e| of_view(e, context))?;
@@ -57,7 +58,7 @@ pub(crate) fn load(
         }
         full.resized(found.0, found.1).map_err(camera_error)?
     } else {
-        if lens.is_some_and(|l| !l.is_none()) {
+        if lens.is_some() {
             // Checked before the undistortion's map (8 bytes a pixel) is built for it.
             let found = images::dimensions(&picture.path).map_err(|e| of_view(e, context))?;
             if found != (full.width, full.height) {
@@ -72,7 +73,6 @@ pub(crate) fn load(
         full.clone()
     };
     let undistortion = lens
-        .filter(|lens| !lens.is_none())
         .map(|lens| {
             Undistortion::new(
                 [stored.fx, stored.fy, stored.cx, stored.cy],
