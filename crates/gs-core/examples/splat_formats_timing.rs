@@ -29,8 +29,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     fill(&mut set.opacity_logits, -4.0, 4.0);
     fill(&mut set.sh_dc, -1.5, 1.5);
     fill(&mut set.sh_rest, -0.3, 0.3);
-    let mut ply = PlyGaussians::new(set);
-    ply.normals = false;
+    let ply = PlyGaussians::without_normals(set);
     let dir = std::env::temp_dir().join(format!("splat-timing-{}", std::process::id()));
     std::fs::create_dir_all(&dir)?;
     println!("| format | size (MB) | write (s) | read (s) |");

@@ -323,4 +323,22 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
         assert!(e.contains("sh_dc[7] is NaN"), "{}: {e}", format.name());
         assert!(!path.exists(), "nothing written");
     }
+    // A zero quaternion is refused by the formats that store unit rotations.
+    let mut zero = PlyGaussians::new(read_ply(&fixture("source.ply")).unwrap().gaussians);
+    zero.gaussians.quats[12..16].fill(0.0);
+    for format in [
+        SplatFormat::CompressedPly,
+        SplatFormat::Splat,
+        SplatFormat::Spz,
+        SplatFormat::SpzV2,
+    ] {
+        let path = dir.path().join(format!("zero{}", format.extension()));
+        let e = write_splats(&path, &zero, format).unwrap_err().to_string();
+        assert!(
+            e.contains("rotation of Gaussian 3 is zero"),
+            "{}: {e}",
+            format.name()
+        );
+        assert!(!path.exists(), "nothing written");
+    }
 }

@@ -14,9 +14,6 @@ use crate::model_kind::{check_model, Binary};
 use crate::outputs::create_folder;
 use crate::writable::{check_output_file, check_output_folder};
 
-/// The format names `--format` takes.
-pub const FORMAT_NAMES: [&str; 6] = ["ply", "compressed-ply", "splat", "spz", "spz-v2", "glb"];
-
 /// Flags of `export`, the same in every binary.
 #[derive(clap::Args, Debug)]
 pub struct ExportArgs {
@@ -31,16 +28,16 @@ pub struct ExportArgs {
     /// The format: ply (INRIA, exact), compressed-ply (SuperSplat), splat (antimatter15,
     /// degree-0 colour only), spz (Niantic, version 4), spz-v2 (for older SPZ readers) or glb
     /// (glTF with KHR_gaussian_splatting). Default: from the ending of --out; ply for a folder.
-    #[arg(long, value_parser = FORMAT_NAMES)]
-    pub format: Option<String>,
+    #[arg(long, value_parser = format_parser())]
+    pub format: Option<SplatFormat>,
 }
 
 impl ExportArgs {
     /// The format to write one file: `--format`, else the ending of `--out`; an error naming
     /// the flag when neither says one.
     pub fn file_format(&self) -> Result<SplatFormat, Box<dyn Error>> {
-        match &self.format {
-            Some(name) => Ok(SplatFormat::from_name(name).expect("clap checked the name")),
+        match self.format {
+            Some(format) => Ok(format),
             None => SplatFormat::from_path(&self.out).ok_or_else(|| {
                 format!(
                     "--out {}: the name ends in no splat format (.ply, .compressed.ply, .splat, \
@@ -54,10 +51,7 @@ impl ExportArgs {
 
     /// The format of a folder's files: `--format`, else INRIA PLY.
     fn folder_format(&self) -> SplatFormat {
-        self.format
-            .as_deref()
-            .and_then(SplatFormat::from_name)
-            .unwrap_or(SplatFormat::Ply)
+        self.format.unwrap_or(SplatFormat::Ply)
     }
 
     /// Checks before any work that `--model` is a model of `binary` and that `--out` can be
@@ -97,7 +91,7 @@ impl ExportArgs {
             return self.write_folder(&sets);
         }
         let set = sets.drain(..).next().ok_or("no Gaussians to export")?;
-        self.write_file(&without_normals(set))
+        self.write_file(&PlyGaussians::without_normals(set))
     }
 
     /// Writes each of `sets` into the folder `--out` (created when absent) as `00000<ext>`,
@@ -107,7 +101,7 @@ impl ExportArgs {
         create_folder(&self.out)?;
         for (i, set) in sets.iter().enumerate() {
             let path = self.out.join(format!("{i:05}{}", format.extension()));
-            write_splats(&path, &without_normals(set.clone()), format)?;
+            write_splats(&path, &PlyGaussians::without_normals(set.clone()), format)?;
         }
         Ok(format!(
             "wrote {} files ({} each, {}) to {}",
@@ -120,11 +114,11 @@ impl ExportArgs {
     }
 }
 
-/// Gaussians made here, to write with no property beside them (no normals).
-fn without_normals(set: GaussianSet) -> PlyGaussians {
-    let mut ply = PlyGaussians::new(set);
-    ply.normals = false;
-    ply
+/// `--format`'s values: the names of [`SplatFormat::ALL`], listed in `--help`.
+fn format_parser() -> impl clap::builder::TypedValueParser<Value = SplatFormat> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(SplatFormat::ALL.map(SplatFormat::name))
+        .map(|name| SplatFormat::from_name(&name).expect("a name of SplatFormat::ALL"))
 }
 
 /// The Gaussians `model` renders at each of `times` (its forward at a view of that time; the
@@ -145,15 +139,4 @@ pub fn gaussians_at<M: BaseModel>(model: &M, times: &[f64]) -> Result<Vec<Gaussi
                 .map_err(|e| format!("the Gaussians at time {time}: {e}"))
         })
         .collect()
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn the_format_names_are_the_formats() {
-        let names: Vec<&str> = SplatFormat::ALL.iter().map(|f| f.name()).collect();
-        assert_eq!(names, FORMAT_NAMES);
-    }
 }

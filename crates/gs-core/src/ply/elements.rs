@@ -106,13 +106,16 @@ pub fn parse_elements(bytes: &[u8]) -> Result<Header, String> {
 
 /// Checks that the binary body of `bytes` holds exactly the rows `header` announces: a count
 /// that is too small (rows read from the next element's bytes), too large, or trailing bytes
-/// are refused. An ascii body is not measured.
-pub fn check_body_length(header: &Header, bytes: &[u8]) -> Result<(), String> {
+/// are refused. Returns where each element's rows start (an ascii body is not measured: its
+/// starts are all the body's).
+pub fn check_body_length(header: &Header, bytes: &[u8]) -> Result<Vec<usize>, String> {
     if header.format == "ascii" {
-        return Ok(());
+        return Ok(vec![header.body_start; header.elements.len()]);
     }
+    let mut starts = Vec::with_capacity(header.elements.len());
     let mut expected = header.body_start;
     for e in &header.elements {
+        starts.push(expected);
         expected = e
             .count
             .checked_mul(e.stride())
@@ -120,7 +123,7 @@ pub fn check_body_length(header: &Header, bytes: &[u8]) -> Result<(), String> {
             .ok_or_else(|| format!("element {}: {} rows cannot be held", e.name, e.count))?;
     }
     match bytes.len().cmp(&expected) {
-        std::cmp::Ordering::Equal => Ok(()),
+        std::cmp::Ordering::Equal => Ok(starts),
         std::cmp::Ordering::Less => Err(format!(
             "the body is {} bytes; the header announces {} ({})",
             bytes.len() - header.body_start,

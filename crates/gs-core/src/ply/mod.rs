@@ -93,6 +93,15 @@ impl PlyGaussians {
         }
     }
 
+    /// Gaussians with no extra property and no normals (written without them): what a format
+    /// other than INRIA's PLY holds, or a model's forward gives.
+    pub fn without_normals(gaussians: GaussianSet) -> Self {
+        Self {
+            normals: false,
+            ..Self::new(gaussians)
+        }
+    }
+
     /// Names of the extra properties that are neither Gaussian parameters nor the INRIA normals
     /// (`nx ny nz`): what a caller may want to tell the user was kept but not used.
     pub fn unknown_properties(&self) -> Vec<&str> {

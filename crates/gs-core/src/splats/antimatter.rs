@@ -11,7 +11,7 @@
 //! quantisation as splat-transform does: a rotation byte `b` is `b / 127.5 - 1`, the quaternion
 //! normalised; alpha through [`opacity_of_level`](super::opacity_of_level).
 
-use super::{check_finite, check_linear_scales, opacity_of_level, sigmoid};
+use super::{check_finite, check_linear_scales, check_rotations, opacity_of_level, sigmoid};
 use crate::sh::C0;
 use crate::GaussianSet;
 
@@ -26,6 +26,7 @@ fn level(v: f64) -> u8 {
 /// The `.splat` bytes of `set` (its order kept); an error names a value that cannot be written.
 pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
     check_finite(set)?;
+    check_rotations(set)?;
     check_linear_scales(set)?;
     let mut out = Vec::with_capacity(RECORD * set.len());
     for i in 0..set.len() {
@@ -41,9 +42,6 @@ pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
         out.push(level(sigmoid(f64::from(set.opacity_logits[i]))));
         let q = &set.quats[4 * i..4 * i + 4];
         let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
-        if norm == 0.0 {
-            return Err(format!("quats[{i}] is zero: a rotation has no direction"));
-        }
         for &v in q {
             out.push((f64::from(v) / norm * 128.0 + 128.0).clamp(0.0, 255.0) as u8);
         }

@@ -14,8 +14,8 @@
 //! finer within runs of more than 256 equal codes), as splat-transform does, so the file order
 //! is not the input's. A bound pair closer than 1e-5 stores 0.
 
-use super::{check_finite, opacity_of_level, sigmoid};
-use crate::ply::elements::parse_elements;
+use super::{check_finite, check_rotations, opacity_of_level, sigmoid};
+use crate::ply::elements::{check_body_length, parse_elements};
 use crate::sh::C0;
 use crate::GaussianSet;
 
@@ -174,10 +174,7 @@ fn bounds(values: impl Iterator<Item = f64>) -> (f64, f64) {
 /// written.
 pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
     check_finite(set)?;
-    if let Some(i) = (0..set.len()).find(|&i| set.quats[4 * i..4 * i + 4].iter().all(|&v| v == 0.0))
-    {
-        return Err(format!("quats[{i}] is zero: a rotation has no direction"));
-    }
+    check_rotations(set)?;
     let n = set.len();
     let chunks = n.div_ceil(CHUNK);
     let rest = 3 * (set.sh_coeffs() - 1);
@@ -262,32 +259,13 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             header.format
         ));
     }
-    let (elements, body) = (header.elements, header.body_start);
+    let starts = check_body_length(&header, bytes)?;
+    let elements = header.elements;
     let find = |name: &str| elements.iter().position(|e| e.name == name);
     let (chunk_e, vertex_e) = match (find("chunk"), find("vertex")) {
         (Some(c), Some(v)) => (c, v),
         _ => return Err("a compressed PLY has a chunk and a vertex element".into()),
     };
-    let mut starts = Vec::new();
-    let mut at = body;
-    for e in &elements {
-        starts.push(at);
-        let size = e
-            .count
-            .checked_mul(e.stride())
-            .and_then(|s| s.checked_add(at))
-            .filter(|&end| end <= bytes.len())
-            .ok_or_else(|| {
-                format!(
-                    "element {}: {} rows run past the end of the file",
-                    e.name, e.count
-                )
-            })?;
-        at = size;
-    }
-    if at != bytes.len() {
-        return Err(format!("{} bytes after the last element", bytes.len() - at));
-    }
     let (chunk, vertex) = (&elements[chunk_e], &elements[vertex_e]);
     let n = vertex.count;
     if chunk.count != n.div_ceil(CHUNK) {

@@ -161,7 +161,10 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             })
         }
     };
-    Ok((without_extras(gaussians), PlyFormat::BinaryLittleEndian))
+    Ok((
+        PlyGaussians::without_normals(gaussians),
+        PlyFormat::BinaryLittleEndian,
+    ))
 }
 
 /// The first 4 KiB of `path` (a PLY header fits), to tell a compressed PLY from an INRIA one
@@ -179,13 +182,6 @@ fn head(path: &Path) -> Result<Vec<u8>, SplatFileError> {
         .read_to_end(&mut head)
         .map_err(io)?;
     Ok(head)
-}
-
-/// Gaussians read from a format that has no extra property and no normals.
-fn without_extras(gaussians: GaussianSet) -> PlyGaussians {
-    let mut ply = PlyGaussians::new(gaussians);
-    ply.normals = false;
-    ply
 }
 
 /// Writes `ply` to `path` in `format` (through a temporary name, renamed when complete).
@@ -226,6 +222,21 @@ pub(crate) fn opacity_of_level(level: u32) -> f64 {
     (p / (1.0 - p)).ln()
 }
 
+/// A Gaussian whose quaternion is zero, named by index: what the formats that store unit
+/// rotations (compressed PLY, SPZ, `.splat`) refuse, since it has no direction to store.
+pub(crate) fn check_rotations(set: &GaussianSet) -> Result<(), String> {
+    match set
+        .quats
+        .chunks_exact(4)
+        .position(|q| q.iter().all(|&v| v == 0.0))
+    {
+        Some(i) => Err(format!(
+            "the rotation of Gaussian {i} is zero: a rotation has a direction"
+        )),
+        None => Ok(()),
+    }
+}
+
 /// A log-scale whose linear scale (`exp`) is not a finite `f32`, named by index: what the
 /// formats of linear scales (`.splat`, glTF) refuse.
 pub(crate) fn check_linear_scales(set: &GaussianSet) -> Result<(), String> {
@@ -235,25 +246,17 @@ pub(crate) fn check_linear_scales(set: &GaussianSet) -> Result<(), String> {
         .position(|&s| !(f64::from(s).exp() as f32).is_finite())
     {
         Some(i) => Err(format!(
-            "log_scales[{i}] is {}: its linear scale does not fit a float",
+            "scales[{i}] is {}: the exp of this log-scale does not fit a float",
             set.log_scales[i]
         )),
         None => Ok(()),
     }
 }
 
-/// A non-finite value among the Gaussians, named by array and index: what an encoder refuses
-/// (a quantised format would write nonsense for it).
+/// A non-finite value among the Gaussians, named by array ([`crate::gaussians::PARAM_NAMES`])
+/// and index: what an encoder refuses (a quantised format would write nonsense for it).
 pub(crate) fn check_finite(set: &GaussianSet) -> Result<(), String> {
-    let arrays: [(&str, &[f32]); 6] = [
-        ("means", &set.means),
-        ("log_scales", &set.log_scales),
-        ("quats", &set.quats),
-        ("opacity_logits", &set.opacity_logits),
-        ("sh_dc", &set.sh_dc),
-        ("sh_rest", &set.sh_rest),
-    ];
-    for (name, values) in arrays {
+    for (name, values) in crate::gaussians::PARAM_NAMES.iter().zip(set.arrays()) {
         if let Some(i) = values.iter().position(|v| !v.is_finite()) {
             return Err(format!("{name}[{i}] is {}", values[i]));
         }

@@ -23,7 +23,7 @@
 
 use std::io::{Read, Write};
 
-use super::{check_finite, opacity_of_level, sigmoid};
+use super::{check_finite, check_rotations, opacity_of_level, sigmoid};
 use crate::GaussianSet;
 
 /// The magic number, `NGSP` little-endian.
@@ -70,7 +70,7 @@ fn fractional_bits(means: &[f32]) -> Result<u8, String> {
 }
 
 /// The attribute streams of `set`: positions, alphas, colours, scales, rotations, SH.
-fn attributes(set: &GaussianSet, version: Version, bits: u8) -> Result<Vec<Vec<u8>>, String> {
+fn attributes(set: &GaussianSet, version: Version, bits: u8) -> Vec<Vec<u8>> {
     let n = set.len();
     let scale = f64::from(1u32 << bits);
     let mut positions = Vec::with_capacity(9 * n);
@@ -98,13 +98,10 @@ fn attributes(set: &GaussianSet, version: Version, bits: u8) -> Result<Vec<Vec<u
         .map(|&s| ((f64::from(s) + 10.0) * 16.0).round().clamp(0.0, 255.0) as u8)
         .collect();
     let mut rotations = Vec::with_capacity(4 * n);
-    for (i, q) in set.quats.chunks_exact(4).enumerate() {
-        // (x, y, z, w), unit.
+    for q in set.quats.chunks_exact(4) {
+        // (x, y, z, w), unit (`encode` refused zero quaternions).
         let xyzw = [q[1], q[2], q[3], q[0]].map(f64::from);
         let norm = xyzw.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if norm == 0.0 {
-            return Err(format!("quats[{i}] is zero: a rotation has no direction"));
-        }
         let u = xyzw.map(|v| v / norm);
         match version {
             Version::V2 => {
@@ -142,15 +139,16 @@ fn attributes(set: &GaussianSet, version: Version, bits: u8) -> Result<Vec<Vec<u
         }
         streams.push(sh);
     }
-    Ok(streams)
+    streams
 }
 
 /// The SPZ bytes of `set` in `version`; an error names a value that cannot be written.
 pub fn encode(set: &GaussianSet, version: Version) -> Result<Vec<u8>, String> {
     check_finite(set)?;
+    check_rotations(set)?;
     let n = u32::try_from(set.len()).map_err(|_| "more Gaussians than SPZ counts (2^32)")?;
     let bits = fractional_bits(&set.means)?;
-    let streams = attributes(set, version, bits)?;
+    let streams = attributes(set, version, bits);
     let degree = set.sh_degree() as u8;
     match version {
         Version::V2 | Version::V3 => {
