@@ -217,6 +217,14 @@ impl<T: Real> GaussianSet<T> {
         ]
     }
 
+    /// The first Gaussian whose quaternion is zero (a rotation of no direction: it renders as
+    /// nothing, or as NaN), if any.
+    pub fn zero_rotation(&self) -> Option<usize> {
+        self.quats
+            .chunks_exact(4)
+            .position(|q| q.iter().all(|&v| v == T::ZERO))
+    }
+
     /// Mutable parameter arrays, in the fixed order of [`PARAM_NAMES`].
     pub fn arrays_mut(&mut self) -> [&mut Vec<T>; 6] {
         [

@@ -260,11 +260,7 @@ fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
         Some(be) => binary::read_body(body, &layout, be, &mut gaussians, &mut extras)?,
         None => ascii::read_body(body, header.lines + 1, &layout, &mut gaussians, &mut extras)?,
     }
-    if let Some(vertex) = gaussians
-        .quats
-        .chunks_exact(4)
-        .position(|q| q.iter().all(|&v| v == 0.0))
-    {
+    if let Some(vertex) = gaussians.zero_rotation() {
         return Err(PlyErrorKind::BadValue {
             vertex,
             property: "rot_0..rot_3".into(),

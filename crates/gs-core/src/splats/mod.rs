@@ -225,11 +225,7 @@ pub(crate) fn opacity_of_level(level: u32) -> f64 {
 /// A Gaussian whose quaternion is zero, named by index: what the formats that store unit
 /// rotations (compressed PLY, SPZ, `.splat`) refuse, since it has no direction to store.
 pub(crate) fn check_rotations(set: &GaussianSet) -> Result<(), String> {
-    match set
-        .quats
-        .chunks_exact(4)
-        .position(|q| q.iter().all(|&v| v == 0.0))
-    {
+    match set.zero_rotation() {
         Some(i) => Err(format!(
             "the rotation of Gaussian {i} is zero: a rotation has a direction"
         )),
