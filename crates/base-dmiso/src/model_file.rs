@@ -50,13 +50,13 @@ pub enum ModelFileError {
         /// The reader's or writer's error.
         source: safetensors::SafeTensorError,
     },
-    /// A tensor file that candle could not read (a truncated or foreign `.pth`).
-    #[error("{}: not a readable PyTorch checkpoint ({source})", path.display())]
+    /// A PyTorch file that could not be read (a truncated, corrupt or foreign `.pth`).
+    #[error("{}: not a readable PyTorch checkpoint ({message})", path.display())]
     Checkpoint {
         /// The file.
         path: PathBuf,
-        /// candle's error.
-        source: candle_core::Error,
+        /// What the reader found.
+        message: String,
     },
 }
 
@@ -325,8 +325,11 @@ fn unravel(mut flat: usize, shape: &[usize]) -> Vec<usize> {
 /// Tensors by name: shape and f32 values.
 type NamedValues = HashMap<String, (Vec<usize>, Vec<f32>)>;
 
-/// Reads a tensor file through candle's PyTorch reader: every tensor by name, as f32 values
-/// with their shape.
+/// Reads a PyTorch file (`torch.save` of a dict of tensors) through `pytorch_reader`, which
+/// checks every length the file declares against the file: every tensor by name, as f32
+/// values with their shape. Each tensor's type is checked before its bytes are read, and its
+/// size against the file's length (a view may declare more elements than its storage holds:
+/// the authors' files hold none), so no allocation exceeds the file.
 fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
     if !path.is_file() {
         return Err(ModelFileError::Io {
@@ -334,39 +337,58 @@ fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "not found"),
         });
     }
-    let checkpoint = |source| ModelFileError::Checkpoint {
+    let checkpoint = |message: String| ModelFileError::Checkpoint {
         path: path.to_path_buf(),
-        source,
+        message,
     };
-    let tensors = candle_core::pickle::read_all(path).map_err(checkpoint)?;
-    tensors
+    let file_len = std::fs::metadata(path)
+        .map_err(|source| ModelFileError::Io {
+            path: path.to_path_buf(),
+            source,
+        })?
+        .len();
+    let reader = pytorch_reader::PytorchReader::new(path).map_err(|e| checkpoint(e.to_string()))?;
+    reader
+        .into_tensors()
         .into_iter()
-        .map(|(name, t): (String, Tensor)| {
-            check_float(&name, t.dtype()).map_err(|message| ModelFileError::Format {
+        .map(|(name, tensor)| {
+            let bad = |message| ModelFileError::Format {
                 path: path.to_path_buf(),
                 message,
-            })?;
-            let shape = t.dims().to_vec();
-            let values = t
-                .to_dtype(candle_core::DType::F32)
+            };
+            let dtype = float_dtype(&name, tensor.dtype()).map_err(bad)?;
+            if tensor.byte_len() as u64 > file_len {
+                return Err(bad(format!(
+                    "tensor {name} of shape {:?} claims {} bytes, more than the file's {file_len}",
+                    tensor.shape(),
+                    tensor.byte_len()
+                )));
+            }
+            let shape = tensor.shape().to_vec();
+            let bytes = tensor.read().map_err(|e| checkpoint(e.to_string()))?;
+            let values = Tensor::from_raw_buffer(&bytes, dtype, &shape, &Device::Cpu)
+                .and_then(|t| t.to_dtype(candle_core::DType::F32))
                 .and_then(|t| t.flatten_all())
                 .and_then(|t| t.to_vec1::<f32>())
-                .map_err(checkpoint)?;
+                .map_err(|e| checkpoint(format!("tensor {name}: {e}")))?;
             Ok((name, (shape, values)))
         })
         .collect()
 }
 
-/// Refuses a tensor `name` stored in a type that is not a float (a checkpoint whose storage was
-/// changed to bytes or integers would otherwise be read as those numbers).
-fn check_float(name: &str, dtype: candle_core::DType) -> Result<(), String> {
-    use candle_core::DType;
-    if matches!(dtype, DType::F16 | DType::BF16 | DType::F32 | DType::F64) {
-        Ok(())
-    } else {
-        Err(format!(
-            "tensor {name} is stored as {dtype:?}; a model's parameters are floats"
-        ))
+/// The candle type of a tensor `name` stored as `dtype`, refused when it is not a float (a
+/// checkpoint whose storage was changed to bytes or integers would otherwise be read as those
+/// numbers).
+fn float_dtype(name: &str, dtype: pytorch_reader::DType) -> Result<candle_core::DType, String> {
+    use pytorch_reader::DType as Stored;
+    match dtype {
+        Stored::F16 => Ok(candle_core::DType::F16),
+        Stored::BF16 => Ok(candle_core::DType::BF16),
+        Stored::F32 => Ok(candle_core::DType::F32),
+        Stored::F64 => Ok(candle_core::DType::F64),
+        other => Err(format!(
+            "tensor {name} is stored as {other:?}; a model's parameters are floats"
+        )),
     }
 }
 
@@ -784,12 +806,12 @@ mod tests {
 
     #[test]
     fn only_float_storages_hold_parameters() {
-        use candle_core::DType;
+        use pytorch_reader::DType;
         for dtype in [DType::F16, DType::BF16, DType::F32, DType::F64] {
-            assert!(check_float("w", dtype).is_ok());
+            assert!(float_dtype("w", dtype).is_ok());
         }
-        for dtype in [DType::U8, DType::U32, DType::I64] {
-            let e = check_float("deform.linear.0.weight", dtype).unwrap_err();
+        for dtype in [DType::U8, DType::Bool, DType::I64] {
+            let e = float_dtype("deform.linear.0.weight", dtype).unwrap_err();
             assert!(
                 e.contains("deform.linear.0.weight") && e.contains("floats"),
                 "{e}"

@@ -43,6 +43,19 @@ unsafe impl GlobalAlloc for Counting {
     }
 }
 
+/// The bytes held now, from which the peak is measured again.
+pub fn held() -> usize {
+    let held = HELD.load(Ordering::Relaxed);
+    PEAK.store(held, Ordering::Relaxed);
+    held
+}
+
+/// The most bytes held above `before` (from [`held`]) since it was taken.
+pub fn peak_since(before: usize) -> usize {
+    PEAK.load(Ordering::Relaxed).saturating_sub(before)
+}
+
+/// How many mutations each fuzz test runs: `FUZZ_CASES`, 500 by default.
 pub fn cases() -> usize {
     std::env::var("FUZZ_CASES")
         .ok()
@@ -105,17 +118,27 @@ pub fn fuzz(
     seed: u64,
     read: impl Fn(&Path) -> Result<(), String>,
 ) -> usize {
+    fuzz_with(name, seed, |rng| mutate(valid, rng), read)
+}
+
+/// [`fuzz`] over the files `make` writes from the case's random numbers (a mutation inside a
+/// container, for instance, where a mutation of the container would only fail its checksum).
+pub fn fuzz_with(
+    name: &str,
+    seed: u64,
+    make: impl Fn(&mut rand::rngs::StdRng) -> Vec<u8>,
+    read: impl Fn(&Path) -> Result<(), String>,
+) -> usize {
     let dir = tempfile::tempdir().unwrap();
     let path = dir.path().join(name);
     let mut rng = rand::rngs::StdRng::seed_from_u64(seed);
     let mut refused = 0;
     for case in 0..cases() {
-        let bytes = mutate(valid, &mut rng);
+        let bytes = make(&mut rng);
         std::fs::write(&path, &bytes).unwrap();
-        let before = HELD.load(Ordering::Relaxed);
-        PEAK.store(before, Ordering::Relaxed);
+        let before = held();
         let outcome = std::panic::catch_unwind(AssertUnwindSafe(|| read(&path)));
-        let peak = PEAK.load(Ordering::Relaxed).saturating_sub(before);
+        let peak = peak_since(before);
         match outcome {
             Err(_) => panic!("{name} case {case} (seed {seed}): the reader panicked"),
             Ok(Err(e)) => {
