@@ -189,14 +189,11 @@ pub fn dataset_cameras(
         path: data.to_path_buf(),
         message,
     };
-    // The render names are checked from the json or the sparse model first: two views of one
-    // name are refused before any picture is decoded.
-    let dataset = match Layout::detect(data) {
+    // Nothing is decoded: the cameras come from the json or the sparse model (a picture's
+    // header read only where its size is needed), and need not all have their pictures.
+    let views = match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
-            let split = split.unwrap_or(Split::Train);
-            let paths = nerf_synthetic::picture_paths(data, split).map_err(wrap)?;
-            render_names(data, &paths)?;
-            nerf_synthetic::load(data, split, options).map_err(wrap)?
+            nerf_synthetic::views(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
         }
         Some(Layout::Colmap) => {
             if split.is_some() {
@@ -204,19 +201,18 @@ pub fn dataset_cameras(
                     "a COLMAP scene has no splits: leave out --split to render every image".into(),
                 ));
             }
-            render_names(data, &colmap::picture_paths(data).map_err(wrap)?)?;
-            colmap::load(data, options).map_err(wrap)?
+            colmap::views(data, options).map_err(wrap)?
         }
         None => return Err(layout(Layout::LOOKED_FOR.into())),
     };
-    let names = render_names(data, &dataset.image_paths)?;
-    Ok(dataset
-        .views
+    let pictures: Vec<PathBuf> = views.iter().map(|v| v.picture.clone()).collect();
+    let names = render_names(data, &pictures)?;
+    Ok(views
         .into_iter()
         .zip(names)
         .map(|(view, name)| NamedCamera {
             name,
-            camera: view.camera,
+            camera: view.view.camera,
         })
         .collect())
 }

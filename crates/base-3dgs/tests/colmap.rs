@@ -301,6 +301,7 @@ fn downscale_2_halves_intrinsics_and_image_sizes() {
     // No images_2/: the full images are resized.
     let resized = colmap::load(dir.path(), &options).unwrap();
     check(&resized);
+    common::same_views(&resized, &colmap::views(dir.path(), &options).unwrap());
     assert!(resized.image_paths[0].parent().unwrap().ends_with("images"));
     // Blue is 77 everywhere and stays so; red is a ramp that the resize averages.
     let px = resized.images[0].pixel(1, 1);
@@ -310,6 +311,7 @@ fn downscale_2_halves_intrinsics_and_image_sizes() {
     write_images(&dir.path().join("images_2"), W / 2, H / 2);
     let prescaled = colmap::load(dir.path(), &options).unwrap();
     check(&prescaled);
+    common::same_views(&prescaled, &colmap::views(dir.path(), &options).unwrap());
     assert!(prescaled.image_paths[0]
         .parent()
         .unwrap()
@@ -338,6 +340,10 @@ fn distorted_cameras_are_undistorted_and_cropped_and_other_models_refused() {
     )
     .unwrap();
     let data = colmap::load(dir.path(), &LoadOptions::default()).unwrap();
+    common::same_views(
+        &data,
+        &colmap::views(dir.path(), &LoadOptions::default()).unwrap(),
+    );
     // a.png is camera 7's: barrel distortion undone, its border bulges outwards, so the
     // pinhole picture of only valid pixels sees more than the same focal length would (a shorter
     // one) and loses its last column and row (OpenCV's rounding at alpha 0); b.png and c.png are

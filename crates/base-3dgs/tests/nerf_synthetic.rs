@@ -104,7 +104,15 @@ fn nerfstudio_intrinsics_and_float_sizes_are_read() {
             serde_json::to_string(&json).unwrap(),
         )
         .unwrap();
-        nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default())
+        let loaded = nerf_synthetic::load(dir.path(), Split::Train, &LoadOptions::default());
+        if let Ok(data) = &loaded {
+            let options = LoadOptions::default();
+            common::same_views(
+                data,
+                &nerf_synthetic::views(dir.path(), Split::Train, &options).unwrap(),
+            );
+        }
+        loaded
     };
     let data = write(serde_json::json!({
         "w": 8.0, "h": 6.0, "fl_x": 7.5, "fl_y": 7.0, "cx": 4.25, "cy": 2.75,
@@ -492,10 +500,18 @@ fn downscaled_folders_and_per_frame_sizes_are_used() {
     };
     let resized = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
     assert!(resized.image_paths[0].parent().unwrap().ends_with("images"));
+    common::same_views(
+        &resized,
+        &nerf_synthetic::views(dir.path(), Split::Train, &options).unwrap(),
+    );
     write_rgba(&dir.path().join("images_2/frame_00000.png"), 8, 6);
     write_rgba(&dir.path().join("images_2/frame_00001.png"), 7, 8);
     let prescaled = nerf_synthetic::load(dir.path(), Split::Train, &options).unwrap();
     assert!(prescaled.image_paths[0].ends_with("images_2/frame_00000.png"));
+    common::same_views(
+        &prescaled,
+        &nerf_synthetic::views(dir.path(), Split::Train, &options).unwrap(),
+    );
     let c = &prescaled.views[1].camera;
     assert_eq!((c.width, c.height), (7, 8));
     assert!(close(c.fx, 14.0 * 7.0 / 12.0) && close(c.cy, 4.0), "{c:?}");
@@ -505,27 +521,35 @@ fn downscaled_folders_and_per_frame_sizes_are_used() {
 }
 
 /// Two frames whose pictures share a file name would be rendered to one file: refused naming
-/// the dataset and both pictures, from the json alone (the pictures do not even exist: none
-/// is decoded first).
+/// the dataset and both pictures, from the json alone (it gives the pictures' size, and the
+/// pictures do not even exist: none is read). With distinct names, the same json gives its
+/// cameras without pictures.
 #[test]
 fn views_that_would_be_rendered_to_one_file_are_named() {
     let dir = TempDir::new("nerf-same-names");
     let pose = [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]];
-    std::fs::write(
-        dir.path().join("transforms_train.json"),
-        serde_json::json!({
-            "camera_angle_x": fov_x(),
-            "frames": [
-                {"file_path": "a/r_1", "transform_matrix": pose},
-                {"file_path": "b/r_1", "transform_matrix": pose},
-            ]
-        })
-        .to_string(),
-    )
-    .unwrap();
-    let e = base_3dgs::render_views::dataset_cameras(dir.path(), None, &LoadOptions::default())
-        .unwrap_err()
-        .to_string();
+    let cameras = |second: &str| {
+        std::fs::write(
+            dir.path().join("transforms_train.json"),
+            serde_json::json!({
+                "camera_angle_x": fov_x(),
+                "w": 8,
+                "h": 6,
+                "frames": [
+                    {"file_path": "a/r_1", "transform_matrix": pose},
+                    {"file_path": second, "transform_matrix": pose},
+                ]
+            })
+            .to_string(),
+        )
+        .unwrap();
+        base_3dgs::render_views::dataset_cameras(dir.path(), None, &LoadOptions::default())
+    };
+    let found = cameras("b/r_2").unwrap();
+    let names: Vec<_> = found.iter().map(|c| c.name.as_str()).collect();
+    assert_eq!(names, ["r_1.png", "r_2.png"]);
+    assert_eq!((found[1].camera.width, found[1].camera.height), (8, 6));
+    let e = cameras("b/r_1").unwrap_err().to_string();
     assert!(
         e.contains("a/r_1.png")
             && e.contains("b/r_1.png")

@@ -163,7 +163,8 @@ struct RenderArgs {
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: PathBuf,
     /// A dataset folder (NeRF-synthetic or COLMAP) whose cameras to render from; each picture
-    /// is named after its dataset image, with the extension .png.
+    /// is named after its dataset image, with the extension .png. Its pictures are not
+    /// decoded (only a header where the cameras need a size) and need not all be there.
     #[arg(long, required_unless_present = "camera", conflicts_with = "camera")]
     data: Option<PathBuf>,
     /// The split (default train): NeRF-synthetic's transforms_<split>.json, or the split lists

@@ -1,4 +1,4 @@
-//! A temporary folder for the integration tests.
+//! A temporary folder for the integration tests, and checks they share.
 
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -27,4 +27,13 @@ impl Drop for TempDir {
     fn drop(&mut self) {
         let _ = std::fs::remove_dir_all(&self.0);
     }
+}
+
+/// `views` (read without decoding a picture) are the loaded dataset's views and pictures.
+#[allow(dead_code)] // Not every test crate including this module checks views.
+pub fn same_views(data: &base_3dgs::dataset::Dataset, views: &[base_3dgs::dataset::DatasetView]) {
+    let cameras: Vec<_> = views.iter().map(|v| v.view.clone()).collect();
+    let pictures: Vec<_> = views.iter().map(|v| v.picture.clone()).collect();
+    assert_eq!(cameras, data.views);
+    assert_eq!(pictures, data.image_paths);
 }

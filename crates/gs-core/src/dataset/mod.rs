@@ -224,6 +224,16 @@ pub struct Dataset {
     pub undistorted: Vec<Option<Undistorted>>,
 }
 
+/// One view of a dataset and its picture file, read from the dataset's files without decoding
+/// the picture: the view [`Dataset::views`] would hold at the same place.
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatasetView {
+    /// The camera (as trained: undistorted, downscaled) and time.
+    pub view: View,
+    /// The picture file.
+    pub picture: PathBuf,
+}
+
 /// One loaded frame: its view, ground-truth image, background mask, image file and what
 /// undistorting it did.
 pub(crate) struct LoadedFrame {

@@ -25,17 +25,13 @@
 use std::path::{Path, PathBuf};
 
 use crate::camera::fov_to_focal;
-use crate::model::View;
 use crate::Camera;
-use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use super::images::{self, Composite};
 use super::undistort::LensDistortion;
-use super::view_picture::{self, prescaled_folder, PictureFile};
-use super::{
-    check_options, training_camera, Dataset, DatasetError, ImageCounter, LoadOptions, LoadedFrame,
-};
+use super::view_picture::{self, prescaled_folder, PictureFile, ViewSpec};
+use super::{check_options, training_camera, Dataset, DatasetError, DatasetView, LoadOptions};
 
 /// Which transforms file to load.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -350,17 +346,6 @@ pub fn training_pixels(
     Ok((views, largest))
 }
 
-/// The picture file of every frame of `split` of the scene in `root`, in frame order, from the
-/// json alone (nothing is decoded): what a caller checks before loading.
-pub fn picture_paths(root: &Path, split: Split) -> Result<Vec<PathBuf>, DatasetError> {
-    let (_, transforms) = read_transforms(root, split)?;
-    Ok(transforms
-        .frames
-        .iter()
-        .map(|f| image_path(root, &f.file_path))
-        .collect())
-}
-
 /// The stored size of each frame's picture: the frame's `w`/`h`, else the file's, else the
 /// size of the first frame's picture (read from its header only when needed).
 fn frame_sizes(root: &Path, transforms: &Transforms) -> Result<Vec<(u32, u32)>, DatasetError> {
@@ -475,6 +460,33 @@ fn load_split(
     options: &LoadOptions,
     with_times: bool,
 ) -> Result<Dataset, DatasetError> {
+    let specs = view_specs(root, split, options, with_times)?;
+    let loaded =
+        view_picture::load_all(&specs, options, Composite::of(options.ground_truth, true))?;
+    Ok(Dataset::from_frames(loaded, options.background.rgb(), None))
+}
+
+/// The views of one split of the scene in `root` as [`load`] gives them (at time 0), without
+/// decoding any picture: the cameras from the json, a picture's header read only where its
+/// size is needed (a json without `w`/`h`, a pre-downscaled or distorted picture). What a
+/// render from a dataset's cameras needs; the pictures need not all be there.
+pub fn views(
+    root: &Path,
+    split: Split,
+    options: &LoadOptions,
+) -> Result<Vec<DatasetView>, DatasetError> {
+    view_picture::views(&view_specs(root, split, options, false)?, options)
+}
+
+/// Every frame of one split of the scene in `root`, checked, before its picture is read: the
+/// picture file, the camera of the stored picture, its lens and its time (0 unless
+/// `with_times`, when every frame must have one in `[0, 1]`).
+fn view_specs(
+    root: &Path,
+    split: Split,
+    options: &LoadOptions,
+    with_times: bool,
+) -> Result<Vec<ViewSpec>, DatasetError> {
     check_options(options)?;
     let (json_path, transforms) = read_transforms(root, split)?;
     let format_error = |message: String| DatasetError::Format {
@@ -484,56 +496,44 @@ fn load_split(
     if transforms.frames.is_empty() {
         return Err(format_error("no frames".into()));
     }
-    let mut times = vec![0.0; transforms.frames.len()];
-    if with_times {
-        for (i, (frame, time)) in transforms.frames.iter().zip(&mut times).enumerate() {
-            *time = match frame.time {
-                None => {
-                    return Err(format_error(format!(
-                        "frame {i} ({}) has no \"time\"; a D-NeRF scene gives every frame a \
-                         time in [0, 1]",
-                        frame.file_path
-                    )))
-                }
-                Some(t) if !(0.0..=1.0).contains(&t) => {
-                    return Err(format_error(format!(
-                        "frame {i} ({}) has time {t}; times must lie in [0, 1]",
-                        frame.file_path
-                    )))
-                }
-                Some(t) => t,
-            };
-        }
-    }
     let sizes = frame_sizes(root, &transforms)?;
-    let cameras = transforms
+    let prescaled = prescaled_folder(root, options.downscale);
+    transforms
         .frames
         .iter()
         .zip(&sizes)
         .enumerate()
         .map(|(i, (frame, &(w, h)))| {
-            let given = frame.intrinsics.over(transforms.intrinsics);
             let frame_error =
-                |why: String| format_error(format!("frame {i} ({}): {why}", frame.file_path));
+                |why: String| format_error(format!("frame {i} ({}){why}", frame.file_path));
+            let time = match frame.time {
+                _ if !with_times => 0.0,
+                None => {
+                    return Err(frame_error(
+                        " has no \"time\"; a D-NeRF scene gives every frame a time in [0, 1]"
+                            .into(),
+                    ))
+                }
+                Some(t) if !(0.0..=1.0).contains(&t) => {
+                    return Err(frame_error(format!(
+                        " has time {t}; times must lie in [0, 1]"
+                    )))
+                }
+                Some(t) => t,
+            };
+            let given = frame.intrinsics.over(transforms.intrinsics);
             let intrinsics = given
                 .pixels(transforms.camera_angle_x, w, h)
-                .map_err(frame_error)?;
-            let lens = transforms.lens(&given).map_err(frame_error)?;
+                .map_err(|why| frame_error(format!(": {why}")))?;
+            let lens = transforms
+                .lens(&given)
+                .map_err(|why| frame_error(format!(": {why}")))?;
+            let context = format!("{} frame {i}", json_path.display());
             let full = Camera::from_nerf_intrinsics(frame.transform_matrix, intrinsics, w, h)
                 .map_err(|source| DatasetError::Camera {
-                    context: format!("{} frame {i}", json_path.display()),
+                    context: context.clone(),
                     source,
                 })?;
-            Ok((full, lens))
-        })
-        .collect::<Result<Vec<_>, DatasetError>>()?;
-    let prescaled = prescaled_folder(root, options.downscale);
-    let counter = ImageCounter::new(options, transforms.frames.len());
-    let loaded: Vec<_> = transforms
-        .frames
-        .par_iter()
-        .enumerate()
-        .map(|(i, frame)| {
             let full_size = image_path(root, &frame.file_path);
             let picture = match &prescaled {
                 Some(folder) => PictureFile {
@@ -545,31 +545,14 @@ fn load_split(
                     prescaled: false,
                 },
             };
-            let (full, lens) = &cameras[i];
-            let context = || format!("{} frame {i}", json_path.display());
-            let (camera, image, mask, undistortion) = view_picture::load(
-                &picture,
+            Ok(ViewSpec {
+                picture,
                 full,
-                *lens,
-                options,
-                Composite::of(options.ground_truth, true),
-                &context,
-            )?;
-            counter.one_done();
-            Ok(LoadedFrame {
-                view: View {
-                    camera,
-                    time: times[i],
-                },
-                image,
-                mask,
-                path: picture.path,
-                undistorted: undistortion.map(|u| u.report(transforms.model_name())),
+                lens,
+                model: transforms.model_name().to_string(),
+                time,
+                context,
             })
         })
-        // Gathered in order first, so the error reported is that of the first failing frame.
-        .collect::<Vec<Result<_, DatasetError>>>()
-        .into_iter()
-        .collect::<Result<Vec<_>, _>>()?;
-    Ok(Dataset::from_frames(loaded, options.background.rgb(), None))
+        .collect()
 }

@@ -140,8 +140,10 @@ impl LensDistortion {
     }
 }
 
-/// A distorted camera's picture resampled to a pinhole camera: the map from each pixel of the
-/// undistorted, cropped picture to where it lies in the stored one.
+/// A distorted camera's picture resampled to a pinhole camera: the pinhole camera and crop,
+/// and where each pixel of the undistorted, cropped picture lies in the stored one (computed
+/// when asked: building one costs a 9 x 9 grid, so a caller that needs only the camera pays
+/// nothing per pixel).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Undistortion {
     /// Pinhole intrinsics `[fx, fy, cx, cy]` of the undistorted picture, crop included, pixels.
@@ -155,8 +157,12 @@ pub struct Undistortion {
     /// Size of the stored (distorted) picture, pixels.
     stored_width: u32,
     stored_height: u32,
-    /// Stored-picture coordinates `(u, v)` of each undistorted pixel, row-major.
-    map: Vec<[f32; 2]>,
+    /// Intrinsics `[fx, fy, cx, cy]` of the stored picture, pixels.
+    stored_intrinsics: [f64; 4],
+    /// The lens undone.
+    lens: LensDistortion,
+    /// Pinhole intrinsics of the full undistorted picture, before the crop, pixels.
+    uncropped: [f64; 4],
 }
 
 /// What undistorting a view's picture did: the camera model undone, the stored size, the crop
@@ -226,17 +232,6 @@ impl Undistortion {
             format!("no pixel of the {width}x{height} picture stays valid once undistorted")
         })?;
         let [x0, y0, w, h] = crop;
-        let mut map = Vec::with_capacity(w as usize * h as usize);
-        for y in y0..y0 + h {
-            for x in x0..x0 + w {
-                let normalized = [
-                    (f64::from(x) - new[2]) / new[0],
-                    (f64::from(y) - new[3]) / new[1],
-                ];
-                let [xd, yd] = lens.distort(normalized);
-                map.push([(fx * xd + cx) as f32, (fy * yd + cy) as f32]);
-            }
-        }
         Ok(Self {
             intrinsics: [
                 new[0],
@@ -249,7 +244,9 @@ impl Undistortion {
             crop,
             stored_width: width,
             stored_height: height,
-            map,
+            stored_intrinsics: [fx, fy, cx, cy],
+            lens,
+            uncropped: new,
         })
     }
 
@@ -265,7 +262,14 @@ impl Undistortion {
 
     /// Where undistorted pixel `(x, y)` (of the cropped picture) lies in the stored picture.
     pub fn source(&self, x: u32, y: u32) -> [f32; 2] {
-        self.map[y as usize * self.width as usize + x as usize]
+        let new = self.uncropped;
+        let normalized = [
+            (f64::from(x + self.crop[0]) - new[2]) / new[0],
+            (f64::from(y + self.crop[1]) - new[3]) / new[1],
+        ];
+        let [xd, yd] = self.lens.distort(normalized);
+        let [fx, fy, cx, cy] = self.stored_intrinsics;
+        [(fx * xd + cx) as f32, (fy * yd + cy) as f32]
     }
 
     /// `picture` (the stored one, RGBA) resampled: each undistorted pixel bilinear between its

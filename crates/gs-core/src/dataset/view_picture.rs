@@ -4,11 +4,93 @@
 
 use std::path::{Path, PathBuf};
 
+use rayon::prelude::*;
+
+use crate::model::View;
 use crate::{Camera, GsError, Image};
 
 use super::images::{self, Composite};
 use super::undistort::{LensDistortion, Undistortion};
-use super::{training_camera, BackgroundMask, DatasetError, LoadOptions};
+use super::{
+    training_camera, BackgroundMask, DatasetError, DatasetView, ImageCounter, LoadOptions,
+    LoadedFrame,
+};
+
+/// One view as its dataset's files give it, before its picture is read.
+pub(crate) struct ViewSpec {
+    /// Where its picture is.
+    pub picture: PictureFile,
+    /// The camera of the full-size stored picture (distorted when `lens` is given).
+    pub full: Camera,
+    /// The lens to undo, if any.
+    pub lens: Option<LensDistortion>,
+    /// The camera model's name, for the undistortion's report.
+    pub model: String,
+    /// The view's time.
+    pub time: f64,
+    /// The file and frame or image that describe the view, for errors.
+    pub context: String,
+}
+
+/// Every view of `specs` with its picture, loaded in parallel and composited as `composite`
+/// says; the error is the first failing view's, in order.
+pub(crate) fn load_all(
+    specs: &[ViewSpec],
+    options: &LoadOptions,
+    composite: Composite,
+) -> Result<Vec<LoadedFrame>, DatasetError> {
+    let counter = ImageCounter::new(options, specs.len());
+    specs
+        .par_iter()
+        .map(|spec| {
+            let context = || spec.context.clone();
+            let (camera, image, mask, undistortion) = load(
+                &spec.picture,
+                &spec.full,
+                spec.lens,
+                options,
+                composite,
+                &context,
+            )?;
+            counter.one_done();
+            Ok(LoadedFrame {
+                view: View {
+                    camera,
+                    time: spec.time,
+                },
+                image,
+                mask,
+                path: spec.picture.path.clone(),
+                undistorted: undistortion.map(|u| u.report(&spec.model)),
+            })
+        })
+        // Gathered in order first, so the error reported is that of the first failing view.
+        .collect::<Vec<Result<_, DatasetError>>>()
+        .into_iter()
+        .collect()
+}
+
+/// Every view of `specs` as [`load_all`] would give it, without decoding a picture (see
+/// [`camera`]).
+pub(crate) fn views(
+    specs: &[ViewSpec],
+    options: &LoadOptions,
+) -> Result<Vec<DatasetView>, DatasetError> {
+    specs
+        .iter()
+        .map(|spec| {
+            let context = || spec.context.clone();
+            let found = camera(&spec.picture, &spec.full, spec.lens, options, &context)?;
+            Ok(DatasetView {
+                view: View {
+                    camera: found.camera,
+                    time: spec.time,
+                },
+                picture: spec.picture.path.clone(),
+            })
+        })
+        .collect()
+}
 
 /// Where a view's picture is.
 pub(crate) struct PictureFile {
@@ -27,19 +109,25 @@ pub(crate) fn prescaled_folder(root: &Path, downscale: u32) -> Option<PathBuf> {
     (downscale > 1 && folder.is_dir()).then_some(folder)
 }
 
-/// A view's picture: `picture`, stored at the size of `full` (or pre-downscaled), its lens
-/// `lens` undone first when given (`full`'s intrinsics are then the distorted camera's), then
-/// resized to the training size of `options`. Returns the camera of the loaded picture, the
-/// picture composited as `composite` says, its background mask, and the undistortion used.
-/// `context` names the frame or image in errors about its camera.
-pub(crate) fn load(
+/// A view's camera as trained, with what its picture needs to be loaded.
+pub(crate) struct ViewCamera {
+    /// The camera of the loaded picture (undistorted, resized to the training size).
+    pub camera: Camera,
+    /// The camera of the stored picture (distorted when it has a lens).
+    pub stored: Camera,
+    /// The undistortion of the stored picture, when it has a lens.
+    pub undistortion: Option<Undistortion>,
+}
+
+/// The camera [`load`] would give the view of `picture`, without decoding it: only a
+/// pre-downscaled picture's header, or a distorted one's, is read (for its size).
+pub(crate) fn camera(
     picture: &PictureFile,
     full: &Camera,
     lens: Option<LensDistortion>,
     options: &LoadOptions,
-    composite: Composite,
     context: &dyn Fn() -> String,
-) -> Result<(Camera, Image, Option<BackgroundMask>, Option<Undistortion>), DatasetError> {
+) -> Result<ViewCamera, DatasetError> {
     let camera_error = |source| DatasetError::Camera {
         context: context(),
         source,
@@ -99,6 +187,31 @@ pub(crate) fn load(
     } else {
         training_camera(&pinhole, options).map_err(camera_error)?
     };
+    Ok(ViewCamera {
+        camera,
+        stored,
+        undistortion,
+    })
+}
+
+/// A view's picture: `picture`, stored at the size of `full` (or pre-downscaled), its lens
+/// `lens` undone first when given (`full`'s intrinsics are then the distorted camera's), then
+/// resized to the training size of `options`. Returns the camera of the loaded picture, the
+/// picture composited as `composite` says, its background mask, and the undistortion used.
+/// `context` names the frame or image in errors about its camera.
+pub(crate) fn load(
+    picture: &PictureFile,
+    full: &Camera,
+    lens: Option<LensDistortion>,
+    options: &LoadOptions,
+    composite: Composite,
+    context: &dyn Fn() -> String,
+) -> Result<(Camera, Image, Option<BackgroundMask>, Option<Undistortion>), DatasetError> {
+    let ViewCamera {
+        camera,
+        stored,
+        undistortion,
+    } = self::camera(picture, full, lens, options, context)?;
     let (image, mask) = images::load(
         &picture.path,
         (stored.width, stored.height),

@@ -14,16 +14,12 @@ mod text;
 use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
-use crate::model::View;
 use crate::Camera;
-use rayon::prelude::*;
 
 use super::images::Composite;
 use super::undistort::LensDistortion;
-use super::view_picture::{self, prescaled_folder, PictureFile};
-use super::{
-    check_options, Dataset, DatasetError, ImageCounter, LoadOptions, LoadedFrame, PointCloud,
-};
+use super::view_picture::{self, prescaled_folder, PictureFile, ViewSpec};
+use super::{check_options, Dataset, DatasetError, DatasetView, LoadOptions, PointCloud};
 
 /// COLMAP's camera models by id: name and number of parameters.
 const CAMERA_MODELS: [(&str, usize); 12] = [
@@ -242,24 +238,36 @@ fn sparse_model_dir(root: &Path) -> Result<PathBuf, DatasetError> {
     }
 }
 
-/// The picture file of every registered image of the COLMAP scene in `root` (or `root/dense/`),
-/// sorted by name as [`load`] orders the views, from the sparse model alone (nothing is
-/// decoded): what a caller checks before loading.
-pub fn picture_paths(root: &Path) -> Result<Vec<PathBuf>, DatasetError> {
-    let root = &scene_folder(root);
-    let model = read_sparse_model(&sparse_model_dir(root)?)?;
-    let folder = root.join("images");
-    let mut names: Vec<&str> = model.images.iter().map(|i| i.name.as_str()).collect();
-    names.sort();
-    Ok(names.into_iter().map(|n| folder.join(n)).collect())
-}
-
 /// Loads the COLMAP scene in `root` (or in `root/dense/`, see [`scene_folder`]): views sorted
 /// by image name, images loaded in parallel, the sparse points. With `downscale = f > 1`,
 /// images come from `images_<f>/` when it exists (each within one pixel of the downscaled
 /// camera size, the intrinsics scaled to the file's exact size), else from `images/` (exactly
 /// the camera size), resized. Distorted cameras' pictures are undistorted first.
 pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError> {
+    let (specs, points) = view_specs(root, options)?;
+    let frames =
+        view_picture::load_all(&specs, options, Composite::of(options.ground_truth, false))?;
+    Ok(Dataset::from_frames(
+        frames,
+        options.background.rgb(),
+        Some(points),
+    ))
+}
+
+/// The views of the COLMAP scene in `root` as [`load`] gives them, without decoding any
+/// picture: the cameras from the sparse model, a picture's header read only where its size is
+/// needed (a pre-downscaled or distorted picture). What a render from a scene's cameras
+/// needs; the pictures need not all be there.
+pub fn views(root: &Path, options: &LoadOptions) -> Result<Vec<DatasetView>, DatasetError> {
+    view_picture::views(&view_specs(root, options)?.0, options)
+}
+
+/// Every registered image of the scene in `root`, sorted by name and checked, before its
+/// picture is read; and the sparse points.
+fn view_specs(
+    root: &Path,
+    options: &LoadOptions,
+) -> Result<(Vec<ViewSpec>, PointCloud), DatasetError> {
     check_options(options)?;
     let root = &scene_folder(root);
     let sparse = sparse_model_dir(root)?;
@@ -268,21 +276,18 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
     let (folder, prescaled) = image_folder(root, options.downscale)?;
     let mut order: Vec<&ColmapImage> = model.images.iter().collect();
     order.sort_by(|a, b| a.name.cmp(&b.name));
-    let counter = ImageCounter::new(options, order.len());
-    let frames =
+    let specs =
         order
-            .par_iter()
+            .iter()
             .map(|img| {
-                let context = || {
-                    format!(
-                        "{}: image {:?} (id {}) with camera {} of {}",
-                        model.images_path.display(),
-                        img.name,
-                        img.id,
-                        img.camera_id,
-                        model.cameras_path.display()
-                    )
-                };
+                let context = format!(
+                    "{}: image {:?} (id {}) with camera {} of {}",
+                    model.images_path.display(),
+                    img.name,
+                    img.id,
+                    img.camera_id,
+                    model.cameras_path.display()
+                );
                 let colmap_camera =
                     cameras
                         .get(&img.camera_id)
@@ -303,38 +308,22 @@ pub fn load(root: &Path, options: &LoadOptions) -> Result<Dataset, DatasetError>
                 let (w, h) = (colmap_camera.width, colmap_camera.height);
                 let full = Camera::from_colmap(img.qvec, img.tvec, intrinsics, w, h).map_err(
                     |source| DatasetError::Camera {
-                        context: context(),
+                        context: context.clone(),
                         source,
                     },
                 )?;
-                let picture = PictureFile {
-                    path: folder.join(&img.name),
-                    prescaled,
-                };
-                let (camera, image, mask, undistortion) = view_picture::load(
-                    &picture,
-                    &full,
+                Ok(ViewSpec {
+                    picture: PictureFile {
+                        path: folder.join(&img.name),
+                        prescaled,
+                    },
+                    full,
                     lens,
-                    options,
-                    Composite::of(options.ground_truth, false),
-                    &context,
-                )?;
-                counter.one_done();
-                Ok(LoadedFrame {
-                    view: View::still(camera),
-                    image,
-                    mask,
-                    path: picture.path,
-                    undistorted: undistortion.map(|u| u.report(&colmap_camera.model)),
+                    model: colmap_camera.model.clone(),
+                    time: 0.0,
+                    context,
                 })
             })
-            // Gathered in order first, so the error reported is that of the first failing frame.
-            .collect::<Vec<Result<_, DatasetError>>>()
-            .into_iter()
-            .collect::<Result<Vec<_>, _>>()?;
-    Ok(Dataset::from_frames(
-        frames,
-        options.background.rgb(),
-        Some(model.points),
-    ))
+            .collect::<Result<Vec<_>, DatasetError>>()?;
+    Ok((specs, model.points))
 }
