@@ -1,5 +1,6 @@
 //! The Gaussian set: structure-of-arrays parameters of a fixed number of 3D Gaussians.
 
+use crate::fallible::{filled, OutOfMemory};
 use crate::real::{cast_slice, Real};
 
 /// Number of SH coefficients per colour channel for a degree: `(degree + 1)^2`.
@@ -53,24 +54,36 @@ impl<T: Real> GaussianSet<T> {
     /// # Panics
     /// If `sh_degree > MAX_SH_DEGREE`.
     pub fn zeros(len: usize, sh_degree: usize) -> Self {
+        Self::try_zeros(len, sh_degree).unwrap_or_else(|e| {
+            let layout =
+                std::alloc::Layout::array::<u8>(e.bytes).unwrap_or(std::alloc::Layout::new::<u8>());
+            std::alloc::handle_alloc_error(layout)
+        })
+    }
+
+    /// [`zeros`](Self::zeros), or an error when the machine cannot give the memory (for sets
+    /// sized by a file).
+    pub fn try_zeros(len: usize, sh_degree: usize) -> Result<Self, OutOfMemory> {
         assert!(
             sh_degree <= MAX_SH_DEGREE,
             "SH degree {sh_degree} is above the supported {MAX_SH_DEGREE}"
         );
-        let mut quats = vec![T::ZERO; len * 4];
+        const WHAT: &str = "the Gaussians' arrays";
+        let zeros = |n: usize| filled(n, T::ZERO, WHAT);
+        let mut quats = zeros(len.saturating_mul(4))?;
         for q in quats.chunks_exact_mut(4) {
             q[0] = T::ONE;
         }
-        Self {
+        Ok(Self {
             len,
             sh_degree,
-            means: vec![T::ZERO; len * 3],
-            log_scales: vec![T::ZERO; len * 3],
+            means: zeros(len.saturating_mul(3))?,
+            log_scales: zeros(len.saturating_mul(3))?,
             quats,
-            opacity_logits: vec![T::ZERO; len],
-            sh_dc: vec![T::ZERO; len * 3],
-            sh_rest: vec![T::ZERO; len * (sh_coeff_count(sh_degree) - 1) * 3],
-        }
+            opacity_logits: zeros(len)?,
+            sh_dc: zeros(len.saturating_mul(3))?,
+            sh_rest: zeros(len.saturating_mul((sh_coeff_count(sh_degree) - 1) * 3))?,
+        })
     }
 
     /// The set of the arrays a pipeline holds: `means` `[N, 3]`, `log_scales` `[N, 3]`,

@@ -38,6 +38,7 @@ pub mod camera;
 pub mod dataset;
 pub mod device;
 mod error;
+pub mod fallible;
 pub mod fs;
 pub mod gaussians;
 pub mod image;

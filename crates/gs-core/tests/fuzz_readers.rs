@@ -118,3 +118,49 @@ fn transforms_readers_survive_mutated_files() {
         .map_err(|e| e.to_string())
     });
 }
+
+/// A valid PLY too large for the memory the machine gives (here: this thread refuses requests
+/// above the file's own size, and the decoded SH arrays are larger than the ascii file) is an
+/// error naming the file and what could not be reserved, not an abort.
+#[test]
+fn a_valid_ply_larger_than_memory_is_an_error() {
+    let n = 6000;
+    let mut properties: Vec<String> = ["x", "y", "z", "nx", "ny", "nz"]
+        .iter()
+        .map(|s| s.to_string())
+        .collect();
+    properties.extend((0..3).map(|k| format!("f_dc_{k}")));
+    properties.extend((0..45).map(|k| format!("f_rest_{k}")));
+    properties.push("opacity".into());
+    properties.extend((0..3).map(|k| format!("scale_{k}")));
+    properties.extend((0..4).map(|k| format!("rot_{k}")));
+    let mut text = format!("ply\nformat ascii 1.0\nelement vertex {n}\n");
+    for p in &properties {
+        text += &format!("property float {p}\n");
+    }
+    text += "end_header\n";
+    let row: Vec<&str> = properties
+        .iter()
+        .map(|p| if p == "rot_0" { "1" } else { "0" })
+        .collect();
+    let row = row.join(" ") + "\n";
+    for _ in 0..n {
+        text += &row;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("large.ply");
+    std::fs::write(&path, &text).unwrap();
+    assert!(
+        gs_core::ply::read_ply(&path).is_ok(),
+        "valid with memory to spare"
+    );
+    let sh_bytes = n * 45 * 4;
+    assert!(sh_bytes > text.len() * 5 / 4);
+    let e = fuzz::with_cap(text.len() * 9 / 8, || gs_core::ply::read_ply(&path))
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("large.ply") && e.contains("need 1.1 MB, which this machine could not reserve"),
+        "{e}"
+    );
+}

@@ -129,6 +129,9 @@ pub enum PlyErrorKind {
         /// What is wrong with it.
         reason: String,
     },
+    /// Arrays this machine could not reserve for the file's vertices.
+    #[error("{0}")]
+    OutOfMemory(#[from] crate::fallible::OutOfMemory),
     /// A `format` other than the three PLY encodings.
     #[error("format {0:?} is not supported (binary_little_endian, binary_big_endian, ascii are)")]
     UnsupportedFormat(String),
@@ -254,8 +257,11 @@ fn parse(bytes: &[u8]) -> Result<(PlyGaussians, PlyFormat), PlyErrorKind> {
     if big_endian.is_some() {
         binary::check_length(body.len(), n, layout.stride())?;
     }
-    let mut gaussians = GaussianSet::zeros(n, layout.degree);
-    let mut extras: Vec<Vec<f64>> = extra_types.iter().map(|_| vec![0.0; n]).collect();
+    let mut gaussians = GaussianSet::try_zeros(n, layout.degree)?;
+    let mut extras: Vec<Vec<f64>> = extra_types
+        .iter()
+        .map(|_| crate::fallible::filled(n, 0.0, "the extra properties' values"))
+        .collect::<Result<_, _>>()?;
     match big_endian {
         Some(be) => binary::read_body(body, &layout, be, &mut gaussians, &mut extras)?,
         None => ascii::read_body(body, header.lines + 1, &layout, &mut gaussians, &mut extras)?,

@@ -59,7 +59,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         ));
     }
     let n = bytes.len() / RECORD;
-    let mut set = GaussianSet::zeros(n, 0);
+    let mut set = GaussianSet::try_zeros(n, 0).map_err(|e| e.to_string())?;
     let f32_at = |r: &[u8], k: usize| f32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap());
     for (i, r) in bytes.chunks_exact(RECORD).enumerate() {
         for k in 0..3 {

@@ -333,7 +333,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         })
         .collect();
     let degree = [0, 9, 24, 45].iter().position(|&c| c == rest).unwrap_or(0);
-    let mut set = GaussianSet::zeros(n, degree);
+    let mut set = GaussianSet::try_zeros(n, degree).map_err(|e| e.to_string())?;
     let unpack = |bits: u32, width: u32| {
         f64::from(bits & ((1 << width) - 1)) / f64::from((1u32 << width) - 1)
     };

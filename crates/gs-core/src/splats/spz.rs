@@ -323,7 +323,7 @@ fn assemble(
     bits: u8,
     version: u32,
 ) -> Result<GaussianSet, String> {
-    let mut set = GaussianSet::zeros(n, degree);
+    let mut set = GaussianSet::try_zeros(n, degree).map_err(|e| e.to_string())?;
     let scale = f64::from(1u32 << bits);
     for (k, b) in streams[0].chunks_exact(3).enumerate() {
         let fixed = i32::from_le_bytes([b[0], b[1], b[2], if b[2] & 0x80 != 0 { 0xff } else { 0 }]);

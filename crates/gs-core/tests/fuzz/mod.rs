@@ -25,9 +25,23 @@ static PEAK: AtomicUsize = AtomicUsize::new(0);
 /// The largest allocation a reader of these small files may ask for.
 pub const LIMIT: usize = 256 << 20;
 
+thread_local! {
+    /// The largest single request this thread may make (see [`with_cap`]).
+    static CAP: std::cell::Cell<usize> = const { std::cell::Cell::new(LIMIT) };
+}
+
+/// Runs `f` with this thread's requests above `cap` bytes refused, as on a machine short of
+/// memory for a file that is valid but large.
+pub fn with_cap<R>(cap: usize, f: impl FnOnce() -> R) -> R {
+    CAP.with(|c| c.set(cap.min(LIMIT)));
+    let out = f();
+    CAP.with(|c| c.set(LIMIT));
+    out
+}
+
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
-        if layout.size() > LIMIT {
+        if layout.size() > CAP.with(|c| c.get()) {
             return std::ptr::null_mut();
         }
         let held = HELD.fetch_add(layout.size(), Ordering::Relaxed) + layout.size();
