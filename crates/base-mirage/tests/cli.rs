@@ -92,9 +92,7 @@ fn fit_then_stylize_from_file_to_file() {
     let exported = gs_core::splats::read_splats(&spz).unwrap().gaussians;
     assert_eq!((exported.len(), exported.sh_degree()), (400, 1));
     let model = base_mirage::model_file::read_model(&fit_dir.join("model.ply")).unwrap();
-    let rendered = gs_stylize::export::gaussians_at(&model.model, &[0.0])
-        .unwrap()
-        .remove(0);
+    let rendered = gs_stylize::export::gaussians_at(&model.model, 0.0).unwrap();
     let worst = exported
         .means
         .iter()

@@ -135,9 +135,8 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         .args(["--frame", "2", "--out", s(&one)]));
     let frame2 = gs_core::splats::read_splats(&one).unwrap().gaussians;
     let at = |f: usize| {
-        gs_stylize::export::gaussians_at(&stylized, &[base_vegas::folded::view_time(f, FRAMES)])
+        gs_stylize::export::gaussians_at(&stylized, base_vegas::folded::view_time(f, FRAMES))
             .unwrap()
-            .remove(0)
     };
     assert_eq!(frame2.len(), at(2).len());
     assert_eq!(frame2.means, at(2).means, ".splat keeps positions exactly");

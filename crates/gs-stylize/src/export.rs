@@ -12,6 +12,7 @@ use gs_core::{Camera, GaussianSet};
 
 use crate::model_kind::{check_model, Binary};
 use crate::outputs::create_folder;
+use crate::progress::Progress;
 use crate::writable::{check_output_file, check_output_folder};
 
 /// Flags of `export`, the same in every binary.
@@ -79,35 +80,51 @@ impl ExportArgs {
         ))
     }
 
-    /// Writes Gaussians a model's forward made (`sets`): each into the folder `--out` when
-    /// `folder` ([`ExportArgs::write_folder`]), else the first to the file `--out`; returns the
-    /// line that says so.
-    pub fn write_sets(
+    /// Writes the Gaussians `model` renders at each of `times`: when `folder`, into the folder
+    /// `--out` as `00000<ext>`, `00001<ext>`, ..., each computed and written before the next
+    /// (a model of many frames is never held whole; the folder is removed again when this run
+    /// made it and a file fails), else the first to the file `--out`. Returns the line that
+    /// says so.
+    pub fn write_at<M: BaseModel>(
         &self,
-        mut sets: Vec<GaussianSet>,
+        model: &M,
+        times: &[f64],
         folder: bool,
     ) -> Result<String, Box<dyn Error>> {
-        if folder {
-            return self.write_folder(&sets);
+        if !folder {
+            let &time = times.first().ok_or("no time to export")?;
+            return self.write_file(&PlyGaussians::without_normals(gaussians_at(model, time)?));
         }
-        let set = sets.drain(..).next().ok_or("no Gaussians to export")?;
-        self.write_file(&PlyGaussians::without_normals(set))
-    }
-
-    /// Writes each of `sets` into the folder `--out` (created when absent) as `00000<ext>`,
-    /// `00001<ext>`, ... and returns the line that says so.
-    pub fn write_folder(&self, sets: &[GaussianSet]) -> Result<String, Box<dyn Error>> {
         let format = self.folder_format();
+        let made = !self.out.exists();
         create_folder(&self.out)?;
-        for (i, set) in sets.iter().enumerate() {
-            let path = self.out.join(format!("{i:05}{}", format.extension()));
-            write_splats(&path, &PlyGaussians::without_normals(set.clone()), format)?;
-        }
+        let progress = Progress::new(times.len() > 1, "export", times.len() as u64, 0);
+        let written =
+            times
+                .iter()
+                .enumerate()
+                .try_fold(None, |_, (i, &time)| -> Result<_, Box<dyn Error>> {
+                    let set = gaussians_at(model, time)?;
+                    let count = set.len();
+                    let path = self.out.join(format!("{i:05}{}", format.extension()));
+                    write_splats(&path, &PlyGaussians::without_normals(set), format)?;
+                    progress.update(i as u64 + 1, "");
+                    Ok(Some(count))
+                });
+        progress.finish();
+        let count = match written {
+            Ok(count) => count,
+            Err(e) => {
+                if made {
+                    let _ = std::fs::remove_dir_all(&self.out);
+                }
+                return Err(e);
+            }
+        };
         Ok(format!(
             "wrote {} files ({} each, {}) to {}",
-            sets.len(),
-            sets.first()
-                .map_or("no Gaussians".into(), |s| format!("{} Gaussians", s.len())),
+            times.len(),
+            count.map_or("no Gaussians".into(), |n| format!("{n} Gaussians")),
             format.name(),
             self.out.display()
         ))
@@ -121,22 +138,55 @@ fn format_parser() -> impl clap::builder::TypedValueParser<Value = SplatFormat> 
         .map(|name| SplatFormat::from_name(&name).expect("a name of SplatFormat::ALL"))
 }
 
-/// The Gaussians `model` renders at each of `times` (its forward at a view of that time; the
-/// camera of the view is one a model's forward may not look at).
-pub fn gaussians_at<M: BaseModel>(model: &M, times: &[f64]) -> Result<Vec<GaussianSet>, String> {
+/// The Gaussians `model` renders at `time` (its forward at a view of that time; the camera of
+/// the view is one a model's forward may not look at).
+pub fn gaussians_at<M: BaseModel>(model: &M, time: f64) -> Result<GaussianSet, String> {
     let camera = Camera::look_at([0.0, 0.0, -1.0], [0.0; 3], [0.0, -1.0, 0.0], 1.0, 1, 1)
         .map_err(|e| e.to_string())?;
-    times
-        .iter()
-        .map(|&time| {
-            let view = View {
-                camera: camera.clone(),
-                time,
-            };
-            model
-                .forward(&view)
-                .map(|f| f.gaussians.into_owned())
-                .map_err(|e| format!("the Gaussians at time {time}: {e}"))
-        })
-        .collect()
+    model
+        .forward(&View { camera, time })
+        .map(|f| f.gaussians.into_owned())
+        .map_err(|e| format!("the Gaussians at time {time}: {e}"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn args(out: PathBuf) -> ExportArgs {
+        ExportArgs {
+            model: PathBuf::from("model.ply"),
+            out,
+            format: None,
+        }
+    }
+
+    /// A folder export writes one file per time; one whose Gaussians cannot be written removes
+    /// the folder it made, and leaves a folder that was there before.
+    #[test]
+    fn a_folder_export_writes_each_time_and_removes_its_folder_on_failure() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut set = GaussianSet::zeros(3, 0);
+        let out = dir.path().join("frames");
+        let line = args(out.clone())
+            .write_at(&set, &[0.0, 0.5, 1.0], true)
+            .unwrap();
+        assert!(
+            line.starts_with("wrote 3 files (3 Gaussians each"),
+            "{line}"
+        );
+        for i in 0..3 {
+            let read = gs_core::splats::read_splats(&out.join(format!("{i:05}.ply"))).unwrap();
+            assert_eq!(read.gaussians.means, set.means);
+        }
+        set.means[4] = f32::NAN;
+        let failed = dir.path().join("failed");
+        let e = args(failed.clone())
+            .write_at(&set, &[0.0, 1.0], true)
+            .unwrap_err();
+        assert!(e.to_string().contains("00000.ply"), "{e}");
+        assert!(!failed.exists(), "the folder this run made is gone");
+        let e = args(out.clone()).write_at(&set, &[0.0, 1.0], true);
+        assert!(e.is_err() && out.is_dir(), "a folder that was there stays");
+    }
 }

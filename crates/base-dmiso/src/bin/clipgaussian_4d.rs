@@ -31,7 +31,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_names, check_prompts, check_sizes, resolve_clip, score};
-use gs_stylize::export::{gaussians_at, ExportArgs};
+use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -501,8 +501,7 @@ fn export(args: &DynamicExportArgs) -> Result<(), Box<dyn Error>> {
         None => return Err(format!("--time {}: times lie in [0, 1]", args.time).into()),
     };
     let model = read_model(&export.model, None, &Device::Cpu)?;
-    let sets = gaussians_at(&model, &times)?;
-    println!("{}", export.write_sets(sets, args.times.is_some())?);
+    println!("{}", export.write_at(&model, &times, args.times.is_some())?);
     Ok(())
 }
 

@@ -30,7 +30,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_prompts, check_sizes, resolve_clip, score, write_metrics};
-use gs_stylize::export::{gaussians_at, ExportArgs};
+use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::check_output_file;
@@ -423,10 +423,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     args.check(Binary::Picture, false)?;
     let file = read_model(&args.model)?;
-    println!(
-        "{}",
-        args.write_sets(gaussians_at(&file.model, &[0.0])?, false)?
-    );
+    println!("{}", args.write_at(&file.model, &[0.0], false)?);
     Ok(())
 }
 

@@ -30,7 +30,7 @@ use gs_stylize::cli::{
 };
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_count, check_prompts, check_sizes, resolve_clip, score};
-use gs_stylize::export::{gaussians_at, ExportArgs};
+use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
@@ -455,8 +455,7 @@ fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
         .into());
     };
     let times: Vec<f64> = chosen.iter().map(|&f| view_time(f, frames)).collect();
-    let sets = gaussians_at(&model, &times)?;
-    println!("{}", export.write_sets(sets, args.all_frames)?);
+    println!("{}", export.write_at(&model, &times, args.all_frames)?);
     Ok(())
 }
 
