@@ -295,6 +295,12 @@ fn bad_inputs_are_named_and_leave_nothing() {
         &["--picture", s(&picture), "--resume"],
         &["no checkpoint", "without --resume"],
     );
+    // VGG weights that do not load with the widths asked for: refused before the fit writes.
+    refused(
+        &dir,
+        &["--picture", s(&picture), "--set", "vgg_widths=[8,8,16,32,32]"],
+        &["vgg", "shape"],
+    );
     refused(
         &dir,
         &[

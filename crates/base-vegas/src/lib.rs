@@ -21,6 +21,7 @@ pub mod folded;
 pub mod frame;
 pub mod init;
 pub mod model_file;
+mod ply_vertex;
 pub mod stylize;
 pub mod temporal;
 pub mod time;

@@ -14,7 +14,7 @@
 
 use std::path::{Path, PathBuf};
 
-use ply_rs_bw::parser::Parser;
+use ply_rs_bw::parser::{Parser, Reader};
 use ply_rs_bw::ply::{
     Addable, DefaultElement, ElementDef, Encoding, Ply, Property, PropertyDef, PropertyType,
     ScalarType,
@@ -23,6 +23,7 @@ use ply_rs_bw::writer::Writer;
 
 use crate::folded::FoldedGaussians;
 use crate::frame::{FoldedParams, FLAT_SCALE, POLY_LEN};
+use crate::ply_vertex::{self, VegasVertex};
 
 /// The start of the header comment that records the video.
 const RECORD_PREFIX: &str = "clipgaussian-video frames";
@@ -185,73 +186,58 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
     // second property of one name, bytes past the end, another format version.
     let header = gs_core::ply::elements::parse_elements(&bytes).map_err(&fail)?;
     gs_core::ply::elements::check_body_length(&header, &bytes).map_err(&fail)?;
-    let ply = Parser::<DefaultElement>::new()
-        .read_ply(&mut std::io::Cursor::new(&bytes))
-        .map_err(|source| ModelFileError::Unreadable {
-            path: path.to_path_buf(),
-            source,
-        })?;
-    let vertices = ply
-        .payload
+    let unreadable = |source| ModelFileError::Unreadable {
+        path: path.to_path_buf(),
+        source,
+    };
+    let mut reader = Reader::new(std::io::Cursor::new(&bytes[..]));
+    let parser = Parser::<VegasVertex>::new();
+    let ply_header = parser.read_header(&mut reader).map_err(unreadable)?;
+    let vertex = ply_header
+        .elements
         .get("vertex")
         .ok_or_else(|| fail("no `vertex` element".into()))?;
-    // `place` says where the value is (`vertex 3`, `the time element`) in errors.
-    let value = |row: &DefaultElement, name: &str, place: &str| -> Result<f32, ModelFileError> {
-        let v = match row.get(name) {
-            Some(Property::Float(v)) => *v,
-            Some(Property::Double(v)) => *v as f32,
-            Some(other) => {
-                return Err(fail(format!(
-                    "property {name} is {other:?}, not float or double"
-                )))
+    ply_vertex::check_properties(vertex).map_err(&fail)?;
+    // Elements are read in the header's order; any other than these two is read and dropped.
+    let (mut vertices, mut time_rows) = (None, None);
+    for (name, element) in &ply_header.elements {
+        if name == "vertex" {
+            vertices = Some(
+                parser
+                    .read_payload_for_element(&mut reader, element, &ply_header)
+                    .map_err(unreadable)?,
+            );
+        } else {
+            let rows = Parser::<DefaultElement>::new()
+                .read_payload_for_element(&mut reader, element, &ply_header)
+                .map_err(unreadable)?;
+            if name == "time" {
+                time_rows = Some(rows);
             }
-            None => {
-                return Err(fail(format!(
-                    "no property {name}: not a VeGaS model (VeGaS writes x, y, z, f_dc_*, \
-                     opacity, scale_*, rot_0, m_0, sigma_0, w1_0..w1_{})",
-                    POLY_LEN - 1
-                )))
-            }
-        };
-        if !v.is_finite() {
-            return Err(fail(format!("{name} of {place} is {v}")));
         }
-        Ok(v)
-    };
-    if let Some(first) = vertices.first() {
-        let degree = first.keys().filter(|k| k.starts_with("w1_")).count();
-        if degree != 0 && degree != POLY_LEN {
+    }
+    let vertices = vertices.unwrap_or_default();
+    let mut p = FoldedParams::with_capacity(vertices.len());
+    for (i, vertex) in vertices.iter().enumerate() {
+        let v = &vertex.values;
+        if let Some(k) = v.iter().position(|v| !v.is_finite()) {
             return Err(fail(format!(
-                "{degree} w1_* properties: a motion polynomial of degree {}, but this build \
-                 reads degree {} ({POLY_LEN} values)",
-                degree / 2,
-                POLY_LEN / 2
+                "{} of vertex {i} is {}",
+                ply_vertex::name(k),
+                v[k]
             )));
         }
+        p.xyz.extend(&v[0..3]);
+        p.log_scales.extend(&v[3..5]);
+        p.rotation.push(v[5]);
+        p.m.push(v[6]);
+        p.sigma.push(v[7]);
+        p.w.extend(&v[8..ply_vertex::OPACITY]);
+        p.opacity_logits.push(v[ply_vertex::OPACITY]);
+        p.sh_dc.extend(&v[ply_vertex::OPACITY + 1..]);
     }
-    let mut p = FoldedParams::with_capacity(vertices.len());
-    for (i, row) in vertices.iter().enumerate() {
-        let i = &format!("vertex {i}");
-        for name in ["x", "y", "z"] {
-            p.xyz.push(value(row, name, i)?);
-        }
-        for name in ["scale_0", "scale_2"] {
-            p.log_scales.push(value(row, name, i)?);
-        }
-        p.rotation.push(value(row, "rot_0", i)?);
-        p.m.push(value(row, "m_0", i)?);
-        p.sigma.push(value(row, "sigma_0", i)?);
-        for k in 0..POLY_LEN {
-            p.w.push(value(row, &format!("w1_{k}"), i)?);
-        }
-        p.opacity_logits.push(value(row, "opacity", i)?);
-        for c in 0..3 {
-            p.sh_dc.push(value(row, &format!("f_dc_{c}"), i)?);
-        }
-    }
-    let time_rows = ply
-        .payload
-        .get("time")
+    drop(vertices);
+    let time_rows = time_rows
         .ok_or_else(|| fail("no `time` element (VeGaS saves the time logits there)".into()))?;
     let time_row = match time_rows.as_slice() {
         [row] => row,
@@ -263,9 +249,25 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
         }
     };
     let logits = (0..time_row.len())
-        .map(|k| value(time_row, &format!("time_func_{k}"), "the time element"))
+        .map(|k| {
+            let name = format!("time_func_{k}");
+            let v = match time_row.get(&name) {
+                Some(Property::Float(v)) => *v,
+                Some(Property::Double(v)) => *v as f32,
+                Some(other) => {
+                    return Err(fail(format!(
+                        "property {name} is {other:?}, not float or double"
+                    )))
+                }
+                None => return Err(fail(format!("no property {name} in the `time` element"))),
+            };
+            if !v.is_finite() {
+                return Err(fail(format!("{name} of the time element is {v}")));
+            }
+            Ok(v)
+        })
         .collect::<Result<Vec<f32>, _>>()?;
-    let record = ply.header.comments.iter().find_map(|c| parse_record(c));
+    let record = ply_header.comments.iter().find_map(|c| parse_record(c));
     let model = FoldedGaussians::new(p, logits).map_err(fail)?;
     Ok((model, record))
 }

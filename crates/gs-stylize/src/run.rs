@@ -126,13 +126,14 @@ pub struct PreparedRun {
     options: RunOptions,
     backend: Backend,
     loss_device: Device,
-    weights: WeightFiles,
+    models: StyleModels,
 }
 
 /// Checks everything a stylization with `settings` into `out` needs before any long work: the
 /// settings, the output folder ([`check_out_folder`]), the model files ([`resolve_weights`]),
 /// the style image, the CLIP configuration, and the devices, which it opens and names in one
-/// line (`device: <rasterizer's>; style loss: <candle's>`, see [`compute_device::open_for`]). Every
+/// line; then loads the loss's models (CLIP, VGG-19) and the style's direction, so a bad model
+/// file is refused before a fit writes anything (`device: <rasterizer's>; style loss: <candle's>`, see [`compute_device::open_for`]). Every
 /// problem found is reported at once
 /// ([`StylizeError::Several`] when there are more than one).
 pub fn prepare(
@@ -169,13 +170,14 @@ pub fn prepare(
                 backend.describe(),
                 compute_device::describe(&loss_device)
             );
+            let models = load_style_models(settings, &weights, &loss_device)?;
             Ok(PreparedRun {
                 settings: settings.clone(),
                 out: out.to_path_buf(),
                 options,
                 backend,
                 loss_device,
-                weights,
+                models,
             })
         }
         _ if problems.len() == 1 => Err(problems.remove(0)),
@@ -235,7 +237,7 @@ impl PreparedRun {
             options,
             backend,
             loss_device: device,
-            weights,
+            models,
         } = self;
         let out = out.as_path();
         check_job(settings, &job)?;
@@ -261,7 +263,7 @@ impl PreparedRun {
             render_clamp,
             ..
         } = job;
-        let (loss, masks) = build_loss(settings, weights, masks, device)?;
+        let (loss, masks) = build_loss(settings, models, masks)?;
         let caching = Progress::new(options.progress, "caching views", images.len() as u64, 0);
         let objective = StyleObjective::with_progress(
             loss,
@@ -522,15 +524,23 @@ fn check_style_image_and_clip_config(settings: &StyleSettings) -> Result<(), Sty
     Ok(())
 }
 
-/// The style loss of `settings` (the style image's stored colours, alpha ignored, as the
-/// authors read it) and the masks it uses: `masks` when the background weight is positive, else
-/// none.
-fn build_loss(
+/// The style loss's models, loaded and checked by [`prepare`], before any long work (a fit
+/// whose run would then fail on a bad model file writes nothing).
+#[derive(Clone, Debug)]
+struct StyleModels {
+    clip: ClipModel,
+    vgg: Option<Vgg19Features>,
+    direction: StyleDirection,
+}
+
+/// Loads the models of `settings`' loss from `files` on `device`, with the style's direction
+/// in CLIP space (from the style image's stored colours, alpha ignored, as the authors read
+/// it; the text tower is dropped once the direction is computed).
+fn load_style_models(
     settings: &StyleSettings,
     files: &WeightFiles,
-    masks: Option<ViewMasks>,
     device: &Device,
-) -> Result<(StyleLoss, Option<ViewMasks>), StylizeError> {
+) -> Result<StyleModels, StylizeError> {
     let style_image = match &settings.style_image {
         Some(path) => Some(load_style_picture(path, device).map_err(StylizeError::StyleImage)?),
         None => None,
@@ -566,6 +576,20 @@ fn build_loss(
         )?),
         None => None,
     };
+    Ok(StyleModels {
+        clip,
+        vgg,
+        direction,
+    })
+}
+
+/// The style loss of `settings` on `models`, and the background masks it uses (none when the
+/// background term is off; the term is off when the views have no masks).
+fn build_loss(
+    settings: &StyleSettings,
+    models: &StyleModels,
+    masks: Option<ViewMasks>,
+) -> Result<(StyleLoss, Option<ViewMasks>), StylizeError> {
     let masks = masks.filter(|_| settings.lambda_background > 0.0);
     let weights = LossWeights {
         directional: settings.lambda_directional,
@@ -582,6 +606,11 @@ fn build_loss(
         num_patches: settings.num_patches,
         distortion_scale: settings.distortion_scale,
     };
+    let StyleModels {
+        clip,
+        vgg,
+        direction,
+    } = models.clone();
     Ok((
         StyleLoss::new(clip, vgg, direction, weights, patches)?,
         masks,
@@ -618,25 +647,34 @@ mod tests {
     }
 
     #[test]
-    fn prepare_opens_the_device_when_all_is_well() {
+    fn prepare_opens_the_device_and_loads_the_models_when_all_is_well() {
         let dir = tempfile::tempdir().unwrap();
-        let clip = dir.path().join("clip.safetensors");
-        let tokenizer = dir.path().join("tokenizer.json");
-        let vgg = dir.path().join("vgg.safetensors");
-        for f in [&clip, &tokenizer, &vgg] {
-            std::fs::write(f, b"").unwrap();
-        }
+        let models = style_loss::test_models::write_tiny_models(dir.path());
         let mut settings = StyleSettings::paper_3d();
-        settings.clip_weights = Some(clip.clone());
-        settings.tokenizer = Some(tokenizer);
-        settings.vgg_weights = Some(vgg);
+        settings.clip_config = Some(models.clip_config.clone());
+        settings.clip_weights = Some(models.clip_weights.clone());
+        settings.tokenizer = Some(models.tokenizer.clone());
+        settings.vgg_weights = Some(models.vgg_weights.clone());
+        settings.vgg_widths = models.vgg_widths.0;
         settings.style_prompt = Some("fire".into());
         settings.device = DeviceChoice::Cpu;
         let out = dir.path().join("out");
         let run = prepare(&settings, &out, RunOptions::default()).unwrap();
         assert_eq!(run.out(), out);
         assert!(matches!(run.backend(), Backend::Cpu));
-        assert_eq!(run.weights.clip, clip);
+        assert!(run.models.vgg.is_some());
+        assert!(!out.exists(), "nothing is written before the run");
+
+        // A model file that exists but does not load is refused here, before any fit.
+        let garbage = dir.path().join("garbage.safetensors");
+        std::fs::write(&garbage, b"not a safetensors file").unwrap();
+        settings.vgg_weights = Some(garbage);
+        let e = prepare(&settings, &out, RunOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("garbage.safetensors"), "{e}");
+        settings.vgg_weights = Some(models.vgg_weights.clone());
+        settings.vgg_widths = [8, 8, 16, 32, 32];
+        let e = prepare(&settings, &out, RunOptions::default()).unwrap_err();
+        assert!(e.to_string().contains("shape"), "{e}");
         assert!(!out.exists(), "nothing is written before the run");
     }
 }
