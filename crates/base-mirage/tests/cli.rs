@@ -298,7 +298,12 @@ fn bad_inputs_are_named_and_leave_nothing() {
     // VGG weights that do not load with the widths asked for: refused before the fit writes.
     refused(
         &dir,
-        &["--picture", s(&picture), "--set", "vgg_widths=[8,8,16,32,32]"],
+        &[
+            "--picture",
+            s(&picture),
+            "--set",
+            "vgg_widths=[8,8,16,32,32]",
+        ],
         &["vgg", "shape"],
     );
     refused(

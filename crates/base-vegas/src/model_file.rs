@@ -22,8 +22,8 @@ use ply_rs_bw::ply::{
 use ply_rs_bw::writer::Writer;
 
 use crate::folded::FoldedGaussians;
-use crate::frame::{FoldedParams, FLAT_SCALE, POLY_LEN};
-use crate::ply_vertex::{self, VegasVertex};
+use crate::frame::{FoldedParams, POLY_LEN};
+use crate::ply_vertex::{self, ModelRow, VegasVertex};
 
 /// The start of the header comment that records the video.
 const RECORD_PREFIX: &str = "clipgaussian-video frames";
@@ -106,7 +106,7 @@ pub fn write_model(
         }
     };
     let p = model.params();
-    let mut ply = Ply::<DefaultElement>::new();
+    let mut ply = Ply::<ModelRow>::new();
     ply.header.encoding = Encoding::BinaryLittleEndian;
     if let Some(v) = video {
         ply.header.comments.push(format!(
@@ -126,41 +126,25 @@ pub fn write_model(
             .add(PropertyDef::new(format!("time_func_{k}"), float.clone()));
     }
     ply.header.elements.add(time);
-    let names = vertex_properties();
-    let rows: Vec<DefaultElement> = (0..p.len())
+    let rows: Vec<ModelRow> = (0..p.len())
         .map(|i| {
-            let mut values = vec![
-                p.xyz[3 * i],
-                p.xyz[3 * i + 1],
-                p.xyz[3 * i + 2],
-                0.0,
-                0.0,
-                0.0,
-            ];
-            values.extend_from_slice(&p.sh_dc[3 * i..3 * i + 3]);
-            values.extend([
-                p.opacity_logits[i],
-                p.log_scales[2 * i],
-                FLAT_SCALE.ln() as f32,
-                p.log_scales[2 * i + 1],
-                p.rotation[i],
-                p.m[i],
-                p.sigma[i],
-            ]);
-            values.extend_from_slice(&p.w[POLY_LEN * i..POLY_LEN * (i + 1)]);
-            let mut row = DefaultElement::new();
-            for (name, v) in names.iter().zip(values) {
-                row.insert(name.clone(), Property::Float(v));
-            }
-            row
+            let mut values = [0.0; ply_vertex::VALUES];
+            values[0..3].copy_from_slice(&p.xyz[3 * i..3 * i + 3]);
+            values[3..5].copy_from_slice(&p.log_scales[2 * i..2 * i + 2]);
+            values[5] = p.rotation[i];
+            values[6] = p.m[i];
+            values[7] = p.sigma[i];
+            values[8..ply_vertex::OPACITY].copy_from_slice(&p.w[POLY_LEN * i..POLY_LEN * (i + 1)]);
+            values[ply_vertex::OPACITY] = p.opacity_logits[i];
+            values[ply_vertex::OPACITY + 1..].copy_from_slice(&p.sh_dc[3 * i..3 * i + 3]);
+            ModelRow::Vertex(VegasVertex { values })
         })
         .collect();
     ply.payload.insert("vertex".into(), rows);
-    let mut time_row = DefaultElement::new();
-    for (k, &v) in model.time_logits().iter().enumerate() {
-        time_row.insert(format!("time_func_{k}"), Property::Float(v));
-    }
-    ply.payload.insert("time".into(), vec![time_row]);
+    ply.payload.insert(
+        "time".into(),
+        vec![ModelRow::Time(model.time_logits().to_vec())],
+    );
     let mut bytes = Vec::new();
     Writer::new()
         .write_ply(&mut bytes, &mut ply)

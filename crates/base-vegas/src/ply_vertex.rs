@@ -1,11 +1,12 @@
-//! One vertex of a VeGaS model file as the reader takes it: the values VeGaS saves, by name,
-//! in a fixed order. A typed element for `ply-rs-bw`, so a file of n Gaussians is read into n
-//! small arrays, not n maps from property names to values (about 20 times the memory).
+//! The rows of a VeGaS model file as typed elements for `ply-rs-bw`: a vertex's values by
+//! name in a fixed order, and the one row of time logits. A file of n Gaussians is read and
+//! written through n small arrays, not n maps from property names to values (about 20 times
+//! the memory and 15 times the time).
 
 use ply_rs_bw::ply::ScalarType;
 use ply_rs_bw::ply::{ElementDef, Property, PropertyAccess, PropertyAccessResult, PropertyType};
 
-use crate::frame::POLY_LEN;
+use crate::frame::{FLAT_SCALE, POLY_LEN};
 
 /// Values of a vertex, in order: `x y z scale_0 scale_2 rot_0 m_0 sigma_0 w1_0..w1_{P-1}
 /// opacity f_dc_0..2` (`P` = [`POLY_LEN`]).
@@ -112,6 +113,44 @@ impl PropertyAccess for VegasVertex {
     }
 }
 
+impl VegasVertex {
+    /// The value VeGaS writes as property `name`: one of [`VALUES`], or the ones it writes and
+    /// never reads (`nx ny nz` 0, `scale_1` the flat scale's log).
+    fn written(&self, name: &str) -> Option<f32> {
+        match name {
+            "nx" | "ny" | "nz" => Some(0.0),
+            "scale_1" => Some(FLAT_SCALE.ln() as f32),
+            _ => slot(name).map(|k| self.values[k]),
+        }
+    }
+}
+
+/// A row of a VeGaS model file, as written: a vertex, or the `time` element's one row of
+/// logits (`time_func_0..`).
+#[derive(Clone, Debug)]
+pub(crate) enum ModelRow {
+    /// A Gaussian.
+    Vertex(VegasVertex),
+    /// The time logits.
+    Time(Vec<f32>),
+}
+
+impl PropertyAccess for ModelRow {
+    fn new() -> Self {
+        Self::Vertex(VegasVertex::new())
+    }
+
+    fn get_float(&self, name: &str) -> Option<f32> {
+        match self {
+            Self::Vertex(vertex) => vertex.written(name),
+            Self::Time(logits) => {
+                let k: usize = name.strip_prefix("time_func_")?.parse().ok()?;
+                logits.get(k).copied()
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -124,5 +163,20 @@ mod tests {
         for other in ["nx", "scale_1", "w1_14", "w1_01", "f_dc_3", "w1_"] {
             assert_eq!(slot(other), None, "{other}");
         }
+    }
+
+    #[test]
+    fn rows_give_what_vegas_writes() {
+        let mut vertex = VegasVertex::new();
+        vertex.values[OPACITY] = 0.25;
+        let row = ModelRow::Vertex(vertex);
+        assert_eq!(row.get_float("opacity"), Some(0.25));
+        assert_eq!(row.get_float("nx"), Some(0.0));
+        assert_eq!(row.get_float("scale_1"), Some(FLAT_SCALE.ln() as f32));
+        assert_eq!(row.get_float("time_func_0"), None);
+        let time = ModelRow::Time(vec![0.5, -1.0]);
+        assert_eq!(time.get_float("time_func_1"), Some(-1.0));
+        assert_eq!(time.get_float("time_func_2"), None);
+        assert_eq!(time.get_float("x"), None);
     }
 }
