@@ -142,8 +142,8 @@ pub enum MirageError {
     /// The picture.
     #[error("{0}")]
     Picture(#[from] PictureError),
-    /// The model file.
-    #[error("model {}: {source}", path.display())]
+    /// The model file (the reader's or writer's error names it).
+    #[error("model {source}")]
     Model {
         /// The file.
         path: PathBuf,

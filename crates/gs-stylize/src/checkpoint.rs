@@ -181,22 +181,12 @@ pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
         std::fs::remove_dir_all(&tmp).map_err(io(&tmp))?;
     }
     std::fs::create_dir_all(&tmp).map_err(io(&tmp))?;
-    let params = tmp.join(PARAMS);
-    gs_core::fs::write_atomic_with(&params, |w| write_params(w, &checkpoint.params))
-        .map_err(io(&params))?;
-    write_atomic(&tmp.join(ADAM), &checkpoint.adam_state)?;
-    let rng = &checkpoint.rng;
-    let state = State {
-        step: checkpoint.step,
-        rng: RngState {
-            seed: rng.get_seed().iter().map(|b| format!("{b:02x}")).collect(),
-            stream: rng.get_stream(),
-            word_pos: rng.get_word_pos().to_string(),
-        },
-        config: checkpoint.config.clone(),
-        losses: checkpoint.losses.clone(),
-    };
-    write_json(&tmp.join(STATE), &state)?;
+    let written = write_files(&tmp, checkpoint);
+    if written.is_err() {
+        // A full disk, say: no half-written checkpoint is left beside the last good one.
+        let _ = std::fs::remove_dir_all(&tmp);
+    }
+    written?;
     if dir.exists() {
         if old.exists() {
             std::fs::remove_dir_all(&old).map_err(io(&old))?;
@@ -208,6 +198,30 @@ pub fn save(out: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
         std::fs::remove_dir_all(&old).map_err(io(&old))?;
     }
     Ok(())
+}
+
+/// Writes the files of `checkpoint` into the folder `dir`.
+fn write_files(dir: &Path, checkpoint: &Checkpoint) -> Result<(), StylizeError> {
+    let params = dir.join(PARAMS);
+    gs_core::fs::write_atomic_with(&params, |w| write_params(w, &checkpoint.params)).map_err(
+        |source| StylizeError::Io {
+            path: params.clone(),
+            source,
+        },
+    )?;
+    write_atomic(&dir.join(ADAM), &checkpoint.adam_state)?;
+    let rng = &checkpoint.rng;
+    let state = State {
+        step: checkpoint.step,
+        rng: RngState {
+            seed: rng.get_seed().iter().map(|b| format!("{b:02x}")).collect(),
+            stream: rng.get_stream(),
+            word_pos: rng.get_word_pos().to_string(),
+        },
+        config: checkpoint.config.clone(),
+        losses: checkpoint.losses.clone(),
+    };
+    write_json(&dir.join(STATE), &state)
 }
 
 /// The step at which the run of `out` finished, when its checkpoint is marked finished

@@ -35,10 +35,12 @@ use gs_wgpu::backend::Backend;
 use gs_wgpu::GpuModel;
 use serde::Serialize;
 
-use crate::checkpoint::mark_finished;
+use crate::checkpoint::{checkpoint_dir, mark_finished};
 use crate::interrupt::stop_on_ctrl_c;
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
-use crate::outputs::{create_folder, write_json, FitReport, FIT_JSON};
+use crate::outputs::{
+    create_folder, into_new_folder, into_new_folder_unless, write_json, FitReport, FIT_JSON,
+};
 use crate::progress::{fit_with_progress, with_loading_progress};
 use crate::writable::check_output_folder;
 use crate::{
@@ -185,10 +187,22 @@ impl InputPixels {
     }
 }
 
-/// Runs the stylization `modality` describes, in the order of the module documentation.
+/// Runs the stylization `modality` describes, in the order of the module documentation. A run
+/// that fails leaves no output folder it made, unless it saved a checkpoint to resume from
+/// (an interruption, or a failure after the first checkpoint).
 pub fn run<M: Modality>(modality: &M, options: &RunOptions) -> Result<M::Outputs, M::Error> {
     modality.check()?;
     let out = modality.out()?;
+    let resumable = |out: &Path| checkpoint_dir(out).is_dir();
+    into_new_folder_unless(out, resumable, || run_into(modality, out, options))
+}
+
+/// [`run`] into the output folder `out`.
+fn run_into<M: Modality>(
+    modality: &M,
+    out: &Path,
+    options: &RunOptions,
+) -> Result<M::Outputs, M::Error> {
     let prepared = prepare(modality.settings(), out, options.clone())?;
     if let Some(pixels) = modality.input_pixels()? {
         let estimate = MemoryEstimate::of(modality.settings(), &pixels.views, 0)
@@ -276,18 +290,10 @@ pub fn run_fit<I, F>(
         |on_step| fit(&inputs, &backend, on_step),
     )?;
     let seconds = started.elapsed().as_secs_f64();
-    let made = !out.exists();
-    create_folder(out)?;
-    match write(&inputs, fitted, &backend, seconds) {
-        Ok(line) => {
-            println!("{line}");
-            Ok(())
-        }
-        Err(e) => {
-            if made {
-                let _ = std::fs::remove_dir_all(out);
-            }
-            Err(e)
-        }
-    }
+    let line = into_new_folder(out, || {
+        create_folder(out)?;
+        write(&inputs, fitted, &backend, seconds)
+    })?;
+    println!("{line}");
+    Ok(())
 }

@@ -11,7 +11,7 @@ use gs_core::splats::{write_splats, SplatFormat};
 use gs_core::{Camera, GaussianSet};
 
 use crate::model_kind::{check_model, Binary};
-use crate::outputs::create_folder;
+use crate::outputs::{create_folder, into_new_folder};
 use crate::progress::Progress;
 use crate::writable::{check_output_file, check_output_folder};
 
@@ -96,10 +96,9 @@ impl ExportArgs {
             return self.write_file(&PlyGaussians::without_normals(gaussians_at(model, time)?));
         }
         let format = self.folder_format();
-        let made = !self.out.exists();
-        create_folder(&self.out)?;
         let progress = Progress::new(times.len() > 1, "export", times.len() as u64, 0);
-        let written =
+        let written = into_new_folder(&self.out, || {
+            create_folder(&self.out)?;
             times
                 .iter()
                 .enumerate()
@@ -110,17 +109,10 @@ impl ExportArgs {
                     write_splats(&path, &PlyGaussians::without_normals(set), format)?;
                     progress.update(i as u64 + 1, "");
                     Ok(Some(count))
-                });
+                })
+        });
         progress.finish();
-        let count = match written {
-            Ok(count) => count,
-            Err(e) => {
-                if made {
-                    let _ = std::fs::remove_dir_all(&self.out);
-                }
-                return Err(e);
-            }
-        };
+        let count = written?;
         Ok(format!(
             "wrote {} files ({} each, {}) to {}",
             times.len(),

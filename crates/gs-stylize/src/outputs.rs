@@ -87,6 +87,28 @@ pub fn create_folder(path: &Path) -> Result<(), StylizeError> {
     })
 }
 
+/// Runs `write`, which creates the folder `out` or writes into it; when it fails and `out` did
+/// not exist before, removes `out` with all in it, so a failed command leaves nothing behind
+/// (a folder that was there before is left as it is).
+pub fn into_new_folder<T, E>(out: &Path, write: impl FnOnce() -> Result<T, E>) -> Result<T, E> {
+    into_new_folder_unless(out, |_| false, write)
+}
+
+/// [`into_new_folder`], except that a failed `write` whose folder `keep` says is worth keeping
+/// (a stylization that saved a checkpoint to resume from) leaves it.
+pub fn into_new_folder_unless<T, E>(
+    out: &Path,
+    keep: impl FnOnce(&Path) -> bool,
+    write: impl FnOnce() -> Result<T, E>,
+) -> Result<T, E> {
+    let made = !out.exists();
+    let result = write();
+    if result.is_err() && made && !keep(out) {
+        let _ = std::fs::remove_dir_all(out);
+    }
+    result
+}
+
 /// Writes `before` and `after` side by side to `path`.
 pub fn write_pair(path: &Path, before: &Image, after: &Image) -> Result<(), StylizeError> {
     Ok(Image::side_by_side(&[before, after]).save_png(path)?)
@@ -169,4 +191,36 @@ pub fn write_previews<M: GpuModel>(
         .enumerate()
         .map(|(k, ((v, _), (b, a)))| write_preview(dir, k, *v, b, a))
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_failed_write_removes_only_the_folder_it_made_and_not_one_worth_keeping() {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("out");
+        let write = |out: &Path| -> Result<(), String> {
+            std::fs::create_dir_all(out.join("frames")).unwrap();
+            std::fs::write(out.join("frames/00000.png"), b"half").unwrap();
+            Err("disk full".into())
+        };
+        assert!(into_new_folder(&out, || write(&out)).is_err());
+        assert!(!out.exists(), "the folder this run made is gone");
+
+        std::fs::create_dir(&out).unwrap();
+        std::fs::write(out.join("mine.txt"), b"the user's").unwrap();
+        assert!(into_new_folder(&out, || write(&out)).is_err());
+        assert!(
+            out.join("mine.txt").exists(),
+            "a folder that was there stays"
+        );
+
+        let other = dir.path().join("resumable");
+        let kept = into_new_folder_unless(&other, |o| o.join("frames").is_dir(), || write(&other));
+        assert!(kept.is_err() && other.join("frames/00000.png").exists());
+        let done = into_new_folder(&dir.path().join("fine"), || Ok::<_, String>(7));
+        assert_eq!(done, Ok(7));
+    }
 }

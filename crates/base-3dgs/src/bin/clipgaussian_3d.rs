@@ -26,6 +26,7 @@ use gs_stylize::cli::{
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
+use gs_stylize::outputs::into_new_folder;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_wgpu::backend::DeviceChoice;
@@ -307,7 +308,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
-        Command::Render(args) => render(args),
+        Command::Render(args) => into_new_folder(&args.out, || render(args)),
         Command::Interpolate(args) => args.run(Binary::Scene).map(|line| println!("{line}")),
         Command::Export(args) => export(args),
         Command::Eval(args) => eval(args),

@@ -32,7 +32,7 @@ use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::{check_count, check_prompts, check_sizes, resolve_clip, score};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::outputs::{create_folder, write_json, write_pair, PREVIEW_PNG};
+use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
@@ -532,7 +532,7 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
         Command::Fit(args) => fit(args),
-        Command::Render(args) => render(args),
+        Command::Render(args) => into_new_folder(&args.out, || render(args)),
         Command::Interpolate(args) => interpolate_models(args),
         Command::Export(args) => export(args),
         Command::Eval(args) => eval(args),
