@@ -38,15 +38,17 @@ fn natural_key(name: &str) -> Vec<(String, u128)> {
 pub fn matching_names(renders: &Path, ground_truths: &Path) -> Result<Vec<String>, EvalError> {
     let r = picture_names(renders)?;
     let g = picture_names(ground_truths)?;
-    if r != g {
-        return Err(EvalError::Unmatched {
-            only_renders: r.difference(&g).cloned().collect(),
-            only_ground_truths: g.difference(&r).cloned().collect(),
-        });
-    }
     if r.is_empty() {
         return Err(EvalError::Empty {
             path: renders.to_path_buf(),
+        });
+    }
+    if r != g {
+        return Err(EvalError::Unmatched {
+            renders: renders.to_path_buf(),
+            ground_truths: ground_truths.to_path_buf(),
+            only_renders: r.difference(&g).cloned().collect(),
+            only_ground_truths: g.difference(&r).cloned().collect(),
         });
     }
     let mut names: Vec<String> = r.into_iter().collect();

@@ -401,6 +401,12 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
     fails(
         &args.iter().map(String::as_str).collect::<Vec<_>>(),
         &[
+            format!(
+                "{} and {} hold different pictures",
+                renders.display(),
+                gt.display()
+            )
+            .as_str(),
             "only in the renders: [extra.png]",
             "only in the ground truths: [r_1.png]",
         ],
@@ -423,6 +429,34 @@ fn eval_scores_matching_folders_and_names_the_unmatched_pictures() {
     fails(
         &args.iter().map(String::as_str).collect::<Vec<_>>(),
         &["no picture", "empty"],
+        &missing,
+    );
+    // An empty renders folder against a full one says it is empty, naming it.
+    let args = eval_args(&clip, &empty, &gt, &missing);
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["no picture", "empty"],
+        &missing,
+    );
+    // A style picture that does not decode is named as the style image.
+    let garbage = dir.path().join("garbage.png");
+    std::fs::write(&garbage, b"not a picture").unwrap();
+    let mut args = eval_args(&clip, &renders, &renders, &missing);
+    let prompt = args.iter().position(|a| a == "--style-prompt").unwrap();
+    args.splice(
+        prompt..prompt + 2,
+        ["--style-image".into(), s(&garbage).into()],
+    );
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["style image: ", "garbage.png"],
+        &missing,
+    );
+    let a_file = renders.join("r_2.png");
+    let args = eval_args(&clip, &a_file, &gt, &missing);
+    fails(
+        &args.iter().map(String::as_str).collect::<Vec<_>>(),
+        &["r_2.png: a file, not a folder of pictures"],
         &missing,
     );
 }

@@ -300,10 +300,18 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
     let path = dir.path().join("short.spz");
     std::fs::write(&path, short).unwrap();
     assert!(read_splats(&path).is_err());
-    // A name of no known ending is read as INRIA PLY, whose reader names the problem.
+    // A name of no known ending is read as INRIA PLY when it starts as one (its reader then
+    // names the problem), and refused as a format this reader does not know otherwise.
     let unknown = dir.path().join("model.xyz");
-    std::fs::write(&unknown, b"not a ply").unwrap();
+    std::fs::write(&unknown, b"ply\nformat nonsense\n").unwrap();
     assert!(matches!(read_splats(&unknown), Err(SplatFileError::Ply(_))));
+    let sog = dir.path().join("model.sog");
+    std::fs::write(&sog, b"PK\x03\x04 a zip of pictures").unwrap();
+    let e = read_splats(&sog).unwrap_err().to_string();
+    assert!(
+        e.contains("model.sog") && e.contains("not a splat file this reader knows"),
+        "{e}"
+    );
     let glb = dir.path().join("model.glb");
     assert!(matches!(
         read_splats(&glb),

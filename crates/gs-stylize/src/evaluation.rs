@@ -28,12 +28,18 @@ pub enum EvalError {
     },
     /// The folders do not hold the same picture names.
     #[error(
-        "the folders hold different pictures: only in the renders: [{}]; only in the ground \
+        "{} and {} hold different pictures: only in the renders: [{}]; only in the ground \
          truths: [{}]",
+        renders.display(),
+        ground_truths.display(),
         only_renders.join(", "),
         only_ground_truths.join(", ")
     )]
     Unmatched {
+        /// The renders folder.
+        renders: PathBuf,
+        /// The ground-truth folder.
+        ground_truths: PathBuf,
         /// Names present in the renders folder only.
         only_renders: Vec<String>,
         /// Names present in the ground-truth folder only.
@@ -83,6 +89,9 @@ pub enum EvalError {
     /// A picture that could not be read.
     #[error("{0}")]
     Image(#[from] gs_core::GsError),
+    /// The style image, which does not decode.
+    #[error("style image: {0}")]
+    StyleImage(#[source] gs_core::GsError),
     /// An empty style or source prompt.
     #[error("{0}")]
     Prompt(String),
@@ -162,6 +171,12 @@ pub fn picture_names(dir: &Path) -> Result<std::collections::BTreeSet<String>, E
         path: dir.to_path_buf(),
         source,
     };
+    if dir.exists() && !dir.is_dir() {
+        return Err(io(std::io::Error::new(
+            std::io::ErrorKind::NotADirectory,
+            "a file, not a folder of pictures",
+        )));
+    }
     let mut names = std::collections::BTreeSet::new();
     for entry in std::fs::read_dir(dir).map_err(io)? {
         let path = entry.map_err(io)?.path();
@@ -317,7 +332,8 @@ pub fn score(
     let reference = match style {
         Style::Prompt(prompt) => StyleReference::Prompt(prompt),
         Style::Image(path) => {
-            style_image = load_picture(path, background, &Device::Cpu)?;
+            style_image =
+                load_picture(path, background, &Device::Cpu).map_err(EvalError::StyleImage)?;
             StyleReference::Image(&style_image)
         }
     };

@@ -305,7 +305,7 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
 fn main() -> ExitCode {
     // A step frees and re-allocates gigabytes of tensors: keep them in the process.
     style_loss::memory::keep_freed_memory();
-    let cli = Cli::parse();
+    let cli: Cli = gs_stylize::cli::parse_command_line();
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
         Command::Render(args) => into_new_folder(&args.out, || render(args)),

@@ -125,7 +125,7 @@ pub enum SplatFileError {
 }
 
 /// Reads the splat file `path` in the format its name says (a `.ply` with a `chunk` element as
-/// compressed; a name of no known ending as INRIA PLY, whose reader names what is wrong).
+/// compressed; a name of no known ending as INRIA PLY when it starts as a PLY, else refused).
 /// Formats other than INRIA's PLY give Gaussians without extras or normals.
 pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
     read_splats_with_format(path).map(|(ply, _)| ply)
@@ -134,7 +134,18 @@ pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
 /// [`read_splats`], with the body format of an INRIA PLY (binary little-endian for every other
 /// format), so a modified copy can be written as the input was.
 pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat), SplatFileError> {
-    let format = SplatFormat::from_path(path).unwrap_or(SplatFormat::Ply);
+    let format = match SplatFormat::from_path(path) {
+        Some(format) => format,
+        None if head(path)?.starts_with(b"ply") => SplatFormat::Ply,
+        None => {
+            return Err(SplatFileError::Format {
+                path: path.to_path_buf(),
+                message: "not a splat file this reader knows: the name ends in none of .ply, \
+                          .compressed.ply, .splat, .spz, and the file does not start as a PLY"
+                    .into(),
+            })
+        }
+    };
     let read = || {
         std::fs::read(path).map_err(|source| SplatFileError::Io {
             path: path.to_path_buf(),
