@@ -158,3 +158,22 @@ fn a_pseudomesh_larger_than_its_file_is_refused_before_allocation() {
         );
     }
 }
+
+/// A `deform.pth` whose storage type was changed from floats to bytes (`FloatStorage` to
+/// `ByteStorage` in its pickle) is refused naming the tensor, not read as byte values.
+#[test]
+fn a_storage_changed_to_bytes_is_refused_naming_the_tensor() {
+    let (_dir, files) = authors_copy();
+    let valid = std::fs::read(&files.time_net).unwrap();
+    let pickle = pickle_of(&valid);
+    let (from, to) = (b"torch\nFloatStorage", b"torch\nByteStorage");
+    let at = pickle.windows(from.len()).position(|w| w == from).unwrap();
+    let mut edited = pickle.clone();
+    edited.splice(at..at + from.len(), to.iter().copied());
+    std::fs::write(&files.time_net, with_pickle(&valid, &edited)).unwrap();
+    let e = read_authors(&files, &Device::Cpu).unwrap_err().to_string();
+    assert!(
+        e.contains("time_net") && e.contains("deform.pth") && e.contains("stored as U8"),
+        "{e}"
+    );
+}

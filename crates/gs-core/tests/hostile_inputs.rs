@@ -170,3 +170,42 @@ fn a_ply_with_a_zero_quaternion_is_refused_naming_the_vertex() {
         "{e}"
     );
 }
+
+/// 200,000 cameras with the first listed again at the end, as text and as binary: refused
+/// naming the file and the camera (the check is one hash set: a pairwise check took over 20 s
+/// on this many).
+#[test]
+fn a_camera_listed_twice_among_200000_is_refused_naming_it() {
+    const CAMERAS: i32 = 200_000;
+    let dir = tempfile::tempdir().unwrap();
+    let text = dir.path().join("text/sparse/0");
+    let binary = dir.path().join("binary/sparse/0");
+    for sparse in [&text, &binary] {
+        std::fs::create_dir_all(sparse).unwrap();
+        std::fs::write(sparse.join("images.txt"), "").unwrap();
+        std::fs::write(sparse.join("points3D.txt"), "").unwrap();
+    }
+    let mut lines = String::new();
+    let mut bytes = (CAMERAS as u64 + 1).to_le_bytes().to_vec();
+    for id in (1..=CAMERAS).chain([1]) {
+        lines += &format!("{id} PINHOLE 8 6 10 10 4 3\n");
+        bytes.extend(id.to_le_bytes());
+        bytes.extend(1i32.to_le_bytes());
+        bytes.extend(8u64.to_le_bytes());
+        bytes.extend(6u64.to_le_bytes());
+        for v in [10.0f64, 10.0, 4.0, 3.0] {
+            bytes.extend(v.to_le_bytes());
+        }
+    }
+    std::fs::write(text.join("cameras.txt"), lines).unwrap();
+    std::fs::write(binary.join("cameras.bin"), bytes).unwrap();
+    for (sparse, file) in [(&text, "cameras.txt"), (&binary, "cameras.bin")] {
+        let e = gs_core::dataset::colmap::read_sparse_model(sparse)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains(file) && e.contains("camera 1 appears twice"),
+            "{e}"
+        );
+    }
+}
