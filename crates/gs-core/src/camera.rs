@@ -120,9 +120,13 @@ impl Camera {
             return bad(
                 "the image size",
                 format!(
-                    "{}x{}; at most {MAX_SIDE} pixels a side and {} megapixels are rendered",
+                    "{}x{}, whose render alone needs {:.1} GB; at most {MAX_SIDE} pixels a side \
+                     and {} megapixels are rendered (render smaller: a resolution divisor -r \
+                     for a dataset, a smaller width and height for a camera or a video)",
                     self.width,
                     self.height,
+                    // The render's RGB and alpha, f32.
+                    u64::from(self.width) as f64 * u64::from(self.height) as f64 * 16.0 / 1e9,
                     MAX_PIXELS / 1_000_000
                 ),
             );

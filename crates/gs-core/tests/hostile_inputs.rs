@@ -107,7 +107,10 @@ fn cameras_too_large_to_render_are_refused() {
             e.contains(&format!("{w}x{h}")) && e.contains("at most 65536 pixels a side"),
             "{e}"
         );
+        assert!(e.contains("GB") && e.contains("resolution divisor"), "{e}");
     }
+    let e = camera(100_000, 100_000).unwrap_err().to_string();
+    assert!(e.contains("needs 160.0 GB"), "{e}");
     assert!(camera(16_384, 16_384).is_ok());
     assert!(camera(65_536, 4_096).is_ok());
 }
