@@ -10,14 +10,9 @@ use std::time::Instant;
 use base_vegas::init::initial_model;
 use base_vegas::model_file::{read_model, write_model};
 
-/// The process's peak resident memory, MB (`VmHWM` of `/proc/self/status`).
+/// The process's peak resident memory, MB (NaN where it cannot be read).
 fn peak_mb() -> f64 {
-    let status = std::fs::read_to_string("/proc/self/status").unwrap_or_default();
-    status
-        .lines()
-        .find_map(|l| l.strip_prefix("VmHWM:"))
-        .and_then(|v| v.trim().trim_end_matches("kB").trim().parse::<f64>().ok())
-        .map_or(f64::NAN, |kb| kb / 1024.0)
+    style_loss::memory::peak_resident_mb().unwrap_or(f64::NAN)
 }
 
 fn main() {

@@ -1,4 +1,5 @@
-//! The process's allocator setting for runs of large tensors.
+//! The process's memory: the allocator setting for runs of large tensors, and the peak
+//! resident size the benchmarks report ([`peak_resident_mb`]).
 //!
 //! Every candle op allocates its output, and a stylization step makes and frees gigabytes of
 //! tensors. glibc hands each block over 32 MB straight back to the kernel when it is freed, so
@@ -30,6 +31,21 @@ pub fn keep_freed_memory() -> bool {
     }
 }
 
+/// The process's peak resident memory so far, MB (`VmHWM` of `/proc/self/status`); `None` where
+/// that cannot be read (other systems).
+pub fn peak_resident_mb() -> Option<f64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let kb: f64 = status
+        .lines()
+        .find_map(|l| l.strip_prefix("VmHWM:"))?
+        .trim()
+        .trim_end_matches("kB")
+        .trim()
+        .parse()
+        .ok()?;
+    Some(kb / 1024.0)
+}
+
 #[cfg(test)]
 mod tests {
     #[test]
@@ -39,5 +55,14 @@ mod tests {
         // A block well over glibc's mmap threshold now comes from the heap; it must still work.
         let block = vec![1u8; 64 << 20];
         assert_eq!(block.iter().map(|&b| b as usize).sum::<usize>(), 64 << 20);
+    }
+
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn the_peak_counts_memory_the_process_touched() {
+        let block = vec![1u8; 32 << 20];
+        let peak = super::peak_resident_mb().unwrap();
+        assert!(peak >= 32.0, "{peak} MB");
+        assert_eq!(block[block.len() - 1], 1);
     }
 }
