@@ -278,18 +278,22 @@ pub fn load(out: &Path) -> Result<Checkpoint, StylizeError> {
     };
     let adam_state = read(ADAM)?;
     let params = read_params(&read(PARAMS)?).map_err(|e| bad(format!("{PARAMS}: {e}")))?;
-    let seed = decode_seed(&state.rng.seed).ok_or_else(|| bad("bad rng seed".into()))?;
+    let seed = decode_seed(&state.rng.seed).ok_or_else(|| {
+        bad(format!(
+            "{STATE}: the rng seed is not 64 hexadecimal digits"
+        ))
+    })?;
     let word_pos: u128 = state
         .rng
         .word_pos
         .parse()
-        .map_err(|e| bad(format!("bad rng word position: {e}")))?;
+        .map_err(|e| bad(format!("{STATE}: bad rng word position: {e}")))?;
     let mut rng = StyleRng::from_seed(seed);
     rng.set_stream(state.rng.stream);
     rng.set_word_pos(word_pos);
     if state.losses.len() as u64 != state.step {
         return Err(bad(format!(
-            "{} logged losses for {} steps",
+            "{STATE}: {} logged losses for {} steps",
             state.losses.len(),
             state.step
         )));
