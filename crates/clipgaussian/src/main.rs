@@ -1,8 +1,8 @@
-//! `clipgaussian`: the command line of the workspace.
-//!
-//! Until the stylization binaries exist, its job is `fit-demo`: fit a random Gaussian set to
-//! renders of the embedded default scene and write before/after pictures.
+//! `clipgaussian`: the command line of the workspace: `batch` (many stylizations from one
+//! manifest, here or through a cluster's scheduler) and `fit-demo` (fit a random Gaussian set
+//! to renders of the embedded default scene and write before/after pictures).
 
+mod batch;
 mod demo_scene;
 
 use std::ops::ControlFlow;
@@ -32,6 +32,118 @@ enum Command {
     /// Fit a random Gaussian set to renders of the embedded default scene (a striped torus
     /// around a ball) with L1 + D-SSIM, and write before/after pictures.
     FitDemo(FitDemoArgs),
+    /// Many stylizations from one manifest (inputs x styles): plan them, run them here or as
+    /// a Slurm job array or a Kubernetes Indexed Job, follow and collect them.
+    #[command(subcommand)]
+    Batch(BatchCommand),
+}
+
+#[derive(Subcommand)]
+enum BatchCommand {
+    /// Check a manifest and write the batch folder's jobs.json (one job per input and style,
+    /// each with a stable id and its output folder <batch>/<id>/).
+    Plan {
+        /// The manifest (JSON: modality, config, set, inputs, styles, pairing).
+        manifest: PathBuf,
+        /// The batch folder.
+        #[arg(long)]
+        out: PathBuf,
+    },
+    /// Run one job by index (a scheduler's task), or every job not done here. A done job is
+    /// skipped, an interrupted one resumes from its checkpoint. Exit 0: done; 75: worth
+    /// running again (interrupted, preempted, device lost, out of memory); 65: never worth
+    /// running again as it is (a bad input).
+    Run {
+        /// The batch folder.
+        dir: PathBuf,
+        /// The job to run; default: SLURM_ARRAY_TASK_ID or JOB_COMPLETION_INDEX when set, else
+        /// every job not done.
+        #[arg(long)]
+        index: Option<usize>,
+        /// Jobs at once when running every job (each in its own process).
+        #[arg(long, default_value_t = 1)]
+        parallel: usize,
+        /// Threads each job may use when running every job; default: the machine's cores
+        /// shared out.
+        #[arg(long)]
+        threads: Option<usize>,
+        /// GPUs to share out when running every job, one job per GPU at a time
+        /// (CUDA_VISIBLE_DEVICES).
+        #[arg(long)]
+        gpus: Option<usize>,
+        /// Show no progress.
+        #[arg(long)]
+        quiet: bool,
+    },
+    /// Print each job's state (done, running, failed with the reason, stopped, left).
+    Status {
+        /// The batch folder.
+        dir: PathBuf,
+    },
+    /// Write results.json, results.csv and contact_sheet.png into the batch folder.
+    Collect {
+        /// The batch folder.
+        dir: PathBuf,
+    },
+    /// Write batch.sbatch: a Slurm job array over the jobs (submit with `sbatch`).
+    Slurm {
+        /// The batch folder.
+        dir: PathBuf,
+        #[command(flatten)]
+        resources: ResourceArgs,
+        /// The partition.
+        #[arg(long)]
+        partition: Option<String>,
+    },
+    /// Write batch-job.yaml: a Kubernetes Indexed Job over the jobs (`kubectl apply -f`).
+    K8s {
+        /// The batch folder.
+        dir: PathBuf,
+        #[command(flatten)]
+        resources: ResourceArgs,
+        /// The container image holding clipgaussian.
+        #[arg(long)]
+        image: String,
+        /// The PersistentVolumeClaim holding the batch folder (mounted at the same path);
+        /// default: the node's folder of that path (hostPath).
+        #[arg(long)]
+        claim: Option<String>,
+        /// Retries of an index that fails in a way worth retrying.
+        #[arg(long, default_value_t = 3)]
+        retries: u32,
+    },
+}
+
+/// What each task of a scheduler's job asks for.
+#[derive(clap::Args)]
+struct ResourceArgs {
+    /// GPUs per task.
+    #[arg(long, default_value_t = 1)]
+    gpus: u32,
+    /// CPU cores per task.
+    #[arg(long, default_value_t = 8)]
+    cpus: u32,
+    /// Memory per task, GB.
+    #[arg(long, default_value_t = 32)]
+    memory_gb: u32,
+    /// Time limit per task (Slurm's --time).
+    #[arg(long, default_value = "24:00:00")]
+    time: String,
+    /// Tasks at once.
+    #[arg(long, default_value_t = 4)]
+    parallel: usize,
+}
+
+impl ResourceArgs {
+    fn resources(&self) -> batch::scheduler::Resources {
+        batch::scheduler::Resources {
+            gpus: self.gpus,
+            cpus: self.cpus,
+            memory_gb: self.memory_gb,
+            time: self.time.clone(),
+            parallel: self.parallel,
+        }
+    }
 }
 
 #[derive(clap::Args)]
@@ -61,9 +173,109 @@ struct FitDemoArgs {
     device: DeviceChoice,
 }
 
-fn main() -> Result<()> {
+fn main() -> std::process::ExitCode {
     match Cli::parse().command {
-        Command::FitDemo(args) => fit_demo(&args),
+        Command::FitDemo(args) => match fit_demo(&args) {
+            Ok(()) => std::process::ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("error: {e:#}");
+                std::process::ExitCode::FAILURE
+            }
+        },
+        Command::Batch(command) => std::process::ExitCode::from(batch_command(command)),
+    }
+}
+
+/// Runs a `batch` subcommand; returns the exit code (see `batch run`'s).
+fn batch_command(command: BatchCommand) -> u8 {
+    use batch::job::EXIT_NEVER_RETRY;
+    let written =
+        |dir: &Path, name: &str, text: Result<String, String>| -> Result<String, String> {
+            let path = dir.join(name);
+            gs_core::fs::write_atomic(&path, text?.as_bytes())
+                .map_err(|e| format!("{}: {e}", path.display()))?;
+            Ok(format!("wrote {}", path.display()))
+        };
+    let line = match command {
+        BatchCommand::Plan { manifest, out } => batch::plan::plan(&manifest, &out).map(|plan| {
+            let done = plan
+                .jobs
+                .iter()
+                .filter(|j| batch::job::is_done(&out, j))
+                .count();
+            format!(
+                "planned {} jobs ({} inputs x {} styles, {done} already done) in {}",
+                plan.jobs.len(),
+                plan.inputs,
+                plan.styles,
+                out.join(batch::plan::JOBS_JSON).display()
+            )
+        }),
+        BatchCommand::Run {
+            dir,
+            index,
+            parallel,
+            threads,
+            gpus,
+            quiet,
+        } => {
+            return match index.or_else(batch::job::index_from_env) {
+                Some(index) => batch::job::run_one(&dir, index, !quiet),
+                None => {
+                    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+                    let parallel = batch::job::Parallel {
+                        jobs: parallel.max(1),
+                        threads: threads.unwrap_or((cores / parallel.max(1)).max(1)),
+                        gpus,
+                    };
+                    batch::job::run_all(&dir, &parallel).unwrap_or_else(|e| {
+                        eprintln!("error: {e}");
+                        EXIT_NEVER_RETRY
+                    })
+                }
+            };
+        }
+        BatchCommand::Status { dir } => {
+            batch::status::statuses(&dir).map(|s| batch::status::report(&s).trim_end().to_string())
+        }
+        BatchCommand::Collect { dir } => batch::collect::collect(&dir),
+        BatchCommand::Slurm {
+            dir,
+            resources,
+            partition,
+        } => {
+            let program = std::env::current_exe()
+                .map(|p| p.display().to_string())
+                .unwrap_or_else(|_| "clipgaussian".into());
+            let options = batch::scheduler::SlurmOptions { partition, program };
+            let script = batch::scheduler::slurm_script(&dir, &resources.resources(), &options);
+            written(&dir, batch::scheduler::SBATCH_FILE, script)
+        }
+        BatchCommand::K8s {
+            dir,
+            resources,
+            image,
+            claim,
+            retries,
+        } => {
+            let options = batch::scheduler::K8sOptions {
+                image,
+                claim,
+                retries,
+            };
+            let job = batch::scheduler::k8s_job(&dir, &resources.resources(), &options);
+            written(&dir, batch::scheduler::K8S_FILE, job)
+        }
+    };
+    match line {
+        Ok(line) => {
+            println!("{line}");
+            0
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            EXIT_NEVER_RETRY
+        }
     }
 }
 

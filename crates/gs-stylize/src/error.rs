@@ -15,6 +15,10 @@ pub enum StylizeError {
     /// the patch size, the style image).
     #[error("{0}")]
     Input(String),
+    /// A run that needs more memory than this machine has (see
+    /// [`crate::memory_estimate::check_memory`]).
+    #[error("{0}")]
+    Memory(String),
     /// Model files (CLIP, its tokenizer, VGG-19) that cannot be found.
     #[error("{0}")]
     Weights(#[from] weights::MissingWeights),

@@ -156,7 +156,7 @@ pub fn check_memory(
     };
     let need = estimate.total();
     if need > machine.total {
-        return Err(StylizeError::Input(format!(
+        return Err(StylizeError::Memory(format!(
             "this run needs about {} of memory and this machine has {} in all ({}); lower \
              --set num_patches=N (about 80 MB each), the views' size (--max-width, or a \
              dataset's -r; a picture's stored size counts while it is decoded), or run on a \

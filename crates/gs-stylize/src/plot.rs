@@ -355,6 +355,21 @@ fn draw_legend(area: &Area, legend: &[(String, [u8; 3])]) -> Result<(), DrawErro
     Ok(())
 }
 
+/// A strip `width x height` pixels (RGB, white) with `text` written in black in the charts'
+/// font, cut at the strip's end: the label of a picture in a contact sheet.
+pub fn label_strip(width: u32, height: u32, text: &str) -> Result<RgbImage, StylizeError> {
+    register_font();
+    let mut buf = vec![255u8; width as usize * height as usize * 3];
+    {
+        let root = BitMapBackend::with_buffer(&mut buf, (width, height)).into_drawing_area();
+        let font = (FONT, f64::from(height.saturating_sub(6).max(6))).into_font();
+        root.draw(&Text::new(text.to_string(), (4, 2), font.color(&BLACK)))
+            .and_then(|()| root.present())
+            .map_err(|e| StylizeError::Plot(Box::new(e)))?;
+    }
+    Ok(RgbImage::from_raw(width, height, buf).expect("the buffer holds the strip"))
+}
+
 /// Registers the embedded Noto Sans as the charts' font, once.
 fn register_font() {
     static REGISTER: Once = Once::new();
@@ -368,6 +383,20 @@ fn register_font() {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_label_strip_holds_dark_text_at_its_left_only() {
+        let strip = label_strip(200, 20, "3: cat.png x fire").unwrap();
+        assert_eq!(strip.dimensions(), (200, 20));
+        let dark = |x0: u32, x1: u32| {
+            (x0..x1)
+                .flat_map(|x| (0..20).map(move |y| (x, y)))
+                .filter(|&(x, y)| strip.get_pixel(x, y).0[0] < 128)
+                .count()
+        };
+        assert!(dark(0, 100) > 20, "the text is drawn");
+        assert_eq!(dark(150, 200), 0, "and nothing past it");
+    }
 
     /// The left edge of the legend column.
     const LEGEND_X: u32 = PLOT_WIDTH - LEGEND_WIDTH;

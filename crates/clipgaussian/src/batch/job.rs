@@ -1,0 +1,356 @@
+//! Running a batch's jobs: one by index (what a job array's task runs), or all of them here,
+//! several at once.
+//!
+//! A job whose output is finished is skipped; one that was interrupted (a checkpoint and no
+//! finished mark) resumes from its checkpoint. SIGTERM and Ctrl-C stop a job after its current
+//! step with a checkpoint. Each job's state is kept in `<batch>/state/<id>.json` (running,
+//! done or failed, with the reason), its output in `<batch>/<id>/`.
+//!
+//! Exit codes of `batch run`: 0 done (or already done); [`EXIT_RETRY`] (75) worth running
+//! again: interrupted or preempted (a checkpoint was saved), the device lost, the machine short
+//! of memory, an output that could not be written; [`EXIT_NEVER_RETRY`] (65) never worth
+//! running again as it is: a bad input, configuration or model file.
+
+use std::error::Error;
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command};
+use std::time::{Duration, Instant};
+
+use gs_stylize::checkpoint::finished_step;
+use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::{RunOptions, StylizeError};
+use serde::{Deserialize, Serialize};
+
+use super::plan::{self, Job};
+
+/// Exit code of a job worth running again (sysexits' `EX_TEMPFAIL`).
+pub const EXIT_RETRY: u8 = 75;
+/// Exit code of a job never worth running again as it is (sysexits' `EX_DATAERR`).
+pub const EXIT_NEVER_RETRY: u8 = 65;
+
+/// The folder of the jobs' state files in a batch folder.
+pub const STATE_DIR: &str = "state";
+/// The folder of the jobs' logs when `batch run --parallel` runs them.
+pub const LOG_DIR: &str = "logs";
+
+/// What a job's state file says.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct JobState {
+    /// `running`, `done` or `failed`.
+    pub status: String,
+    /// The machine it ran on.
+    pub host: String,
+    /// The process that ran it.
+    pub pid: u32,
+    /// Wall time of the run so far (done or failed), seconds.
+    pub seconds: Option<f64>,
+    /// The exit code (done or failed).
+    pub exit_code: Option<u8>,
+    /// Why it failed.
+    pub reason: Option<String>,
+}
+
+/// The state file of `job` in the batch folder `dir`.
+pub fn state_path(dir: &Path, job: &Job) -> PathBuf {
+    dir.join(STATE_DIR).join(format!("{}.json", job.id))
+}
+
+/// The state of `job` in `dir`, when it has run.
+pub fn read_state(dir: &Path, job: &Job) -> Option<JobState> {
+    let text = std::fs::read_to_string(state_path(dir, job)).ok()?;
+    serde_json::from_str(&text).ok()
+}
+
+/// Whether `job`'s output in `dir` is finished (its stylization wrote every output).
+pub fn is_done(dir: &Path, job: &Job) -> bool {
+    read_state(dir, job).is_some_and(|s| s.status == "done")
+        || finished_step(&job.out(dir)).is_some_and(|step| step == job.steps())
+}
+
+/// This machine's name.
+pub fn host() -> String {
+    std::fs::read_to_string("/proc/sys/kernel/hostname")
+        .map(|h| h.trim().to_string())
+        .or_else(|_| std::env::var("HOSTNAME"))
+        .unwrap_or_else(|_| "unknown".into())
+}
+
+/// The index a scheduler gives this task: Slurm's `SLURM_ARRAY_TASK_ID`, else Kubernetes'
+/// `JOB_COMPLETION_INDEX`.
+pub fn index_from_env() -> Option<usize> {
+    ["SLURM_ARRAY_TASK_ID", "JOB_COMPLETION_INDEX"]
+        .iter()
+        .find_map(|name| std::env::var(name).ok()?.trim().parse().ok())
+}
+
+/// The exit code for a job that failed with `e`: [`EXIT_RETRY`] for an interruption, a lost
+/// device, a machine short of memory or an output that could not be written, else
+/// [`EXIT_NEVER_RETRY`].
+pub fn exit_code_of(e: &(dyn Error + 'static)) -> u8 {
+    let mut cause = Some(e);
+    while let Some(c) = cause {
+        if let Some(e) = c.downcast_ref::<StylizeError>() {
+            if matches!(
+                e,
+                StylizeError::Interrupted { .. }
+                    | StylizeError::InterruptedFit { .. }
+                    | StylizeError::Device(_)
+                    | StylizeError::LossDevice(_)
+                    | StylizeError::Render(_)
+                    | StylizeError::Memory(_)
+                    | StylizeError::Io { .. }
+            ) {
+                return EXIT_RETRY;
+            }
+        }
+        if c.downcast_ref::<gs_core::fallible::OutOfMemory>().is_some() {
+            return EXIT_RETRY;
+        }
+        cause = c.source();
+    }
+    EXIT_NEVER_RETRY
+}
+
+/// Writes `state` as `job`'s state in `dir`.
+fn write_state(dir: &Path, job: &Job, state: &JobState) -> Result<(), String> {
+    let path = state_path(dir, job);
+    std::fs::create_dir_all(dir.join(STATE_DIR)).map_err(|e| format!("{}: {e}", path.display()))?;
+    let text = serde_json::to_string_pretty(state).expect("a state serializes");
+    gs_core::fs::write_atomic(&path, text.as_bytes())
+        .map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// Runs job `index` of the batch in `dir` in this process (see the module documentation) and
+/// returns the exit code.
+pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
+    let plan = match plan::read(dir) {
+        Ok(plan) => plan,
+        Err(e) => {
+            eprintln!("error: {e}");
+            return EXIT_NEVER_RETRY;
+        }
+    };
+    let Some(job) = plan.jobs.get(index) else {
+        eprintln!(
+            "error: --index {index}: the batch in {} has jobs 0 to {}",
+            dir.display(),
+            plan.jobs.len().saturating_sub(1)
+        );
+        return EXIT_NEVER_RETRY;
+    };
+    let what = format!(
+        "job {index} ({}: {} x {})",
+        job.id, job.input_label, job.style_label
+    );
+    if is_done(dir, job) {
+        println!("{what} is done");
+        return 0;
+    }
+    let out = job.out(dir);
+    let resume = gs_stylize::checkpoint::checkpoint_dir(&out).is_dir();
+    println!(
+        "{what}: {} into {}",
+        if resume { "resuming" } else { "starting" },
+        out.display()
+    );
+    let mut state = JobState {
+        status: "running".into(),
+        host: host(),
+        pid: std::process::id(),
+        seconds: None,
+        exit_code: None,
+        reason: None,
+    };
+    if let Err(e) = write_state(dir, job, &state) {
+        eprintln!("error: {e}");
+        return EXIT_RETRY;
+    }
+    let started = Instant::now();
+    let result = stop_on_ctrl_c()
+        .map_err(|e| Box::new(e) as Box<dyn Error>)
+        .and_then(|stop| {
+            let options = RunOptions {
+                resume,
+                progress,
+                stop,
+            };
+            plan.modality.run(&job.config_in(dir), &options)
+        });
+    let code = match &result {
+        Ok(()) => 0,
+        Err(e) => exit_code_of(e.as_ref()),
+    };
+    state.status = if code == 0 { "done" } else { "failed" }.into();
+    state.seconds = Some(started.elapsed().as_secs_f64());
+    state.exit_code = Some(code);
+    state.reason = result.as_ref().err().map(|e| e.to_string());
+    if let Err(e) = write_state(dir, job, &state) {
+        eprintln!("error: {e}");
+    }
+    match result {
+        Ok(()) => println!("{what} is done"),
+        Err(e) => eprintln!("error: {what}: {e}"),
+    }
+    code
+}
+
+/// How `batch run` runs every job here.
+#[derive(Clone, Debug)]
+pub struct Parallel {
+    /// Jobs at once.
+    pub jobs: usize,
+    /// Threads each job may use (`RAYON_NUM_THREADS`).
+    pub threads: usize,
+    /// GPUs to share out, one job per GPU at a time (`CUDA_VISIBLE_DEVICES`); none: leave the
+    /// devices as they are.
+    pub gpus: Option<usize>,
+}
+
+/// Runs every job of the batch in `dir` that is not done, `parallel.jobs` at once, each in a
+/// process of this program (`batch run --index`) logging to `<batch>/logs/<index>.log`; returns
+/// 0 when all are done, else [`EXIT_RETRY`] when any may be retried, else
+/// [`EXIT_NEVER_RETRY`]. Ctrl-C or SIGTERM starts no new job and waits for the running ones
+/// (which stop with a checkpoint).
+pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
+    let plan = plan::read(dir)?;
+    let pending: Vec<&Job> = plan.jobs.iter().filter(|j| !is_done(dir, j)).collect();
+    println!(
+        "{} of {} jobs to run, {} at once, {} threads each",
+        pending.len(),
+        plan.jobs.len(),
+        parallel.jobs,
+        parallel.threads
+    );
+    let stop = stop_on_ctrl_c().map_err(|e| e.to_string())?;
+    let logs = dir.join(LOG_DIR);
+    std::fs::create_dir_all(&logs).map_err(|e| format!("{}: {e}", logs.display()))?;
+    let exe = std::env::current_exe().map_err(|e| e.to_string())?;
+    let slots = parallel
+        .gpus
+        .unwrap_or(parallel.jobs)
+        .max(1)
+        .min(parallel.jobs.max(1));
+    let mut free: Vec<usize> = (0..slots).rev().collect();
+    let mut running: Vec<(Child, &Job, usize)> = Vec::new();
+    let mut queue = pending.into_iter();
+    let mut codes: Vec<u8> = Vec::new();
+    loop {
+        while !stop.load(std::sync::atomic::Ordering::Relaxed) && !free.is_empty() {
+            let Some(job) = queue.next() else { break };
+            let slot = free.pop().expect("a free slot");
+            let log = logs.join(format!("{}.log", job.index));
+            let file =
+                std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+            let err = file.try_clone().map_err(|e| e.to_string())?;
+            let mut command = Command::new(&exe);
+            command
+                .args(["batch", "run"])
+                .arg(dir)
+                .args(["--index", &job.index.to_string()])
+                .env("RAYON_NUM_THREADS", parallel.threads.to_string())
+                .stdout(file)
+                .stderr(err);
+            if parallel.gpus.is_some() {
+                command.env("CUDA_VISIBLE_DEVICES", slot.to_string());
+            }
+            let child = command
+                .spawn()
+                .map_err(|e| format!("{}: {e}", exe.display()))?;
+            println!(
+                "job {} ({}) started, log {}",
+                job.index,
+                job.id,
+                log.display()
+            );
+            running.push((child, job, slot));
+        }
+        if running.is_empty() {
+            break;
+        }
+        std::thread::sleep(Duration::from_millis(200));
+        let mut k = 0;
+        while k < running.len() {
+            match running[k].0.try_wait().map_err(|e| e.to_string())? {
+                Some(status) => {
+                    let (_, job, slot) = running.swap_remove(k);
+                    let code = status.code().map_or(EXIT_RETRY, |c| c as u8);
+                    println!(
+                        "job {} ({}) {}",
+                        job.index,
+                        job.id,
+                        if code == 0 {
+                            "done".into()
+                        } else {
+                            format!("failed (exit {code})")
+                        }
+                    );
+                    codes.push(code);
+                    free.push(slot);
+                }
+                None => k += 1,
+            }
+        }
+    }
+    let left = queue.count();
+    Ok(if codes.iter().all(|&c| c == 0) && left == 0 {
+        0
+    } else if left > 0
+        || codes.contains(&EXIT_RETRY)
+        || codes.iter().any(|&c| c != EXIT_NEVER_RETRY && c != 0)
+    {
+        EXIT_RETRY
+    } else {
+        EXIT_NEVER_RETRY
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// An error that wraps `source`, as a modality's error wraps the shared ones.
+    #[derive(Debug, thiserror::Error)]
+    #[error("modality: {source}")]
+    struct Wrapped {
+        #[source]
+        source: Box<dyn Error + Send + Sync>,
+    }
+
+    fn code(e: impl Error + Send + Sync + 'static) -> u8 {
+        let wrapped = Wrapped {
+            source: Box::new(e),
+        };
+        exit_code_of(&wrapped)
+    }
+
+    #[test]
+    fn failures_worth_retrying_are_told_from_bad_inputs_anywhere_in_the_chain() {
+        let interrupted = StylizeError::InterruptedFit {
+            what: "the picture".into(),
+        };
+        assert_eq!(code(interrupted), EXIT_RETRY);
+        assert_eq!(code(StylizeError::Memory("needs 90 GB".into())), EXIT_RETRY);
+        let out_of_memory = gs_core::fallible::OutOfMemory {
+            bytes: 1 << 40,
+            what: "the Gaussians' arrays",
+        };
+        assert_eq!(code(out_of_memory), EXIT_RETRY);
+        let disk_full = StylizeError::Io {
+            path: "out/model.ply".into(),
+            source: std::io::Error::other("No space left on device"),
+        };
+        assert_eq!(code(disk_full), EXIT_RETRY);
+        assert_eq!(
+            code(StylizeError::Config("steps: -1".into())),
+            EXIT_NEVER_RETRY
+        );
+        assert_eq!(
+            code(StylizeError::Input("1x1 picture".into())),
+            EXIT_NEVER_RETRY
+        );
+        assert_eq!(
+            code(std::io::Error::other("anything else")),
+            EXIT_NEVER_RETRY
+        );
+    }
+}

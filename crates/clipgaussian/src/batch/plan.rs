@@ -1,0 +1,153 @@
+//! A planned batch: `<batch>/jobs.json`, one entry per job with a stable id and its resolved
+//! configuration; job `id` writes `<batch>/<id>/`.
+//!
+//! The id is a hash of the modality, the job's whole configuration and, for every file or
+//! folder it names, its path, size and modification time: the same job planned again keeps
+//! its id (and so its finished or interrupted output), a job whose input or settings changed
+//! gets a new one.
+
+use std::path::{Path, PathBuf};
+
+use serde::{Deserialize, Serialize};
+use serde_json::{json, Value};
+use sha2::{Digest, Sha256};
+
+use super::manifest::{self, label};
+use super::modality::{Modality, PATH_FIELDS};
+
+/// The plan's file in the batch folder.
+pub const JOBS_JSON: &str = "jobs.json";
+
+/// A planned batch.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Plan {
+    /// The manifest it was planned from.
+    pub manifest: PathBuf,
+    /// The modality of every job.
+    pub modality: Modality,
+    /// Number of inputs of the manifest.
+    pub inputs: usize,
+    /// Number of styles of the manifest.
+    pub styles: usize,
+    /// The jobs, by index.
+    pub jobs: Vec<Job>,
+}
+
+/// One planned job.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Job {
+    /// Its index (`batch run --index`, a job array's task).
+    pub index: usize,
+    /// Its stable id, the name of its output folder.
+    pub id: String,
+    /// Its entry in the manifest's `inputs`.
+    pub input: usize,
+    /// Its entry in the manifest's `styles`.
+    pub style: usize,
+    /// A short name of its input (a file name).
+    pub input_label: String,
+    /// A short name of its style (the prompt, or the picture's file name).
+    pub style_label: String,
+    /// The modality's whole configuration, without `out`.
+    pub config: Value,
+}
+
+impl Job {
+    /// The job's output folder in the batch folder `dir`.
+    pub fn out(&self, dir: &Path) -> PathBuf {
+        dir.join(&self.id)
+    }
+
+    /// The job's configuration writing into `dir`'s folder of the job.
+    pub fn config_in(&self, dir: &Path) -> Value {
+        let mut config = self.config.clone();
+        config["out"] = Value::String(self.out(dir).display().to_string());
+        config
+    }
+
+    /// The steps the job's stylization takes.
+    pub fn steps(&self) -> u64 {
+        self.config["steps"].as_u64().unwrap_or(0)
+    }
+}
+
+/// Plans the manifest at `manifest_path` into the batch folder `dir` (created): checks every
+/// entry, writes `jobs.json` and returns the plan.
+pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
+    let manifest_path = std::path::absolute(manifest_path)
+        .map_err(|e| format!("{}: {e}", manifest_path.display()))?;
+    let manifest = manifest::read(&manifest_path)?;
+    let folder = manifest_path.parent().unwrap_or(Path::new("."));
+    let configs = manifest::expand(&manifest, folder)
+        .map_err(|e| format!("manifest {}: {e}", manifest_path.display()))?;
+    let mut jobs: Vec<Job> = Vec::with_capacity(configs.len());
+    for (index, c) in configs.into_iter().enumerate() {
+        let id = job_id(manifest.modality, &c.config)?;
+        if let Some(same) = jobs.iter().find(|j| j.id == id) {
+            return Err(format!(
+                "manifest {}: inputs[{}] with styles[{}] is the same job as inputs[{}] with \
+                 styles[{}]",
+                manifest_path.display(),
+                c.input,
+                c.style,
+                same.input,
+                same.style
+            ));
+        }
+        jobs.push(Job {
+            index,
+            id,
+            input: c.input,
+            style: c.style,
+            input_label: label(&format!("inputs[{}]", c.input), &manifest.inputs[c.input]),
+            style_label: label(&format!("styles[{}]", c.style), &manifest.styles[c.style]),
+            config: c.config,
+        });
+    }
+    let plan = Plan {
+        manifest: manifest_path.clone(),
+        modality: manifest.modality,
+        inputs: manifest.inputs.len(),
+        styles: manifest.styles.len(),
+        jobs,
+    };
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let text = serde_json::to_string_pretty(&plan).expect("a plan serializes");
+    let path = dir.join(JOBS_JSON);
+    gs_core::fs::write_atomic(&path, text.as_bytes())
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(plan)
+}
+
+/// The plan of the batch folder `dir`.
+pub fn read(dir: &Path) -> Result<Plan, String> {
+    let path = dir.join(JOBS_JSON);
+    let text = std::fs::read_to_string(&path).map_err(|e| {
+        format!(
+            "{}: {e} (plan the batch first: clipgaussian batch plan MANIFEST --out {})",
+            path.display(),
+            dir.display()
+        )
+    })?;
+    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+}
+
+/// The id of a job of `modality` with `config`: the first 16 hexadecimal digits of a SHA-256
+/// of both and of the path, size and modification time of every file or folder it names.
+fn job_id(modality: Modality, config: &Value) -> Result<String, String> {
+    let mut files = Vec::new();
+    for field in PATH_FIELDS {
+        if let Some(path) = config[field].as_str() {
+            let meta = std::fs::metadata(path).map_err(|e| format!("{field}: {path}: {e}"))?;
+            let modified = meta
+                .modified()
+                .ok()
+                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+                .map_or(0, |d| d.as_nanos());
+            files.push(json!([field, path, meta.len(), modified.to_string()]));
+        }
+    }
+    let identity = json!({"modality": modality.name(), "config": config, "files": files});
+    let digest = Sha256::digest(serde_json::to_vec(&identity).expect("JSON serializes"));
+    Ok(digest[..8].iter().map(|b| format!("{b:02x}")).collect())
+}

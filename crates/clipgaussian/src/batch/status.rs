@@ -1,0 +1,112 @@
+//! Where a batch stands: each job done, running, failed (with its reason), stopped (its
+//! process gone before it finished: interrupted or killed) or left.
+
+use std::path::Path;
+
+use super::job::{host, is_done, read_state};
+use super::plan::{self, Job};
+
+/// Where one job stands.
+#[derive(Clone, Debug, PartialEq)]
+pub enum JobStatus {
+    /// Its outputs are written.
+    Done,
+    /// A process runs it (on `host`).
+    Running {
+        /// The machine.
+        host: String,
+    },
+    /// It failed: exit code and reason.
+    Failed {
+        /// The exit code (`batch run`'s).
+        exit_code: u8,
+        /// The error.
+        reason: String,
+    },
+    /// Its process is gone before it finished (interrupted, killed or preempted); it resumes
+    /// from its checkpoint when there is one.
+    Stopped,
+    /// It has not run.
+    Left,
+}
+
+impl JobStatus {
+    /// One word: `done`, `running`, `failed`, `stopped` or `left`.
+    pub fn word(&self) -> &'static str {
+        match self {
+            Self::Done => "done",
+            Self::Running { .. } => "running",
+            Self::Failed { .. } => "failed",
+            Self::Stopped => "stopped",
+            Self::Left => "left",
+        }
+    }
+}
+
+/// Where `job` of the batch in `dir` stands.
+pub fn job_status(dir: &Path, job: &Job) -> JobStatus {
+    if is_done(dir, job) {
+        return JobStatus::Done;
+    }
+    match read_state(dir, job) {
+        None => JobStatus::Left,
+        Some(s) if s.status == "failed" => JobStatus::Failed {
+            exit_code: s.exit_code.unwrap_or(1),
+            reason: s.reason.unwrap_or_default(),
+        },
+        Some(s) if s.status == "running" => {
+            // A process on another machine cannot be looked at from here: taken as running.
+            let alive = s.host != host() || Path::new(&format!("/proc/{}", s.pid)).exists();
+            if alive {
+                JobStatus::Running { host: s.host }
+            } else {
+                JobStatus::Stopped
+            }
+        }
+        Some(_) => JobStatus::Left,
+    }
+}
+
+/// The status of every job of the batch in `dir`, by index.
+pub fn statuses(dir: &Path) -> Result<Vec<(Job, JobStatus)>, String> {
+    let plan = plan::read(dir)?;
+    Ok(plan
+        .jobs
+        .into_iter()
+        .map(|job| {
+            let status = job_status(dir, &job);
+            (job, status)
+        })
+        .collect())
+}
+
+/// The lines `batch status` prints: one per job, then the counts.
+pub fn report(statuses: &[(Job, JobStatus)]) -> String {
+    let mut text = String::new();
+    for (job, status) in statuses {
+        let detail = match status {
+            JobStatus::Running { host } => format!(" on {host}"),
+            JobStatus::Failed { exit_code, reason } => format!(" (exit {exit_code}): {reason}"),
+            _ => String::new(),
+        };
+        text += &format!(
+            "{:>4}  {}  {:<8} {} x {}{detail}\n",
+            job.index,
+            job.id,
+            status.word(),
+            job.input_label,
+            job.style_label
+        );
+    }
+    let count = |word: &str| statuses.iter().filter(|(_, s)| s.word() == word).count();
+    text += &format!(
+        "{} jobs: {} done, {} running, {} failed, {} stopped, {} left\n",
+        statuses.len(),
+        count("done"),
+        count("running"),
+        count("failed"),
+        count("stopped"),
+        count("left")
+    );
+    text
+}

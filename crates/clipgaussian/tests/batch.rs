@@ -1,0 +1,332 @@
+//! `clipgaussian batch` end to end on 2 pictures x 2 styles with the tiny models: plan, run two
+//! at once, an interrupted job finished by running the batch again (with the results of an
+//! uninterrupted run), status and collect agreeing with the folders, the scheduler files, and a
+//! bad manifest refused at plan naming its entry and field.
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+use style_loss::test_models::{write_tiny_models, TinyModelFiles};
+
+fn bin() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_clipgaussian"))
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+fn run(args: &[&str]) -> Output {
+    bin().args(args).output().unwrap()
+}
+
+fn succeeds(args: &[&str]) -> String {
+    let out = run(args);
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "{args:?}: {stdout}\n{stderr}");
+    stdout.into_owned()
+}
+
+/// A 40x32 picture whose colours depend on `seed`.
+fn picture(path: &Path, seed: u8) {
+    image::RgbImage::from_fn(40, 32, |x, y| {
+        image::Rgb([(x * 6) as u8 ^ seed, (y * 7) as u8, 200 - (x * 3) as u8])
+    })
+    .save(path)
+    .unwrap();
+}
+
+/// The manifest of 2 pictures x 2 styles (a prompt and a picture), `steps` steps each, the
+/// tiny models, with `extra` fields merged into its `set`.
+fn manifest(dir: &Path, models: &TinyModelFiles, steps: u64) -> PathBuf {
+    picture(&dir.join("cat.png"), 0);
+    picture(&dir.join("dog.png"), 90);
+    picture(&dir.join("starry.png"), 170);
+    let manifest = serde_json::json!({
+        "modality": "2d",
+        "set": {
+            "steps": steps, "fit_steps": 10, "fit_gaussians": 60, "device": "cpu",
+            "checkpoint_every": 2, "clip_config": models.clip_config,
+            "clip_weights": models.clip_weights, "tokenizer": models.tokenizer,
+            "vgg_weights": models.vgg_weights, "vgg_widths": [4, 8, 16, 32, 32],
+            "patch_size": 16, "num_patches": 2
+        },
+        "inputs": [{"picture": "cat.png"}, {"picture": "dog.png"}],
+        "styles": [{"style_prompt": "fire"}, {"style_image": "starry.png"}]
+    });
+    let path = dir.join("manifest.json");
+    std::fs::write(&path, serde_json::to_string_pretty(&manifest).unwrap()).unwrap();
+    path
+}
+
+fn jobs(batch: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(batch.join("jobs.json")).unwrap()).unwrap()
+}
+
+#[test]
+fn a_batch_plans_runs_resumes_and_collects() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let manifest = manifest(dir.path(), &models, 8);
+    let batch = dir.path().join("batch");
+
+    let line = succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+    assert!(
+        line.contains("planned 4 jobs (2 inputs x 2 styles, 0 already done)"),
+        "{line}"
+    );
+    let planned = jobs(&batch);
+    let ids: Vec<&str> = (0..4)
+        .map(|i| planned["jobs"][i]["id"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        ids.iter().collect::<std::collections::BTreeSet<_>>().len(),
+        4,
+        "{ids:?}"
+    );
+    assert_eq!(planned["jobs"][1]["style_label"], "starry.png");
+    assert_eq!(planned["jobs"][2]["input_label"], "dog.png");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+    assert_eq!(
+        jobs(&batch)["jobs"],
+        planned["jobs"],
+        "the same manifest plans the same ids"
+    );
+
+    // Job 3 interrupted after its first checkpoint: SIGTERM, a checkpoint, exit 75.
+    let job3 = batch.join(ids[3]);
+    let mut child = bin()
+        .args(["batch", "run", s(&batch), "--index", "3", "--quiet"])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    while !job3.join("checkpoint/state.json").exists() {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("job 3 ended before its first checkpoint: {status}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let killed = Command::new("kill")
+        .args(["-TERM", &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(killed.success());
+    let status = child.wait().unwrap();
+    assert_eq!(
+        status.code(),
+        Some(75),
+        "an interrupted job asks to be run again"
+    );
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(
+        report.contains("4 jobs: 0 done, 0 running, 1 failed, 0 stopped, 3 left"),
+        "{report}"
+    );
+    assert!(report.contains("(exit 75): "), "{report}");
+
+    // The whole batch, two at once: job 3 resumes, the others run.
+    let line = succeeds(&[
+        "batch",
+        "run",
+        s(&batch),
+        "--parallel",
+        "2",
+        "--threads",
+        "1",
+    ]);
+    assert!(
+        line.contains("4 of 4 jobs to run, 2 at once, 1 threads each"),
+        "{line}"
+    );
+    let log3 = std::fs::read_to_string(batch.join("logs/3.log")).unwrap();
+    assert!(log3.contains("resuming"), "{log3}");
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(report.contains("4 jobs: 4 done"), "{report}");
+    for id in &ids {
+        assert!(batch.join(id).join("stylized.png").is_file(), "{id}");
+    }
+    // Run again: nothing left to do.
+    let line = succeeds(&["batch", "run", s(&batch)]);
+    assert!(line.contains("0 of 4 jobs to run"), "{line}");
+
+    // The resumed job ends where an uninterrupted one does.
+    let fresh = dir.path().join("fresh");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&fresh)]);
+    succeeds(&["batch", "run", s(&fresh), "--index", "3", "--quiet"]);
+    assert_eq!(
+        std::fs::read(fresh.join(ids[3]).join("model.ply")).unwrap(),
+        std::fs::read(job3.join("model.ply")).unwrap(),
+        "a resumed job gives the uninterrupted job's model"
+    );
+
+    // Collect: one row per job, agreeing with status; a contact sheet of 2 x 2 previews.
+    let line = succeeds(&["batch", "collect", s(&batch)]);
+    assert!(line.contains("4 jobs (4 done)"), "{line}");
+    let results: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(batch.join("results.json")).unwrap())
+            .unwrap();
+    for (i, row) in results.as_array().unwrap().iter().enumerate() {
+        assert_eq!(row["id"], ids[i]);
+        assert_eq!(row["status"], "done");
+        assert_eq!(row["steps"], 8);
+        assert!(row["final_loss"].as_f64().unwrap().is_finite(), "{row}");
+        assert!(row["preview"].as_str().unwrap().ends_with("preview.png"));
+    }
+    let csv = std::fs::read_to_string(batch.join("results.csv")).unwrap();
+    assert_eq!(csv.lines().count(), 5, "{csv}");
+    assert!(
+        csv.lines().nth(2).unwrap().contains("\"starry.png\",done"),
+        "{csv}"
+    );
+    let (w, h) = image::image_dimensions(batch.join("contact_sheet.png")).unwrap();
+    let (pw, ph) = image::image_dimensions(job3.join("preview.png")).unwrap();
+    assert_eq!(
+        (w, h),
+        (640, 2 * (20 + ph * 320 / pw)),
+        "2 styles across, 2 inputs down, each under its label"
+    );
+}
+
+#[test]
+fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let manifest = manifest(dir.path(), &models, 2);
+    let batch = dir.path().join("batch");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+
+    // A task's index comes from the scheduler's environment: only that job runs.
+    for (variable, index) in [("SLURM_ARRAY_TASK_ID", 1), ("JOB_COMPLETION_INDEX", 2)] {
+        let out = bin()
+            .args(["batch", "run", s(&batch), "--quiet"])
+            .env(variable, index.to_string())
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(
+        report.contains("4 jobs: 2 done, 0 running, 0 failed, 0 stopped, 2 left"),
+        "{report}"
+    );
+    let done: Vec<&str> = report.lines().filter(|l| l.contains(" done ")).collect();
+    assert!(
+        done[0].trim_start().starts_with("1 ") && done[1].trim_start().starts_with("2 "),
+        "{report}"
+    );
+
+    succeeds(&[
+        "batch",
+        "slurm",
+        s(&batch),
+        "--parallel",
+        "2",
+        "--partition",
+        "gpu",
+    ]);
+    let script = batch.join("batch.sbatch");
+    let text = std::fs::read_to_string(&script).unwrap();
+    for part in [
+        "#SBATCH --array=0-3%2",
+        "#SBATCH --requeue",
+        "#SBATCH --gpus-per-task=1",
+        "#SBATCH --partition=gpu",
+        "--index \"$SLURM_ARRAY_TASK_ID\"",
+        "if [ \"$rc\" -eq 75 ]; then",
+        "scontrol requeue",
+    ] {
+        assert!(text.contains(part), "{part} not in:\n{text}");
+    }
+    let syntax = Command::new("bash")
+        .arg("-n")
+        .arg(&script)
+        .status()
+        .unwrap();
+    assert!(syntax.success(), "bash -n {}", script.display());
+
+    succeeds(&[
+        "batch",
+        "k8s",
+        s(&batch),
+        "--image",
+        "ghcr.io/x/clipgaussian:1",
+        "--parallel",
+        "3",
+    ]);
+    let text = std::fs::read_to_string(batch.join("batch-job.yaml")).unwrap();
+    let job: serde_json::Value = serde_yaml_ng::from_str(&text).unwrap();
+    let spec = &job["spec"];
+    assert_eq!(job["kind"], "Job");
+    assert_eq!(spec["completionMode"], "Indexed");
+    assert_eq!(spec["completions"], 4);
+    assert_eq!(spec["parallelism"], 3);
+    assert_eq!(spec["backoffLimitPerIndex"], 3);
+    let rule = &spec["podFailurePolicy"]["rules"][0];
+    assert_eq!(rule["action"], "FailIndex");
+    assert_eq!(rule["onExitCodes"]["values"][0], 65);
+    let pod = &spec["template"]["spec"];
+    assert_eq!(pod["restartPolicy"], "Never");
+    let container = &pod["containers"][0];
+    assert_eq!(container["resources"]["limits"]["nvidia.com/gpu"], 1);
+    assert_eq!(container["command"][3], s(&batch));
+    assert_eq!(container["volumeMounts"][0]["mountPath"], s(&batch));
+}
+
+#[test]
+fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let path = manifest(dir.path(), &models, 2);
+    let good: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    let batch = dir.path().join("batch");
+    let cases: [(&str, serde_json::Value, &str); 6] = [
+        (
+            "/inputs/1/picture",
+            "missing.png".into(),
+            "inputs[1].picture: ",
+        ),
+        ("/styles/0/bogus", 1.into(), "styles[0]: "),
+        ("/inputs/0/fit_steps", "many".into(), "inputs[0]: "),
+        (
+            "/styles/1/style_prompt",
+            "and a prompt".into(),
+            "styles[1]: give style_prompt or style_image, not both",
+        ),
+        ("/set/out", "elsewhere".into(), "set.out: the batch chooses"),
+        ("/pairing", "pairs".into(), "as many of each"),
+    ];
+    for (pointer, value, expected) in cases {
+        let mut bad = good.clone();
+        let (parent, key) = pointer.rsplit_once('/').unwrap();
+        let target = if parent.is_empty() {
+            &mut bad
+        } else {
+            bad.pointer_mut(parent).unwrap()
+        };
+        target[key] = value;
+        if pointer == "/pairing" {
+            bad["styles"].as_array_mut().unwrap().pop();
+        }
+        std::fs::write(&path, bad.to_string()).unwrap();
+        let out = run(&["batch", "plan", s(&path), "--out", s(&batch)]);
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(65), "{pointer}: {stderr}");
+        assert!(
+            stderr.contains(expected) && stderr.contains("manifest.json"),
+            "{pointer}: {stderr}"
+        );
+        assert!(
+            !batch.join("jobs.json").exists(),
+            "{pointer}: nothing planned"
+        );
+    }
+}
