@@ -330,3 +330,14 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
         );
     }
 }
+
+#[test]
+fn the_example_manifest_plans() {
+    let dir = tempfile::tempdir().unwrap();
+    let example = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/batch-2d-example.json");
+    let line = succeeds(&["batch", "plan", s(&example), "--out", s(dir.path())]);
+    assert!(
+        line.contains("planned 3 jobs (1 inputs x 3 styles"),
+        "{line}"
+    );
+}
