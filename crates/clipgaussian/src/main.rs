@@ -249,7 +249,11 @@ fn batch_command(command: BatchCommand) -> u8 {
                 .unwrap_or_else(|_| "clipgaussian".into());
             let options = batch::scheduler::SlurmOptions { partition, program };
             let script = batch::scheduler::slurm_script(&dir, &resources.resources(), &options);
-            written(&dir, batch::scheduler::SBATCH_FILE, script)
+            // Slurm opens each task's log before the script runs: its folder must be there.
+            let logs = dir.join(batch::job::LOG_DIR);
+            std::fs::create_dir_all(&logs)
+                .map_err(|e| format!("{}: {e}", logs.display()))
+                .and_then(|()| written(&dir, batch::scheduler::SBATCH_FILE, script))
         }
         BatchCommand::K8s {
             dir,

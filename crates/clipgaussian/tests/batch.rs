@@ -245,6 +245,10 @@ fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
     ] {
         assert!(text.contains(part), "{part} not in:\n{text}");
     }
+    assert!(
+        batch.join("logs").is_dir(),
+        "Slurm opens the tasks' logs there before they run"
+    );
     let syntax = Command::new("bash")
         .arg("-n")
         .arg(&script)

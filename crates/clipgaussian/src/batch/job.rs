@@ -189,6 +189,10 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
     }
     match result {
         Ok(()) => println!("{what} is done"),
+        Err(e) if code == EXIT_RETRY => eprintln!(
+            "error: {what}: {e}\n(exit {EXIT_RETRY}: running the job again resumes it; `batch run` \
+             passes --resume itself)"
+        ),
         Err(e) => eprintln!("error: {what}: {e}"),
     }
     code

@@ -53,7 +53,8 @@ pub struct K8sOptions {
 }
 
 /// The `sbatch` script of the batch in `dir`: a job array over its jobs, `%parallel` at once;
-/// each task logs to `<batch>/logs/<array id>_<index>.out`, gets SIGTERM two minutes before its
+/// each task logs to `<batch>/logs/<array id>_<index>.out` (a folder that must exist when the
+/// array is submitted), gets SIGTERM two minutes before its
 /// time limit (the job stops with a checkpoint), and is requeued when it exits with
 /// [`EXIT_RETRY`].
 pub fn slurm_script(
@@ -74,6 +75,8 @@ pub fn slurm_script(
             resources.parallel.max(1)
         ),
         format!("#SBATCH --output={dir}/{LOG_DIR}/%A_%a.out"),
+        // A requeued task adds to its log.
+        "#SBATCH --open-mode=append".to_string(),
         format!("#SBATCH --cpus-per-task={}", resources.cpus),
         format!("#SBATCH --mem={}G", resources.memory_gb),
         format!("#SBATCH --time={}", resources.time),
@@ -93,8 +96,7 @@ pub fn slurm_script(
         plan.manifest.display()
     ));
     lines.push(format!(
-        r#"mkdir -p {logs}
-export RAYON_NUM_THREADS="${{SLURM_CPUS_PER_TASK:-{cpus}}}"
+        r#"export RAYON_NUM_THREADS="${{SLURM_CPUS_PER_TASK:-{cpus}}}"
 # The job runs in the background so that the TERM Slurm sends before the time limit reaches it.
 trap 'kill -TERM "$child" 2>/dev/null' TERM
 {program} batch run {dir} --index "$SLURM_ARRAY_TASK_ID" &
@@ -109,7 +111,6 @@ if [ "$rc" -eq {EXIT_RETRY} ]; then
   scontrol requeue "${{SLURM_ARRAY_JOB_ID}}_${{SLURM_ARRAY_TASK_ID}}"
 fi
 exit "$rc""#,
-        logs = quote(&format!("{dir}/{LOG_DIR}")),
         cpus = resources.cpus,
         program = quote(&options.program),
         dir = quote(&dir),
