@@ -108,6 +108,10 @@ enum BatchCommand {
         /// default: the node's folder of that path (hostPath).
         #[arg(long)]
         claim: Option<String>,
+        /// The PersistentVolumeClaim holding the manifest's folder and its inputs (mounted
+        /// read-only at the same path); default: the node's folder of that path.
+        #[arg(long)]
+        inputs_claim: Option<String>,
         /// Retries of an index that fails in a way worth retrying.
         #[arg(long, default_value_t = 3)]
         retries: u32,
@@ -260,11 +264,13 @@ fn batch_command(command: BatchCommand) -> u8 {
             resources,
             image,
             claim,
+            inputs_claim,
             retries,
         } => {
             let options = batch::scheduler::K8sOptions {
                 image,
                 claim,
+                inputs_claim,
                 retries,
             };
             let job = batch::scheduler::k8s_job(&dir, &resources.resources(), &options);

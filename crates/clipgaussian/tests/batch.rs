@@ -66,11 +66,41 @@ fn jobs(batch: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(batch.join("jobs.json")).unwrap()).unwrap()
 }
 
+/// Runs job `index` of `batch` and sends it `signal` (`-TERM`, `-KILL`) once its output `out`
+/// holds a checkpoint; returns how it ended.
+fn interrupted(batch: &Path, index: usize, out: &Path, signal: &str) -> std::process::ExitStatus {
+    let mut child = bin()
+        .args([
+            "batch",
+            "run",
+            s(batch),
+            "--index",
+            &index.to_string(),
+            "--quiet",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null())
+        .spawn()
+        .unwrap();
+    while !out.join("checkpoint/state.json").exists() {
+        if let Some(status) = child.try_wait().unwrap() {
+            panic!("job {index} ended before its first checkpoint: {status}");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(5));
+    }
+    let sent = Command::new("kill")
+        .args([signal, &child.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(sent.success());
+    child.wait().unwrap()
+}
+
 #[test]
 fn a_batch_plans_runs_resumes_and_collects() {
     let dir = tempfile::tempdir().unwrap();
     let models = write_tiny_models(dir.path());
-    let manifest = manifest(dir.path(), &models, 8);
+    let manifest = manifest(dir.path(), &models, 30);
     let batch = dir.path().join("batch");
 
     let line = succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
@@ -96,34 +126,20 @@ fn a_batch_plans_runs_resumes_and_collects() {
         "the same manifest plans the same ids"
     );
 
-    // Job 3 interrupted after its first checkpoint: SIGTERM, a checkpoint, exit 75.
+    // Job 3 interrupted after its first checkpoint: SIGTERM, a checkpoint, exit 75. Job 2
+    // killed outright (SIGKILL): its state says running, its process is gone.
     let job3 = batch.join(ids[3]);
-    let mut child = bin()
-        .args(["batch", "run", s(&batch), "--index", "3", "--quiet"])
-        .stdout(std::process::Stdio::null())
-        .stderr(std::process::Stdio::null())
-        .spawn()
-        .unwrap();
-    while !job3.join("checkpoint/state.json").exists() {
-        if let Some(status) = child.try_wait().unwrap() {
-            panic!("job 3 ended before its first checkpoint: {status}");
-        }
-        std::thread::sleep(std::time::Duration::from_millis(20));
-    }
-    let killed = Command::new("kill")
-        .args(["-TERM", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(killed.success());
-    let status = child.wait().unwrap();
+    let status = interrupted(&batch, 3, &job3, "-TERM");
     assert_eq!(
         status.code(),
         Some(75),
         "an interrupted job asks to be run again"
     );
+    let status = interrupted(&batch, 2, &batch.join(ids[2]), "-KILL");
+    assert_eq!(status.code(), None, "killed by a signal");
     let report = succeeds(&["batch", "status", s(&batch)]);
     assert!(
-        report.contains("4 jobs: 0 done, 0 running, 1 failed, 0 stopped, 3 left"),
+        report.contains("4 jobs: 0 done, 0 running, 1 failed, 1 stopped, 2 left"),
         "{report}"
     );
     assert!(report.contains("(exit 75): "), "{report}");
@@ -142,8 +158,10 @@ fn a_batch_plans_runs_resumes_and_collects() {
         line.contains("4 of 4 jobs to run, 2 at once, 1 threads each"),
         "{line}"
     );
-    let log3 = std::fs::read_to_string(batch.join("logs/3.log")).unwrap();
-    assert!(log3.contains("resuming"), "{log3}");
+    for index in [2, 3] {
+        let log = std::fs::read_to_string(batch.join(format!("logs/{index}.log"))).unwrap();
+        assert!(log.contains("resuming"), "{log}");
+    }
     let report = succeeds(&["batch", "status", s(&batch)]);
     assert!(report.contains("4 jobs: 4 done"), "{report}");
     for id in &ids {
@@ -172,7 +190,7 @@ fn a_batch_plans_runs_resumes_and_collects() {
     for (i, row) in results.as_array().unwrap().iter().enumerate() {
         assert_eq!(row["id"], ids[i]);
         assert_eq!(row["status"], "done");
-        assert_eq!(row["steps"], 8);
+        assert_eq!(row["steps"], 30);
         assert!(row["final_loss"].as_f64().unwrap().is_finite(), "{row}");
         assert!(row["preview"].as_str().unwrap().ends_with("preview.png"));
     }
@@ -282,6 +300,12 @@ fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
     assert_eq!(container["resources"]["limits"]["nvidia.com/gpu"], 1);
     assert_eq!(container["command"][3], s(&batch));
     assert_eq!(container["volumeMounts"][0]["mountPath"], s(&batch));
+    assert_eq!(
+        container["volumeMounts"][1]["mountPath"],
+        s(dir.path()),
+        "the inputs"
+    );
+    assert_eq!(pod["volumes"][0]["hostPath"]["path"], s(&batch));
 }
 
 #[test]

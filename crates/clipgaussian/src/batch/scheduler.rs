@@ -48,6 +48,9 @@ pub struct K8sOptions {
     /// The PersistentVolumeClaim holding the batch folder (mounted at the same path); none:
     /// the node's own folder of that path (`hostPath`).
     pub claim: Option<String>,
+    /// The PersistentVolumeClaim holding the manifest's folder (its inputs, mounted at the
+    /// same path); none: the node's own folder of that path.
+    pub inputs_claim: Option<String>,
     /// Retries of one index on a failure worth retrying (`backoffLimitPerIndex`).
     pub retries: u32,
 }
@@ -118,16 +121,23 @@ exit "$rc""#,
     Ok(lines.join("\n") + "\n")
 }
 
-/// The Kubernetes Indexed Job of the batch in `dir` (YAML): one completion per job,
+/// The Kubernetes Indexed Job of the batch in `dir` (YAML), the batch folder and the
+/// manifest's folder mounted at their paths: one completion per job,
 /// `parallelism` at once, each index retried up to `retries` times, an index that exits with
 /// [`EXIT_NEVER_RETRY`] failed at once, a pod evicted or preempted not counted as a failure.
 pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Result<String, String> {
     let plan = plan::read(dir)?;
     let n = plan.jobs.len();
     let dir_text = dir.display().to_string();
-    let volume = match &options.claim {
-        Some(claim) => json!({"name": "batch", "persistentVolumeClaim": {"claimName": claim}}),
-        None => json!({"name": "batch", "hostPath": {"path": dir_text, "type": "Directory"}}),
+    let inputs_text = plan
+        .manifest
+        .parent()
+        .unwrap_or(Path::new("/"))
+        .display()
+        .to_string();
+    let volume = |name: &str, claim: &Option<String>, path: &str| match claim {
+        Some(claim) => json!({"name": name, "persistentVolumeClaim": {"claimName": claim}}),
+        None => json!({"name": name, "hostPath": {"path": path, "type": "Directory"}}),
     };
     let mut limits = json!({
         "cpu": resources.cpus.to_string(),
@@ -161,9 +171,15 @@ pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Resul
                     "command": ["clipgaussian", "batch", "run", dir_text],
                     "env": [{"name": "RAYON_NUM_THREADS", "value": resources.cpus.to_string()}],
                     "resources": {"limits": limits},
-                    "volumeMounts": [{"name": "batch", "mountPath": dir_text}]
+                    "volumeMounts": [
+                        {"name": "batch", "mountPath": dir_text},
+                        {"name": "inputs", "mountPath": inputs_text, "readOnly": true}
+                    ]
                 }],
-                "volumes": [volume]
+                "volumes": [
+                    volume("batch", &options.claim, &dir_text),
+                    volume("inputs", &options.inputs_claim, &inputs_text)
+                ]
             }}
         }
     });
