@@ -5,7 +5,7 @@
 //! Run: `cargo run -p clipgaussian --example tiny_batch -- <folder> [steps]`; it prints the
 //! manifest's path.
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 fn picture(path: &Path, seed: u8) -> Result<(), image::ImageError> {
     image::RgbImage::from_fn(40, 32, |x, y| {
@@ -14,11 +14,9 @@ fn picture(path: &Path, seed: u8) -> Result<(), image::ImageError> {
     .save(path)
 }
 
-fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let mut args = std::env::args().skip(1);
-    let folder = args.next().ok_or("usage: tiny_batch <folder> [steps]")?;
-    let steps: u64 = args.next().map_or(Ok(8), |s| s.parse())?;
-    let dir = Path::new(&folder);
+/// Writes the tiny models, the pictures and the manifest of `steps` steps a job into `dir`;
+/// returns the manifest's path (the batch's tests use it too).
+pub fn write(dir: &Path, steps: u64) -> Result<PathBuf, Box<dyn std::error::Error>> {
     std::fs::create_dir_all(dir)?;
     let models = style_loss::test_models::write_tiny_models(dir);
     picture(&dir.join("cat.png"), 0)?;
@@ -38,6 +36,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     });
     let path = dir.join("manifest.json");
     std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)?;
-    println!("{}", path.display());
+    Ok(path)
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let mut args = std::env::args().skip(1);
+    let folder = args.next().ok_or("usage: tiny_batch <folder> [steps]")?;
+    let steps: u64 = args.next().map_or(Ok(8), |s| s.parse())?;
+    println!("{}", write(Path::new(&folder), steps)?.display());
     Ok(())
 }

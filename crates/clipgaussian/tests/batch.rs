@@ -6,7 +6,10 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use style_loss::test_models::{write_tiny_models, TinyModelFiles};
+// The example that writes the tiny batch; its `main` is the example's own.
+#[allow(dead_code)]
+#[path = "../examples/tiny_batch.rs"]
+mod tiny_batch;
 
 fn bin() -> Command {
     Command::new(env!("CARGO_BIN_EXE_clipgaussian"))
@@ -30,36 +33,10 @@ fn succeeds(args: &[&str]) -> String {
     stdout.into_owned()
 }
 
-/// A 40x32 picture whose colours depend on `seed`.
-fn picture(path: &Path, seed: u8) {
-    image::RgbImage::from_fn(40, 32, |x, y| {
-        image::Rgb([(x * 6) as u8 ^ seed, (y * 7) as u8, 200 - (x * 3) as u8])
-    })
-    .save(path)
-    .unwrap();
-}
-
-/// The manifest of 2 pictures x 2 styles (a prompt and a picture), `steps` steps each, the
-/// tiny models, with `extra` fields merged into its `set`.
-fn manifest(dir: &Path, models: &TinyModelFiles, steps: u64) -> PathBuf {
-    picture(&dir.join("cat.png"), 0);
-    picture(&dir.join("dog.png"), 90);
-    picture(&dir.join("starry.png"), 170);
-    let manifest = serde_json::json!({
-        "modality": "2d",
-        "set": {
-            "steps": steps, "fit_steps": 10, "fit_gaussians": 60, "device": "cpu",
-            "checkpoint_every": 2, "clip_config": models.clip_config,
-            "clip_weights": models.clip_weights, "tokenizer": models.tokenizer,
-            "vgg_weights": models.vgg_weights, "vgg_widths": [4, 8, 16, 32, 32],
-            "patch_size": 16, "num_patches": 2
-        },
-        "inputs": [{"picture": "cat.png"}, {"picture": "dog.png"}],
-        "styles": [{"style_prompt": "fire"}, {"style_image": "starry.png"}]
-    });
-    let path = dir.join("manifest.json");
-    std::fs::write(&path, serde_json::to_string_pretty(&manifest).unwrap()).unwrap();
-    path
+/// The tiny batch of 2 pictures x 2 styles (a prompt and a picture), `steps` steps a job, the
+/// tiny models, written into `dir`; its manifest's path.
+fn manifest(dir: &Path, steps: u64) -> PathBuf {
+    tiny_batch::write(dir, steps).unwrap()
 }
 
 fn jobs(batch: &Path) -> serde_json::Value {
@@ -99,8 +76,7 @@ fn interrupted(batch: &Path, index: usize, out: &Path, signal: &str) -> std::pro
 #[test]
 fn a_batch_plans_runs_resumes_and_collects() {
     let dir = tempfile::tempdir().unwrap();
-    let models = write_tiny_models(dir.path());
-    let manifest = manifest(dir.path(), &models, 30);
+    let manifest = manifest(dir.path(), 30);
     let batch = dir.path().join("batch");
 
     let line = succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
@@ -212,8 +188,7 @@ fn a_batch_plans_runs_resumes_and_collects() {
 #[test]
 fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
     let dir = tempfile::tempdir().unwrap();
-    let models = write_tiny_models(dir.path());
-    let manifest = manifest(dir.path(), &models, 2);
+    let manifest = manifest(dir.path(), 2);
     let batch = dir.path().join("batch");
     succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
 
@@ -311,8 +286,7 @@ fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
 #[test]
 fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
     let dir = tempfile::tempdir().unwrap();
-    let models = write_tiny_models(dir.path());
-    let path = manifest(dir.path(), &models, 2);
+    let path = manifest(dir.path(), 2);
     let good: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let batch = dir.path().join("batch");
