@@ -190,8 +190,24 @@ fn main() -> std::process::ExitCode {
     }
 }
 
-/// Runs a `batch` subcommand; returns the exit code (see `batch run`'s).
-fn batch_command(command: BatchCommand) -> u8 {
+/// Runs a `batch` subcommand; returns the exit code (see `batch run`'s). Batch folders are
+/// taken as absolute paths: the jobs, logs and scheduler files name them wherever they run.
+fn batch_command(mut command: BatchCommand) -> u8 {
+    let dir = match &mut command {
+        BatchCommand::Plan { out: dir, .. }
+        | BatchCommand::Run { dir, .. }
+        | BatchCommand::Status { dir }
+        | BatchCommand::Collect { dir }
+        | BatchCommand::Slurm { dir, .. }
+        | BatchCommand::K8s { dir, .. } => dir,
+    };
+    match std::path::absolute(&*dir) {
+        Ok(absolute) => *dir = absolute,
+        Err(e) => {
+            eprintln!("error: {}: {e}", dir.display());
+            return batch::job::EXIT_NEVER_RETRY;
+        }
+    }
     use batch::job::EXIT_NEVER_RETRY;
     let written =
         |dir: &Path, name: &str, text: Result<String, String>| -> Result<String, String> {

@@ -115,10 +115,9 @@ fn a_batch_plans_runs_resumes_and_collects() {
     assert_eq!(status.code(), None, "killed by a signal");
     let report = succeeds(&["batch", "status", s(&batch)]);
     assert!(
-        report.contains("4 jobs: 0 done, 0 running, 1 failed, 1 stopped, 2 left"),
+        report.contains("4 jobs: 0 done, 0 running, 0 failed, 2 stopped, 2 left"),
         "{report}"
     );
-    assert!(report.contains("(exit 75): "), "{report}");
 
     // The whole batch, two at once: job 3 resumes, the others run.
     let line = succeeds(&[
@@ -230,6 +229,9 @@ fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
     for part in [
         "#SBATCH --array=0-3%2",
         "#SBATCH --requeue",
+        "#SBATCH --ntasks=1",
+        "#SBATCH --signal=B:USR1@120",
+        "trap ':' TERM",
         "#SBATCH --gpus-per-task=1",
         "#SBATCH --partition=gpu",
         "--index \"$SLURM_ARRAY_TASK_ID\"",
@@ -274,13 +276,32 @@ fn the_scheduler_files_hold_the_array_and_the_retry_rules() {
     let container = &pod["containers"][0];
     assert_eq!(container["resources"]["limits"]["nvidia.com/gpu"], 1);
     assert_eq!(container["command"][3], s(&batch));
-    assert_eq!(container["volumeMounts"][0]["mountPath"], s(&batch));
+    // The batch folder is inside the manifest's: one mount, of the manifest's folder.
+    assert_eq!(container["volumeMounts"].as_array().unwrap().len(), 1);
+    assert_eq!(container["volumeMounts"][0]["mountPath"], s(dir.path()));
+    assert_eq!(pod["volumes"][0]["hostPath"]["path"], s(dir.path()));
+    let name = job["metadata"]["name"].as_str().unwrap().to_string();
+    assert!(name.starts_with("clipgaussian-2d-"), "{name}");
+
+    // A batch folder elsewhere: mounted beside the manifest's folder (read-only), and a Job of
+    // another name.
+    let elsewhere = tempfile::tempdir().unwrap();
+    let other = elsewhere.path().join("batch");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&other)]);
+    succeeds(&["batch", "k8s", s(&other), "--image", "x", "--claim", "runs"]);
+    let text = std::fs::read_to_string(other.join("batch-job.yaml")).unwrap();
+    let job: serde_json::Value = serde_yaml_ng::from_str(&text).unwrap();
+    let pod = &job["spec"]["template"]["spec"];
+    let mounts = &pod["containers"][0]["volumeMounts"];
+    assert_eq!(mounts[0]["mountPath"], s(&other));
+    assert_eq!(mounts[1]["mountPath"], s(dir.path()));
+    assert_eq!(mounts[1]["readOnly"], true);
     assert_eq!(
-        container["volumeMounts"][1]["mountPath"],
-        s(dir.path()),
-        "the inputs"
+        pod["volumes"][0]["persistentVolumeClaim"]["claimName"],
+        "runs"
     );
-    assert_eq!(pod["volumes"][0]["hostPath"]["path"], s(&batch));
+    assert_eq!(pod["volumes"][1]["hostPath"]["path"], s(dir.path()));
+    assert_ne!(job["metadata"]["name"], name.as_str());
 }
 
 #[test]
@@ -342,4 +363,78 @@ fn the_example_manifest_plans() {
         line.contains("planned 3 jobs (1 inputs x 3 styles"),
         "{line}"
     );
+}
+
+/// The sbatch script run by bash as Slurm would (its task's variables set, `scontrol` a stand-in
+/// that records its arguments): Slurm's warning before the time limit (USR1 to the script), and
+/// a cancel's SIGTERM to every process of the task, each reach the job as one SIGTERM: it stops
+/// with a checkpoint, exits 75, and the script asks for a requeue.
+#[test]
+fn the_sbatch_script_stops_its_job_with_a_checkpoint_and_requeues_it() {
+    use std::os::unix::process::CommandExt;
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = manifest(dir.path(), 400);
+    let batch = dir.path().join("batch");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+    succeeds(&["batch", "slurm", s(&batch), "--gpus", "0"]);
+    let ids: Vec<String> = (0..2)
+        .map(|i| jobs(&batch)["jobs"][i]["id"].as_str().unwrap().to_string())
+        .collect();
+    let tools = dir.path().join("tools");
+    std::fs::create_dir_all(&tools).unwrap();
+    let calls = dir.path().join("scontrol.calls");
+    let scontrol = tools.join("scontrol");
+    std::fs::write(
+        &scontrol,
+        format!("#!/bin/sh\necho \"$@\" >> '{}'\n", calls.display()),
+    )
+    .unwrap();
+    Command::new("chmod")
+        .arg("+x")
+        .arg(&scontrol)
+        .status()
+        .unwrap();
+    let path = format!("{}:{}", tools.display(), std::env::var("PATH").unwrap());
+    for (task, signal) in [(0, "-USR1"), (1, "-TERM")] {
+        let mut script = Command::new("bash");
+        script
+            .arg(batch.join("batch.sbatch"))
+            .env("PATH", &path)
+            .env("SLURM_ARRAY_JOB_ID", "7")
+            .env("SLURM_ARRAY_TASK_ID", task.to_string())
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .process_group(0);
+        let mut child = script.spawn().unwrap();
+        let checkpoint = batch.join(&ids[task]).join("checkpoint/state.json");
+        while !checkpoint.exists() {
+            assert!(
+                child.try_wait().unwrap().is_none(),
+                "task {task} ended early"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        // USR1 to the script alone; TERM to the whole task, as a cancel sends it.
+        let target = if signal == "-USR1" {
+            child.id().to_string()
+        } else {
+            format!("-{}", child.id())
+        };
+        let sent = Command::new("kill")
+            .args([signal, "--", &target])
+            .status()
+            .unwrap();
+        assert!(sent.success());
+        let status = child.wait().unwrap();
+        assert_eq!(status.code(), Some(75), "task {task} ({signal})");
+        let state =
+            std::fs::read_to_string(batch.join("state").join(format!("{}.json", ids[task])))
+                .unwrap();
+        assert!(
+            state.contains("\"exit_code\": 75") && state.contains("interrupted"),
+            "{state}"
+        );
+    }
+    let calls = std::fs::read_to_string(&calls).unwrap();
+    assert_eq!(calls, "requeue 7_0\nrequeue 7_1\n");
 }

@@ -101,7 +101,8 @@ pub fn into_new_folder_unless<T, E>(
     keep: impl FnOnce(&Path) -> bool,
     write: impl FnOnce() -> Result<T, E>,
 ) -> Result<T, E> {
-    let made = !out.exists();
+    // A dangling link is there (the user's), though `exists` says no.
+    let made = std::fs::symlink_metadata(out).is_err();
     let result = write();
     if result.is_err() && made && !keep(out) {
         let _ = std::fs::remove_dir_all(out);

@@ -186,6 +186,35 @@ fn rank(kind: wgpu::DeviceType, choice: AdapterChoice) -> Option<u8> {
     }
 }
 
+/// The variable that picks the adapter among the best-ranked ones by its index in the order
+/// the drivers list them (`0`, `1`, ...): how `clipgaussian batch run --gpus` gives each job its
+/// own GPU (with `CUDA_VISIBLE_DEVICES` for candle's device, both in PCI bus order).
+pub const ADAPTER_VARIABLE: &str = "CLIPGAUSSIAN_GPU_ADAPTER";
+
+/// The index of the adapter to open among adapters of ranks `ranks` (`None`: not allowed):
+/// the first of the best rank, or the `wanted`-th of the best rank (see [`ADAPTER_VARIABLE`]);
+/// `None` when no adapter is allowed; an error for a `wanted` that is not one of them.
+fn pick(ranks: &[Option<u8>], wanted: Option<&str>) -> Result<Option<usize>, String> {
+    let Some(best) = ranks.iter().flatten().min() else {
+        return Ok(None);
+    };
+    let best: Vec<usize> = (0..ranks.len())
+        .filter(|&k| ranks[k] == Some(*best))
+        .collect();
+    match wanted {
+        None => Ok(Some(best[0])),
+        Some(text) => match text.trim().parse::<usize>() {
+            Ok(n) if n < best.len() => Ok(Some(best[n])),
+            _ => Err(format!(
+                "{ADAPTER_VARIABLE}={text} names none of the {} adapters of the best kind \
+                 (0 to {})",
+                best.len(),
+                best.len() - 1
+            )),
+        },
+    }
+}
+
 /// Keeps Mesa's implicit Vulkan layer `VK_LAYER_MESA_device_select` from printing
 /// `error: XDG_RUNTIME_DIR is invalid or not set in the environment.` on every run of a
 /// machine without a desktop session (a server, a container, ssh): when the Vulkan instance is
@@ -234,11 +263,17 @@ impl GpuContext {
             })
             .collect::<Vec<_>>()
             .join(", ");
-        let adapter = adapters
-            .into_iter()
-            .filter_map(|a| rank(a.get_info().device_type, choice).map(|r| (r, a)))
-            .min_by_key(|(r, _)| *r)
-            .map(|(_, a)| a)
+        let ranks: Vec<Option<u8>> = adapters
+            .iter()
+            .map(|a| rank(a.get_info().device_type, choice))
+            .collect();
+        let wanted = std::env::var(ADAPTER_VARIABLE).ok();
+        let chosen = pick(&ranks, wanted.as_deref()).map_err(|message| GpuError::Device {
+            adapter: seen.clone(),
+            message,
+        })?;
+        let adapter = chosen
+            .map(|k| adapters.into_iter().nth(k).expect("an index of the list"))
             .ok_or_else(|| GpuError::NoAdapter {
                 wanted: match choice {
                     AdapterChoice::Hardware => "hardware",
@@ -550,6 +585,22 @@ impl GpuContext {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_adapter_variable_picks_among_the_best_ranked_in_their_order() {
+        // Two discrete GPUs (rank 0) around an integrated one, then a software one refused.
+        let ranks = [Some(0), Some(1), Some(0), None];
+        assert_eq!(pick(&ranks, None), Ok(Some(0)));
+        assert_eq!(pick(&ranks, Some("0")), Ok(Some(0)));
+        assert_eq!(pick(&ranks, Some("1")), Ok(Some(2)));
+        let e = pick(&ranks, Some("2")).unwrap_err();
+        assert!(
+            e.contains("CLIPGAUSSIAN_GPU_ADAPTER=2") && e.contains("0 to 1"),
+            "{e}"
+        );
+        assert!(pick(&ranks, Some("GPU-1234")).is_err());
+        assert_eq!(pick(&[None, None], None), Ok(None));
+    }
 
     #[test]
     fn out_of_memory_names_what_the_run_needs() {

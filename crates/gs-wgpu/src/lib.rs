@@ -77,7 +77,7 @@ mod train;
 pub use adam::GpuAdam;
 pub use backward::{backward, GpuGradients};
 pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
-pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions};
+pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions, ADAPTER_VARIABLE};
 pub use fit_error::FitError;
 pub use forward::{render, GpuRendered};
 pub use memory::training_bytes;

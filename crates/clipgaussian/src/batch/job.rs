@@ -63,8 +63,10 @@ pub fn read_state(dir: &Path, job: &Job) -> Option<JobState> {
 
 /// Whether `job`'s output in `dir` is finished (its stylization wrote every output).
 pub fn is_done(dir: &Path, job: &Job) -> bool {
-    read_state(dir, job).is_some_and(|s| s.status == "done")
-        || finished_step(&job.out(dir)).is_some_and(|step| step == job.steps())
+    let out = job.out(dir);
+    out.is_dir()
+        && (read_state(dir, job).is_some_and(|s| s.status == "done")
+            || finished_step(&out).is_some_and(|step| step == job.steps()))
 }
 
 /// This machine's name.
@@ -111,6 +113,25 @@ pub fn exit_code_of(e: &(dyn Error + 'static)) -> u8 {
     EXIT_NEVER_RETRY
 }
 
+/// Takes the lock of `job` in `dir` (`state/<id>.lock`, held while the returned file is open);
+/// `None` when another process holds it.
+fn lock_job(dir: &Path, job: &Job) -> Result<Option<std::fs::File>, String> {
+    let states = dir.join(STATE_DIR);
+    std::fs::create_dir_all(&states).map_err(|e| format!("{}: {e}", states.display()))?;
+    let path = states.join(format!("{}.lock", job.id));
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .truncate(false)
+        .write(true)
+        .open(&path)
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    match file.try_lock() {
+        Ok(()) => Ok(Some(file)),
+        Err(std::fs::TryLockError::WouldBlock) => Ok(None),
+        Err(std::fs::TryLockError::Error(e)) => Err(format!("{}: {e}", path.display())),
+    }
+}
+
 /// Writes `state` as `job`'s state in `dir`.
 fn write_state(dir: &Path, job: &Job, state: &JobState) -> Result<(), String> {
     let path = state_path(dir, job);
@@ -127,7 +148,12 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         Ok(plan) => plan,
         Err(e) => {
             eprintln!("error: {e}");
-            return EXIT_NEVER_RETRY;
+            // A plan that cannot be read now (a network file system's hiccup) may be readable
+            // later; one that does not parse will not.
+            return match std::fs::read_to_string(dir.join(plan::JOBS_JSON)) {
+                Ok(_) => EXIT_NEVER_RETRY,
+                Err(_) => EXIT_RETRY,
+            };
         }
     };
     let Some(job) = plan.jobs.get(index) else {
@@ -146,7 +172,27 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         println!("{what} is done");
         return 0;
     }
+    // One process a job: a second `batch run` of it (here, or a scheduler's task beside a
+    // local run) leaves it to the first.
+    let lock = match lock_job(dir, job) {
+        Ok(Some(lock)) => lock,
+        Ok(None) => {
+            eprintln!("error: {what} is being run by another process; run it again later");
+            return EXIT_RETRY;
+        }
+        Err(e) => {
+            eprintln!("error: {e}");
+            return EXIT_RETRY;
+        }
+    };
     let out = job.out(dir);
+    // A save cut short between its two renames left the checkpoint parked: put it back first.
+    if out.is_dir() {
+        if let Err(e) = gs_stylize::checkpoint::recover_interrupted_save(&out) {
+            eprintln!("error: {what}: {e}");
+            return EXIT_RETRY;
+        }
+    }
     let resume = gs_stylize::checkpoint::checkpoint_dir(&out).is_dir();
     println!(
         "{what}: {} into {}",
@@ -187,6 +233,7 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
     if let Err(e) = write_state(dir, job, &state) {
         eprintln!("error: {e}");
     }
+    drop(lock);
     match result {
         Ok(()) => println!("{what} is done"),
         Err(e) if code == EXIT_RETRY => eprintln!(
@@ -212,9 +259,9 @@ pub struct Parallel {
 
 /// Runs every job of the batch in `dir` that is not done, `parallel.jobs` at once, each in a
 /// process of this program (`batch run --index`) logging to `<batch>/logs/<index>.log`; returns
-/// 0 when all are done, else [`EXIT_RETRY`] when any may be retried, else
-/// [`EXIT_NEVER_RETRY`]. Ctrl-C or SIGTERM starts no new job and waits for the running ones
-/// (which stop with a checkpoint).
+/// 0 when all are done, else [`EXIT_RETRY`] when any may be retried or is left, else
+/// [`EXIT_NEVER_RETRY`]. Ctrl-C or SIGTERM starts no new job and passes SIGTERM on to the
+/// running ones (which stop with a checkpoint), then waits for them.
 pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
     let plan = plan::read(dir)?;
     let pending: Vec<&Job> = plan.jobs.iter().filter(|j| !is_done(dir, j)).collect();
@@ -229,44 +276,36 @@ pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
     let logs = dir.join(LOG_DIR);
     std::fs::create_dir_all(&logs).map_err(|e| format!("{}: {e}", logs.display()))?;
     let exe = std::env::current_exe().map_err(|e| e.to_string())?;
-    let slots = parallel
-        .gpus
-        .unwrap_or(parallel.jobs)
-        .max(1)
-        .min(parallel.jobs.max(1));
+    let devices = gpu_devices(parallel.gpus);
+    let slots = devices.len().clamp(1, parallel.jobs.max(1));
     let mut free: Vec<usize> = (0..slots).rev().collect();
     let mut running: Vec<(Child, &Job, usize)> = Vec::new();
     let mut queue = pending.into_iter();
     let mut codes: Vec<u8> = Vec::new();
+    let mut failure: Option<String> = None;
+    let mut stopping = false;
     loop {
-        while !stop.load(std::sync::atomic::Ordering::Relaxed) && !free.is_empty() {
+        let stopped = stop.load(std::sync::atomic::Ordering::Relaxed);
+        if stopped && !stopping {
+            stopping = true;
+            for (child, _, _) in &running {
+                // The children have their own handler: one SIGTERM stops each after its step.
+                let _ = Command::new("kill")
+                    .args(["-TERM", &child.id().to_string()])
+                    .status();
+            }
+        }
+        while !stopped && failure.is_none() && !free.is_empty() {
             let Some(job) = queue.next() else { break };
             let slot = free.pop().expect("a free slot");
-            let log = logs.join(format!("{}.log", job.index));
-            let file =
-                std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
-            let err = file.try_clone().map_err(|e| e.to_string())?;
-            let mut command = Command::new(&exe);
-            command
-                .args(["batch", "run"])
-                .arg(dir)
-                .args(["--index", &job.index.to_string()])
-                .env("RAYON_NUM_THREADS", parallel.threads.to_string())
-                .stdout(file)
-                .stderr(err);
-            if parallel.gpus.is_some() {
-                command.env("CUDA_VISIBLE_DEVICES", slot.to_string());
+            let device = devices.get(slot).map(|d| (slot, d));
+            match spawn(&exe, dir, job, parallel, device, &logs) {
+                Ok(child) => running.push((child, job, slot)),
+                Err(e) => {
+                    failure = Some(e);
+                    free.push(slot);
+                }
             }
-            let child = command
-                .spawn()
-                .map_err(|e| format!("{}: {e}", exe.display()))?;
-            println!(
-                "job {} ({}) started, log {}",
-                job.index,
-                job.id,
-                log.display()
-            );
-            running.push((child, job, slot));
         }
         if running.is_empty() {
             break;
@@ -274,38 +313,107 @@ pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
         std::thread::sleep(Duration::from_millis(200));
         let mut k = 0;
         while k < running.len() {
-            match running[k].0.try_wait().map_err(|e| e.to_string())? {
-                Some(status) => {
+            match running[k].0.try_wait() {
+                Ok(None) => k += 1,
+                outcome => {
                     let (_, job, slot) = running.swap_remove(k);
-                    let code = status.code().map_or(EXIT_RETRY, |c| c as u8);
-                    println!(
-                        "job {} ({}) {}",
-                        job.index,
-                        job.id,
-                        if code == 0 {
-                            "done".into()
-                        } else {
-                            format!("failed (exit {code})")
-                        }
-                    );
+                    let code = match outcome {
+                        Ok(Some(status)) => status.code().map_or(EXIT_RETRY, |c| c as u8),
+                        _ => EXIT_RETRY,
+                    };
+                    let said = if code == 0 {
+                        "done".to_string()
+                    } else {
+                        format!("failed (exit {code})")
+                    };
+                    println!("job {} ({}) {said}", job.index, job.id);
                     codes.push(code);
                     free.push(slot);
                 }
-                None => k += 1,
             }
         }
+    }
+    if let Some(e) = failure {
+        return Err(e);
     }
     let left = queue.count();
     Ok(if codes.iter().all(|&c| c == 0) && left == 0 {
         0
-    } else if left > 0
-        || codes.contains(&EXIT_RETRY)
-        || codes.iter().any(|&c| c != EXIT_NEVER_RETRY && c != 0)
-    {
+    } else if left > 0 || codes.iter().any(|&c| c != 0 && c != EXIT_NEVER_RETRY) {
         EXIT_RETRY
     } else {
         EXIT_NEVER_RETRY
     })
+}
+
+/// The devices to share out among the jobs, one job each at a time: `gpus` of them, taken from
+/// the `CUDA_VISIBLE_DEVICES` this process was given when it names at least that many, else
+/// numbered from 0; none without `gpus`.
+fn gpu_devices(gpus: Option<usize>) -> Vec<String> {
+    let Some(n) = gpus else {
+        return Vec::new();
+    };
+    let given: Vec<String> = std::env::var("CUDA_VISIBLE_DEVICES")
+        .map(|v| {
+            v.split(',')
+                .map(|d| d.trim().to_string())
+                .filter(|d| !d.is_empty())
+                .collect()
+        })
+        .unwrap_or_default();
+    if given.len() >= n {
+        given.into_iter().take(n).collect()
+    } else {
+        (0..n).map(|d| d.to_string()).collect()
+    }
+}
+
+/// Starts `batch run <dir> --index <job>` in a process of `exe`, with `parallel.threads`
+/// threads and, when given, the GPU `device` (its slot, and its CUDA name), its output appended
+/// to `<logs>/<index>.log`.
+fn spawn(
+    exe: &Path,
+    dir: &Path,
+    job: &Job,
+    parallel: &Parallel,
+    device: Option<(usize, &String)>,
+    logs: &Path,
+) -> Result<Child, String> {
+    let log = logs.join(format!("{}.log", job.index));
+    let file = std::fs::OpenOptions::new()
+        .create(true)
+        .append(true)
+        .open(&log)
+        .map_err(|e| format!("{}: {e}", log.display()))?;
+    let err = file
+        .try_clone()
+        .map_err(|e| format!("{}: {e}", log.display()))?;
+    let mut command = Command::new(exe);
+    command
+        .args(["batch", "run"])
+        .arg(dir)
+        .args(["--index", &job.index.to_string()])
+        .env("RAYON_NUM_THREADS", parallel.threads.to_string())
+        .stdout(file)
+        .stderr(err);
+    if let Some((slot, device)) = device {
+        // candle's CUDA device by CUDA_VISIBLE_DEVICES, the rasterizer's adapter by its index
+        // among the GPUs the drivers list; both in PCI bus order.
+        command
+            .env("CUDA_DEVICE_ORDER", "PCI_BUS_ID")
+            .env("CUDA_VISIBLE_DEVICES", device)
+            .env(gs_wgpu::ADAPTER_VARIABLE, slot.to_string());
+    }
+    let child = command
+        .spawn()
+        .map_err(|e| format!("{}: {e}", exe.display()))?;
+    println!(
+        "job {} ({}) started, log {}",
+        job.index,
+        job.id,
+        log.display()
+    );
+    Ok(child)
 }
 
 #[cfg(test)]

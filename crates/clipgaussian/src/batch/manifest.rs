@@ -151,7 +151,10 @@ pub fn expand(manifest: &Manifest, folder: &Path) -> Result<Vec<JobConfig>, Stri
             // One style: a style picture clears a prompt the configuration may give, and the
             // other way round.
             let other = Map::from_iter([(
-                if styles[style].contains_key("style_image") {
+                if styles[style]
+                    .get("style_image")
+                    .is_some_and(|v| !v.is_null())
+                {
                     "style_prompt"
                 } else {
                     "style_image"

@@ -81,7 +81,15 @@ pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
     let configs = manifest::expand(&manifest, folder)
         .map_err(|e| format!("manifest {}: {e}", manifest_path.display()))?;
     let mut jobs: Vec<Job> = Vec::with_capacity(configs.len());
-    for (index, c) in configs.into_iter().enumerate() {
+    for (index, mut c) in configs.into_iter().enumerate() {
+        // Paths a configuration file gives are taken from the working folder, as the binaries
+        // take them; the tasks may run elsewhere.
+        for field in PATH_FIELDS {
+            if let Some(path) = c.config[field].as_str() {
+                let absolute = std::path::absolute(path).map_err(|e| format!("{field}: {e}"))?;
+                c.config[field] = Value::String(absolute.display().to_string());
+            }
+        }
         let id = job_id(manifest.modality, &c.config)?;
         if let Some(same) = jobs.iter().find(|j| j.id == id) {
             return Err(format!(
@@ -132,19 +140,37 @@ pub fn read(dir: &Path) -> Result<Plan, String> {
     serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
 }
 
+/// Adds the path, size and modification time of `path` to `files`, and of every file under it
+/// when it is a folder (a dataset, a video's frames), in name order.
+fn stamp_files(path: &Path, field: &str, files: &mut Vec<Value>) -> std::io::Result<()> {
+    let meta = std::fs::metadata(path)?;
+    let modified = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map_or(0, |d| d.as_nanos());
+    files.push(json!([field, path, meta.len(), modified.to_string()]));
+    if meta.is_dir() {
+        let mut entries: Vec<PathBuf> = std::fs::read_dir(path)?
+            .map(|e| e.map(|e| e.path()))
+            .collect::<Result<_, _>>()?;
+        entries.sort();
+        for entry in entries {
+            stamp_files(&entry, field, files)?;
+        }
+    }
+    Ok(())
+}
+
 /// The id of a job of `modality` with `config`: the first 16 hexadecimal digits of a SHA-256
-/// of both and of the path, size and modification time of every file or folder it names.
+/// of both and of the path, size and modification time of every file it names (every file
+/// under a folder it names).
 fn job_id(modality: Modality, config: &Value) -> Result<String, String> {
     let mut files = Vec::new();
     for field in PATH_FIELDS {
         if let Some(path) = config[field].as_str() {
-            let meta = std::fs::metadata(path).map_err(|e| format!("{field}: {path}: {e}"))?;
-            let modified = meta
-                .modified()
-                .ok()
-                .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
-                .map_or(0, |d| d.as_nanos());
-            files.push(json!([field, path, meta.len(), modified.to_string()]));
+            stamp_files(Path::new(path), field, &mut files)
+                .map_err(|e| format!("{field}: {path}: {e}"))?;
         }
     }
     let identity = json!({"modality": modality.name(), "config": config, "files": files});

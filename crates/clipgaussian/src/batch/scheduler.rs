@@ -7,6 +7,7 @@
 use std::path::Path;
 
 use serde_json::json;
+use sha2::{Digest, Sha256};
 
 use super::job::{EXIT_NEVER_RETRY, EXIT_RETRY, LOG_DIR};
 use super::plan;
@@ -57,9 +58,9 @@ pub struct K8sOptions {
 
 /// The `sbatch` script of the batch in `dir`: a job array over its jobs, `%parallel` at once;
 /// each task logs to `<batch>/logs/<array id>_<index>.out` (a folder that must exist when the
-/// array is submitted), gets SIGTERM two minutes before its
-/// time limit (the job stops with a checkpoint), and is requeued when it exits with
-/// [`EXIT_RETRY`].
+/// array is submitted), gets SIGTERM two minutes before its time limit (Slurm's USR1 to the
+/// script, passed on; a cancel or preemption's own SIGTERM reaches the job once), stopping
+/// with a checkpoint, and is requeued when it exits with [`EXIT_RETRY`].
 pub fn slurm_script(
     dir: &Path,
     resources: &Resources,
@@ -68,7 +69,14 @@ pub fn slurm_script(
     let plan = plan::read(dir)?;
     let n = plan.jobs.len();
     let dir = dir.display().to_string();
+    if dir.chars().any(|c| c.is_control() || c == '"') || options.program.contains('\n') {
+        return Err(format!(
+            "{dir:?}: a batch folder for Slurm needs a path without quotes or control characters"
+        ));
+    }
     let quote = |s: &str| format!("'{}'", s.replace('\'', r"'\''"));
+    // Slurm reads `%` in --output as a pattern: the folder's own are doubled.
+    let log_pattern = format!("{}/{LOG_DIR}/%A_%a.out", dir.replace('%', "%%"));
     let mut lines = vec![
         "#!/bin/bash".to_string(),
         format!("#SBATCH --job-name=clipgaussian-{}", plan.modality.name()),
@@ -77,14 +85,15 @@ pub fn slurm_script(
             n.saturating_sub(1),
             resources.parallel.max(1)
         ),
-        format!("#SBATCH --output={dir}/{LOG_DIR}/%A_%a.out"),
+        format!("#SBATCH --output=\"{log_pattern}\""),
         // A requeued task adds to its log.
         "#SBATCH --open-mode=append".to_string(),
+        "#SBATCH --ntasks=1".to_string(),
         format!("#SBATCH --cpus-per-task={}", resources.cpus),
         format!("#SBATCH --mem={}G", resources.memory_gb),
         format!("#SBATCH --time={}", resources.time),
         "#SBATCH --requeue".to_string(),
-        "#SBATCH --signal=B:TERM@120".to_string(),
+        "#SBATCH --signal=B:USR1@120".to_string(),
     ];
     if resources.gpus > 0 {
         lines.push(format!("#SBATCH --gpus-per-task={}", resources.gpus));
@@ -96,20 +105,27 @@ pub fn slurm_script(
     lines.push(format!(
         "# {n} jobs of {}. Exit {EXIT_RETRY}: interrupted, preempted, device lost or out of \
          memory (requeued);\n# exit {EXIT_NEVER_RETRY}: a bad input (not retried).",
-        plan.manifest.display()
+        plan.manifest
+            .display()
+            .to_string()
+            .replace(|c: char| c.is_control(), " ")
     ));
     lines.push(format!(
         r#"export RAYON_NUM_THREADS="${{SLURM_CPUS_PER_TASK:-{cpus}}}"
-# The job runs in the background so that the TERM Slurm sends before the time limit reaches it.
-trap 'kill -TERM "$child" 2>/dev/null' TERM
+# The job runs in the background so that the shell can pass it Slurm's warning before the time
+# limit (USR1) as one SIGTERM: it stops after its step with a checkpoint. A cancel or a
+# preemption sends SIGTERM to the job itself; the shell only waits on (a second SIGTERM would
+# make the job quit without its checkpoint).
+trap 'kill -TERM "$child" 2>/dev/null' USR1
+trap ':' TERM
 {program} batch run {dir} --index "$SLURM_ARRAY_TASK_ID" &
 child=$!
 wait "$child"
 rc=$?
-if [ "$rc" -gt 128 ]; then
+while [ "$rc" -gt 128 ] && kill -0 "$child" 2>/dev/null; do
   wait "$child"
   rc=$?
-fi
+done
 if [ "$rc" -eq {EXIT_RETRY} ]; then
   scontrol requeue "${{SLURM_ARRAY_JOB_ID}}_${{SLURM_ARRAY_TASK_ID}}"
 fi
@@ -135,6 +151,9 @@ pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Resul
         .unwrap_or(Path::new("/"))
         .display()
         .to_string();
+    // The inputs' folder beside the batch folder, unless one holds the other (two mounts of
+    // one path, or a mount inside a read-only one, are refused).
+    let nested = dir.starts_with(&inputs_text) || Path::new(&inputs_text).starts_with(dir);
     let volume = |name: &str, claim: &Option<String>, path: &str| match claim {
         Some(claim) => json!({"name": name, "persistentVolumeClaim": {"claimName": claim}}),
         None => json!({"name": name, "hostPath": {"path": path, "type": "Directory"}}),
@@ -146,10 +165,42 @@ pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Resul
     if resources.gpus > 0 {
         limits["nvidia.com/gpu"] = json!(resources.gpus);
     }
+    let (mounts, volumes) = if nested {
+        let outer = if dir.starts_with(&inputs_text) {
+            &inputs_text
+        } else {
+            &dir_text
+        };
+        (
+            json!([{"name": "batch", "mountPath": outer}]),
+            json!([volume("batch", &options.claim, outer)]),
+        )
+    } else {
+        (
+            json!([
+                {"name": "batch", "mountPath": dir_text},
+                {"name": "inputs", "mountPath": inputs_text, "readOnly": true}
+            ]),
+            json!([
+                volume("batch", &options.claim, &dir_text),
+                volume("inputs", &options.inputs_claim, &inputs_text)
+            ]),
+        )
+    };
+    // One Job a batch: a second batch of the modality is a Job of another name.
+    let digest = Sha256::digest(dir_text.as_bytes());
+    let name = format!(
+        "clipgaussian-{}-{}",
+        plan.modality.name(),
+        digest[..4]
+            .iter()
+            .map(|b| format!("{b:02x}"))
+            .collect::<String>()
+    );
     let job = json!({
         "apiVersion": "batch/v1",
         "kind": "Job",
-        "metadata": {"name": format!("clipgaussian-{}", plan.modality.name())},
+        "metadata": {"name": name},
         "spec": {
             "completionMode": "Indexed",
             "completions": n,
@@ -171,15 +222,9 @@ pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Resul
                     "command": ["clipgaussian", "batch", "run", dir_text],
                     "env": [{"name": "RAYON_NUM_THREADS", "value": resources.cpus.to_string()}],
                     "resources": {"limits": limits},
-                    "volumeMounts": [
-                        {"name": "batch", "mountPath": dir_text},
-                        {"name": "inputs", "mountPath": inputs_text, "readOnly": true}
-                    ]
+                    "volumeMounts": mounts
                 }],
-                "volumes": [
-                    volume("batch", &options.claim, &dir_text),
-                    volume("inputs", &options.inputs_claim, &inputs_text)
-                ]
+                "volumes": volumes
             }}
         }
     });

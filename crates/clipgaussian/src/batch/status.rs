@@ -1,5 +1,7 @@
-//! Where a batch stands: each job done, running, failed (with its reason), stopped (its
-//! process gone before it finished: interrupted or killed) or left.
+//! Where a batch stands: each job done, running, failed (with its reason: a failure not worth
+//! retrying), stopped (before it finished, in a way worth running again: interrupted, killed,
+//! preempted) or left. A job running on another machine cannot be looked at from here: its
+//! state says running until its process writes another.
 
 use std::path::Path;
 
@@ -23,8 +25,9 @@ pub enum JobStatus {
         /// The error.
         reason: String,
     },
-    /// Its process is gone before it finished (interrupted, killed or preempted); it resumes
-    /// from its checkpoint when there is one.
+    /// It stopped before it finished in a way worth running again (interrupted, preempted,
+    /// killed, short of memory: exit 75, or its process gone); it resumes from its checkpoint
+    /// when there is one.
     Stopped,
     /// It has not run.
     Left,
@@ -50,6 +53,10 @@ pub fn job_status(dir: &Path, job: &Job) -> JobStatus {
     }
     match read_state(dir, job) {
         None => JobStatus::Left,
+        // Interrupted, preempted, short of memory: worth running again, from its checkpoint.
+        Some(s) if s.status == "failed" && s.exit_code == Some(super::job::EXIT_RETRY) => {
+            JobStatus::Stopped
+        }
         Some(s) if s.status == "failed" => JobStatus::Failed {
             exit_code: s.exit_code.unwrap_or(1),
             reason: s.reason.unwrap_or_default(),
