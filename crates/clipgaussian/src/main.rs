@@ -271,9 +271,21 @@ fn batch_command(mut command: BatchCommand) -> u8 {
             let script = batch::scheduler::slurm_script(&dir, &resources.resources(), &options);
             // Slurm opens each task's log before the script runs: its folder must be there.
             let logs = dir.join(batch::job::LOG_DIR);
+            let jobs = batch::plan::read(&dir).map_or(0, |p| p.jobs.len());
             std::fs::create_dir_all(&logs)
                 .map_err(|e| format!("{}: {e}", logs.display()))
                 .and_then(|()| written(&dir, batch::scheduler::SBATCH_FILE, script))
+                .map(|line| {
+                    if jobs > 1000 {
+                        format!(
+                            "{line}\nnote: {jobs} tasks; Slurm's default MaxArraySize takes \
+                             indexes up to 1000 (ask the cluster's admins, or plan smaller \
+                             batches)"
+                        )
+                    } else {
+                        line
+                    }
+                })
         }
         BatchCommand::K8s {
             dir,
