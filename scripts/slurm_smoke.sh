@@ -90,33 +90,40 @@ echo "results.csv: $done_rows of 4 jobs done"
 ls "$batch/logs"
 [ "$done_rows" -eq 4 ]
 
-# Preemption: a longer batch, every running task sent SIGTERM (what Slurm sends before a time
-# limit or a preemption) once a checkpoint is written; each stops with a checkpoint, exits 75,
-# is requeued and resumes.
-manifest=$("$repo/target/debug/examples/tiny_batch" "$work/inputs-long" 600)
-batch="$work/batch-long"
-"$bin" batch plan "$manifest" --out "$batch"
-"$bin" batch slurm "$batch" --partition smoke --gpus 0 --cpus 1 --memory-gb 1 --time 00:10:00 --parallel 2
-array=$(sbatch --parsable "$batch/batch.sbatch")
-for _ in $(seq 600); do
-  ls "$batch"/*/checkpoint/state.json >/dev/null 2>&1 && break
-  sleep 0.1
-done
-# A task that has only just started cannot be signalled yet ("try again later").
-for _ in $(seq 50); do
-  scancel --signal=TERM --batch "$array" 2>/dev/null && break
-  sleep 0.2
-done
-echo "sent SIGTERM to the running tasks of array $array"
-for _ in $(seq 300); do
-  [ -z "$(squeue -h -j "$array" 2>/dev/null)" ] && break
-  sleep 1
-done
-"$bin" batch status "$batch"
-"$bin" batch collect "$batch"
-done_rows=$(tail -n +2 "$batch/results.csv" | grep -c ',done,' || true)
-resumed=$(grep -l resuming "$batch"/logs/*.out | wc -l)
-echo "results.csv: $done_rows of 4 jobs done; $resumed task(s) resumed after SIGTERM"
-grep -h "resuming\|stopping\|interrupted" "$batch"/logs/*.out || true
-[ "$done_rows" -eq 4 ] && [ "$resumed" -ge 1 ]
+# Stops: a longer batch whose running tasks are signalled once a checkpoint is written, as
+# Slurm signals them: USR1 to the script alone (`--signal=B:USR1@120`, the warning before a
+# time limit) or TERM to every process of the task (a cancel or a preemption). Each stops with
+# a checkpoint, exits 75, is requeued and resumes.
+stop_and_resume() {
+  local name=$1 signal=$2 how=$3
+  local manifest batch array done_rows resumed
+  manifest=$("$repo/target/debug/examples/tiny_batch" "$work/inputs-$name" 600)
+  batch="$work/batch-$name"
+  "$bin" batch plan "$manifest" --out "$batch"
+  "$bin" batch slurm "$batch" --partition smoke --gpus 0 --cpus 1 --memory-gb 1 --time 00:10:00 --parallel 2
+  array=$(sbatch --parsable "$batch/batch.sbatch")
+  for _ in $(seq 600); do
+    ls "$batch"/*/checkpoint/state.json >/dev/null 2>&1 && break
+    sleep 0.1
+  done
+  # A task that has only just started cannot be signalled yet ("try again later").
+  for _ in $(seq 50); do
+    scancel --signal="$signal" "$how" "$array" 2>/dev/null && break
+    sleep 0.2
+  done
+  echo "sent $signal ($how) to the running tasks of array $array"
+  for _ in $(seq 300); do
+    [ -z "$(squeue -h -j "$array" 2>/dev/null)" ] && break
+    sleep 1
+  done
+  "$bin" batch status "$batch"
+  "$bin" batch collect "$batch"
+  done_rows=$(tail -n +2 "$batch/results.csv" | grep -c ',done,' || true)
+  resumed=$(grep -l resuming "$batch"/logs/*.out | wc -l)
+  echo "$name: results.csv: $done_rows of 4 jobs done; $resumed task(s) resumed after $signal"
+  grep -h -e resuming -e stopping -e interrupted "$batch"/logs/*.out || true
+  [ "$done_rows" -eq 4 ] && [ "$resumed" -ge 1 ]
+}
+stop_and_resume time-limit USR1 --batch
+stop_and_resume cancel TERM --full
 echo "slurm smoke: passed"
