@@ -164,3 +164,32 @@ fn a_valid_ply_larger_than_memory_is_an_error() {
         "{e}"
     );
 }
+
+/// The same for a compressed PLY (SH in a byte a value, decoded to four): its reader's
+/// refusal is the typed `OutOfMemory`, which a batch counts as worth retrying elsewhere.
+#[test]
+fn a_valid_compressed_ply_larger_than_memory_is_an_error() {
+    use gs_core::splats::{read_splats, write_splats, SplatFileError, SplatFormat};
+    let n = 4000;
+    let mut set = gs_core::GaussianSet::zeros(n, 3);
+    for (i, m) in set.means.iter_mut().enumerate() {
+        *m = (i % 97) as f32 * 0.01;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("large.compressed.ply");
+    let ply = gs_core::ply::PlyGaussians::without_normals(set);
+    write_splats(&path, &ply, SplatFormat::CompressedPly).unwrap();
+    let len = std::fs::metadata(&path).unwrap().len() as usize;
+    assert!(read_splats(&path).is_ok(), "valid with memory to spare");
+    assert!(
+        n * 45 * 4 > len * 2,
+        "the SH arrays are larger than the file"
+    );
+    let e = fuzz::with_cap(len * 5 / 4, || read_splats(&path)).unwrap_err();
+    assert!(matches!(e, SplatFileError::OutOfMemory { .. }), "{e}");
+    let e = e.to_string();
+    assert!(
+        e.contains("large.compressed.ply") && e.contains("could not reserve"),
+        "{e}"
+    );
+}

@@ -447,6 +447,11 @@ mod tests {
             what: "the Gaussians' arrays",
         };
         assert_eq!(code(out_of_memory), EXIT_RETRY);
+        let splat_file = gs_core::splats::SplatFileError::OutOfMemory {
+            path: "scene.spz".into(),
+            source: out_of_memory,
+        };
+        assert_eq!(code(splat_file), EXIT_RETRY);
         let disk_full = StylizeError::Io {
             path: "out/model.ply".into(),
             source: std::io::Error::other("No space left on device"),

@@ -11,6 +11,7 @@
 //! quantisation as splat-transform does: a rotation byte `b` is `b / 127.5 - 1`, the quaternion
 //! normalised; alpha through [`opacity_of_level`](super::opacity_of_level).
 
+use super::DecodeError;
 use super::{check_finite, check_linear_scales, check_rotations, opacity_of_level, sigmoid};
 use crate::sh::C0;
 use crate::GaussianSet;
@@ -51,30 +52,31 @@ pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
 
 /// The Gaussians of `.splat` bytes (SH degree 0); an error when the length is not a whole
 /// number of records.
-pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
+pub fn decode(bytes: &[u8]) -> Result<GaussianSet, DecodeError> {
     if !bytes.len().is_multiple_of(RECORD) {
         return Err(format!(
             "{} bytes is not a whole number of {RECORD}-byte Gaussians",
             bytes.len()
-        ));
+        )
+        .into());
     }
     let n = bytes.len() / RECORD;
-    let mut set = GaussianSet::try_zeros(n, 0).map_err(|e| e.to_string())?;
+    let mut set = GaussianSet::try_zeros(n, 0)?;
     let f32_at = |r: &[u8], k: usize| f32::from_le_bytes(r[4 * k..4 * k + 4].try_into().unwrap());
     for (i, r) in bytes.chunks_exact(RECORD).enumerate() {
         for k in 0..3 {
             set.means[3 * i + k] = f32_at(r, k);
             let scale = f32_at(r, 3 + k);
             if !(scale > 0.0 && scale.is_finite()) {
-                return Err(format!(
-                    "Gaussian {i}: scale {k} is {scale}, not a positive size"
-                ));
+                return Err(
+                    format!("Gaussian {i}: scale {k} is {scale}, not a positive size").into(),
+                );
             }
             set.log_scales[3 * i + k] = scale.ln();
             set.sh_dc[3 * i + k] = ((f64::from(r[24 + k]) / 255.0 - 0.5) / C0) as f32;
         }
         if let Some(k) = (0..3).find(|&k| !set.means[3 * i + k].is_finite()) {
-            return Err(format!("Gaussian {i}: position {k} is not finite"));
+            return Err(format!("Gaussian {i}: position {k} is not finite").into());
         }
         set.opacity_logits[i] = opacity_of_level(u32::from(r[27])) as f32;
         let q = [0, 1, 2, 3].map(|k| f64::from(r[28 + k]) / 127.5 - 1.0);

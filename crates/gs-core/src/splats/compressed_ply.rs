@@ -14,6 +14,7 @@
 //! finer within runs of more than 256 equal codes), as splat-transform does, so the file order
 //! is not the input's. A bound pair closer than 1e-5 stores 0.
 
+use super::DecodeError;
 use super::{check_finite, check_rotations, opacity_of_level, sigmoid};
 use crate::ply::elements::{check_body_length, parse_elements};
 use crate::sh::C0;
@@ -251,13 +252,14 @@ pub fn encode(set: &GaussianSet) -> Result<Vec<u8>, String> {
 }
 
 /// The Gaussians of compressed PLY bytes, in file order.
-pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
+pub fn decode(bytes: &[u8]) -> Result<GaussianSet, DecodeError> {
     let header = parse_elements(bytes)?;
     if header.format != "binary_little_endian" {
         return Err(format!(
             "format {}: a compressed PLY is binary_little_endian",
             header.format
-        ));
+        )
+        .into());
     }
     let starts = check_body_length(&header, bytes)?;
     let elements = header.elements;
@@ -273,7 +275,8 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             "{} chunks for {n} Gaussians; {} expected",
             chunk.count,
             n.div_ceil(CHUNK)
-        ));
+        )
+        .into());
     }
     // Every property's place, found once: the chunk bounds by name (a colour range may be
     // absent in older files: the 8-bit colour is then the colour), the packed words, the SH.
@@ -293,7 +296,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         match word_at(chunk_e, name)? {
             Some(offset) => bound_offsets[k] = offset,
             None if k >= 12 => has_colour_range = false,
-            None => return Err(format!("chunk has no float property {name}")),
+            None => return Err(format!("chunk has no float property {name}").into()),
         }
     }
     let mut word_offsets = [0usize; 4];
@@ -309,7 +312,8 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
                 return Err(format!(
                     "element sh: {} rows of {count} values; {n} rows of 9, 24 or 45 expected",
                     elements[s].count
-                ));
+                )
+                .into());
             }
             count
         }
@@ -333,7 +337,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         })
         .collect();
     let degree = [0, 9, 24, 45].iter().position(|&c| c == rest).unwrap_or(0);
-    let mut set = GaussianSet::try_zeros(n, degree).map_err(|e| e.to_string())?;
+    let mut set = GaussianSet::try_zeros(n, degree)?;
     let unpack = |bits: u32, width: u32| {
         f64::from(bits & ((1 << width) - 1)) / f64::from((1u32 << width) - 1)
     };

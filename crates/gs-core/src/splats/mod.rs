@@ -114,6 +114,14 @@ pub enum SplatFileError {
         /// What is wrong and where.
         message: String,
     },
+    /// Arrays this machine could not give memory to, for the file's Gaussians.
+    #[error("{}: {source}", path.display())]
+    OutOfMemory {
+        /// The file.
+        path: PathBuf,
+        /// What could not be reserved.
+        source: crate::fallible::OutOfMemory,
+    },
     /// A format this crate writes but does not read.
     #[error("{}: {format} files are written here but not read", path.display())]
     WriteOnly {
@@ -122,6 +130,30 @@ pub enum SplatFileError {
         /// The format's name.
         format: &'static str,
     },
+}
+
+/// Why a splat file's bytes did not decode: content the format does not allow, or arrays this
+/// machine could not give memory to.
+#[derive(Debug, thiserror::Error)]
+pub enum DecodeError {
+    /// What is wrong and where.
+    #[error("{0}")]
+    Format(String),
+    /// The Gaussians' arrays.
+    #[error(transparent)]
+    OutOfMemory(#[from] crate::fallible::OutOfMemory),
+}
+
+impl From<String> for DecodeError {
+    fn from(message: String) -> Self {
+        Self::Format(message)
+    }
+}
+
+impl From<&str> for DecodeError {
+    fn from(message: &str) -> Self {
+        Self::Format(message.to_string())
+    }
 }
 
 /// Reads the splat file `path` in the format its name says (a `.ply` with a `chunk` element as
@@ -152,9 +184,15 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             source,
         })
     };
-    let format_error = |message: String| SplatFileError::Format {
-        path: path.to_path_buf(),
-        message,
+    let format_error = |e: DecodeError| match e {
+        DecodeError::Format(message) => SplatFileError::Format {
+            path: path.to_path_buf(),
+            message,
+        },
+        DecodeError::OutOfMemory(source) => SplatFileError::OutOfMemory {
+            path: path.to_path_buf(),
+            source,
+        },
     };
     let gaussians = match format {
         SplatFormat::Ply | SplatFormat::CompressedPly => {

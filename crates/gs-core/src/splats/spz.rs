@@ -23,6 +23,7 @@
 
 use std::io::{Read, Write};
 
+use super::DecodeError;
 use super::{check_finite, check_rotations, opacity_of_level, sigmoid};
 use crate::GaussianSet;
 
@@ -219,7 +220,7 @@ fn header(b: &[u8]) -> Result<(u32, usize, usize, u8), String> {
 }
 
 /// The Gaussians of SPZ bytes (versions 2, 3 and 4).
-pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
+pub fn decode(bytes: &[u8]) -> Result<GaussianSet, DecodeError> {
     if bytes.starts_with(&[0x1f, 0x8b]) {
         // The header first, then no more than the attributes it announces: a small file whose
         // stream unpacks to far more is refused without holding it.
@@ -230,9 +231,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             .map_err(|e| format!("the gzip stream: {e}"))?;
         let (version, n, degree, bits) = header(&head)?;
         if !(2..=3).contains(&version) {
-            return Err(format!(
-                "version {version} in a gzip stream; 2 and 3 are gzip"
-            ));
+            return Err(format!("version {version} in a gzip stream; 2 and 3 are gzip").into());
         }
         let sizes = stream_sizes(n, degree, version);
         let total: usize = sizes.iter().sum();
@@ -245,7 +244,8 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             return Err(format!(
                 "{} bytes of attributes for {n} Gaussians of degree {degree}; {total} expected",
                 plain.len()
-            ));
+            )
+            .into());
         }
         let mut streams = Vec::new();
         let mut at = 0;
@@ -257,9 +257,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
     }
     let (version, n, degree, bits) = header(bytes)?;
     if version != 4 {
-        return Err(format!(
-            "version {version} without gzip; only version 4 is plain"
-        ));
+        return Err(format!("version {version} without gzip; only version 4 is plain").into());
     }
     let count = usize::from(*bytes.get(15).ok_or("the header is cut short")?);
     let toc = u32_at(bytes, 16).ok_or("the header is cut short")? as usize;
@@ -268,7 +266,8 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         return Err(format!(
             "{count} streams; {} expected for degree {degree}",
             sizes.len()
-        ));
+        )
+        .into());
     }
     let mut at = toc
         .checked_add(16 * count)
@@ -280,7 +279,7 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
         let packed = u64::from_le_bytes(bytes[entry..entry + 8].try_into().unwrap()) as usize;
         let size = u64::from_le_bytes(bytes[entry + 8..entry + 16].try_into().unwrap()) as usize;
         if size != *want {
-            return Err(format!("stream {k} holds {size} bytes; {want} expected"));
+            return Err(format!("stream {k} holds {size} bytes; {want} expected").into());
         }
         let end = at
             .checked_add(packed)
@@ -293,10 +292,9 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, String> {
             .read_to_end(&mut out)
             .map_err(|e| format!("stream {k}: {e}"))?;
         if out.len() != size {
-            return Err(format!(
-                "stream {k} unpacks to {} bytes; {size} expected",
-                out.len()
-            ));
+            return Err(
+                format!("stream {k} unpacks to {} bytes; {size} expected", out.len()).into(),
+            );
         }
         plain.push(out);
         at = end;
@@ -322,8 +320,8 @@ fn assemble(
     degree: usize,
     bits: u8,
     version: u32,
-) -> Result<GaussianSet, String> {
-    let mut set = GaussianSet::try_zeros(n, degree).map_err(|e| e.to_string())?;
+) -> Result<GaussianSet, DecodeError> {
+    let mut set = GaussianSet::try_zeros(n, degree)?;
     let scale = f64::from(1u32 << bits);
     for (k, b) in streams[0].chunks_exact(3).enumerate() {
         let fixed = i32::from_le_bytes([b[0], b[1], b[2], if b[2] & 0x80 != 0 { 0xff } else { 0 }]);
