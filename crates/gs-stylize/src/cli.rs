@@ -16,6 +16,7 @@ use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 use gs_wgpu::backend::DeviceChoice;
 use serde_json::Value;
 
+use crate::error::causes;
 use crate::evaluation::{ClipFiles, Style};
 use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use crate::model_kind::{check_model, Binary};
@@ -281,17 +282,17 @@ pub fn exit_code(result: Result<(), Box<dyn Error>>) -> ExitCode {
         return ExitCode::SUCCESS;
     };
     eprintln!("error: {e}");
-    let mut cause: Option<&(dyn Error + 'static)> = Some(e.as_ref());
-    while let Some(c) = cause {
-        if matches!(
+    let interrupted = causes(e.as_ref()).any(|c| {
+        matches!(
             c.downcast_ref::<StylizeError>(),
             Some(StylizeError::Interrupted { .. } | StylizeError::InterruptedFit { .. })
-        ) {
-            return ExitCode::from(INTERRUPTED_EXIT);
-        }
-        cause = c.source();
+        )
+    });
+    if interrupted {
+        ExitCode::from(INTERRUPTED_EXIT)
+    } else {
+        ExitCode::FAILURE
     }
-    ExitCode::FAILURE
 }
 
 #[cfg(test)]

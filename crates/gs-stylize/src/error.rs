@@ -124,3 +124,10 @@ impl From<gs_core::train::TrainError<style_loss::StyleLossError>> for StylizeErr
         Self::Train(Box::new(e))
     }
 }
+
+/// `e` and every error behind it, outermost first (its `source` chain).
+pub fn causes<'a>(
+    e: &'a (dyn std::error::Error + 'static),
+) -> impl Iterator<Item = &'a (dyn std::error::Error + 'static)> {
+    std::iter::successors(Some(e), |c| c.source())
+}

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use gs_stylize::outputs::{StepLosses, LOSSES_JSON, PREVIEW_PNG};
+use gs_stylize::outputs::{read_json, write_json, StepLosses, LOSSES_JSON, PREVIEW_PNG};
 use gs_stylize::plot::label_strip;
 use serde::Serialize;
 
@@ -58,9 +58,7 @@ pub fn results(dir: &Path, plan: &Plan) -> Vec<JobResult> {
         .iter()
         .map(|job| {
             let out = job.out(dir);
-            let losses: Option<Vec<StepLosses>> = std::fs::read_to_string(out.join(LOSSES_JSON))
-                .ok()
-                .and_then(|t| serde_json::from_str(&t).ok());
+            let losses: Option<Vec<StepLosses>> = read_json(&out.join(LOSSES_JSON)).ok();
             let last = losses.as_ref().and_then(|l| l.last());
             let preview = out.join(PREVIEW_PNG);
             JobResult {
@@ -89,12 +87,7 @@ pub fn collect(dir: &Path) -> Result<String, String> {
         let path = dir.join(name);
         gs_core::fs::write_atomic(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))
     };
-    write(
-        RESULTS_JSON,
-        serde_json::to_string_pretty(&rows)
-            .expect("rows serialize")
-            .as_bytes(),
-    )?;
+    write_json(&dir.join(RESULTS_JSON), &rows).map_err(|e| e.to_string())?;
     write(RESULTS_CSV, csv(&rows).as_bytes())?;
     let mut png = std::io::Cursor::new(Vec::new());
     contact_sheet(&plan, &rows)?

@@ -17,7 +17,9 @@ use std::process::{Child, Command};
 use std::time::{Duration, Instant};
 
 use gs_stylize::checkpoint::finished_step;
+use gs_stylize::error::causes;
 use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::outputs::{read_json, write_json};
 use gs_stylize::{RunOptions, StylizeError};
 use serde::{Deserialize, Serialize};
 
@@ -57,15 +59,19 @@ pub fn state_path(dir: &Path, job: &Job) -> PathBuf {
 
 /// The state of `job` in `dir`, when it has run.
 pub fn read_state(dir: &Path, job: &Job) -> Option<JobState> {
-    let text = std::fs::read_to_string(state_path(dir, job)).ok()?;
-    serde_json::from_str(&text).ok()
+    read_json(&state_path(dir, job)).ok()
 }
 
 /// Whether `job`'s output in `dir` is finished (its stylization wrote every output).
 pub fn is_done(dir: &Path, job: &Job) -> bool {
+    is_done_with(dir, job, read_state(dir, job).as_ref())
+}
+
+/// [`is_done`] of `job` whose state file says `state` (already read).
+pub fn is_done_with(dir: &Path, job: &Job, state: Option<&JobState>) -> bool {
     let out = job.out(dir);
     out.is_dir()
-        && (read_state(dir, job).is_some_and(|s| s.status == "done")
+        && (state.is_some_and(|s| s.status == "done")
             || finished_step(&out).is_some_and(|step| step == job.steps()))
 }
 
@@ -89,8 +95,7 @@ pub fn index_from_env() -> Option<usize> {
 /// device, a machine short of memory or an output that could not be written, else
 /// [`EXIT_NEVER_RETRY`].
 pub fn exit_code_of(e: &(dyn Error + 'static)) -> u8 {
-    let mut cause = Some(e);
-    while let Some(c) = cause {
+    for c in causes(e) {
         if let Some(e) = c.downcast_ref::<StylizeError>() {
             if matches!(
                 e,
@@ -108,7 +113,6 @@ pub fn exit_code_of(e: &(dyn Error + 'static)) -> u8 {
         if c.downcast_ref::<gs_core::fallible::OutOfMemory>().is_some() {
             return EXIT_RETRY;
         }
-        cause = c.source();
     }
     EXIT_NEVER_RETRY
 }
@@ -136,9 +140,7 @@ fn lock_job(dir: &Path, job: &Job) -> Result<Option<std::fs::File>, String> {
 fn write_state(dir: &Path, job: &Job, state: &JobState) -> Result<(), String> {
     let path = state_path(dir, job);
     std::fs::create_dir_all(dir.join(STATE_DIR)).map_err(|e| format!("{}: {e}", path.display()))?;
-    let text = serde_json::to_string_pretty(state).expect("a state serializes");
-    gs_core::fs::write_atomic(&path, text.as_bytes())
-        .map_err(|e| format!("{}: {e}", path.display()))
+    write_json(&path, state).map_err(|e| e.to_string())
 }
 
 /// Runs job `index` of the batch in `dir` in this process (see the module documentation) and

@@ -8,6 +8,7 @@
 
 use std::path::{Path, PathBuf};
 
+use gs_stylize::outputs::write_json;
 use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
@@ -120,10 +121,7 @@ pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
         jobs,
     };
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-    let text = serde_json::to_string_pretty(&plan).expect("a plan serializes");
-    let path = dir.join(JOBS_JSON);
-    gs_core::fs::write_atomic(&path, text.as_bytes())
-        .map_err(|e| format!("{}: {e}", path.display()))?;
+    write_json(&dir.join(JOBS_JSON), &plan).map_err(|e| e.to_string())?;
     Ok(plan)
 }
 
@@ -174,6 +172,16 @@ fn job_id(modality: Modality, config: &Value) -> Result<String, String> {
         }
     }
     let identity = json!({"modality": modality.name(), "config": config, "files": files});
-    let digest = Sha256::digest(serde_json::to_vec(&identity).expect("JSON serializes"));
-    Ok(digest[..8].iter().map(|b| format!("{b:02x}")).collect())
+    Ok(short_hash(
+        &serde_json::to_vec(&identity).expect("JSON serializes"),
+        8,
+    ))
+}
+
+/// The first `bytes` bytes of the SHA-256 of `data`, in hexadecimal.
+pub fn short_hash(data: &[u8], bytes: usize) -> String {
+    Sha256::digest(data)[..bytes]
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect()
 }

@@ -7,7 +7,6 @@
 use std::path::Path;
 
 use serde_json::json;
-use sha2::{Digest, Sha256};
 
 use super::job::{EXIT_NEVER_RETRY, EXIT_RETRY, LOG_DIR};
 use super::plan;
@@ -188,14 +187,10 @@ pub fn k8s_job(dir: &Path, resources: &Resources, options: &K8sOptions) -> Resul
         )
     };
     // One Job a batch: a second batch of the modality is a Job of another name.
-    let digest = Sha256::digest(dir_text.as_bytes());
     let name = format!(
         "clipgaussian-{}-{}",
         plan.modality.name(),
-        digest[..4]
-            .iter()
-            .map(|b| format!("{b:02x}"))
-            .collect::<String>()
+        plan::short_hash(dir_text.as_bytes(), 4)
     );
     let job = json!({
         "apiVersion": "batch/v1",

@@ -5,7 +5,7 @@
 
 use std::path::Path;
 
-use super::job::{host, is_done, read_state};
+use super::job::{host, is_done_with, read_state};
 use super::plan::{self, Job};
 
 /// Where one job stands.
@@ -48,10 +48,11 @@ impl JobStatus {
 
 /// Where `job` of the batch in `dir` stands.
 pub fn job_status(dir: &Path, job: &Job) -> JobStatus {
-    if is_done(dir, job) {
+    let state = read_state(dir, job);
+    if is_done_with(dir, job, state.as_ref()) {
         return JobStatus::Done;
     }
-    match read_state(dir, job) {
+    match state {
         None => JobStatus::Left,
         // Interrupted, preempted, short of memory: worth running again, from its checkpoint.
         Some(s) if s.status == "failed" && s.exit_code == Some(super::job::EXIT_RETRY) => {
