@@ -2,14 +2,29 @@
 //! against a folder of ground truths: pictures are paired by file name and taken in file-name
 //! order (CLIP-CONS and CLIP-F use consecutive pairs in that order). The cheap checks come
 //! first (the prompts, as stylization checks them; the folders; the pictures' sizes), CLIP's
-//! files and the scoring after.
+//! files and the scoring after. [`evaluate_run`] scores a finished stylization on its scene's
+//! test views.
 
+use std::error::Error;
 use std::path::Path;
 
 use candle_core::{Device, Tensor};
-use gs_stylize::evaluation::{check_prompts, check_sizes, picture_names, resolve_clip, score};
+use gs_core::splats::read_splats;
+use gs_stylize::evaluation::{
+    check_prompts, check_sizes, picture_names, resolve_clip, score, score_images, Scoring,
+};
 pub use gs_stylize::evaluation::{write_metrics, ClipFiles, EvalError, Metrics, Style};
 use gs_stylize::picture::load_picture;
+use gs_wgpu::backend::OpenDevice;
+
+use crate::dataset::nerf_synthetic::{self, Split};
+use crate::dataset::{colmap, Background, Layout, LoadOptions};
+use crate::render_views::render_names;
+use crate::stylize::{StylizeConfig, STYLIZED_PLY};
+
+/// The folder of a finished run's output where [`evaluate_run`] writes its renders of the
+/// test views (named after their pictures, with `.png`).
+pub const TEST_VIEWS_DIR: &str = "test_views";
 
 /// Orders names as people number views: runs of digits compare by value, so `r_2` comes before
 /// `r_10` (CLIP-CONS and CLIP-F pair each view with the next one in this order).
@@ -89,6 +104,57 @@ pub fn evaluate_folders(
     check_sizes(&labels, &rendered, &truths)?;
     let clip = resolve_clip(clip_files)?;
     score(&clip, &rendered, &truths, style, source_prompt, background)
+}
+
+/// Scores the finished run of `config`: its `stylized.ply` rendered (on the run's device,
+/// over its background) from the views a test would use, written into `out/test_views/` and
+/// scored as written (as `eval` would score that folder) against their pictures as the run loads them (its background, `resolution` and
+/// `max_width`), with the run's style and source prompt and the CLIP of `clip`. The views
+/// are a NeRF-synthetic scene's test split, or every picture of a COLMAP scene (which has no
+/// split; the run trains on all of them).
+pub fn evaluate_run(
+    config: &StylizeConfig,
+    clip: ClipFiles,
+) -> Result<Metrics, Box<dyn Error + Send + Sync>> {
+    let scoring = Scoring::of_run(&config.style, clip);
+    check_prompts(&scoring.style, &scoring.source_prompt)?;
+    let (data, out) = (config.data_path(), config.out_path());
+    let options = LoadOptions {
+        background: Background::from_rgb(config.background),
+        ground_truth: config.ground_truth,
+        downscale: config.resolution,
+        max_width: config.max_width,
+        progress: None,
+    };
+    let test = match Layout::detect(data) {
+        Some(Layout::NerfSynthetic) => nerf_synthetic::load(data, Split::Test, &options)?,
+        Some(Layout::Colmap) => colmap::load(data, &options)?,
+        None => return Err(format!("dataset {}: {}", data.display(), Layout::LOOKED_FOR).into()),
+    };
+    let stylized = read_splats(&out.join(STYLIZED_PLY))?.gaussians;
+    let backend = config.style.device.open()?;
+    let renderer = backend.renderer(&stylized)?;
+    let dir = out.join(TEST_VIEWS_DIR);
+    std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    let names = render_names(data, &test.image_paths)?;
+    let mut renders = Vec::with_capacity(names.len());
+    let mut labels = Vec::with_capacity(names.len());
+    for ((view, name), picture) in test.views.iter().zip(&names).zip(&test.image_paths) {
+        let path = dir.join(name);
+        renderer
+            .render(&view.camera, test.background)?
+            .save_png(&path)?;
+        // Scored as written, 8-bit, as `eval` scores the folder.
+        renders.push(gs_core::Image::load(&path, test.background)?);
+        labels.push((path.display().to_string(), picture.display().to_string()));
+    }
+    Ok(score_images(
+        &renders,
+        &test.images,
+        &labels,
+        &scoring,
+        test.background,
+    )?)
 }
 
 #[cfg(test)]

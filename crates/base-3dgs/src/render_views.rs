@@ -152,7 +152,7 @@ pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
 
 /// The render's file name of each picture of `paths` (its stem with `.png`); an error names
 /// the dataset `data` and both pictures when two share one.
-fn render_names(data: &Path, paths: &[PathBuf]) -> Result<Vec<String>, RenderError> {
+pub(crate) fn render_names(data: &Path, paths: &[PathBuf]) -> Result<Vec<String>, RenderError> {
     let mut names = BTreeMap::new();
     paths
         .iter()

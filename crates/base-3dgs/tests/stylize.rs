@@ -13,10 +13,12 @@ use std::sync::Arc;
 
 use base_3dgs::dataset::nerf_synthetic::{self, Split};
 use base_3dgs::dataset::{Background, LoadOptions};
+use base_3dgs::evaluation::{evaluate_folders, evaluate_run, ClipFiles, Style, TEST_VIEWS_DIR};
 use base_3dgs::stylize::config::BackgroundPixels;
 use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
 use candle_core::{Device, Tensor};
 use common::TempDir;
+use gs_core::camera::Camera;
 use gs_core::dataset::GroundTruth;
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
@@ -26,7 +28,9 @@ use gs_stylize::checkpoint;
 use gs_stylize::outputs::{StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG};
 use gs_stylize::rates::gaussian_stylization;
 use gs_wgpu::backend::DeviceChoice;
-use scene::{fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, SIZE, VIEWS};
+use scene::{
+    c2w, fixture, random_set, write_colmap_scene, write_scene, write_tiny_clip, FOV_X, SIZE, VIEWS,
+};
 use style_loss::image_layout::hwc_to_tensor;
 use style_loss::{
     style_rng, ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection,
@@ -223,6 +227,69 @@ fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
         .filter(|n| n.ends_with(".tmp"))
         .collect();
     assert!(leftovers.is_empty(), "{leftovers:?}");
+
+    // Scored on a test split (the training pictures again): the renders of the stylized scene
+    // are written, and the metrics are `eval`'s of that folder against the test pictures.
+    let data = setup.config.data.clone().unwrap();
+    let transforms = std::fs::read_to_string(data.join("transforms_train.json")).unwrap();
+    std::fs::write(
+        data.join("transforms_test.json"),
+        transforms.replace("./train/", "./test/"),
+    )
+    .unwrap();
+    std::fs::create_dir_all(data.join("test")).unwrap();
+    for k in 0..VIEWS {
+        let name = format!("r_{k}.png");
+        std::fs::copy(
+            data.join("train").join(&name),
+            data.join("test").join(&name),
+        )
+        .unwrap();
+    }
+    let style = &setup.config.style;
+    let clip = ClipFiles {
+        config: style.clip_config.clone(),
+        weights: style.clip_weights.clone(),
+        tokenizer: style.tokenizer.clone(),
+    };
+    let metrics = evaluate_run(&setup.config, clip.clone()).unwrap();
+    assert_eq!(metrics.views, VIEWS);
+    assert!(metrics.clip_cons.is_some_and(f64::is_finite), "{metrics:?}");
+    // The ground truths as the run loads them (composited and cut to 8 bits, as 3DGS's loader
+    // does), written losslessly as PNG.
+    let options = LoadOptions {
+        background: Background::from_rgb(setup.config.background),
+        ground_truth: setup.config.ground_truth,
+        ..LoadOptions::default()
+    };
+    let test = nerf_synthetic::load(&data, Split::Test, &options).unwrap();
+    let truths = setup.dir.path().join("truths");
+    std::fs::create_dir_all(&truths).unwrap();
+    for (k, image) in test.images.iter().enumerate() {
+        image.save_png(&truths.join(format!("r_{k}.png"))).unwrap();
+    }
+    let renders = out.join(TEST_VIEWS_DIR);
+    let expected = evaluate_folders(
+        &renders,
+        &truths,
+        &Style::Prompt("fire".into()),
+        DEFAULT_SOURCE_PROMPT,
+        &clip,
+        setup.config.background,
+    )
+    .unwrap();
+    assert_eq!(metrics, expected);
+    let camera = Camera::from_nerf(c2w(1), FOV_X, SIZE, SIZE).unwrap();
+    let expected = setup.dir.path().join("view1.png");
+    render(&stylized.gaussians, &camera, setup.config.background)
+        .image
+        .save_png(&expected)
+        .unwrap();
+    assert_eq!(
+        image::open(renders.join("r_1.png")).unwrap().to_rgb8(),
+        image::open(&expected).unwrap().to_rgb8(),
+        "the stylized scene from test view 1"
+    );
 }
 
 #[test]

@@ -9,12 +9,14 @@
 //! - [`fit`]: fitting a D-NeRF scene in D-MiSo's stages.
 //! - [`model_file`]: our model file and the folder the authors' code saves.
 //! - [`stylize`]: the 4D stylization run and its outputs.
+//! - [`evaluation`]: the paper's CLIP metrics of the stylized test views (`clipgaussian-4d eval`).
 //! - [`model`]: [`Dmiso`] behind gs-core's `BaseModel`: sub-Gaussians of every core.
 
 pub mod core_frame;
 pub mod deform_net;
 pub mod densify;
 pub mod encoding;
+pub mod evaluation;
 pub mod fit;
 pub mod init;
 pub mod model;

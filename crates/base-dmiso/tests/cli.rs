@@ -421,6 +421,15 @@ fn bad_inputs_are_refused_with_nothing_written() {
     assert!(!out.exists(), "nothing was written");
 }
 
+/// Copies the files of `from` into the new folder `to`.
+fn copy_folder(from: &Path, to: &Path) {
+    std::fs::create_dir(to).unwrap();
+    for entry in std::fs::read_dir(from).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(&path, to.join(path.file_name().unwrap())).unwrap();
+    }
+}
+
 #[test]
 fn help_configs_and_eval() {
     let out = run(bin().arg("--help"));
@@ -468,6 +477,27 @@ fn help_configs_and_eval() {
         serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
     assert_eq!(m["views"], 3);
     assert!((m["clip_f"].as_f64().unwrap() - 100.0).abs() < 1e-3, "{m}");
+    // A finished run's frames are scored as eval scores them (what a batch asks).
+    let out = dir.path().join("run");
+    std::fs::create_dir(&out).unwrap();
+    copy_folder(&renders, &out.join("frames"));
+    let config = base_dmiso::stylize::DynamicStylizeConfig {
+        data: Some(data.clone()),
+        out: Some(out),
+        background: Some([1.0; 3]),
+        style: gs_stylize::StyleSettings {
+            style_prompt: Some("a red fire".into()),
+            ..base_dmiso::stylize::DynamicStylizeConfig::default().style
+        },
+        ..base_dmiso::stylize::DynamicStylizeConfig::default()
+    };
+    let clip = gs_stylize::evaluation::ClipFiles {
+        config: Some(models.clip_config.clone()),
+        weights: Some(models.clip_weights.clone()),
+        tokenizer: Some(models.tokenizer.clone()),
+    };
+    let scored = base_dmiso::evaluation::evaluate_run(&config, clip).unwrap();
+    assert_eq!(serde_json::to_value(scored).unwrap(), m);
     std::fs::remove_file(renders.join("00002.png")).unwrap();
     let eval_fails = || {
         fails(

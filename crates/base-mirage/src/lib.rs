@@ -13,6 +13,7 @@
 //! - [`picture`]: loading a picture and the embedded default one.
 //! - [`model_file`]: model files: is it a 2D model, which picture was it fitted to.
 //! - [`stylize`](mod@stylize): the 2D stylization run (`clipgaussian-2d stylize`).
+//! - [`evaluation`]: the paper's CLIP metrics of a stylized picture (`clipgaussian-2d eval`).
 //!
 //! The model renders through gs-core's calls like any other, on the cpu or a GPU:
 //!
@@ -32,6 +33,7 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+pub mod evaluation;
 pub mod fit;
 pub mod flat;
 pub mod init;

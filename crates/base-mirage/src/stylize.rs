@@ -177,8 +177,8 @@ pub struct MirageSummary {
     pub losses: Vec<f32>,
 }
 
-/// Loads the picture the configuration names, or the embedded default.
-fn picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
+/// Loads the picture the configuration names as the run reads it, or the embedded default.
+pub fn original_picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
     match &config.picture {
         Some(path) => Ok(load_picture(path, config.background, config.max_width)?),
         None => Ok(default_picture()),
@@ -299,7 +299,7 @@ impl Modality for MirageStylizeConfig {
         _run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<PictureInput, MirageError> {
-        let picture = picture(self)?;
+        let picture = original_picture(self)?;
         let label = picture_label(self);
         check_patches_fit(
             &self.style,

@@ -14,8 +14,10 @@
 //! - [`model_file`]: VeGaS's model PLY (time element included), read and written.
 //! - [`stylize`](mod@stylize): the video stylization run (`clipgaussian-video stylize`).
 //! - [`temporal`]: temporal consistency (frame-gap RMSE) for `eval`.
+//! - [`evaluation`]: the scores of a stylized video (`clipgaussian-video eval`).
 //! - [`video_input`]: reading a video (a folder of frames, or a video file through `ffmpeg`).
 
+pub mod evaluation;
 pub mod fit;
 pub mod folded;
 pub mod frame;

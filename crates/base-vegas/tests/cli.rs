@@ -370,6 +370,30 @@ fn eval_scores_stylized_frames_against_the_video() {
     for key in ["clip_s", "clip_sim", "clip_cons"] {
         assert!(m[key].as_f64().unwrap().is_finite(), "{key}: {m}");
     }
+    // A finished run's frames are scored as eval scores them (what a batch asks).
+    let out = dir.path().join("run");
+    let frames = out.join("frames");
+    std::fs::create_dir_all(&frames).unwrap();
+    for entry in std::fs::read_dir(&clip).unwrap() {
+        let path = entry.unwrap().path();
+        std::fs::copy(&path, frames.join(path.file_name().unwrap())).unwrap();
+    }
+    let config = base_vegas::stylize::VideoStylizeConfig {
+        video: Some(clip.clone()),
+        out: Some(out),
+        style: gs_stylize::StyleSettings {
+            style_prompt: Some("a red fire".into()),
+            ..base_vegas::stylize::VideoStylizeConfig::default().style
+        },
+        ..base_vegas::stylize::VideoStylizeConfig::default()
+    };
+    let files = gs_stylize::evaluation::ClipFiles {
+        config: Some(models.clip_config.clone()),
+        weights: Some(models.clip_weights.clone()),
+        tokenizer: Some(models.tokenizer.clone()),
+    };
+    let scored = base_vegas::evaluation::evaluate_run(&config, files).unwrap();
+    assert_eq!(serde_json::to_value(scored).unwrap(), m);
     // Fewer stylized frames than the video's: refused.
     let short = dir.path().join("short");
     std::fs::create_dir(&short).unwrap();

@@ -1,6 +1,7 @@
 //! Writes a small batch to try `clipgaussian batch` on any machine in seconds (what
 //! `scripts/slurm_smoke.sh` submits): 2 generated pictures x 2 styles (a prompt and a picture),
-//! 8 steps each (or `steps`), with the tiny CLIP and VGG-19 of the tests, on the cpu.
+//! 8 steps each (or `steps`), with the tiny CLIP and VGG-19 of the tests, on the cpu; each job
+//! scored with the tiny CLIP once stylized.
 //!
 //! Run: `cargo run -p clipgaussian --example tiny_batch -- <folder> [steps]`; it prints the
 //! manifest's path.
@@ -32,7 +33,11 @@ pub fn write(dir: &Path, steps: u64) -> Result<PathBuf, Box<dyn std::error::Erro
             "patch_size": 16, "num_patches": 2
         },
         "inputs": [{"picture": "cat.png"}, {"picture": "dog.png"}],
-        "styles": [{"style_prompt": "fire"}, {"style_image": "starry.png"}]
+        "styles": [{"style_prompt": "fire"}, {"style_image": "starry.png"}],
+        "eval": {
+            "clip_config": models.clip_config, "clip_weights": models.clip_weights,
+            "tokenizer": models.tokenizer
+        }
     });
     let path = dir.join("manifest.json");
     std::fs::write(&path, serde_json::to_string_pretty(&manifest)?)?;

@@ -221,7 +221,7 @@ fn batch_command(mut command: BatchCommand) -> u8 {
             let done = plan
                 .jobs
                 .iter()
-                .filter(|j| batch::job::is_done(&out, j))
+                .filter(|j| batch::job::is_done(&out, &plan, j))
                 .count();
             format!(
                 "planned {} jobs ({} inputs x {} styles, {done} already done) in {}",

@@ -1,10 +1,13 @@
 //! `clipgaussian batch` end to end on 2 pictures x 2 styles with the tiny models: plan, run two
 //! at once, an interrupted job finished by running the batch again (with the results of an
-//! uninterrupted run), status and collect agreeing with the folders, the scheduler files, and a
+//! uninterrupted run), each job's metrics those of the 2D eval and scored again (not stylized
+//! again) when lost, status and collect agreeing with the folders, the scheduler files, and a
 //! bad manifest refused at plan naming its entry and field.
 
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
+
+use gs_stylize::evaluation::{ClipFiles, Scoring, Style};
 
 // The example that writes the tiny batch; its `main` is the example's own.
 #[allow(dead_code)]
@@ -168,9 +171,58 @@ fn a_batch_plans_runs_resumes_and_collects() {
         assert_eq!(row["steps"], 30);
         assert!(row["final_loss"].as_f64().unwrap().is_finite(), "{row}");
         assert!(row["preview"].as_str().unwrap().ends_with("preview.png"));
+        // The metrics are the 2D eval's of the stylized picture against its input.
+        let job = &planned["jobs"][i];
+        let style = match job["config"]["style_image"].as_str() {
+            Some(image) => Style::Image(image.into()),
+            None => Style::Prompt(job["config"]["style_prompt"].as_str().unwrap().into()),
+        };
+        let models = &job["config"];
+        let path = |key: &str| Some(PathBuf::from(models[key].as_str().unwrap()));
+        let scoring = Scoring {
+            style,
+            source_prompt: models["source_prompt"].as_str().unwrap().into(),
+            clip: ClipFiles {
+                config: path("clip_config"),
+                weights: path("clip_weights"),
+                tokenizer: path("tokenizer"),
+            },
+        };
+        let expected = base_mirage::evaluation::evaluate_picture(
+            &batch.join(ids[i]).join("stylized.png"),
+            &dir.path().join(job["input_label"].as_str().unwrap()),
+            [0.0; 3],
+            &scoring,
+        )
+        .unwrap();
+        assert_eq!(row["metrics"], serde_json::to_value(&expected).unwrap());
+        assert_eq!(row["metrics"]["views"], 1);
+        assert!(row["metrics"]["clip_s"].as_f64().unwrap().is_finite());
     }
+    // Metrics lost: the job is left, and running it scores it again without stylizing again.
+    let model = job3.join("model.ply");
+    let modified = std::fs::metadata(&model).unwrap().modified().unwrap();
+    let metrics = std::fs::read(job3.join("metrics.json")).unwrap();
+    std::fs::remove_file(job3.join("metrics.json")).unwrap();
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(report.contains("4 jobs: 3 done, 0 running, 0 failed, 0 stopped, 1 left"));
+    let line = succeeds(&["batch", "run", s(&batch), "--index", "3", "--quiet"]);
+    assert!(line.contains("stylized; scoring"), "{line}");
+    assert_eq!(std::fs::read(job3.join("metrics.json")).unwrap(), metrics);
+    assert_eq!(
+        std::fs::metadata(&model).unwrap().modified().unwrap(),
+        modified,
+        "not stylized again"
+    );
     let csv = std::fs::read_to_string(batch.join("results.csv")).unwrap();
     assert_eq!(csv.lines().count(), 5, "{csv}");
+    assert!(
+        csv.lines()
+            .next()
+            .unwrap()
+            .contains(",views,clip_s,clip_sim,clip_cons,clip_f,"),
+        "{csv}"
+    );
     assert!(
         csv.lines().nth(2).unwrap().contains("\"starry.png\",done"),
         "{csv}"
@@ -311,7 +363,7 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
     let good: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let batch = dir.path().join("batch");
-    let cases: [(&str, serde_json::Value, &str); 6] = [
+    let cases: [(&str, serde_json::Value, &str); 8] = [
         (
             "/inputs/1/picture",
             "missing.png".into(),
@@ -326,6 +378,16 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
         ),
         ("/set/out", "elsewhere".into(), "set.out: the batch chooses"),
         ("/pairing", "pairs".into(), "as many of each"),
+        (
+            "/eval/clip_weights",
+            "missing.safetensors".into(),
+            "eval.clip_weights: ",
+        ),
+        (
+            "/eval/clip_model",
+            "L/14".into(),
+            "unknown field `clip_model`",
+        ),
     ];
     for (pointer, value, expected) in cases {
         let mut bad = good.clone();

@@ -17,7 +17,7 @@ use gs_wgpu::backend::DeviceChoice;
 use serde_json::Value;
 
 use crate::error::causes;
-use crate::evaluation::{ClipFiles, Style};
+use crate::evaluation::{ClipFiles, Scoring, Style};
 use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use crate::model_kind::{check_model, Binary};
 use crate::writable::check_output_file;
@@ -186,6 +186,15 @@ impl EvalStyleArgs {
             config: self.clip_config.clone(),
             weights: self.clip_weights.clone(),
             tokenizer: self.tokenizer.clone(),
+        }
+    }
+
+    /// The style, the source prompt and the CLIP files given.
+    pub fn scoring(&self) -> Scoring {
+        Scoring {
+            style: self.style(),
+            source_prompt: self.source_prompt.clone(),
+            clip: self.clip_files(),
         }
     }
 }

@@ -6,7 +6,9 @@
 use std::path::{Path, PathBuf};
 
 use candle_core::{Device, Tensor};
+use gs_core::Image;
 use serde::Serialize;
+use style_loss::image_layout::hwc_to_tensor;
 use style_loss::metrics::{evaluate, StyleReference};
 use style_loss::weight_resolution::{CLIP_TOKENIZER, CLIP_VIT_L_14_WEIGHTS};
 use style_loss::{ClipConfig, ClipModel, ClipTokenizer, StyleLossError};
@@ -14,6 +16,7 @@ use style_loss::{ClipConfig, ClipModel, ClipTokenizer, StyleLossError};
 use crate::config::check_prompt;
 use crate::picture::load_picture;
 use crate::weights::{resolve_all, MissingWeights, WeightRequest};
+use crate::StyleSettings;
 
 /// Why an evaluation could not run.
 #[derive(Debug, thiserror::Error)]
@@ -109,6 +112,10 @@ impl From<StyleLossError> for EvalError {
     }
 }
 
+/// The scores' file of an evaluation: `eval`'s default `--out`, and what a batch job that is
+/// asked for metrics writes into its folder.
+pub const METRICS_JSON: &str = "metrics.json";
+
 /// The style the renders are scored against.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Style {
@@ -116,6 +123,39 @@ pub enum Style {
     Prompt(String),
     /// A picture.
     Image(PathBuf),
+}
+
+impl Style {
+    /// The style a run was given (its picture when it has one, else its prompt).
+    pub fn of_run(settings: &StyleSettings) -> Self {
+        match (&settings.style_image, &settings.style_prompt) {
+            (Some(image), _) => Self::Image(image.clone()),
+            (None, prompt) => Self::Prompt(prompt.clone().unwrap_or_default()),
+        }
+    }
+}
+
+/// What renders are scored with: the style, the neutral prompt of CLIP-SIM and CLIP's files.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Scoring {
+    /// The style.
+    pub style: Style,
+    /// The neutral prompt of CLIP-SIM (a run's source prompt).
+    pub source_prompt: String,
+    /// CLIP's files (ViT-L/14, the paper's evaluation model, where `None`).
+    pub clip: ClipFiles,
+}
+
+impl Scoring {
+    /// The scoring of a run's output: its style and source prompt, with the CLIP of `clip`
+    /// (not the run's own CLIP, which guided the stylization).
+    pub fn of_run(settings: &StyleSettings, clip: ClipFiles) -> Self {
+        Self {
+            style: Style::of_run(settings),
+            source_prompt: settings.source_prompt.clone(),
+            clip,
+        }
+    }
 }
 
 /// The CLIP model files; `None` resolves the ViT-L/14 defaults (see
@@ -354,6 +394,39 @@ pub fn score(
         clip_cons: scores.cons,
         clip_f: scores.f,
     })
+}
+
+/// Scores `renders` against `truths` (paired by index, consecutive entries consecutive views;
+/// `labels` names each pair's files in errors) after the cheap checks: the prompts, then the
+/// sizes, then CLIP's files. A style picture is composited over `background`.
+pub fn score_images(
+    renders: &[Image],
+    truths: &[Image],
+    labels: &[(String, String)],
+    scoring: &Scoring,
+    background: [f32; 3],
+) -> Result<Metrics, EvalError> {
+    check_prompts(&scoring.style, &scoring.source_prompt)?;
+    let tensors = |images: &[Image]| -> Result<Vec<Tensor>, EvalError> {
+        images
+            .iter()
+            .map(|f| {
+                let (h, w) = (f.height as usize, f.width as usize);
+                hwc_to_tensor(&f.data, h, w, &Device::Cpu).map_err(EvalError::from)
+            })
+            .collect()
+    };
+    let (rendered, truths) = (tensors(renders)?, tensors(truths)?);
+    check_sizes(labels, &rendered, &truths)?;
+    let clip = resolve_clip(&scoring.clip)?;
+    score(
+        &clip,
+        &rendered,
+        &truths,
+        &scoring.style,
+        &scoring.source_prompt,
+        background,
+    )
 }
 
 /// Writes `metrics` as pretty JSON to `path` ([`gs_core::fs::write_atomic`]).

@@ -12,6 +12,7 @@ use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use base_dmiso::evaluation::evaluate_test_views;
 use base_dmiso::fit::{self, mean_psnr, render_views, FitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
@@ -23,14 +24,12 @@ use candle_core::Device;
 use clap::{Args, Parser, Subcommand};
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
-use gs_core::Image;
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
 use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_names, check_prompts, check_sizes, resolve_clip, score};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
@@ -39,7 +38,6 @@ use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
 use style_loss::compute_device;
-use style_loss::image_layout::hwc_to_tensor;
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -505,70 +503,17 @@ fn export(args: &DynamicExportArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// The pictures `00000.png ...` of `dir`, which must hold `count` pictures (those of the test
-/// split `reference`).
-fn read_renders(dir: &Path, count: usize, reference: &str) -> Result<Vec<Image>, Box<dyn Error>> {
-    let names = (0..count).map(|i| format!("{i:05}.png")).collect();
-    check_names(dir, &names, reference)?;
-    (0..count)
-        .map(|i| {
-            let path = dir.join(format!("{i:05}.png"));
-            Ok(Image::load(&path, [0.0; 3])?)
-        })
-        .collect()
-}
-
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
-    let style = args.style.style();
-    check_prompts(&style, &args.style.source_prompt)?;
-    let bg = Background::from_rgb(args.background);
-    let options = LoadOptions {
-        background: bg,
-        downscale: 1,
-        max_width: args.max_width,
-        ..LoadOptions::default()
-    };
-    let test = load_with_times(&args.data, Split::Test, &options)?;
-    let reference = format!("the test split of {}", args.data.display());
-    let renders = read_renders(&args.renders, test.views.len(), &reference)?;
-    // Consecutive pairs in time order.
-    let mut order: Vec<usize> = (0..test.views.len()).collect();
-    order.sort_by(|&a, &b| test.views[a].time.total_cmp(&test.views[b].time));
-    let tensors = |images: &[Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
-        order
-            .iter()
-            .map(|&i| {
-                let f = &images[i];
-                let (h, w) = (f.height as usize, f.width as usize);
-                Ok(hwc_to_tensor(&f.data, h, w, &Device::Cpu)?)
-            })
-            .collect()
-    };
-    let (rendered, truths) = (tensors(&renders)?, tensors(&test.images)?);
-    let labels: Vec<(String, String)> = order
-        .iter()
-        .map(|&i| {
-            (
-                args.renders
-                    .join(format!("{i:05}.png"))
-                    .display()
-                    .to_string(),
-                test.image_paths[i].display().to_string(),
-            )
-        })
-        .collect();
-    check_sizes(&labels, &rendered, &truths)?;
-    let clip = resolve_clip(&args.style.clip_files())?;
-    let metrics = score(
-        &clip,
-        &rendered,
-        &truths,
-        &style,
-        &args.style.source_prompt,
-        bg.rgb(),
-    )?;
+    let metrics = evaluate_test_views(
+        &args.renders,
+        &args.data,
+        Background::from_rgb(args.background),
+        args.max_width,
+        &args.style.scoring(),
+    )
+    .map_err(|e| e as Box<dyn Error>)?;
     println!("{}", serde_json::to_string_pretty(&metrics)?);
     write_json(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());

@@ -13,6 +13,7 @@ use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
+use base_mirage::evaluation::evaluate_picture;
 use base_mirage::fit::{
     fit_logged, render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG,
 };
@@ -29,7 +30,7 @@ use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_prompts, check_sizes, resolve_clip, score, write_metrics};
+use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
@@ -249,29 +250,11 @@ struct EvalArgs {
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
-    let style = args.style.style();
-    check_prompts(&style, &args.style.source_prompt)?;
-    let load = |path: &Path| {
-        gs_stylize::picture::load_picture(
-            path,
-            args.background,
-            &style_loss::candle_core::Device::Cpu,
-        )
-    };
-    let (rendered, truth) = ([load(&args.renders)?], [load(&args.gt)?]);
-    let labels = [(
-        args.renders.display().to_string(),
-        args.gt.display().to_string(),
-    )];
-    check_sizes(&labels, &rendered, &truth)?;
-    let clip = resolve_clip(&args.style.clip_files())?;
-    let metrics = score(
-        &clip,
-        &rendered,
-        &truth,
-        &style,
-        &args.style.source_prompt,
+    let metrics = evaluate_picture(
+        &args.renders,
+        &args.gt,
         args.background,
+        &args.style.scoring(),
     )?;
     print!("{}", metrics.lines());
     write_metrics(&args.out, &metrics)?;

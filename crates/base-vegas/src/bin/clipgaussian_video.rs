@@ -11,12 +11,12 @@ use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use base_vegas::evaluation::evaluate_video;
 use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings, FrameRenderer};
 use base_vegas::folded::{interpolate, view_time};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
-use base_vegas::temporal::temporal_consistency;
-use base_vegas::video_input::{load_video, load_video_with_progress, DEFAULT_FOLDER_FPS};
+use base_vegas::video_input::{load_video_with_progress, DEFAULT_FOLDER_FPS};
 use clap::{Args, Parser, Subcommand};
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
@@ -29,7 +29,6 @@ use gs_stylize::cli::{
     exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
 };
 use gs_stylize::drive::{run_fit, FitCommand};
-use gs_stylize::evaluation::{check_count, check_prompts, check_sizes, resolve_clip, score};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
@@ -37,8 +36,6 @@ use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
-use serde::Serialize;
-use style_loss::image_layout::hwc_to_tensor;
 
 /// Command-line arguments.
 #[derive(Parser, Debug)]
@@ -459,66 +456,16 @@ fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// The scores `eval` prints and writes.
-#[derive(Serialize)]
-struct VideoMetrics {
-    #[serde(flatten)]
-    clip: gs_stylize::evaluation::Metrics,
-    #[serde(flatten)]
-    temporal: base_vegas::temporal::TemporalConsistency,
-}
-
 /// Runs `eval`.
 fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     check_output_file(&args.out)?;
-    let style = args.style.style();
-    check_prompts(&style, &args.style.source_prompt)?;
-    let renders = load_video(&args.renders, args.background, DEFAULT_FOLDER_FPS, 0)?;
-    // The frames at the renders' width when wider, as the run that made them shrank them.
-    let video = load_video(
+    let metrics = evaluate_video(
+        &args.renders,
         &args.video,
         args.background,
-        DEFAULT_FOLDER_FPS,
-        renders.size().0,
-    )?;
-    check_count(
-        &args.renders,
-        renders.frames.len(),
-        &args.video.display().to_string(),
-        video.frames.len(),
-    )?;
-    let tensors = |frames: &[gs_core::Image]| -> Result<Vec<candle_core::Tensor>, Box<dyn Error>> {
-        frames
-            .iter()
-            .map(|f| {
-                let (h, w) = (f.height as usize, f.width as usize);
-                Ok(hwc_to_tensor(&f.data, h, w, &candle_core::Device::Cpu)?)
-            })
-            .collect()
-    };
-    let (rendered, truths) = (tensors(&renders.frames)?, tensors(&video.frames)?);
-    let labels: Vec<(String, String)> = (0..rendered.len())
-        .map(|i| {
-            (
-                format!("{} frame {i}", args.renders.display()),
-                format!("{} frame {i}", args.video.display()),
-            )
-        })
-        .collect();
-    check_sizes(&labels, &rendered, &truths)?;
-    let temporal = temporal_consistency(&renders.frames, &video.frames);
-    let clip = resolve_clip(&args.style.clip_files())?;
-    let metrics = VideoMetrics {
-        clip: score(
-            &clip,
-            &rendered,
-            &truths,
-            &style,
-            &args.style.source_prompt,
-            [0.0; 3],
-        )?,
-        temporal,
-    };
+        &args.style.scoring(),
+    )
+    .map_err(|e| e as Box<dyn Error>)?;
     println!("{}", serde_json::to_string_pretty(&metrics)?);
     write_json(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());

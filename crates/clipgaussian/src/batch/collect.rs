@@ -1,13 +1,16 @@
 //! A batch's results gathered: `results.json` and `results.csv` (one row per job: id, input,
-//! style, status, wall time, steps, final losses, output folder) and `contact_sheet.png`
+//! style, status, wall time, steps, final losses, the metrics of its `metrics.json` when the
+//! manifest asked for them, output folder) and `contact_sheet.png`
 //! (every finished job's before/after preview under its label, one row per input, one column
 //! per style).
 
 use std::path::Path;
 
+use gs_stylize::evaluation::METRICS_JSON;
 use gs_stylize::outputs::{read_json, write_json, StepLosses, LOSSES_JSON, PREVIEW_PNG};
 use gs_stylize::plot::label_strip;
 use serde::Serialize;
+use serde_json::{Map, Value};
 
 use super::job::read_state;
 use super::plan::{self, Plan};
@@ -46,6 +49,9 @@ pub struct JobResult {
     pub final_loss: Option<f32>,
     /// Its final loss terms (weighted), by name.
     pub final_terms: std::collections::BTreeMap<String, f32>,
+    /// Its scores (`metrics.json`: the CLIP metrics, and a video's temporal consistency),
+    /// when the manifest asked for them and they are written.
+    pub metrics: Option<Map<String, Value>>,
     /// Its output folder.
     pub out: String,
     /// Its before/after picture, when written.
@@ -66,11 +72,12 @@ pub fn results(dir: &Path, plan: &Plan) -> Vec<JobResult> {
                 id: job.id.clone(),
                 input: job.input_label.clone(),
                 style: job.style_label.clone(),
-                status: job_status(dir, job).word().into(),
+                status: job_status(dir, plan, job).word().into(),
                 seconds: read_state(dir, job).and_then(|s| s.seconds),
                 steps: last.map(|l| l.step),
                 final_loss: last.map(|l| l.total),
                 final_terms: last.map(|l| l.terms.clone()).unwrap_or_default(),
+                metrics: read_json(&out.join(METRICS_JSON)).ok(),
                 out: out.display().to_string(),
                 preview: preview.is_file().then(|| preview.display().to_string()),
             }
@@ -88,7 +95,7 @@ pub fn collect(dir: &Path) -> Result<String, String> {
         gs_core::fs::write_atomic(&path, bytes).map_err(|e| format!("{}: {e}", path.display()))
     };
     write_json(&dir.join(RESULTS_JSON), &rows).map_err(|e| e.to_string())?;
-    write(RESULTS_CSV, csv(&rows).as_bytes())?;
+    write(RESULTS_CSV, csv(&rows, plan.eval.is_some()).as_bytes())?;
     let mut png = std::io::Cursor::new(Vec::new());
     contact_sheet(&plan, &rows)?
         .write_to(&mut png, image::ImageFormat::Png)
@@ -106,22 +113,45 @@ pub fn collect(dir: &Path) -> Result<String, String> {
 }
 
 /// The rows as CSV: a header, then one line per job; the terms are the loss terms every
-/// modality has.
-fn csv(rows: &[JobResult]) -> String {
+/// modality has; with `metrics`, a column for each score any job wrote (the CLIP metrics in
+/// the paper's order, then any other by name; empty where a job has none).
+fn csv(rows: &[JobResult], metrics: bool) -> String {
     const TERMS: [&str; 4] = ["directional", "patch", "content", "background"];
+    const CLIP_METRICS: [&str; 5] = ["views", "clip_s", "clip_sim", "clip_cons", "clip_f"];
     let quote = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
     let number = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let mut scores: Vec<&str> = Vec::new();
+    for name in rows
+        .iter()
+        .flat_map(|r| r.metrics.iter().flat_map(|m| m.keys()))
+    {
+        if metrics && !scores.contains(&name.as_str()) {
+            scores.push(name);
+        }
+    }
+    scores.sort_by_key(|s| {
+        let known = CLIP_METRICS.iter().position(|m| m == s);
+        (known.unwrap_or(CLIP_METRICS.len()), *s)
+    });
     let mut text = format!(
-        "index,id,input,style,status,seconds,steps,final_loss,{},out,preview\n",
-        TERMS.join(",")
+        "index,id,input,style,status,seconds,steps,final_loss,{},{}out,preview\n",
+        TERMS.join(","),
+        scores.iter().map(|s| format!("{s},")).collect::<String>()
     );
     for r in rows {
         let terms: Vec<String> = TERMS
             .iter()
             .map(|t| number(r.final_terms.get(*t).map(|&v| f64::from(v))))
             .collect();
+        let values: String = scores
+            .iter()
+            .map(|s| {
+                let value = r.metrics.as_ref().and_then(|m| m.get(*s));
+                format!("{},", number(value.and_then(Value::as_f64)))
+            })
+            .collect();
         text += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{}\n",
+            "{},{},{},{},{},{},{},{},{},{values}{},{}\n",
             r.index,
             r.id,
             quote(&r.input),

@@ -18,12 +18,13 @@ use std::time::{Duration, Instant};
 
 use gs_stylize::checkpoint::finished_step;
 use gs_stylize::error::causes;
+use gs_stylize::evaluation::METRICS_JSON;
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::outputs::{read_json, write_json};
 use gs_stylize::{RunOptions, StylizeError};
 use serde::{Deserialize, Serialize};
 
-use super::plan::{self, Job};
+use super::plan::{self, Job, Plan};
 
 /// Exit code of a job worth running again (sysexits' `EX_TEMPFAIL`).
 pub const EXIT_RETRY: u8 = 75;
@@ -62,17 +63,44 @@ pub fn read_state(dir: &Path, job: &Job) -> Option<JobState> {
     read_json(&state_path(dir, job)).ok()
 }
 
-/// Whether `job`'s output in `dir` is finished (its stylization wrote every output).
-pub fn is_done(dir: &Path, job: &Job) -> bool {
-    is_done_with(dir, job, read_state(dir, job).as_ref())
+/// Whether `job` of `plan` is finished in `dir`: its stylization wrote every output, and its
+/// metrics are written when the plan asks for them.
+pub fn is_done(dir: &Path, plan: &Plan, job: &Job) -> bool {
+    is_done_with(dir, plan, job, read_state(dir, job).as_ref())
 }
 
 /// [`is_done`] of `job` whose state file says `state` (already read).
-pub fn is_done_with(dir: &Path, job: &Job, state: Option<&JobState>) -> bool {
+pub fn is_done_with(dir: &Path, plan: &Plan, job: &Job, state: Option<&JobState>) -> bool {
+    is_stylized(dir, job, state)
+        && (plan.eval.is_none() || job.out(dir).join(METRICS_JSON).is_file())
+}
+
+/// Whether the stylization of `job`, whose state file says `state`, wrote every output in
+/// `dir` (its run finished, though its metrics may be left).
+fn is_stylized(dir: &Path, job: &Job, state: Option<&JobState>) -> bool {
     let out = job.out(dir);
     out.is_dir()
         && (state.is_some_and(|s| s.status == "done")
             || finished_step(&out).is_some_and(|step| step == job.steps()))
+}
+
+/// Writes the metrics of `job`, whose stylization is finished in `dir`, into its folder's
+/// `metrics.json` when `plan` asks for them and they are not there yet.
+fn score(dir: &Path, plan: &Plan, job: &Job) -> Result<(), Box<dyn Error>> {
+    let Some(eval) = &plan.eval else {
+        return Ok(());
+    };
+    let path = job.out(dir).join(METRICS_JSON);
+    if path.is_file() {
+        return Ok(());
+    }
+    println!("job {}: scoring with the CLIP metrics", job.index);
+    let metrics = plan
+        .modality
+        .evaluate(&job.config_in(dir), eval.clip_files())
+        .map_err(|e| e as Box<dyn Error>)?;
+    write_json(&path, &metrics)?;
+    Ok(())
 }
 
 /// This machine's name.
@@ -170,7 +198,7 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         "job {index} ({}: {} x {})",
         job.id, job.input_label, job.style_label
     );
-    if is_done(dir, job) {
+    if is_done(dir, &plan, job) {
         println!("{what} is done");
         return 0;
     }
@@ -196,9 +224,14 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         }
     }
     let resume = gs_stylize::checkpoint::checkpoint_dir(&out).is_dir();
+    let stylized = is_stylized(dir, job, read_state(dir, job).as_ref());
     println!(
-        "{what}: {} into {}",
-        if resume { "resuming" } else { "starting" },
+        "{what}: {} {}",
+        match (stylized, resume) {
+            (true, _) => "stylized; scoring",
+            (false, true) => "resuming into",
+            (false, false) => "starting into",
+        },
         out.display()
     );
     let mut state = JobState {
@@ -222,8 +255,12 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
                 progress,
                 stop,
             };
+            if stylized {
+                return Ok(());
+            }
             plan.modality.run(&job.config_in(dir), &options)
-        });
+        })
+        .and_then(|()| score(dir, &plan, job));
     let code = match &result {
         Ok(()) => 0,
         Err(e) => exit_code_of(e.as_ref()),
@@ -266,7 +303,11 @@ pub struct Parallel {
 /// running ones (which stop with a checkpoint), then waits for them.
 pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
     let plan = plan::read(dir)?;
-    let pending: Vec<&Job> = plan.jobs.iter().filter(|j| !is_done(dir, j)).collect();
+    let pending: Vec<&Job> = plan
+        .jobs
+        .iter()
+        .filter(|j| !is_done(dir, &plan, j))
+        .collect();
     println!(
         "{} of {} jobs to run, {} at once, {} threads each",
         pending.len(),

@@ -8,7 +8,8 @@
 //!   "set": {"steps": 80},
 //!   "inputs": [{"picture": "pictures/cat.png"}, {"picture": "pictures/dog.png"}],
 //!   "styles": [{"style_prompt": "fire"}, {"style_image": "styles/starry.png"}],
-//!   "pairing": "cross"
+//!   "pairing": "cross",
+//!   "eval": {}
 //! }
 //! ```
 //!
@@ -16,12 +17,14 @@
 //! them); relative paths are taken from the manifest's folder. `out` is the batch's (each job
 //! writes `<batch>/<id>/`). Every entry is checked when the batch is planned: an unknown field,
 //! a value of the wrong type, a missing file or a style that is neither a prompt nor a picture
-//! is refused naming the entry and the field.
+//! is refused naming the entry and the field. `eval`, when given, has every job score its
+//! output with the paper's CLIP metrics once it is stylized ([`EvalRequest`]).
 
 use std::path::{Path, PathBuf};
 
+use gs_stylize::evaluation::ClipFiles;
 use gs_stylize::Override;
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
 use super::modality::{Modality, PATH_FIELDS};
@@ -47,6 +50,57 @@ pub struct Manifest {
     /// How inputs and styles make jobs.
     #[serde(default)]
     pub pairing: Pairing,
+    /// Score every job's output with the paper's CLIP metrics (none: no scores).
+    #[serde(default)]
+    pub eval: Option<EvalRequest>,
+}
+
+/// The evaluation a manifest asks of every job: the paper's CLIP metrics of its output
+/// against its input (as the modality's `eval` computes them), written to the job's
+/// `metrics.json`, with these CLIP files; an absent one is ViT-L/14's, the paper's evaluation
+/// model, found as `eval` finds it. Relative paths are taken from the manifest's folder.
+#[derive(Clone, Debug, Default, PartialEq, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub struct EvalRequest {
+    /// CLIP's `config.json`.
+    #[serde(default)]
+    pub clip_config: Option<PathBuf>,
+    /// CLIP's weights, safetensors.
+    #[serde(default)]
+    pub clip_weights: Option<PathBuf>,
+    /// CLIP's `tokenizer.json`.
+    #[serde(default)]
+    pub tokenizer: Option<PathBuf>,
+}
+
+impl EvalRequest {
+    /// The request with its files taken from `folder` and made absolute; an error names the
+    /// field of a file that does not exist.
+    pub fn resolved(&self, folder: &Path) -> Result<Self, String> {
+        let file = |field: &str, path: &Option<PathBuf>| -> Result<Option<PathBuf>, String> {
+            let Some(path) = path else { return Ok(None) };
+            let path =
+                std::path::absolute(folder.join(path)).map_err(|e| format!("eval.{field}: {e}"))?;
+            if !path.is_file() {
+                return Err(format!("eval.{field}: {} does not exist", path.display()));
+            }
+            Ok(Some(path))
+        };
+        Ok(Self {
+            clip_config: file("clip_config", &self.clip_config)?,
+            clip_weights: file("clip_weights", &self.clip_weights)?,
+            tokenizer: file("tokenizer", &self.tokenizer)?,
+        })
+    }
+
+    /// The CLIP files of the evaluation.
+    pub fn clip_files(&self) -> ClipFiles {
+        ClipFiles {
+            config: self.clip_config.clone(),
+            weights: self.clip_weights.clone(),
+            tokenizer: self.tokenizer.clone(),
+        }
+    }
 }
 
 /// How a manifest's inputs and styles make jobs.

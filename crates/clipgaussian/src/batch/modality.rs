@@ -5,6 +5,7 @@ use std::error::Error;
 use std::path::Path;
 
 use gs_stylize::config::resolve_config;
+use gs_stylize::evaluation::ClipFiles;
 use gs_stylize::{Override, RunOptions, StylizeError};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -84,6 +85,27 @@ impl Modality {
             }
         }
         Ok(())
+    }
+
+    /// Scores the finished run of `config` with the paper's CLIP metrics and the CLIP of
+    /// `clip` (through the modality crate's `evaluation::evaluate_run`), as JSON.
+    pub fn evaluate(
+        self,
+        config: &Value,
+        clip: ClipFiles,
+    ) -> Result<Value, Box<dyn Error + Send + Sync>> {
+        fn json(metrics: impl Serialize) -> Value {
+            serde_json::to_value(metrics).expect("metrics serialize")
+        }
+        Ok(match self {
+            Self::Picture => json(base_mirage::evaluation::evaluate_run(
+                &parse(config)?,
+                clip,
+            )?),
+            Self::Video => json(base_vegas::evaluation::evaluate_run(&parse(config)?, clip)?),
+            Self::Scene => json(base_3dgs::evaluation::evaluate_run(&parse(config)?, clip)?),
+            Self::Dynamic => json(base_dmiso::evaluation::evaluate_run(&parse(config)?, clip)?),
+        })
     }
 }
 

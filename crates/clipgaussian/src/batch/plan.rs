@@ -13,7 +13,7 @@ use serde::{Deserialize, Serialize};
 use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
-use super::manifest::{self, label};
+use super::manifest::{self, label, EvalRequest};
 use super::modality::{Modality, PATH_FIELDS};
 
 /// The plan's file in the batch folder.
@@ -32,6 +32,10 @@ pub struct Plan {
     pub styles: usize,
     /// The jobs, by index.
     pub jobs: Vec<Job>,
+    /// The evaluation every job makes once stylized, when the manifest asks for one (its files
+    /// absolute).
+    #[serde(default)]
+    pub eval: Option<EvalRequest>,
 }
 
 /// One planned job.
@@ -113,12 +117,19 @@ pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
             config: c.config,
         });
     }
+    let eval = manifest
+        .eval
+        .as_ref()
+        .map(|e| e.resolved(folder))
+        .transpose()
+        .map_err(|e| format!("manifest {}: {e}", manifest_path.display()))?;
     let plan = Plan {
         manifest: manifest_path.clone(),
         modality: manifest.modality,
         inputs: manifest.inputs.len(),
         styles: manifest.styles.len(),
         jobs,
+        eval,
     };
     std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     write_json(&dir.join(JOBS_JSON), &plan).map_err(|e| e.to_string())?;

@@ -6,7 +6,7 @@
 use std::path::Path;
 
 use super::job::{host, is_done_with, read_state};
-use super::plan::{self, Job};
+use super::plan::{self, Job, Plan};
 
 /// Where one job stands.
 #[derive(Clone, Debug, PartialEq)]
@@ -46,10 +46,11 @@ impl JobStatus {
     }
 }
 
-/// Where `job` of the batch in `dir` stands.
-pub fn job_status(dir: &Path, job: &Job) -> JobStatus {
+/// Where `job` of `plan`, the batch in `dir`, stands (a stylized job whose metrics are left
+/// is left).
+pub fn job_status(dir: &Path, plan: &Plan, job: &Job) -> JobStatus {
     let state = read_state(dir, job);
-    if is_done_with(dir, job, state.as_ref()) {
+    if is_done_with(dir, plan, job, state.as_ref()) {
         return JobStatus::Done;
     }
     match state {
@@ -80,11 +81,8 @@ pub fn statuses(dir: &Path) -> Result<Vec<(Job, JobStatus)>, String> {
     let plan = plan::read(dir)?;
     Ok(plan
         .jobs
-        .into_iter()
-        .map(|job| {
-            let status = job_status(dir, &job);
-            (job, status)
-        })
+        .iter()
+        .map(|job| (job.clone(), job_status(dir, &plan, job)))
         .collect())
 }
 
