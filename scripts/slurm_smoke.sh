@@ -89,6 +89,11 @@ done_rows=$(tail -n +2 "$batch/results.csv" | grep -c ',done,' || true)
 echo "results.csv: $done_rows of 4 jobs done"
 ls "$batch/logs"
 [ "$done_rows" -eq 4 ]
+# Each job scored itself (the tiny batch asks for the CLIP metrics): a metrics.json each.
+scored=$(ls "$batch"/*/metrics.json | wc -l)
+echo "metrics: $scored of 4 jobs scored"
+[ "$scored" -eq 4 ]
+head -1 "$batch/results.csv" | grep -q ',clip_s,'
 
 # Stops: a longer batch whose running tasks are signalled once a checkpoint is written, as
 # Slurm signals them: USR1 to the script alone (`--signal=B:USR1@120`, the warning before a
