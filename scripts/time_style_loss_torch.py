@@ -7,8 +7,10 @@ How to run (PyPI only): pip install torch torchvision transformers, then
 It mirrors `cargo run -p style-loss --release --example style_loss_timing`: ViT-B/32-sized CLIP
 vision tower, VGG-19 up to conv5_2, one 800x800 render, 64 patches of 128. The device defaults to
 the cpu and CLIP's precision to f32; `cuda f16` is the authors' setting (CLIP in fp16 on the GPU).
+STYLE_LOSS_SIZE and STYLE_LOSS_PATCHES set the render's side and the patches (as for the example).
 """
 
+import os
 import sys
 import time
 
@@ -21,6 +23,8 @@ from transformers import CLIPVisionConfig, CLIPVisionModelWithProjection
 torch.set_num_threads(int(sys.argv[1]) if len(sys.argv) > 1 else torch.get_num_threads())
 REPEATS = int(sys.argv[2]) if len(sys.argv) > 2 else 1
 DEVICE = torch.device(sys.argv[3] if len(sys.argv) > 3 else "cpu")
+SIDE = int(os.environ.get("STYLE_LOSS_SIZE", "800"))
+PATCHES = int(os.environ.get("STYLE_LOSS_PATCHES", "64"))
 CLIP_DTYPE = {"f32": torch.float32, "f16": torch.float16}[sys.argv[4] if len(sys.argv) > 4 else "f32"]
 MEAN = torch.tensor([0.48145466, 0.4578275, 0.40821073], device=DEVICE).view(1, 3, 1, 1)
 STD = torch.tensor([0.26862954, 0.26130258, 0.27577711], device=DEVICE).view(1, 3, 1, 1)
@@ -52,7 +56,7 @@ def features(x):
 
 cropper = transforms.RandomCrop(128)
 augment = transforms.Compose([transforms.RandomPerspective(fill=0, p=1, distortion_scale=0.5), transforms.Resize(224)])
-gt = torch.rand(1, 3, 800, 800, device=DEVICE)
+gt = torch.rand(1, 3, SIDE, SIDE, device=DEVICE)
 gt[:, :, :100] = 1.0
 direction = F.normalize(torch.randn(1, 512, device=DEVICE), dim=-1)
 with torch.no_grad():
@@ -61,15 +65,15 @@ with torch.no_grad():
 
 
 def step(d, p, c, b):
-    render = torch.rand(1, 3, 800, 800, device=DEVICE, requires_grad=True)
+    render = torch.rand(1, 3, SIDE, SIDE, device=DEVICE, requires_grad=True)
     loss = 0
     if c:
         f = features(render)
         loss = loss + c * (((f[22] - gt_feat[22]) ** 2).mean() + ((f[31] - gt_feat[31]) ** 2).mean())
     if p:
-        crops = torch.cat([augment(cropper(render)) for _ in range(64)])
+        crops = torch.cat([augment(cropper(render)) for _ in range(PATCHES)])
         dirs = F.normalize(encode(crops) - gt_embed, dim=-1)
-        loss = loss + p * (1 - torch.cosine_similarity(dirs, direction.repeat(64, 1), dim=1)).mean()
+        loss = loss + p * (1 - torch.cosine_similarity(dirs, direction.repeat(PATCHES, 1), dim=1)).mean()
     if b:
         mask = gt[0].sum(0) == 3.0
         loss = loss + b * (render - gt).abs().mean(dim=1)[0][mask].mean()

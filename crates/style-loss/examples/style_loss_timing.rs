@@ -6,7 +6,8 @@
 //! `<term>` (directional, patch, content, background, all) times that one only (the dev profile
 //! builds candle at opt-level 3, where the time is spent; `--release` also works). Add
 //! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU,
-//! and `STYLE_LOSS_PRECISION=f16|bf16` for CLIP in half precision.
+//! and `STYLE_LOSS_PRECISION=f16|bf16` for CLIP in half precision. `STYLE_LOSS_SIZE=384` and
+//! `STYLE_LOSS_PATCHES=8` time other sizes (the main job's: `configs/2d-preview.json`).
 
 use std::time::Instant;
 
@@ -33,7 +34,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let repeats: usize = std::env::args().nth(1).map_or(Ok(1), |s| s.parse())?;
     let only_term = std::env::args().nth(2);
     let device = device()?;
-    let (height, width) = (800, 800);
+    let side: usize = std::env::var("STYLE_LOSS_SIZE").map_or(Ok(800), |s| s.parse())?;
+    let patches: usize = std::env::var("STYLE_LOSS_PATCHES").map_or(Ok(64), |s| s.parse())?;
+    let (height, width) = (side, side);
     let start = Instant::now();
     let precision: ClipPrecision = std::env::var("STYLE_LOSS_PRECISION")
         .as_deref()
@@ -74,15 +77,18 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "directional (1 CLIP pass)",
             only(paper.directional, 0.0, 0.0, 0.0),
         ),
-        ("patch (64 CLIP passes)", only(0.0, paper.patch, 0.0, 0.0)),
         (
-            "content (VGG-19 800x800)",
+            &format!("patch ({patches} CLIP passes)"),
+            only(0.0, paper.patch, 0.0, 0.0),
+        ),
+        (
+            &format!("content (VGG-19 {side}x{side})"),
             only(0.0, 0.0, paper.content, 0.0),
         ),
         ("background", only(0.0, 0.0, 0.0, paper.background)),
         ("all four terms", paper),
     ];
-    println!("device: {device:?}, CLIP {precision}, image {height}x{width}, 64 patches of 128, repeats {repeats}");
+    println!("device: {device:?}, CLIP {precision}, image {height}x{width}, {patches} patches of 128, repeats {repeats}");
     println!("| term | cache_view (s) | loss + gradient (s) |");
     println!("|---|---|---|");
     for (name, weights) in configurations {
@@ -97,7 +103,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             Some(vgg.clone()),
             direction.clone(),
             weights,
-            PatchSettings::default(),
+            PatchSettings {
+                num_patches: patches,
+                ..PatchSettings::default()
+            },
         )?;
         let start = Instant::now();
         let cache = loss.cache_view(&gt, Some(&mask))?;
