@@ -6,9 +6,9 @@
 //! test views.
 
 use std::error::Error;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use candle_core::{Device, Tensor};
+use candle_core::Device;
 use gs_core::splats::read_splats;
 use gs_stylize::evaluation::{
     check_prompts, check_sizes, picture_names, resolve_clip, score, score_images, Scoring,
@@ -84,14 +84,23 @@ pub fn evaluate_folders(
 ) -> Result<Metrics, EvalError> {
     check_prompts(style, source_prompt)?;
     let names = matching_names(renders, ground_truths)?;
-    let load_all = |dir: &Path| -> Result<Vec<Tensor>, EvalError> {
+    // The sizes from the files' headers; the pictures are read a few at a time as they are
+    // scored.
+    let sizes = |dir: &Path| -> Result<Vec<(usize, usize)>, EvalError> {
         names
             .iter()
-            .map(|n| load_picture(&dir.join(n), background, &Device::Cpu).map_err(EvalError::from))
+            .map(|n| {
+                let path = dir.join(n);
+                let (w, h) = image::image_dimensions(&path).map_err(|e| {
+                    EvalError::Image(gs_core::GsError::Image {
+                        path: path.clone(),
+                        source: Box::new(e),
+                    })
+                })?;
+                Ok((w as usize, h as usize))
+            })
             .collect()
     };
-    let rendered = load_all(renders)?;
-    let truths = load_all(ground_truths)?;
     let labels: Vec<(String, String)> = names
         .iter()
         .map(|n| {
@@ -101,9 +110,20 @@ pub fn evaluate_folders(
             )
         })
         .collect();
-    check_sizes(&labels, &rendered, &truths)?;
+    check_sizes(&labels, &sizes(renders)?, &sizes(ground_truths)?)?;
     let clip = resolve_clip(clip_files)?;
-    score(&clip, &rendered, &truths, style, source_prompt, background)
+    let load = |path: PathBuf| load_picture(&path, background, &Device::Cpu);
+    score(
+        &clip,
+        names.len(),
+        |i| {
+            let name = &names[i];
+            Ok((load(renders.join(name))?, load(ground_truths.join(name))?))
+        },
+        style,
+        source_prompt,
+        background,
+    )
 }
 
 /// Scores the finished run of `config`: its `stylized.ply` rendered (on the run's device,

@@ -9,7 +9,7 @@ use candle_core::{Device, Tensor};
 use gs_core::Image;
 use serde::Serialize;
 use style_loss::image_layout::hwc_to_tensor;
-use style_loss::metrics::{evaluate, StyleReference};
+use style_loss::metrics::{evaluate_pairs, StyleReference};
 use style_loss::weight_resolution::{CLIP_TOKENIZER, CLIP_VIT_L_14_WEIGHTS};
 use style_loss::{ClipConfig, ClipModel, ClipTokenizer, StyleLossError};
 
@@ -287,25 +287,21 @@ pub fn check_names(
     })
 }
 
-/// Refuses a render (`[1, 3, h, w]`, named `labels.0` in errors) whose size is not its ground
-/// truth's (named `labels.1`), pair by pair; CLIP would otherwise resize both and score
-/// pictures of different framing without a word.
+/// Refuses a render (its `(width, height)` in `rendered`, named `labels.0` in errors) whose size
+/// is not its ground truth's (in `truths`, named `labels.1`), pair by pair; CLIP would
+/// otherwise resize both and score pictures of different framing without a word.
 pub fn check_sizes(
     labels: &[(String, String)],
-    rendered: &[Tensor],
-    truths: &[Tensor],
+    rendered: &[(usize, usize)],
+    truths: &[(usize, usize)],
 ) -> Result<(), EvalError> {
-    let size = |t: &Tensor| {
-        let dims = t.dims();
-        (dims[dims.len() - 1], dims[dims.len() - 2])
-    };
-    for ((render, truth), (r, t)) in labels.iter().zip(rendered.iter().zip(truths)) {
-        if size(r) != size(t) {
+    for ((render, truth), (&r, &t)) in labels.iter().zip(rendered.iter().zip(truths)) {
+        if r != t {
             return Err(EvalError::Size {
                 render: render.clone(),
-                render_size: size(r),
+                render_size: r,
                 truth: truth.clone(),
-                truth_size: size(t),
+                truth_size: t,
             });
         }
     }
@@ -357,13 +353,14 @@ pub fn resolve_clip(clip_files: &ClipFiles) -> Result<ResolvedClip, EvalError> {
     })
 }
 
-/// Scores `rendered` against `truths` (`[1, 3, h, w]` pictures paired by index, in view
-/// order) for `style` (a style picture is composited over `background`) and the neutral prompt
-/// `source_prompt`, with the CLIP of `clip`.
+/// Scores `count` pairs (`[1, 3, h, w]` pictures: a render and its ground truth, in view order)
+/// that `pair` gives by index, asked for in order a few at a time so that only their CLIP
+/// embeddings are held, for `style` (a style picture is composited over `background`) and the
+/// neutral prompt `source_prompt`, with the CLIP of `clip`.
 pub fn score(
     clip: &ResolvedClip,
-    rendered: &[Tensor],
-    truths: &[Tensor],
+    count: usize,
+    pair: impl FnMut(usize) -> Result<(Tensor, Tensor), EvalError>,
     style: &Style,
     source_prompt: &str,
     background: [f32; 3],
@@ -379,16 +376,9 @@ pub fn score(
     };
     let tokenizer = ClipTokenizer::from_file(&clip.tokenizer)?;
     let model = ClipModel::load(&clip.config, &clip.weights, &Device::Cpu)?;
-    let scores = evaluate(
-        &model,
-        &tokenizer,
-        reference,
-        source_prompt,
-        rendered,
-        truths,
-    )?;
+    let scores = evaluate_pairs(&model, &tokenizer, reference, source_prompt, count, pair)?;
     Ok(Metrics {
-        views: rendered.len(),
+        views: count,
         clip_s: scores.s,
         clip_sim: scores.sim,
         clip_cons: scores.cons,
@@ -407,22 +397,28 @@ pub fn score_images(
     background: [f32; 3],
 ) -> Result<Metrics, EvalError> {
     check_prompts(&scoring.style, &scoring.source_prompt)?;
-    let tensors = |images: &[Image]| -> Result<Vec<Tensor>, EvalError> {
-        images
-            .iter()
-            .map(|f| {
-                let (h, w) = (f.height as usize, f.width as usize);
-                hwc_to_tensor(&f.data, h, w, &Device::Cpu).map_err(EvalError::from)
-            })
-            .collect()
-    };
-    let (rendered, truths) = (tensors(renders)?, tensors(truths)?);
-    check_sizes(labels, &rendered, &truths)?;
+    if renders.len() != truths.len() {
+        return Err(StyleLossError::Input {
+            name: "ground truths".into(),
+            reason: format!("{} for {} renders", truths.len(), renders.len()),
+        }
+        .into());
+    }
+    let size = |f: &Image| (f.width as usize, f.height as usize);
+    check_sizes(
+        labels,
+        &renders.iter().map(size).collect::<Vec<_>>(),
+        &truths.iter().map(size).collect::<Vec<_>>(),
+    )?;
     let clip = resolve_clip(&scoring.clip)?;
+    let tensor = |f: &Image| {
+        let (h, w) = (f.height as usize, f.width as usize);
+        hwc_to_tensor(&f.data, h, w, &Device::Cpu).map_err(EvalError::from)
+    };
     score(
         &clip,
-        &rendered,
-        &truths,
+        renders.len(),
+        |i| Ok((tensor(&renders[i])?, tensor(&truths[i])?)),
         &scoring.style,
         &scoring.source_prompt,
         background,

@@ -203,19 +203,56 @@ pub fn evaluate(
             ),
         });
     }
+    evaluate_pairs(clip, tokenizer, style, source_prompt, renders.len(), |i| {
+        Ok::<_, StyleLossError>((renders[i].clone(), ground_truths[i].clone()))
+    })
+}
+
+/// [`evaluate`] of `count` pairs (`count >= 1`) that `pair` gives by index, a render and its
+/// ground truth (as [`image_embeddings`] takes them), asked for in order and 16 at a time: only
+/// their embeddings are kept, so the pictures of a large evaluation need not all be in memory. The scores are those of [`evaluate`] on the same
+/// pictures.
+pub fn evaluate_pairs<E: From<StyleLossError>>(
+    clip: &ClipModel,
+    tokenizer: &ClipTokenizer,
+    style: StyleReference<'_>,
+    source_prompt: &str,
+    count: usize,
+    mut pair: impl FnMut(usize) -> std::result::Result<(Tensor, Tensor), E>,
+) -> std::result::Result<ClipScores, E> {
     let style = match style {
         StyleReference::Prompt(prompt) => prompt_embedding(clip, tokenizer, prompt)?,
-        StyleReference::Image(image) => {
-            image_embeddings(clip, std::slice::from_ref(image))?.squeeze(0)?
-        }
+        StyleReference::Image(image) => image_embeddings(clip, std::slice::from_ref(image))?
+            .squeeze(0)
+            .map_err(StyleLossError::from)?,
     };
     let neutral = prompt_embedding(clip, tokenizer, source_prompt)?;
-    ClipScores::from_embeddings(
-        &image_embeddings(clip, renders)?,
-        &image_embeddings(clip, ground_truths)?,
+    let (mut renders, mut truths) = (Vec::new(), Vec::new());
+    for first in (0..count).step_by(EMBEDDING_BATCH) {
+        let (chunk_renders, chunk_truths): (Vec<Tensor>, Vec<Tensor>) = (first
+            ..(first + EMBEDDING_BATCH).min(count))
+            .map(&mut pair)
+            .collect::<std::result::Result<Vec<_>, E>>()?
+            .into_iter()
+            .unzip();
+        renders.push(image_embeddings(clip, &chunk_renders)?);
+        truths.push(image_embeddings(clip, &chunk_truths)?);
+    }
+    let cat = |parts: &[Tensor]| -> Result<Tensor> {
+        if parts.is_empty() {
+            return Err(StyleLossError::Input {
+                name: "images".into(),
+                reason: "no image to embed".into(),
+            });
+        }
+        Ok(Tensor::cat(parts, 0)?)
+    };
+    Ok(ClipScores::from_embeddings(
+        &cat(&renders)?,
+        &cat(&truths)?,
         &style,
         &neutral,
-    )
+    )?)
 }
 
 /// CLIP-S, x100: `100 mean_i cos(renders_i, style)` for `renders` `[n, dim]` (`n >= 1`) and

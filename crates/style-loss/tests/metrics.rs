@@ -7,8 +7,8 @@ use candle_core::{Device, Tensor};
 use common::fixture;
 use style_loss::clip::{ClipConfig, ClipModel};
 use style_loss::metrics::{
-    clip_cons, clip_f, clip_s, clip_sim, evaluate, evaluation_preprocess, image_embeddings,
-    ClipScores, StyleReference,
+    clip_cons, clip_f, clip_s, clip_sim, evaluate, evaluate_pairs, evaluation_preprocess,
+    image_embeddings, ClipScores, StyleReference,
 };
 use style_loss::{ClipTokenizer, NamedTensors, DEFAULT_SOURCE_PROMPT};
 
@@ -299,4 +299,63 @@ fn embeddings_do_not_depend_on_batching() {
         assert!(diff < 1e-5, "row {k}: {diff}");
     }
     assert!(image_embeddings(&clip, &[]).is_err());
+}
+
+#[test]
+fn pairs_given_one_by_one_score_as_the_whole_lists() {
+    // 19 pairs: two batches of the vision tower, the second short. The pairs are asked for in
+    // order, and the scores are those of the embeddings of the whole lists.
+    let clip = tiny_clip_with_vocabulary();
+    let tokenizer = ClipTokenizer::from_file(&fixture("tokenizer/tokenizer.json")).unwrap();
+    let renders: Vec<Tensor> = (0..19)
+        .map(|k| gradient_image(60 + k, 70, k as f32))
+        .collect();
+    let truths: Vec<Tensor> = (0..19)
+        .map(|k| gradient_image(70, 60 + k, 0.5 * k as f32))
+        .collect();
+    let mut asked = Vec::new();
+    let streamed = evaluate_pairs(
+        &clip,
+        &tokenizer,
+        StyleReference::Prompt("fire"),
+        DEFAULT_SOURCE_PROMPT,
+        renders.len(),
+        |i| {
+            asked.push(i);
+            Ok::<_, style_loss::StyleLossError>((renders[i].clone(), truths[i].clone()))
+        },
+    )
+    .unwrap();
+    assert_eq!(asked, (0..19).collect::<Vec<_>>());
+    let style = style_loss::style_direction::prompt_embedding(&clip, &tokenizer, "fire").unwrap();
+    let neutral =
+        style_loss::style_direction::prompt_embedding(&clip, &tokenizer, DEFAULT_SOURCE_PROMPT)
+            .unwrap();
+    let whole = ClipScores::from_embeddings(
+        &image_embeddings(&clip, &renders).unwrap(),
+        &image_embeddings(&clip, &truths).unwrap(),
+        &style,
+        &neutral,
+    )
+    .unwrap();
+    assert_eq!(streamed, whole);
+    // An error of a pair is the evaluation's.
+    let failed = evaluate_pairs(
+        &clip,
+        &tokenizer,
+        StyleReference::Prompt("fire"),
+        DEFAULT_SOURCE_PROMPT,
+        renders.len(),
+        |i| {
+            if i == 17 {
+                Err(style_loss::StyleLossError::Input {
+                    name: "pair".into(),
+                    reason: "unreadable".into(),
+                })
+            } else {
+                Ok((renders[i].clone(), truths[i].clone()))
+            }
+        },
+    );
+    assert!(failed.unwrap_err().to_string().contains("unreadable"));
 }
