@@ -322,7 +322,7 @@ fn pairs_given_one_by_one_score_as_the_whole_lists() {
         renders.len(),
         |i| {
             asked.push(i);
-            Ok::<_, style_loss::StyleLossError>((renders[i].clone(), truths[i].clone()))
+            Ok::<_, Box<style_loss::StyleLossError>>((renders[i].clone(), truths[i].clone()))
         },
     )
     .unwrap();
@@ -348,10 +348,10 @@ fn pairs_given_one_by_one_score_as_the_whole_lists() {
         renders.len(),
         |i| {
             if i == 17 {
-                Err(style_loss::StyleLossError::Input {
+                Err(Box::new(style_loss::StyleLossError::Input {
                     name: "pair".into(),
                     reason: "unreadable".into(),
-                })
+                }))
             } else {
                 Ok((renders[i].clone(), truths[i].clone()))
             }
