@@ -20,7 +20,7 @@ use gs_wgpu::backend::OpenDevice;
 use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Layout, LoadOptions};
 use crate::render_views::render_names;
-use crate::stylize::{StylizeConfig, STYLIZED_PLY};
+use crate::stylize::{StylizeConfig, StylizeError, STYLIZED_PLY};
 
 /// The folder of a finished run's output where [`evaluate_run`] writes its renders of the
 /// test views (named after their pictures, with `.png`).
@@ -90,13 +90,7 @@ pub fn evaluate_folders(
         names
             .iter()
             .map(|n| {
-                let path = dir.join(n);
-                let (w, h) = image::image_dimensions(&path).map_err(|e| {
-                    EvalError::Image(gs_core::GsError::Image {
-                        path: path.clone(),
-                        source: Box::new(e),
-                    })
-                })?;
+                let (w, h) = gs_core::image::picture_size(&dir.join(n))?;
                 Ok((w as usize, h as usize))
             })
             .collect()
@@ -128,17 +122,20 @@ pub fn evaluate_folders(
 
 /// Scores the finished run of `config`: its `stylized.ply` rendered (on the run's device,
 /// over its background) from the views a test would use, written into `out/test_views/` and
-/// scored as written (as `eval` would score that folder) against their pictures as the run loads them (its background, `resolution` and
-/// `max_width`), with the run's style and source prompt and the CLIP of `clip`. The views
-/// are a NeRF-synthetic scene's test split, or every picture of a COLMAP scene (which has no
-/// split; the run trains on all of them).
+/// scored as written (as `eval` would score that folder) against their pictures as the run
+/// loads them (its background, `resolution` and `max_width`), with the run's style and source
+/// prompt and the CLIP of `clip`. The views are a NeRF-synthetic scene's test split, or every
+/// picture of a COLMAP scene (which has no split; the run trains on all of them).
 pub fn evaluate_run(
     config: &StylizeConfig,
     clip: ClipFiles,
 ) -> Result<Metrics, Box<dyn Error + Send + Sync>> {
     let scoring = Scoring::of_run(&config.style, clip);
     check_prompts(&scoring.style, &scoring.source_prompt)?;
-    let (data, out) = (config.data_path(), config.out_path());
+    // CLIP's files found before the test views are loaded and rendered.
+    resolve_clip(&scoring.clip)?;
+    let data = config.data.as_deref().ok_or("the run has no data")?;
+    let out = config.out.as_deref().ok_or("the run has no out folder")?;
     let options = LoadOptions {
         background: Background::from_rgb(config.background),
         ground_truth: config.ground_truth,
@@ -152,8 +149,9 @@ pub fn evaluate_run(
         None => return Err(format!("dataset {}: {}", data.display(), Layout::LOOKED_FOR).into()),
     };
     let stylized = read_splats(&out.join(STYLIZED_PLY))?.gaussians;
-    let backend = config.style.device.open()?;
-    let renderer = backend.renderer(&stylized)?;
+    // A lost device is the run's kind of error (worth running again), not a bad input.
+    let backend = config.style.device.open().map_err(StylizeError::Device)?;
+    let renderer = backend.renderer(&stylized).map_err(StylizeError::Device)?;
     let dir = out.join(TEST_VIEWS_DIR);
     std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     let names = render_names(data, &test.image_paths)?;
@@ -162,7 +160,8 @@ pub fn evaluate_run(
     for ((view, name), picture) in test.views.iter().zip(&names).zip(&test.image_paths) {
         let path = dir.join(name);
         renderer
-            .render(&view.camera, test.background)?
+            .render(&view.camera, test.background)
+            .map_err(StylizeError::Device)?
             .save_png(&path)?;
         // Scored as written, 8-bit, as `eval` scores the folder.
         renders.push(gs_core::Image::load(&path, test.background)?);

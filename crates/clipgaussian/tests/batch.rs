@@ -500,3 +500,52 @@ fn the_sbatch_script_stops_its_job_with_a_checkpoint_and_requeues_it() {
     let calls = std::fs::read_to_string(&calls).unwrap();
     assert_eq!(calls, "requeue 7_0\nrequeue 7_1\n");
 }
+
+#[test]
+fn a_job_whose_scoring_failed_is_scored_again_without_stylizing_again() {
+    // No checkpoint to tell that the stylization finished (checkpoint_every 0), and CLIP weights
+    // for the scores that are found but do not load: the job stylizes, fails at scoring, and,
+    // the weights mended, only scores when run again.
+    let dir = tempfile::tempdir().unwrap();
+    let path = manifest(dir.path(), 4);
+    let mut m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
+    m["set"]["checkpoint_every"] = 0.into();
+    let good = PathBuf::from(m["eval"]["clip_weights"].as_str().unwrap());
+    let weights = dir.path().join("eval_clip.safetensors");
+    std::fs::write(&weights, b"not safetensors").unwrap();
+    m["eval"]["clip_weights"] = s(&weights).into();
+    std::fs::write(&path, m.to_string()).unwrap();
+    let batch = dir.path().join("batch");
+    succeeds(&["batch", "plan", s(&path), "--out", s(&batch)]);
+    let id = jobs(&batch)["jobs"][0]["id"].as_str().unwrap().to_string();
+
+    let out = run(&["batch", "run", s(&batch), "--index", "0", "--quiet"]);
+    assert_eq!(out.status.code(), Some(65), "{out:?}");
+    let model = batch.join(&id).join("model.ply");
+    let modified = std::fs::metadata(&model).unwrap().modified().unwrap();
+    assert!(!batch.join(&id).join("metrics.json").exists());
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(report.contains("1 failed"), "{report}");
+
+    std::fs::copy(&good, &weights).unwrap();
+    let line = succeeds(&["batch", "run", s(&batch), "--index", "0", "--quiet"]);
+    assert!(line.contains("stylized; scoring"), "{line}");
+    assert!(batch.join(&id).join("metrics.json").is_file());
+    assert_eq!(
+        std::fs::metadata(&model).unwrap().modified().unwrap(),
+        modified,
+        "not stylized again"
+    );
+    let report = succeeds(&["batch", "status", s(&batch)]);
+    assert!(report.contains("4 jobs: 1 done"), "{report}");
+
+    // CLIP files that do not exist at all fail the job before it stylizes.
+    std::fs::remove_file(&weights).unwrap();
+    let out = run(&["batch", "run", s(&batch), "--index", "1", "--quiet"]);
+    assert_eq!(out.status.code(), Some(65));
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(stderr.contains("eval.clip_weights"), "{stderr}");
+    let second = jobs(&batch)["jobs"][1]["id"].as_str().unwrap().to_string();
+    assert!(!batch.join(&second).join("model.ply").exists());
+}

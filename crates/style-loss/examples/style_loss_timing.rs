@@ -88,7 +88,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("background", only(0.0, 0.0, 0.0, paper.background)),
         ("all four terms", paper),
     ];
-    println!("device: {device:?}, CLIP {precision}, image {height}x{width}, {patches} patches of 128, repeats {repeats}");
+    println!(
+        "device: {device:?}, CLIP {precision}, image {height}x{width}, {patches} patches of 128, \
+         repeats {repeats}"
+    );
     println!("| term | cache_view (s) | loss + gradient (s) |");
     println!("|---|---|---|");
     for (name, weights) in configurations {

@@ -210,8 +210,8 @@ pub fn evaluate(
 
 /// [`evaluate`] of `count` pairs (`count >= 1`) that `pair` gives by index, a render and its
 /// ground truth (as [`image_embeddings`] takes them), asked for in order and 16 at a time: only
-/// their embeddings are kept, so the pictures of a large evaluation need not all be in memory. The scores are those of [`evaluate`] on the same
-/// pictures.
+/// their embeddings are kept, so the pictures of a large evaluation need not all be in memory.
+/// The scores are those of [`evaluate`] on the same pictures.
 pub fn evaluate_pairs<E: From<StyleLossError>>(
     clip: &ClipModel,
     tokenizer: &ClipTokenizer,

@@ -18,7 +18,7 @@ use std::time::{Duration, Instant};
 
 use gs_stylize::checkpoint::finished_step;
 use gs_stylize::error::causes;
-use gs_stylize::evaluation::METRICS_JSON;
+use gs_stylize::evaluation::{resolve_clip, METRICS_JSON};
 use gs_stylize::interrupt::stop_on_ctrl_c;
 use gs_stylize::outputs::{read_json, write_json};
 use gs_stylize::{RunOptions, StylizeError};
@@ -51,6 +51,10 @@ pub struct JobState {
     pub exit_code: Option<u8>,
     /// Why it failed.
     pub reason: Option<String>,
+    /// Whether its stylization finished (written before it is scored, and kept when the
+    /// scoring fails, so that running it again only scores it).
+    #[serde(default)]
+    pub stylized: bool,
 }
 
 /// The state file of `job` in the batch folder `dir`.
@@ -80,7 +84,7 @@ pub fn is_done_with(dir: &Path, plan: &Plan, job: &Job, state: Option<&JobState>
 fn is_stylized(dir: &Path, job: &Job, state: Option<&JobState>) -> bool {
     let out = job.out(dir);
     out.is_dir()
-        && (state.is_some_and(|s| s.status == "done")
+        && (state.is_some_and(|s| s.status == "done" || s.stylized)
             || finished_step(&out).is_some_and(|step| step == job.steps()))
 }
 
@@ -224,7 +228,17 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         }
     }
     let resume = gs_stylize::checkpoint::checkpoint_dir(&out).is_dir();
-    let stylized = is_stylized(dir, job, read_state(dir, job).as_ref());
+    let earlier = read_state(dir, job);
+    let stylized = is_stylized(dir, job, earlier.as_ref());
+    // Metrics of an earlier stylization do not describe a new one.
+    let metrics = out.join(METRICS_JSON);
+    if !stylized && metrics.is_file() {
+        if let Err(e) = std::fs::remove_file(&metrics) {
+            eprintln!("error: {what}: {}: {e}", metrics.display());
+            return EXIT_RETRY;
+        }
+    }
+
     println!(
         "{what}: {} {}",
         match (stylized, resume) {
@@ -241,11 +255,18 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         seconds: None,
         exit_code: None,
         reason: None,
+        stylized,
     };
     if let Err(e) = write_state(dir, job, &state) {
         eprintln!("error: {e}");
         return EXIT_RETRY;
     }
+    // The wall time of the whole job: an earlier run's stylization and this run's scoring.
+    let before = if stylized {
+        earlier.and_then(|s| s.seconds).unwrap_or(0.0)
+    } else {
+        0.0
+    };
     let started = Instant::now();
     let result = stop_on_ctrl_c()
         .map_err(|e| Box::new(e) as Box<dyn Error>)
@@ -255,10 +276,22 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
                 progress,
                 stop,
             };
+            // CLIP's files for the scores found before hours of stylizing, not after.
+            if let Some(eval) = &plan.eval {
+                resolve_clip(&eval.clip_files()).map_err(|e| {
+                    format!(
+                        "the manifest's eval: {e} (in a batch, give CLIP's files as \
+                         eval.clip_config, eval.clip_weights and eval.tokenizer)"
+                    )
+                })?;
+            }
             if stylized {
                 return Ok(());
             }
-            plan.modality.run(&job.config_in(dir), &options)
+            plan.modality.run(&job.config_in(dir), &options)?;
+            state.stylized = true;
+            state.seconds = Some(started.elapsed().as_secs_f64());
+            write_state(dir, job, &state).map_err(|e| e.into())
         })
         .and_then(|()| score(dir, &plan, job));
     let code = match &result {
@@ -266,7 +299,7 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         Err(e) => exit_code_of(e.as_ref()),
     };
     state.status = if code == 0 { "done" } else { "failed" }.into();
-    state.seconds = Some(started.elapsed().as_secs_f64());
+    state.seconds = Some(before + started.elapsed().as_secs_f64());
     state.exit_code = Some(code);
     state.reason = result.as_ref().err().map(|e| e.to_string());
     if let Err(e) = write_state(dir, job, &state) {
