@@ -45,7 +45,6 @@ pub fn evaluate_test_views(
         .iter()
         .map(|&i| Image::load(&renders.join(name(i)), [0.0; 3]))
         .collect::<Result<Vec<_>, _>>()?;
-    let truths: Vec<Image> = order.iter().map(|&i| test.images[i].clone()).collect();
     let labels: Vec<(String, String)> = order
         .iter()
         .map(|&i| {
@@ -54,6 +53,12 @@ pub fn evaluate_test_views(
                 test.image_paths[i].display().to_string(),
             )
         })
+        .collect();
+    // The test pictures moved into time order, not copied.
+    let mut pictures: Vec<Option<Image>> = test.images.into_iter().map(Some).collect();
+    let truths: Vec<Image> = order
+        .iter()
+        .map(|&i| pictures[i].take().expect("an order visits each view once"))
         .collect();
     Ok(score_images(
         &rendered,

@@ -174,10 +174,7 @@ pub struct EvalStyleArgs {
 impl EvalStyleArgs {
     /// The style (clap has checked that exactly one of prompt and picture is given).
     pub fn style(&self) -> Style {
-        match (&self.style_image, &self.style_prompt) {
-            (Some(image), _) => Style::Image(image.clone()),
-            (None, prompt) => Style::Prompt(prompt.clone().unwrap_or_default()),
-        }
+        Style::given(self.style_image.as_ref(), self.style_prompt.as_ref())
     }
 
     /// The CLIP files given.

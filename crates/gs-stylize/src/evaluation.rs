@@ -128,9 +128,18 @@ pub enum Style {
 impl Style {
     /// The style a run was given (its picture when it has one, else its prompt).
     pub fn of_run(settings: &StyleSettings) -> Self {
-        match (&settings.style_image, &settings.style_prompt) {
+        Self::given(
+            settings.style_image.as_ref(),
+            settings.style_prompt.as_ref(),
+        )
+    }
+
+    /// The style of a picture `image` and a prompt `prompt` of which one is given: the picture
+    /// when it is.
+    pub(crate) fn given(image: Option<&PathBuf>, prompt: Option<&String>) -> Self {
+        match (image, prompt) {
             (Some(image), _) => Self::Image(image.clone()),
-            (None, prompt) => Self::Prompt(prompt.clone().unwrap_or_default()),
+            (None, prompt) => Self::Prompt(prompt.cloned().unwrap_or_default()),
         }
     }
 }

@@ -313,19 +313,30 @@ fn pairs_given_one_by_one_score_as_the_whole_lists() {
     let truths: Vec<Tensor> = (0..19)
         .map(|k| gradient_image(70, 60 + k, 0.5 * k as f32))
         .collect();
-    let mut asked = Vec::new();
-    let streamed = evaluate_pairs(
-        &clip,
-        &tokenizer,
-        StyleReference::Prompt("fire"),
-        DEFAULT_SOURCE_PROMPT,
-        renders.len(),
-        |i| {
-            asked.push(i);
-            Ok::<_, Box<style_loss::StyleLossError>>((renders[i].clone(), truths[i].clone()))
-        },
-    )
-    .unwrap();
+    // The evaluation of the pairs, failing at pair `fail` when given; the pairs asked for.
+    let stream = |fail: Option<usize>| {
+        let mut asked = Vec::new();
+        let scores = evaluate_pairs(
+            &clip,
+            &tokenizer,
+            StyleReference::Prompt("fire"),
+            DEFAULT_SOURCE_PROMPT,
+            renders.len(),
+            |i| {
+                asked.push(i);
+                if Some(i) == fail {
+                    return Err(Box::new(style_loss::StyleLossError::Input {
+                        name: "pair".into(),
+                        reason: "unreadable".into(),
+                    }));
+                }
+                Ok((renders[i].clone(), truths[i].clone()))
+            },
+        );
+        (scores, asked)
+    };
+    let (streamed, asked) = stream(None);
+    let streamed = streamed.unwrap();
     assert_eq!(asked, (0..19).collect::<Vec<_>>());
     let style = style_loss::style_direction::prompt_embedding(&clip, &tokenizer, "fire").unwrap();
     let neutral =
@@ -340,22 +351,6 @@ fn pairs_given_one_by_one_score_as_the_whole_lists() {
     .unwrap();
     assert_eq!(streamed, whole);
     // An error of a pair is the evaluation's.
-    let failed = evaluate_pairs(
-        &clip,
-        &tokenizer,
-        StyleReference::Prompt("fire"),
-        DEFAULT_SOURCE_PROMPT,
-        renders.len(),
-        |i| {
-            if i == 17 {
-                Err(Box::new(style_loss::StyleLossError::Input {
-                    name: "pair".into(),
-                    reason: "unreadable".into(),
-                }))
-            } else {
-                Ok((renders[i].clone(), truths[i].clone()))
-            }
-        },
-    );
+    let (failed, _) = stream(Some(17));
     assert!(failed.unwrap_err().to_string().contains("unreadable"));
 }

@@ -121,12 +121,14 @@ fn csv(rows: &[JobResult], metrics: bool) -> String {
     let quote = |s: &str| format!("\"{}\"", s.replace('"', "\"\""));
     let number = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let mut scores: Vec<&str> = Vec::new();
-    for name in rows
-        .iter()
-        .flat_map(|r| r.metrics.iter().flat_map(|m| m.keys()))
-    {
-        if metrics && !scores.contains(&name.as_str()) {
-            scores.push(name);
+    if metrics {
+        for name in rows
+            .iter()
+            .flat_map(|r| r.metrics.iter().flat_map(|m| m.keys()))
+        {
+            if !scores.contains(&name.as_str()) {
+                scores.push(name);
+            }
         }
     }
     scores.sort_by_key(|s| {
