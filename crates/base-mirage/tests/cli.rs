@@ -956,3 +956,45 @@ fn the_shared_flags_have_the_same_names_in_every_subcommand() {
         true,
     );
 }
+
+/// `clip_precision: auto` takes bf16 products only on a CPU with AVX-512 BF16 and says which it
+/// chose; `CLIPGAUSSIAN_CPU_BF16=0` (the switch that stands for a CPU without the instructions)
+/// keeps it at f32, with the losses of an f32 run.
+#[test]
+fn clip_precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let stylize = |name: &str, precision: &str, switch: Option<&str>| {
+        let mut cmd = bin();
+        stylize_args(&mut cmd, &models, 3);
+        cmd.args(["--picture", s(&picture), "--out", s(&dir.path().join(name))])
+            .args(["--gaussians", "100", "--fit-steps", "10", "--device", "cpu"])
+            .args(["--set", &format!("clip_precision={precision}")]);
+        cmd.env_remove(style_loss::clip::CPU_BF16_ENV);
+        if let Some(value) = switch {
+            cmd.env(style_loss::clip::CPU_BF16_ENV, value);
+        }
+        let stdout = String::from_utf8_lossy(&run(&mut cmd).stdout).to_string();
+        let losses = std::fs::read_to_string(dir.path().join(name).join("losses.json")).unwrap();
+        (stdout, losses)
+    };
+    let (switched_off, off_losses) = stylize("off", "auto", Some("0"));
+    assert!(
+        switched_off.contains("CLIP precision: f32 (auto: bf16 only on a CPU with AVX-512 BF16"),
+        "{switched_off}"
+    );
+    let (_, f32_losses) = stylize("f32", "f32", None);
+    assert_eq!(off_losses, f32_losses, "auto switched off is the f32 run");
+    let (auto, auto_losses) = stylize("auto", "auto", None);
+    if style_loss::clip::cpu_multiplies_bf16() {
+        assert!(
+            auto.contains("CLIP precision: bf16 products (auto: this CPU has AVX-512 BF16)"),
+            "{auto}"
+        );
+        assert_ne!(auto_losses, f32_losses, "bf16 products change the losses");
+    } else {
+        assert!(auto.contains("CLIP precision: f32 (auto"), "{auto}");
+        assert_eq!(auto_losses, f32_losses);
+    }
+}

@@ -72,8 +72,10 @@ pub struct StyleSettings {
     pub vgg_weights: Option<PathBuf>,
     /// Channel widths of the VGG-19 blocks (smaller only for test models).
     pub vgg_widths: [usize; 5],
-    /// The format CLIP runs in: `f32`, or `f16` / `bf16` as the authors' fp16 CLIP (faster on
-    /// a GPU; its error against f32 is in docs/benchmarks.md). VGG always runs in f32.
+    /// The format CLIP runs in: `f32`; `f16`, half precision throughout as the authors' fp16
+    /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (twice
+    /// as fast on a CPU with AVX-512 BF16); `auto`, `bf16` on such a CPU and `f32` elsewhere.
+    /// The error of each against f32 is in docs/benchmarks.md. VGG always runs in f32.
     pub clip_precision: ClipPrecision,
     /// Megabytes of the views' cached ground truth (CLIP embedding and VGG features, about
     /// 21 MB a view at 854x480) held in memory; the views past it are written to

@@ -21,10 +21,11 @@ use gs_wgpu::backend::OpenDevice;
 use gs_wgpu::backend::{Backend, DeviceChoice, Trainer};
 use gs_wgpu::GpuModel;
 use serde::Serialize;
+use style_loss::clip::CPU_BF16_ENV;
 use style_loss::compute_device;
 use style_loss::{
-    CacheBudget, ClipConfig, ClipModel, ClipTokenizer, LossWeights, PatchSettings, StyleDirection,
-    StyleLoss, StyleObjective, Vgg19Features, Vgg19Widths,
+    CacheBudget, ClipConfig, ClipModel, ClipPrecision, ClipTokenizer, LossWeights, PatchSettings,
+    StyleDirection, StyleLoss, StyleObjective, Vgg19Features, Vgg19Widths,
 };
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
@@ -171,6 +172,9 @@ pub fn prepare(
                 compute_device::describe(&loss_device)
             );
             let models = load_style_models(settings, &weights, &loss_device)?;
+            if let Some(line) = precision_line(settings.clip_precision, models.clip.precision()) {
+                println!("{line}");
+            }
             Ok(PreparedRun {
                 settings: settings.clone(),
                 out: out.to_path_buf(),
@@ -531,6 +535,23 @@ struct StyleModels {
     clip: ClipModel,
     vgg: Option<Vgg19Features>,
     direction: StyleDirection,
+}
+
+/// The line that says which format CLIP runs in, when it is not plain f32 as asked: what `auto`
+/// chose (and why), or the half format asked for.
+fn precision_line(asked: ClipPrecision, chosen: ClipPrecision) -> Option<String> {
+    match (asked, chosen) {
+        (ClipPrecision::F32, _) => None,
+        (ClipPrecision::Auto, ClipPrecision::Bf16) => {
+            Some("CLIP precision: bf16 products (auto: this CPU has AVX-512 BF16)".to_string())
+        }
+        (ClipPrecision::Auto, _) => Some(format!(
+            "CLIP precision: {chosen} (auto: bf16 only on a CPU with AVX-512 BF16, unless \
+             {CPU_BF16_ENV}=0)"
+        )),
+        (ClipPrecision::Bf16, _) => Some("CLIP precision: bf16 products".to_string()),
+        _ => Some(format!("CLIP precision: {chosen}")),
+    }
 }
 
 /// Loads the models of `settings`' loss from `files` on `device`, with the style's direction

@@ -26,6 +26,7 @@
 //!   checkpoints, where model files come from, the error type.
 //! - `test_models` (feature `test-models`): random-weight models for tests and benchmarks.
 
+mod bf16_product;
 pub mod clip;
 pub mod compute_device;
 mod conv3x3;

@@ -11,6 +11,8 @@
 use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CudaStorage, CustomOp2, Layout, MetalStorage, Shape, Tensor};
 
+use crate::bf16_product::bf16_matmul;
+
 /// `(batch, m, n, k)` of `lhs · rhs` (`[.., m, k]` times `[.., k, n]`, the same batch dims).
 fn product_dims(lhs: &Shape, rhs: &Shape) -> candle_core::Result<(usize, usize, usize, usize)> {
     let (a, b) = (lhs.dims(), rhs.dims());
@@ -104,6 +106,15 @@ impl CustomOp2 for CheckedMatmul {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
+        if let (CpuStorage::BF16(a), CpuStorage::BF16(b)) = (s1, s2) {
+            if let Some(problem) = cuda_layout_problem(l1, l2) {
+                candle_core::bail!("matmul: {problem}")
+            }
+            let dims = product_dims(l1.shape(), l2.shape())?;
+            let lead = &l1.dims()[..l1.dims().len() - 2];
+            let shape = Shape::from(lead).extend(&[dims.1, dims.2]);
+            return Ok((CpuStorage::BF16(bf16_matmul(a, l1, b, l2, dims)), shape));
+        }
         Self::run(s1, l1, s2, l2)
     }
 

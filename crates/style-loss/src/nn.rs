@@ -17,6 +17,7 @@ use crate::matmul::checked_matmul;
 pub const NORMALIZE_EPS: f64 = 1e-12;
 
 /// A fully connected layer `y = x W^T + b` with constant weights; differentiable in `x` only.
+/// `W` may be bf16 under f32 activations (`linear_product`); `b` is in the activations' format.
 #[derive(Clone, Debug)]
 pub(crate) struct Linear {
     /// `[out, in]`, used by the backward pass.
@@ -45,13 +46,13 @@ impl Linear {
             None => candle_core::bail!("Linear: scalar input"),
         };
         let flat = x.reshape((rows, in_features))?;
-        let mut value = checked_matmul(&flat.detach().contiguous()?, &self.weight_t)?;
+        let mut value = linear_product(&flat.detach().contiguous()?, &self.weight_t)?;
         if let Some(bias) = &self.bias {
             value = value.broadcast_add(bias)?;
         }
         let weight = self.weight.clone();
         let y = attach_input_gradient(&value, &flat, move |g| {
-            checked_matmul(&g.contiguous()?, &weight)
+            linear_product(&g.contiguous()?, &weight)
         })?;
         let mut out_dims = dims;
         if let Some(last) = out_dims.last_mut() {
@@ -59,6 +60,15 @@ impl Linear {
         }
         y.reshape(out_dims)
     }
+}
+
+/// `x · w` of a linear layer. bf16 weights with f32 activations (`ClipPrecision::Bf16`) round
+/// `x` to bf16 and the product back to f32; otherwise both are in one format.
+fn linear_product(x: &Tensor, w: &Tensor) -> candle_core::Result<Tensor> {
+    if w.dtype() == x.dtype() {
+        return checked_matmul(x, w);
+    }
+    checked_matmul(&x.to_dtype(w.dtype())?, w)?.to_dtype(x.dtype())
 }
 
 /// Layer normalization over the last dimension with affine parameters, built from ops with a

@@ -292,16 +292,18 @@ fn one_term_alone_matches_without_a_style_loss() {
     assert!(err < 1e-3, "background gradient relative error {err}");
 }
 
-/// CLIP in f16 or bf16 (as the authors run it on the GPU) against the f32 PyTorch reference:
-/// every term and the total gradient within the errors recorded in docs/benchmarks.md
-/// ("reduced-precision CLIP"); the content and background terms do not use CLIP.
+/// CLIP in f16 (as the authors run it on the GPU) or with bf16 products (the CPU's fast path,
+/// what `auto` takes there) against the f32 PyTorch reference: every term and the total
+/// gradient within the errors recorded in docs/benchmarks.md ("reduced-precision CLIP"); the
+/// content and background terms do not use CLIP.
 #[test]
 fn reduced_precision_clip_stays_within_its_recorded_error() {
     // (precision, largest relative error of a CLIP term, of the total gradient): about three
-    // times what was measured (f16: terms 6.5e-4, gradient 4.6e-3; bf16: 1.4e-2, 3.5e-2).
+    // times what was measured (f16: terms 6.5e-4, gradient 4.6e-3; bf16 products: 3.4e-3,
+    // 3.2e-2).
     for (precision, term_bound, grad_bound) in [
         (ClipPrecision::F16, 2e-3, 1.5e-2),
-        (ClipPrecision::Bf16, 4e-2, 1e-1),
+        (ClipPrecision::Bf16, 1e-2, 1e-1),
     ] {
         let s = setup_in(precision);
         let out = paper_step(&s);

@@ -15,7 +15,7 @@ use std::path::Path;
 use candle_core::{DType, Device, Tensor};
 
 pub use config::{ClipConfig, ClipTextConfig, ClipVisionConfig};
-pub use precision::ClipPrecision;
+pub use precision::{cpu_multiplies_bf16, ClipPrecision, CPU_BF16_ENV};
 pub(crate) use preprocess::normalize_channels;
 pub use preprocess::{clip_preprocess, CLIP_MEAN, CLIP_STD};
 
@@ -73,25 +73,25 @@ impl ClipModel {
         precision: ClipPrecision,
     ) -> Result<Self> {
         config.validate()?;
-        let dtype = precision.dtype();
-        let text = TextTower::load(w, &config.text, dtype)?;
+        let precision = precision.resolve(device);
+        let text = TextTower::load(w, &config.text, precision)?;
         let text_projection = load_linear(
             w,
             "text_projection",
             config.projection_dim,
             config.text.hidden_size,
             false,
-            dtype,
+            precision,
         )?;
         Ok(Self {
-            vision: VisionTower::load(w, &config.vision, dtype)?,
+            vision: VisionTower::load(w, &config.vision, precision)?,
             visual_projection: load_linear(
                 w,
                 "visual_projection",
                 config.projection_dim,
                 config.vision.hidden_size,
                 false,
-                dtype,
+                precision,
             )?,
             text: Some((text, text_projection)),
             config: config.clone(),
@@ -105,7 +105,7 @@ impl ClipModel {
         &self.config
     }
 
-    /// The format the model runs in.
+    /// The format the model runs in (what `auto` chose, when it was asked for).
     pub fn precision(&self) -> ClipPrecision {
         self.precision
     }

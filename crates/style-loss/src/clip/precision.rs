@@ -1,34 +1,80 @@
-//! The floating-point format CLIP runs in ([`ClipPrecision`]).
+//! The floating-point format CLIP runs in ([`ClipPrecision`]), and the choice `auto` makes.
 
 use std::fmt;
 use std::str::FromStr;
 
-use candle_core::DType;
+use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};
 
-/// The format of CLIP's weight matrices, embeddings and activations. Layer norms and softmax
-/// compute in f32 whatever it is, as OpenAI's fp16 CLIP does; the image, the embeddings CLIP
-/// returns and the image gradient are f32. The authors run CLIP in fp16 on the GPU.
+/// Environment variable that, set to `0`, keeps [`ClipPrecision::Auto`] at f32 on every CPU
+/// (for comparing runs, and for testing the fallback on a CPU that has the instructions).
+pub const CPU_BF16_ENV: &str = "CLIPGAUSSIAN_CPU_BF16";
+
+/// The format of CLIP's products and activations. The image, the embeddings CLIP returns and the
+/// image gradient are f32 in every format; layer norms and softmax compute in f32.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum ClipPrecision {
-    /// IEEE single precision (the default).
+    /// IEEE single precision throughout (the default).
     #[default]
     F32,
-    /// IEEE half precision, as the authors' CLIP on CUDA.
+    /// IEEE half precision for the weights, embeddings and activations, as OpenAI's fp16 CLIP
+    /// that the authors load on CUDA.
     F16,
-    /// bfloat16: f32's range with 8 bits of mantissa.
+    /// bfloat16 (f32's range, 8 bits of mantissa) for the linear layers' products only: the
+    /// weights are held in bf16, each product rounds its input to bf16, sums in f32 and rounds
+    /// its output to bf16; the activations, attention and embeddings stay f32 (what PyTorch's
+    /// autocast does on the CPU). Twice the f32 rate on CPUs with AVX-512 BF16.
     Bf16,
+    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else (GPUs included); see [`ClipPrecision::resolve`].
+    Auto,
 }
 
 impl ClipPrecision {
-    /// The candle dtype of this format.
-    pub fn dtype(self) -> DType {
+    /// The format the model runs in on `device`: `Auto` becomes `Bf16` on a CPU that multiplies
+    /// bf16 natively (unless `CLIPGAUSSIAN_CPU_BF16=0`), `F32` elsewhere; the others stay.
+    pub fn resolve(self, device: &Device) -> ClipPrecision {
+        let enabled = std::env::var(CPU_BF16_ENV).map_or(true, |v| v != "0");
+        self.resolve_with(device.is_cpu() && enabled && cpu_multiplies_bf16())
+    }
+
+    /// [`ClipPrecision::resolve`] given whether bf16 products are native here.
+    pub fn resolve_with(self, native_bf16: bool) -> ClipPrecision {
         match self {
-            Self::F32 => DType::F32,
+            Self::Auto if native_bf16 => Self::Bf16,
+            Self::Auto => Self::F32,
+            other => other,
+        }
+    }
+
+    /// The format of the linear layers' weight matrices.
+    pub fn matrix_dtype(self) -> DType {
+        match self {
+            Self::F32 | Self::Auto => DType::F32,
             Self::F16 => DType::F16,
             Self::Bf16 => DType::BF16,
         }
+    }
+
+    /// The format of the activations, embeddings and biases.
+    pub fn activation_dtype(self) -> DType {
+        match self {
+            Self::F16 => DType::F16,
+            Self::F32 | Self::Bf16 | Self::Auto => DType::F32,
+        }
+    }
+}
+
+/// Whether this CPU has the AVX-512 BF16 dot product (`vdpbf16ps`) that bf16 products run on
+/// (Intel from Cooper Lake, AMD from Zen 4; every CPU with AMX has it too).
+pub fn cpu_multiplies_bf16() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512bf16")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
     }
 }
 
@@ -40,7 +86,10 @@ impl FromStr for ClipPrecision {
             "f32" => Ok(Self::F32),
             "f16" => Ok(Self::F16),
             "bf16" => Ok(Self::Bf16),
-            other => Err(format!("precision {other:?} is not one of f32, f16, bf16")),
+            "auto" => Ok(Self::Auto),
+            other => Err(format!(
+                "precision {other:?} is not one of f32, f16, bf16, auto"
+            )),
         }
     }
 }
@@ -51,6 +100,7 @@ impl fmt::Display for ClipPrecision {
             Self::F32 => "f32",
             Self::F16 => "f16",
             Self::Bf16 => "bf16",
+            Self::Auto => "auto",
         })
     }
 }
@@ -61,7 +111,12 @@ mod tests {
 
     #[test]
     fn names_round_trip_and_unknown_names_are_refused() {
-        for p in [ClipPrecision::F32, ClipPrecision::F16, ClipPrecision::Bf16] {
+        for p in [
+            ClipPrecision::F32,
+            ClipPrecision::F16,
+            ClipPrecision::Bf16,
+            ClipPrecision::Auto,
+        ] {
             assert_eq!(p.to_string().parse::<ClipPrecision>(), Ok(p));
             let json = serde_json::to_string(&p).unwrap();
             assert_eq!(json, format!("\"{p}\""));
@@ -70,7 +125,29 @@ mod tests {
         assert!("fp16"
             .parse::<ClipPrecision>()
             .unwrap_err()
-            .contains("f32, f16, bf16"));
-        assert_eq!(ClipPrecision::default().dtype(), DType::F32);
+            .contains("f32, f16, bf16, auto"));
+        assert_eq!(ClipPrecision::default().matrix_dtype(), DType::F32);
+    }
+
+    #[test]
+    fn auto_takes_bf16_only_where_the_cpu_multiplies_it() {
+        assert_eq!(ClipPrecision::Auto.resolve_with(true), ClipPrecision::Bf16);
+        assert_eq!(ClipPrecision::Auto.resolve_with(false), ClipPrecision::F32);
+        for fixed in [ClipPrecision::F32, ClipPrecision::F16, ClipPrecision::Bf16] {
+            assert_eq!(fixed.resolve_with(true), fixed);
+            assert_eq!(fixed.resolve_with(false), fixed);
+        }
+        assert_eq!(
+            ClipPrecision::Auto.resolve(&Device::Cpu),
+            if cpu_multiplies_bf16() && std::env::var(CPU_BF16_ENV).as_deref() != Ok("0") {
+                ClipPrecision::Bf16
+            } else {
+                ClipPrecision::F32
+            }
+        );
+        // The products are f32 and the activations f32 in bf16; f16 is half throughout.
+        assert_eq!(ClipPrecision::Bf16.matrix_dtype(), DType::BF16);
+        assert_eq!(ClipPrecision::Bf16.activation_dtype(), DType::F32);
+        assert_eq!(ClipPrecision::F16.activation_dtype(), DType::F16);
     }
 }

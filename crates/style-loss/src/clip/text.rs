@@ -1,9 +1,10 @@
 //! CLIP's text tower (Hugging Face `CLIPTextTransformer`) up to the pooled end-of-text token.
 
-use candle_core::{DType, Device, Tensor};
+use candle_core::{Device, Tensor};
 
 use super::config::ClipTextConfig;
 use super::transformer::{load_layer_norm, Encoder, EncoderShape};
+use super::ClipPrecision;
 use crate::error::{Result, StyleLossError};
 use crate::nn::LayerNorm;
 use crate::tensor_file::NamedTensors;
@@ -22,8 +23,13 @@ pub(crate) struct TextTower {
 }
 
 impl TextTower {
-    /// Loads `text_model.*`, the matrices and embeddings converted to `dtype`.
-    pub(crate) fn load(w: &NamedTensors, config: &ClipTextConfig, dtype: DType) -> Result<Self> {
+    /// Loads `text_model.*`, the matrices and embeddings converted to `precision`'s formats.
+    pub(crate) fn load(
+        w: &NamedTensors,
+        config: &ClipTextConfig,
+        precision: ClipPrecision,
+    ) -> Result<Self> {
+        let dtype = precision.activation_dtype();
         let h = config.hidden_size;
         Ok(Self {
             token_embedding: w
@@ -48,7 +54,7 @@ impl TextTower {
                     heads: config.num_attention_heads,
                     activation: config.hidden_act,
                     layer_norm_eps: config.layer_norm_eps,
-                    dtype,
+                    precision,
                 },
             )?,
             final_layer_norm: load_layer_norm(

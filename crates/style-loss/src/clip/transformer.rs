@@ -1,6 +1,8 @@
 //! The pre-norm transformer encoder shared by CLIP's two towers (Hugging Face `CLIPEncoder`).
 
-use candle_core::{DType, Tensor};
+use candle_core::Tensor;
+
+use super::ClipPrecision;
 
 use crate::error::Result;
 use crate::matmul::checked_matmul;
@@ -18,25 +20,26 @@ pub(crate) struct EncoderShape {
     pub layer_norm_eps: f64,
     /// The format of the weight matrices and activations (layer norms and softmax compute in
     /// f32 whatever it is).
-    pub dtype: DType,
+    pub precision: ClipPrecision,
 }
 
-/// Loads `{prefix}.weight` `[out, in]` and `{prefix}.bias` `[out]`, converted to `dtype`.
+/// Loads `{prefix}.weight` `[out, in]` and `{prefix}.bias` `[out]`, converted to the formats of
+/// `precision`'s matrices and activations.
 pub(crate) fn load_linear(
     w: &NamedTensors,
     prefix: &str,
     out_features: usize,
     in_features: usize,
     bias: bool,
-    dtype: DType,
+    precision: ClipPrecision,
 ) -> Result<Linear> {
     let weight = w
         .get(&format!("{prefix}.weight"), &[out_features, in_features])?
-        .to_dtype(dtype)?;
+        .to_dtype(precision.matrix_dtype())?;
     let bias = if bias {
         Some(
             w.get(&format!("{prefix}.bias"), &[out_features])?
-                .to_dtype(dtype)?,
+                .to_dtype(precision.activation_dtype())?,
         )
     } else {
         None
@@ -122,7 +125,7 @@ pub(crate) struct Encoder {
 impl Encoder {
     /// Loads `{prefix}.layers.0 ..` with the Hugging Face CLIP names.
     pub(crate) fn load(w: &NamedTensors, prefix: &str, shape: EncoderShape) -> Result<Self> {
-        let (h, dtype) = (shape.hidden, shape.dtype);
+        let (h, dtype) = (shape.hidden, shape.precision);
         let layers = (0..shape.layers)
             .map(|i| {
                 let p = format!("{prefix}.layers.{i}");

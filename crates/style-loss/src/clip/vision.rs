@@ -1,10 +1,11 @@
 //! CLIP's vision tower (Hugging Face `CLIPVisionTransformer`) up to the pooled, layer-normed
 //! class token.
 
-use candle_core::{DType, Tensor};
+use candle_core::Tensor;
 
 use super::config::ClipVisionConfig;
 use super::transformer::{load_layer_norm, Encoder, EncoderShape};
+use super::ClipPrecision;
 use crate::error::{Result, StyleLossError};
 use crate::nn::{LayerNorm, Linear};
 use crate::tensor_file::NamedTensors;
@@ -23,8 +24,13 @@ pub(crate) struct VisionTower {
 }
 
 impl VisionTower {
-    /// Loads `vision_model.*`, the matrices and embeddings converted to `dtype`.
-    pub(crate) fn load(w: &NamedTensors, config: &ClipVisionConfig, dtype: DType) -> Result<Self> {
+    /// Loads `vision_model.*`, the matrices and embeddings converted to `precision`'s formats.
+    pub(crate) fn load(
+        w: &NamedTensors,
+        config: &ClipVisionConfig,
+        precision: ClipPrecision,
+    ) -> Result<Self> {
+        let dtype = precision.activation_dtype();
         let h = config.hidden_size;
         let p = config.patch_size;
         let c = config.num_channels;
@@ -35,7 +41,11 @@ impl VisionTower {
             &[h, c, p, p],
         )?;
         Ok(Self {
-            patch_embedding: Linear::new(conv.reshape((h, c * p * p))?.to_dtype(dtype)?, None)?,
+            patch_embedding: Linear::new(
+                conv.reshape((h, c * p * p))?
+                    .to_dtype(precision.matrix_dtype())?,
+                None,
+            )?,
             class_embedding: w
                 .get("vision_model.embeddings.class_embedding", &[h])?
                 .to_dtype(dtype)?,
@@ -56,7 +66,7 @@ impl VisionTower {
                     heads: config.num_attention_heads,
                     activation: config.hidden_act,
                     layer_norm_eps: eps,
-                    dtype,
+                    precision,
                 },
             )?,
             post_layernorm: load_layer_norm(w, "vision_model.post_layernorm", h, eps)?,

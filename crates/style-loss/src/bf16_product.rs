@@ -1,0 +1,184 @@
+//! bf16 matrix products on the CPU through gemmkit, whose AVX-512 BF16 kernel (`vdpbf16ps`)
+//! multiplies pairs of bf16 values and accumulates in f32, at twice the rate of an f32 product;
+//! without those instructions gemmkit widens to f32 itself. Each output is rounded once to bf16,
+//! as a bf16 product on the GPU is.
+
+use candle_core::Layout;
+use gemmkit::{gemm_batched, MatMut, MatRef, Parallelism};
+use half::bf16;
+
+/// The one stride that steps from one matrix of the flattened batch to the next (0 when the
+/// batch holds one matrix or broadcasts one), for layouts that `batch_strides_ok` accepts.
+fn flat_batch_stride(layout: &Layout) -> isize {
+    let (dims, s) = (layout.dims(), layout.stride());
+    let batch = &dims[..dims.len() - 2];
+    let strides = &s[..s.len() - 2];
+    match (batch, strides) {
+        ([d0, d1], [s0, s1]) if *d1 == 1 => {
+            if *d0 == 1 {
+                0
+            } else {
+                *s0 as isize
+            }
+        }
+        ([_, _], [_, s1]) => *s1 as isize,
+        ([d0], [s0]) if *d0 > 1 => *s0 as isize,
+        _ => 0,
+    }
+}
+
+/// The two last strides of an operand (rows, columns), as gemmkit reads them.
+fn matrix_strides(layout: &Layout) -> (isize, isize) {
+    let s = layout.stride();
+    (s[s.len() - 2] as isize, s[s.len() - 1] as isize)
+}
+
+/// `lhs · rhs` for `(batch, m, n, k)` products of bf16 operands of any layout that candle's CUDA
+/// backend accepts (`[.., m, k]` times `[.., k, n]`), returned dense `[batch, m, n]`.
+pub(crate) fn bf16_matmul(
+    lhs: &[bf16],
+    lhs_layout: &Layout,
+    rhs: &[bf16],
+    rhs_layout: &Layout,
+    (batch, m, n, k): (usize, usize, usize, usize),
+) -> Vec<bf16> {
+    let mut out = vec![bf16::ZERO; batch * m * n];
+    if out.is_empty() {
+        return out;
+    }
+    let (lr, lc) = matrix_strides(lhs_layout);
+    let (rr, rc) = matrix_strides(rhs_layout);
+    gemm_batched(
+        batch,
+        bf16::ONE,
+        MatRef::new(&lhs[lhs_layout.start_offset()..], m, k, lr, lc),
+        flat_batch_stride(lhs_layout),
+        MatRef::new(&rhs[rhs_layout.start_offset()..], k, n, rr, rc),
+        flat_batch_stride(rhs_layout),
+        bf16::ZERO,
+        MatMut::from_row_major(&mut out, m, n),
+        (m * n) as isize,
+        Parallelism::Rayon(0),
+    );
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{DType, Device, Tensor, Var};
+
+    use crate::matmul::checked_matmul;
+    use crate::nn::Linear;
+
+    /// `[.., rows, cols]` values in [-1, 1) from a seed, f32.
+    fn values(dims: &[usize], seed: u64) -> Tensor {
+        let n: usize = dims.iter().product();
+        let v: Vec<f32> = (0..n as u64)
+            .map(|i| {
+                let x = (i + 1).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ seed.wrapping_mul(0xD1B5);
+                ((x >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect();
+        Tensor::from_vec(v, dims, &Device::Cpu).unwrap()
+    }
+
+    /// Checks `ours` (`[batch, m, n]`) against the f64 product of the bf16 operands `a`
+    /// (`[batch, m, k]`) and `b` (`[batch, k, n]`): within one bf16 rounding of the output plus
+    /// the f32 accumulation's bound.
+    fn assert_is_rounded_product(ours: &Tensor, a: &Tensor, b: &Tensor) {
+        let widen = |t: &Tensor| -> Vec<Vec<Vec<f64>>> {
+            t.to_dtype(DType::F64).unwrap().to_vec3::<f64>().unwrap()
+        };
+        let (a, b, ours) = (widen(a), widen(b), widen(ours));
+        for ((a, b), ours) in a.iter().zip(&b).zip(&ours) {
+            let k = b.len();
+            for (i, row) in ours.iter().enumerate() {
+                for (j, &got) in row.iter().enumerate() {
+                    let exact: f64 = (0..k).map(|p| a[i][p] * b[p][j]).sum();
+                    let magnitude: f64 = (0..k).map(|p| (a[i][p] * b[p][j]).abs()).sum();
+                    let bound =
+                        exact.abs() / 256.0 + (k + 2) as f64 * magnitude / (1u64 << 23) as f64;
+                    assert!(
+                        (got - exact).abs() <= bound,
+                        "[{i}, {j}] of k {k}: {got} against {exact} (bound {bound})"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bf16_products_are_the_exact_product_of_the_operands_rounded_once() {
+        for (m, k, n) in [
+            (1, 1, 1),
+            (7, 33, 17),
+            (50, 64, 50),
+            (3, 768, 5),
+            (40, 9, 130),
+        ] {
+            let a = values(&[1, m, k], 1).to_dtype(DType::BF16).unwrap();
+            let b = values(&[1, k, n], 2).to_dtype(DType::BF16).unwrap();
+            let ours = checked_matmul(&a, &b).unwrap();
+            assert_eq!(ours.dtype(), DType::BF16);
+            assert_is_rounded_product(&ours, &a, &b);
+        }
+    }
+
+    #[test]
+    fn bf16_products_read_transposed_and_batched_operands() {
+        // Attention's shapes: [batch, heads, tokens, head_dim] times its transpose.
+        let q = values(&[2, 3, 11, 8], 3).to_dtype(DType::BF16).unwrap();
+        let k = values(&[2, 3, 11, 8], 4).to_dtype(DType::BF16).unwrap();
+        let logits = checked_matmul(&q, &k.t().unwrap()).unwrap();
+        assert_eq!(logits.dims(), &[2, 3, 11, 11]);
+        let flat = |t: &Tensor| {
+            let d = t.dims();
+            t.contiguous()
+                .unwrap()
+                .reshape((d[0] * d[1], d[2], d[3]))
+                .unwrap()
+        };
+        assert_is_rounded_product(&flat(&logits), &flat(&q), &flat(&k.t().unwrap()));
+        // A transposed left operand, one matrix.
+        let a = values(&[1, 19, 6], 5).to_dtype(DType::BF16).unwrap();
+        let b = values(&[1, 19, 4], 6).to_dtype(DType::BF16).unwrap();
+        let at = a.transpose(1, 2).unwrap();
+        assert_is_rounded_product(&checked_matmul(&at, &b).unwrap(), &at, &b);
+    }
+
+    #[test]
+    fn a_bf16_linear_layer_multiplies_in_bf16_and_keeps_f32_activations() {
+        let (rows, inputs, outputs) = (13, 70, 24);
+        let weight = values(&[outputs, inputs], 7).to_dtype(DType::BF16).unwrap();
+        let bias = values(&[outputs], 8);
+        let layer = Linear::new(weight.clone(), Some(bias.clone())).unwrap();
+        let x = Var::from_tensor(&values(&[rows, inputs], 9)).unwrap();
+        let y = layer.forward(x.as_tensor()).unwrap();
+        assert_eq!(y.dtype(), DType::F32, "the activations stay f32");
+        let probe = values(&[rows, outputs], 10);
+        let grad = (&y * &probe)
+            .unwrap()
+            .sum_all()
+            .unwrap()
+            .backward()
+            .unwrap()
+            .get(x.as_tensor())
+            .unwrap()
+            .clone();
+        assert_eq!(grad.dtype(), DType::F32);
+        let rounded = |t: &Tensor| t.to_dtype(DType::BF16).unwrap().unsqueeze(0).unwrap();
+        // The value less its f32 bias is the rounded product of the rounded input (the bias's
+        // two f32 roundings are far inside the bound).
+        assert_is_rounded_product(
+            &y.broadcast_sub(&bias).unwrap().unsqueeze(0).unwrap(),
+            &rounded(x.as_tensor()),
+            &weight.t().unwrap().unsqueeze(0).unwrap(),
+        );
+        // The input gradient: the probe rounded to bf16 times the weight, rounded once.
+        assert_is_rounded_product(
+            &grad.unsqueeze(0).unwrap(),
+            &rounded(&probe),
+            &weight.unsqueeze(0).unwrap(),
+        );
+    }
+}
