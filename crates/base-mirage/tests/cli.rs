@@ -957,11 +957,11 @@ fn the_shared_flags_have_the_same_names_in_every_subcommand() {
     );
 }
 
-/// `clip_precision: auto` takes bf16 products only on a CPU with AVX-512 BF16 and says which it
-/// chose; `CLIPGAUSSIAN_CPU_BF16=0` (the switch that stands for a CPU without the instructions)
-/// keeps it at f32, with the losses of an f32 run.
+/// `clip_precision` and `vgg_precision` `auto` take bf16 products only on a CPU with AVX-512
+/// BF16 and say which they chose; `CLIPGAUSSIAN_CPU_BF16=0` (the switch that stands for a CPU
+/// without the instructions) keeps them at f32, with the losses of an f32 run.
 #[test]
-fn clip_precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() {
+fn precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() {
     let dir = TempDir::new().unwrap();
     let models = write_tiny_models(dir.path());
     let picture = write_picture(dir.path());
@@ -970,7 +970,8 @@ fn clip_precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() 
         stylize_args(&mut cmd, &models, 3);
         cmd.args(["--picture", s(&picture), "--out", s(&dir.path().join(name))])
             .args(["--gaussians", "100", "--fit-steps", "10", "--device", "cpu"])
-            .args(["--set", &format!("clip_precision={precision}")]);
+            .args(["--set", &format!("clip_precision={precision}")])
+            .args(["--set", &format!("vgg_precision={precision}")]);
         cmd.env_remove(style_loss::clip::CPU_BF16_ENV);
         if let Some(value) = switch {
             cmd.env(style_loss::clip::CPU_BF16_ENV, value);
@@ -980,21 +981,31 @@ fn clip_precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() 
         (stdout, losses)
     };
     let (switched_off, off_losses) = stylize("off", "auto", Some("0"));
-    assert!(
-        switched_off.contains("CLIP precision: f32 (auto: bf16 only on a CPU with AVX-512 BF16"),
-        "{switched_off}"
-    );
+    for network in ["CLIP", "VGG"] {
+        assert!(
+            switched_off.contains(&format!(
+                "{network} precision: f32 (auto: bf16 only on a CPU with AVX-512 BF16"
+            )),
+            "{switched_off}"
+        );
+    }
     let (_, f32_losses) = stylize("f32", "f32", None);
     assert_eq!(off_losses, f32_losses, "auto switched off is the f32 run");
     let (auto, auto_losses) = stylize("auto", "auto", None);
     if style_loss::clip::cpu_multiplies_bf16() {
         assert!(
-            auto.contains("CLIP precision: bf16 products (auto: this CPU has AVX-512 BF16)"),
+            auto.contains("CLIP precision: bf16 products (auto: this CPU has AVX-512 BF16)")
+                && auto.contains(
+                    "VGG precision: bf16 backward products (auto: this CPU has AVX-512 BF16)"
+                ),
             "{auto}"
         );
         assert_ne!(auto_losses, f32_losses, "bf16 products change the losses");
     } else {
-        assert!(auto.contains("CLIP precision: f32 (auto"), "{auto}");
+        assert!(
+            auto.contains("CLIP precision: f32 (auto") && auto.contains("VGG precision: f32 (auto"),
+            "{auto}"
+        );
         assert_eq!(auto_losses, f32_losses);
     }
 }

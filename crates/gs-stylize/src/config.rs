@@ -13,7 +13,7 @@ use gs_wgpu::backend::DeviceChoice;
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
-use style_loss::ClipPrecision;
+use style_loss::{ClipPrecision, VggPrecision};
 
 use crate::StylizeError;
 
@@ -75,8 +75,14 @@ pub struct StyleSettings {
     /// The format CLIP runs in: `f32`; `f16`, half precision throughout as the authors' fp16
     /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (twice
     /// as fast on a CPU with AVX-512 BF16); `auto`, `bf16` on such a CPU and `f32` elsewhere.
-    /// The error of each against f32 is in docs/benchmarks.md. VGG always runs in f32.
+    /// The error of each against f32 is in docs/benchmarks.md.
     pub clip_precision: ClipPrecision,
+    /// The format of VGG's products: `f32` (the forward summed exactly before each ReLU
+    /// decides, as the f32 PyTorch network decides); `bf16`, the backward's products in bf16
+    /// and the forward's in f32 (the CPU only; its error against f32 is in docs/benchmarks.md);
+    /// `auto`, `bf16` on a CPU with AVX-512 BF16 and `f32` elsewhere.
+    #[serde(default)]
+    pub vgg_precision: VggPrecision,
     /// Megabytes of the views' cached ground truth (CLIP embedding and VGG features, about
     /// 21 MB a view at 854x480) held in memory; the views past it are written to
     /// `<out>/view_cache/` and read back when used (removed at the end of the run), so memory
@@ -118,6 +124,7 @@ impl StyleSettings {
             vgg_weights: None,
             vgg_widths: [64, 128, 256, 512, 512],
             clip_precision: ClipPrecision::F32,
+            vgg_precision: VggPrecision::F32,
             view_cache_mb: DEFAULT_VIEW_CACHE_MB,
         }
     }

@@ -25,7 +25,7 @@ use style_loss::clip::CPU_BF16_ENV;
 use style_loss::compute_device;
 use style_loss::{
     CacheBudget, ClipConfig, ClipModel, ClipPrecision, ClipTokenizer, LossWeights, PatchSettings,
-    StyleDirection, StyleLoss, StyleObjective, Vgg19Features, Vgg19Widths,
+    StyleDirection, StyleLoss, StyleObjective, Vgg19Features, Vgg19Widths, VggPrecision,
 };
 
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
@@ -174,6 +174,11 @@ pub fn prepare(
             let models = load_style_models(settings, &weights, &loss_device)?;
             if let Some(line) = precision_line(settings.clip_precision, models.clip.precision()) {
                 println!("{line}");
+            }
+            if let Some(vgg) = &models.vgg {
+                if let Some(line) = vgg_precision_line(settings.vgg_precision, vgg.precision()) {
+                    println!("{line}");
+                }
             }
             Ok(PreparedRun {
                 settings: settings.clone(),
@@ -554,6 +559,25 @@ fn precision_line(asked: ClipPrecision, chosen: ClipPrecision) -> Option<String>
     }
 }
 
+/// The line that says which format VGG's products run in, when it is not f32 as asked.
+fn vgg_precision_line(asked: VggPrecision, chosen: VggPrecision) -> Option<String> {
+    let what = match chosen {
+        VggPrecision::Bf16 => "bf16 backward products",
+        _ => "f32",
+    };
+    match asked {
+        VggPrecision::F32 => None,
+        VggPrecision::Auto if chosen == VggPrecision::Bf16 => Some(format!(
+            "VGG precision: {what} (auto: this CPU has AVX-512 BF16)"
+        )),
+        VggPrecision::Auto => Some(format!(
+            "VGG precision: {what} (auto: bf16 only on a CPU with AVX-512 BF16, unless \
+             {CPU_BF16_ENV}=0)"
+        )),
+        VggPrecision::Bf16 => Some(format!("VGG precision: {what}")),
+    }
+}
+
 /// Loads the models of `settings`' loss from `files` on `device`, with the style's direction
 /// in CLIP space (from the style image's stored colours, alpha ignored, as the authors read
 /// it; the text tower is dropped once the direction is computed).
@@ -590,10 +614,11 @@ fn load_style_models(
     };
     clip.drop_text_tower();
     let vgg = match &files.vgg {
-        Some(path) => Some(Vgg19Features::load(
+        Some(path) => Some(Vgg19Features::load_with_precision(
             path,
             Vgg19Widths(settings.vgg_widths),
             device,
+            settings.vgg_precision,
         )?),
         None => None,
     };

@@ -6,7 +6,8 @@
 //! `<term>` (directional, patch, content, background, all) times that one only (the dev profile
 //! builds candle at opt-level 3, where the time is spent; `--release` also works). Add
 //! `--features cuda` or `--features metal` and set `STYLE_LOSS_DEVICE=cuda|metal` to time a GPU,
-//! and `STYLE_LOSS_PRECISION=f16|bf16` for CLIP in half precision. `STYLE_LOSS_SIZE=384` and
+//! `STYLE_LOSS_PRECISION=f16|bf16|auto` for CLIP in reduced precision, and
+//! `STYLE_LOSS_VGG_PRECISION=bf16|auto` for VGG's backward in bf16. `STYLE_LOSS_SIZE=384` and
 //! `STYLE_LOSS_PATCHES=8` time other sizes (the main job's: `configs/2d-preview.json`).
 
 use std::time::Instant;
@@ -15,6 +16,7 @@ use candle_core::{Device, Tensor};
 use style_loss::{
     background_mask_from_color, style_rng, ClipConfig, ClipModel, ClipPrecision, LossWeights,
     NamedTensors, PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
+    VggPrecision,
 };
 
 fn device() -> candle_core::Result<Device> {
@@ -48,7 +50,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &device,
         precision,
     )?;
-    let vgg = Vgg19Features::from_tensors(&NamedTensors::random(&device), Vgg19Widths::default())?;
+    let vgg_precision: VggPrecision = serde_json::from_value(serde_json::Value::String(
+        std::env::var("STYLE_LOSS_VGG_PRECISION").unwrap_or_else(|_| "f32".into()),
+    ))?;
+    let vgg = Vgg19Features::from_tensors_with_precision(
+        &NamedTensors::random(&device),
+        Vgg19Widths::default(),
+        vgg_precision,
+    )?;
     println!("random weights: {:.2} s", seconds_since(start));
 
     let dim = clip.config().projection_dim;
@@ -89,8 +98,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("all four terms", paper),
     ];
     println!(
-        "device: {device:?}, CLIP {precision}, image {height}x{width}, {patches} patches of 128, \
-         repeats {repeats}"
+        "device: {device:?}, CLIP {}, VGG {}, image {height}x{width}, {patches} patches of 128, \
+         repeats {repeats}",
+        clip.precision(),
+        vgg.precision()
     );
     println!("| term | cache_view (s) | loss + gradient (s) |");
     println!("|---|---|---|");

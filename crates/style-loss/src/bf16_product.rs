@@ -7,6 +7,16 @@ use candle_core::Layout;
 use gemmkit::{gemm_batched, MatMut, MatRef, Parallelism};
 use half::bf16;
 
+/// `v` rounded to the nearest bf16, ties to even, NaN kept quiet: `half`'s `bf16::from_f32`
+/// without branches, so that loops over slices vectorize.
+#[inline]
+pub(crate) fn round_to_bf16(v: f32) -> bf16 {
+    let x = v.to_bits();
+    let rounded = x.wrapping_add(0x7FFF + ((x >> 16) & 1)) >> 16;
+    let quiet_nan = (x >> 16) | 0x40;
+    bf16::from_bits(if v.is_nan() { quiet_nan } else { rounded } as u16)
+}
+
 /// The one stride that steps from one matrix of the flattened batch to the next (0 when the
 /// batch holds one matrix or broadcasts one), for layouts that `batch_strides_ok` accepts.
 fn flat_batch_stride(layout: &Layout) -> isize {
@@ -104,6 +114,36 @@ mod tests {
                     );
                 }
             }
+        }
+    }
+
+    #[test]
+    fn rounding_to_bf16_is_halfs_on_ties_infinities_nans_and_subnormals() {
+        let mut cases: Vec<f32> = vec![
+            0.0,
+            -0.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            f32::NAN,
+            -f32::NAN,
+            f32::from_bits(0x7F80_0001), // a signalling NaN
+            f32::MAX,
+            f32::MIN,
+            f32::MIN_POSITIVE,
+            f32::from_bits(1),           // the smallest subnormal
+            f32::from_bits(0x3F80_8000), // 1 + half a bf16 step: a tie, to even (1)
+            f32::from_bits(0x3F81_8000), // a tie to even upwards
+            f32::from_bits(0x7F7F_8000), // rounds up to infinity
+        ];
+        cases.extend((0..100_000u32).map(|i| f32::from_bits(i.wrapping_mul(0x9E37_79B9))));
+        for v in cases {
+            let (ours, theirs) = (super::round_to_bf16(v), half::bf16::from_f32(v));
+            assert_eq!(
+                ours.to_bits(),
+                theirs.to_bits(),
+                "{v:e} ({:#010x})",
+                v.to_bits()
+            );
         }
     }
 

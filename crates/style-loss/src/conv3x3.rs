@@ -66,6 +66,11 @@ impl PackedKernel {
     pub(crate) fn cout(&self) -> usize {
         self.cout
     }
+
+    /// The taps, `[3 (dy)][3 (dx) * cin][cout]`, row-major.
+    pub(crate) fn taps(&self) -> &[f32] {
+        &self.data
+    }
 }
 
 /// What is applied to each output value after the products.
@@ -196,7 +201,7 @@ fn kernel_row_products<T: Copy + 'static>(
 
 /// Output rows per band of [`conv3x3_bias_relu_f64`]: about 2M f64 values (16 MB) in each of its
 /// two buffers.
-fn band_rows(w: usize, channels: usize) -> usize {
+pub(crate) fn band_rows(w: usize, channels: usize) -> usize {
     (2_000_000 / ((w + 2) * channels).max(1)).max(1)
 }
 

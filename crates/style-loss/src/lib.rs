@@ -30,6 +30,7 @@ mod bf16_product;
 pub mod clip;
 pub mod compute_device;
 mod conv3x3;
+mod conv3x3_bf16;
 mod cpu_elements;
 mod custom_grad;
 pub mod error;
@@ -44,6 +45,7 @@ pub mod objective;
 pub mod patches;
 pub mod perspective;
 pub mod pil_resize;
+pub mod precision;
 pub mod resize;
 pub mod style_direction;
 pub mod templates;
@@ -62,7 +64,7 @@ pub mod window_warp;
 /// The candle this crate is built on: images and gradients cross as its tensors, so callers
 /// use this one rather than pinning their own.
 pub use candle_core;
-pub use clip::{ClipConfig, ClipModel, ClipPrecision};
+pub use clip::{ClipConfig, ClipModel};
 pub use cpu_elements::GenericPath;
 pub use error::{Result, StyleLossError};
 pub use losses::{
@@ -70,6 +72,7 @@ pub use losses::{
 };
 pub use objective::{CacheBudget, StyleObjective};
 pub use patches::{style_rng, PatchAugmentation, PatchSettings, StyleRng};
+pub use precision::{ClipPrecision, VggPrecision};
 pub use style_direction::{StyleDirection, DEFAULT_SOURCE_PROMPT};
 pub use tensor_file::NamedTensors;
 pub use tokenizer::ClipTokenizer;

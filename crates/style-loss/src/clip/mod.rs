@@ -4,7 +4,6 @@
 //! CLIP cuts the graph in its fused layer norm and softmax).
 
 mod config;
-mod precision;
 mod preprocess;
 mod text;
 mod transformer;
@@ -14,8 +13,8 @@ use std::path::Path;
 
 use candle_core::{DType, Device, Tensor};
 
+pub use crate::precision::{cpu_multiplies_bf16, ClipPrecision, CPU_BF16_ENV};
 pub use config::{ClipConfig, ClipTextConfig, ClipVisionConfig};
-pub use precision::{cpu_multiplies_bf16, ClipPrecision, CPU_BF16_ENV};
 pub(crate) use preprocess::normalize_channels;
 pub use preprocess::{clip_preprocess, CLIP_MEAN, CLIP_STD};
 

@@ -76,10 +76,18 @@ pub fn id_rows(t: &Tensor) -> Vec<Vec<u32>> {
         .collect()
 }
 
-/// The tiny CLIP (in `precision`) and the tiny VGG-19 as torchvision initialises it, from the
-/// fixtures.
+/// The tiny CLIP (in `precision`) and the tiny VGG-19 as torchvision initialises it (f32), from
+/// the fixtures.
 pub fn tiny_models(
     precision: style_loss::ClipPrecision,
+) -> (style_loss::clip::ClipModel, style_loss::Vgg19Features) {
+    tiny_models_in(precision, style_loss::VggPrecision::F32)
+}
+
+/// [`tiny_models`] with VGG's products in `vgg_precision`.
+pub fn tiny_models_in(
+    precision: style_loss::ClipPrecision,
+    vgg_precision: style_loss::VggPrecision,
 ) -> (style_loss::clip::ClipModel, style_loss::Vgg19Features) {
     let config =
         style_loss::clip::ClipConfig::from_json_file(&fixture("tiny_clip/config.json")).unwrap();
@@ -90,10 +98,11 @@ pub fn tiny_models(
         precision,
     )
     .unwrap();
-    let vgg = style_loss::Vgg19Features::load(
+    let vgg = style_loss::Vgg19Features::load_with_precision(
         &fixture("tiny_vgg19_torchvision_init.safetensors"),
         style_loss::Vgg19Widths([4, 8, 16, 32, 32]),
         &Device::Cpu,
+        vgg_precision,
     )
     .unwrap();
     (clip, vgg)

@@ -1,4 +1,5 @@
-//! The floating-point format CLIP runs in ([`ClipPrecision`]), and the choice `auto` makes.
+//! The floating-point formats CLIP ([`ClipPrecision`]) and VGG ([`VggPrecision`]) run in, and
+//! the choice their `auto` makes: bf16 products where the CPU multiplies bf16 natively.
 
 use std::fmt;
 use std::str::FromStr;
@@ -6,7 +7,7 @@ use std::str::FromStr;
 use candle_core::{DType, Device};
 use serde::{Deserialize, Serialize};
 
-/// Environment variable that, set to `0`, keeps [`ClipPrecision::Auto`] at f32 on every CPU
+/// Environment variable that, set to `0`, keeps `auto` at f32 on every CPU
 /// (for comparing runs, and for testing the fallback on a CPU that has the instructions).
 pub const CPU_BF16_ENV: &str = "CLIPGAUSSIAN_CPU_BF16";
 
@@ -31,11 +32,10 @@ pub enum ClipPrecision {
 }
 
 impl ClipPrecision {
-    /// The format the model runs in on `device`: `Auto` becomes `Bf16` on a CPU that multiplies
-    /// bf16 natively (unless `CLIPGAUSSIAN_CPU_BF16=0`), `F32` elsewhere; the others stay.
+    /// The format the model runs in on `device`: `Auto` becomes `Bf16` where [`auto_takes_bf16`],
+    /// `F32` elsewhere; the others stay.
     pub fn resolve(self, device: &Device) -> ClipPrecision {
-        let enabled = std::env::var(CPU_BF16_ENV).map_or(true, |v| v != "0");
-        self.resolve_with(device.is_cpu() && enabled && cpu_multiplies_bf16())
+        self.resolve_with(auto_takes_bf16(device))
     }
 
     /// [`ClipPrecision::resolve`] given whether bf16 products are native here.
@@ -62,6 +62,51 @@ impl ClipPrecision {
             Self::F16 => DType::F16,
             Self::F32 | Self::Bf16 | Self::Auto => DType::F32,
         }
+    }
+}
+
+/// Whether `auto` takes bf16 products on `device`: a CPU that [`cpu_multiplies_bf16`], unless
+/// `CLIPGAUSSIAN_CPU_BF16=0`.
+pub fn auto_takes_bf16(device: &Device) -> bool {
+    let enabled = std::env::var(CPU_BF16_ENV).map_or(true, |v| v != "0");
+    device.is_cpu() && enabled && cpu_multiplies_bf16()
+}
+
+/// The format of VGG's convolution products. Activations, bias and ReLU are f32 in each.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum VggPrecision {
+    /// f32 products; with a gradient, the forward sums are exact before the ReLU decides, as
+    /// the f32 PyTorch network decides (the default).
+    #[default]
+    F32,
+    /// bf16 products on the CPU (inputs and kernels rounded to bf16, f32 sums, each output
+    /// rounded to bf16), at four times the exact forward's rate and twice the f32 backward's
+    /// with AVX-512 BF16. The CPU only.
+    Bf16,
+    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else.
+    Auto,
+}
+
+impl VggPrecision {
+    /// The format on `device`: `Auto` becomes `Bf16` where [`auto_takes_bf16`], `F32`
+    /// elsewhere; the others stay.
+    pub fn resolve(self, device: &Device) -> VggPrecision {
+        match self {
+            Self::Auto if auto_takes_bf16(device) => Self::Bf16,
+            Self::Auto => Self::F32,
+            other => other,
+        }
+    }
+}
+
+impl fmt::Display for VggPrecision {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(match self {
+            Self::F32 => "f32",
+            Self::Bf16 => "bf16",
+            Self::Auto => "auto",
+        })
     }
 }
 
