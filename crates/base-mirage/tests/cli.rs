@@ -356,6 +356,14 @@ fn the_configuration_file_holds_the_paper_defaults() {
     quick.style.validate().unwrap();
     assert!(quick.style.steps < from_file.style.steps);
     assert_eq!(quick.style.style_prompt, from_file.style.style_prompt);
+    // The paper's file runs in f32; the preview takes bf16 products where the CPU has them.
+    assert_eq!(
+        from_file.style.clip_precision,
+        style_loss::ClipPrecision::F32
+    );
+    assert_eq!(from_file.style.vgg_precision, style_loss::VggPrecision::F32);
+    assert_eq!(quick.style.clip_precision, style_loss::ClipPrecision::Auto);
+    assert_eq!(quick.style.vgg_precision, style_loss::VggPrecision::Auto);
 }
 
 /// The L2 distance between two parameter sets, over every array.
