@@ -200,6 +200,13 @@ fn stylize_fits_first_and_resumes_bit_identically() {
 
     let parts = dir.path().join("parts");
     stylize_to(&parts, 3, false);
+    // A checkpoint written before `vgg_precision` existed resumes as f32, its value then.
+    let state_path = parts.join("checkpoint").join("state.json");
+    let mut state: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&state_path).unwrap()).unwrap();
+    let config = state["config"].as_object_mut().unwrap();
+    assert_eq!(config.remove("vgg_precision"), Some("f32".into()));
+    std::fs::write(&state_path, serde_json::to_string(&state).unwrap()).unwrap();
     stylize_to(&parts, 6, true);
     assert_eq!(
         std::fs::read(whole.join("model.ply")).unwrap(),

@@ -382,8 +382,13 @@ fn decode_seed(hex: &str) -> Option<[u8; 32]> {
     Some(seed)
 }
 
+/// Configuration fields added after checkpoints were first written, with the value that runs as
+/// the earlier versions ran: a saved configuration without the field matches that value.
+pub const ADDED_FIELDS: [(&str, &str); 1] = [("vgg_precision", "f32")];
+
 /// The fields, other than [`RESUMABLE_CHANGES`], whose values differ between the saved and the
-/// current configuration (both JSON objects), sorted.
+/// current configuration (both JSON objects), sorted. A field of [`ADDED_FIELDS`] that the saved
+/// configuration lacks counts as its earlier value.
 pub fn changed_fields(saved: &Value, current: &Value) -> Vec<String> {
     let empty = serde_json::Map::new();
     let saved = saved.as_object().unwrap_or(&empty);
@@ -393,7 +398,14 @@ pub fn changed_fields(saved: &Value, current: &Value) -> Vec<String> {
     keys.dedup();
     keys.into_iter()
         .filter(|k| !RESUMABLE_CHANGES.contains(&k.as_str()))
-        .filter(|k| saved.get(*k) != current.get(*k))
+        .filter(|k| {
+            let earlier = ADDED_FIELDS
+                .iter()
+                .find(|(name, _)| name == k)
+                .map(|(_, value)| Value::String(value.to_string()));
+            let saved = saved.get(*k).cloned().or(earlier);
+            saved.as_ref() != current.get(*k)
+        })
         .cloned()
         .collect()
 }
@@ -532,6 +544,20 @@ mod tests {
     fn changed_fields_ignore_the_step_count_and_name_the_rest() {
         let saved = serde_json::json!({"steps": 10, "seed": 1, "feature_lr": 0.01});
         let current = serde_json::json!({"steps": 20, "seed": 2, "feature_lr": 0.01});
+        assert_eq!(changed_fields(&saved, &current), ["seed"]);
+    }
+
+    #[test]
+    fn a_checkpoint_saved_before_a_field_was_added_resumes_with_its_earlier_value() {
+        let saved = serde_json::json!({"steps": 10, "clip_precision": "f32"});
+        let current =
+            serde_json::json!({"steps": 10, "clip_precision": "f32", "vgg_precision": "f32"});
+        assert!(changed_fields(&saved, &current).is_empty());
+        let current =
+            serde_json::json!({"steps": 10, "clip_precision": "f32", "vgg_precision": "bf16"});
+        assert_eq!(changed_fields(&saved, &current), ["vgg_precision"]);
+        // A field that is not new is still a change when it is missing.
+        let current = serde_json::json!({"steps": 10, "clip_precision": "f32", "seed": 0});
         assert_eq!(changed_fields(&saved, &current), ["seed"]);
     }
 }

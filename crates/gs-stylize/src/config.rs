@@ -73,8 +73,9 @@ pub struct StyleSettings {
     /// Channel widths of the VGG-19 blocks (smaller only for test models).
     pub vgg_widths: [usize; 5],
     /// The format CLIP runs in: `f32`; `f16`, half precision throughout as the authors' fp16
-    /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (twice
-    /// as fast on a CPU with AVX-512 BF16); `auto`, `bf16` on such a CPU and `f32` elsewhere.
+    /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (1.5 to
+    /// 1.8 times the f32 rate on a CPU with AVX-512 BF16); `auto`, `bf16` on such a CPU and
+    /// `f32` elsewhere.
     /// The error of each against f32 is in docs/benchmarks.md.
     pub clip_precision: ClipPrecision,
     /// The format of VGG's products: `f32` (the forward summed exactly before each ReLU

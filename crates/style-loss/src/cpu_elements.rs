@@ -9,6 +9,11 @@ thread_local! {
     static GENERIC_PATH: Cell<bool> = const { Cell::new(false) };
 }
 
+/// Whether this thread holds a [`GenericPath`].
+pub(crate) fn generic_path() -> bool {
+    GENERIC_PATH.get()
+}
+
 /// Whether `x` can go to this crate's CPU kernels: f32 on the CPU, unless this thread holds a
 /// [`GenericPath`].
 pub(crate) fn is_cpu_f32(x: &Tensor) -> bool {
@@ -18,7 +23,7 @@ pub(crate) fn is_cpu_f32(x: &Tensor) -> bool {
 /// While it lives, the thread that made it runs the composition of candle ops that a CUDA or
 /// Metal device runs also on the CPU: every CPU fast path of this crate is off (the fused layer
 /// norm, softmax and GELU kernels, the channels-last VGG convolutions, the max-pool routing
-/// kernel). Models built while it lives keep the generic layers. For tests (the generic path
+/// kernel, gemmkit's bf16 products: candle's own product widens bf16 to f32). Models built while it lives keep the generic layers. For tests (the generic path
 /// proven on the CPU, `generic_path` tests) and for comparing a GPU run with the same
 /// composition on the CPU.
 #[derive(Debug)]

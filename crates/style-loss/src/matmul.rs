@@ -12,6 +12,7 @@ use candle_core::backend::BackendStorage;
 use candle_core::{CpuStorage, CudaStorage, CustomOp2, Layout, MetalStorage, Shape, Tensor};
 
 use crate::bf16_product::bf16_matmul;
+use crate::cpu_elements::generic_path;
 
 /// `(batch, m, n, k)` of `lhs · rhs` (`[.., m, k]` times `[.., k, n]`, the same batch dims).
 fn product_dims(lhs: &Shape, rhs: &Shape) -> candle_core::Result<(usize, usize, usize, usize)> {
@@ -106,7 +107,7 @@ impl CustomOp2 for CheckedMatmul {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        if let (CpuStorage::BF16(a), CpuStorage::BF16(b)) = (s1, s2) {
+        if let (CpuStorage::BF16(a), CpuStorage::BF16(b), false) = (s1, s2, generic_path()) {
             if let Some(problem) = cuda_layout_problem(l1, l2) {
                 candle_core::bail!("matmul: {problem}")
             }
