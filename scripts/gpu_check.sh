@@ -12,8 +12,9 @@
 #   2. `selftest --device gpu` of every binary in DIR (each part against the cpu);
 #   3. the 3D step timing (300,000 Gaussians of SH degree 3, 800x800, 64 patches of 128), with
 #      CLIP in f32 and in f16;
-#   4. the style loss alone on CUDA with CLIP in f16 (style_loss_timing), the authors' setting
-#      (the 4D step is timed with clipgaussian-4d itself, docs/benchmarks.md: benchmark_4d opens
+#   4. the style loss alone on CUDA with CLIP in f16 (style_loss_timing), the authors' setting,
+#      and with CLIP's linear layers in bf16 (clip_precision bf16, whose CUDA form is candle's
+#      conversions around cuBLAS's bf16 product) (the 4D step is timed with clipgaussian-4d itself, docs/benchmarks.md: benchmark_4d opens
 #      the cpu);
 #   5. the authors' PyTorch loss on the same GPU (scripts/time_style_loss_torch.py cuda f16) when
 #      the python3 on the PATH has torch and transformers.
@@ -106,6 +107,8 @@ done
 part "3D step, CLIP f32" "$bin/step_timing" 300000 gpu 3 f32 800x800
 part "3D step, CLIP f16" "$bin/step_timing" 300000 gpu 3 f16 800x800
 part "style loss, CUDA, CLIP f16" env STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=f16 \
+    "$bin/style_loss_timing" 3
+part "style loss, CUDA, CLIP bf16 products" env STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=bf16 \
     "$bin/style_loss_timing" 3
 if $dry_run || python3 -c 'import torch, transformers' >/dev/null 2>&1; then
     part "the authors' loss in PyTorch, cuda f16" python3 scripts/time_style_loss_torch.py 16 3 cuda f16
