@@ -4,9 +4,14 @@
 //! without those instructions gemmkit widens to f32 itself. Each output is rounded once to bf16,
 //! as a bf16 product on the GPU is.
 
-use candle_core::Layout;
+use std::sync::Arc;
+
+use candle_core::{CpuStorage, CustomOp2, Layout, Shape, Tensor};
 use gemmkit::{gemm_batched, MatMut, MatRef, Parallelism};
 use half::bf16;
+use rayon::prelude::*;
+
+use crate::cpu_elements::elements;
 
 /// `v` rounded to the nearest bf16, ties to even, NaN kept quiet: `half`'s `bf16::from_f32`
 /// without branches, so that loops over slices vectorize.
@@ -16,6 +21,72 @@ pub(crate) fn round_to_bf16(v: f32) -> bf16 {
     let rounded = x.wrapping_add(0x7FFF + ((x >> 16) & 1)) >> 16;
     let quiet_nan = (x >> 16) | 0x40;
     bf16::from_bits(if v.is_nan() { quiet_nan } else { rounded } as u16)
+}
+
+/// `x · w + bias` of a linear layer on the CPU, with `x` f32 `[rows, in]` (contiguous), `w` bf16
+/// `[in, out]` and `bias` f32 `[out]`: bit for bit what `x.to_dtype(bf16)`, the bf16 product,
+/// `to_dtype(f32)` and `broadcast_add(bias)` give, in one pass over `x` and one over the output.
+/// No gradient (the linear layer attaches its own).
+pub(crate) fn bf16_linear_cpu(
+    x: &Tensor,
+    w: &Tensor,
+    bias: Option<&Tensor>,
+) -> candle_core::Result<Tensor> {
+    let bias = bias.map(|b| b.to_vec1::<f32>()).transpose()?.map(Arc::from);
+    x.apply_op2_no_bwd(w, &Bf16Linear { bias })
+}
+
+/// The candle op of [`bf16_linear_cpu`] (CPU only).
+struct Bf16Linear {
+    bias: Option<Arc<[f32]>>,
+}
+
+impl CustomOp2 for Bf16Linear {
+    fn name(&self) -> &'static str {
+        "bf16-linear"
+    }
+
+    fn cpu_fwd(
+        &self,
+        s1: &CpuStorage,
+        l1: &Layout,
+        s2: &CpuStorage,
+        l2: &Layout,
+    ) -> candle_core::Result<(CpuStorage, Shape)> {
+        let x = elements(s1, l1)?;
+        let CpuStorage::BF16(w) = s2 else {
+            candle_core::bail!("bf16 linear: the weights are not bf16")
+        };
+        let (rows, inner) = l1.shape().dims2()?;
+        let (w_inner, out) = l2.shape().dims2()?;
+        if w_inner != inner || self.bias.as_ref().is_some_and(|b| b.len() != out) {
+            candle_core::bail!("bf16 linear: input {l1:?}, weights {l2:?}, bias of {out} expected")
+        }
+        let rounded: Vec<bf16> = x.par_iter().map(|&v| round_to_bf16(v)).collect();
+        let product = bf16_matmul(
+            &rounded,
+            &Layout::contiguous((rows, inner)),
+            w,
+            l2,
+            (1, rows, out, inner),
+        );
+        let mut y = vec![0f32; rows * out];
+        y.par_chunks_mut(out.max(1))
+            .zip(product.par_chunks(out.max(1)))
+            .for_each(|(y, p)| match &self.bias {
+                Some(bias) => {
+                    for ((y, p), b) in y.iter_mut().zip(p).zip(bias.iter()) {
+                        *y = p.to_f32() + b;
+                    }
+                }
+                None => {
+                    for (y, p) in y.iter_mut().zip(p) {
+                        *y = p.to_f32();
+                    }
+                }
+            });
+        Ok((CpuStorage::F32(y), Shape::from((rows, out))))
+    }
 }
 
 /// The one stride that steps from one matrix of the flattened batch to the next (0 when the
@@ -166,6 +237,50 @@ mod tests {
             let _generic = crate::GenericPath::on();
             assert_is_rounded_product(&checked_matmul(&a, &b).unwrap(), &a, &b);
         }
+    }
+
+    #[test]
+    fn the_fused_cpu_linear_is_the_composed_one_bit_for_bit() {
+        let (rows, inputs, outputs) = (17, 70, 24);
+        // Values with ties at bf16's rounding (1 + half a step) among them.
+        let mut x = values(&[rows, inputs], 21)
+            .flatten_all()
+            .unwrap()
+            .to_vec1::<f32>()
+            .unwrap();
+        for v in x.iter_mut().step_by(7) {
+            *v = f32::from_bits(0x3F80_8000);
+        }
+        let x = Tensor::from_vec(x, (rows, inputs), &Device::Cpu).unwrap();
+        let w = values(&[inputs, outputs], 22)
+            .to_dtype(DType::BF16)
+            .unwrap();
+        let bias = values(&[outputs], 23);
+        let composed = checked_matmul(&x.to_dtype(DType::BF16).unwrap(), &w)
+            .unwrap()
+            .to_dtype(DType::F32)
+            .unwrap();
+        for (bias, want) in [
+            (Some(&bias), composed.broadcast_add(&bias).unwrap()),
+            (None, composed.clone()),
+        ] {
+            let fused = super::bf16_linear_cpu(&x, &w, bias).unwrap();
+            assert_eq!(
+                fused.to_vec2::<f32>().unwrap(),
+                want.to_vec2::<f32>().unwrap(),
+                "bias {}",
+                bias.is_some()
+            );
+        }
+        // A transposed weight view reads alike.
+        let w_t = w.t().unwrap().contiguous().unwrap().t().unwrap();
+        assert_eq!(
+            super::bf16_linear_cpu(&x, &w_t, None)
+                .unwrap()
+                .to_vec2::<f32>()
+                .unwrap(),
+            composed.to_vec2::<f32>().unwrap()
+        );
     }
 
     #[test]

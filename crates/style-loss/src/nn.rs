@@ -8,6 +8,7 @@
 use candle_core::{DType, Tensor, D};
 use serde::Deserialize;
 
+use crate::bf16_product::bf16_linear_cpu;
 use crate::cpu_elements::is_cpu_f32;
 use crate::custom_grad::attach_input_gradient;
 use crate::fused_cpu::{LayerNormOp, QuickGeluOp, SoftmaxOp};
@@ -17,7 +18,7 @@ use crate::matmul::checked_matmul;
 pub const NORMALIZE_EPS: f64 = 1e-12;
 
 /// A fully connected layer `y = x W^T + b` with constant weights; differentiable in `x` only.
-/// `W` may be bf16 under f32 activations (`linear_product`); `b` is in the activations' format.
+/// `W` may be bf16 under f32 activations (`linear_value`); `b` is in the activations' format.
 #[derive(Clone, Debug)]
 pub(crate) struct Linear {
     /// `[out, in]`, used by the backward pass.
@@ -46,13 +47,14 @@ impl Linear {
             None => candle_core::bail!("Linear: scalar input"),
         };
         let flat = x.reshape((rows, in_features))?;
-        let mut value = linear_product(&flat.detach().contiguous()?, &self.weight_t)?;
-        if let Some(bias) = &self.bias {
-            value = value.broadcast_add(bias)?;
-        }
+        let value = linear_value(
+            &flat.detach().contiguous()?,
+            &self.weight_t,
+            self.bias.as_ref(),
+        )?;
         let weight = self.weight.clone();
         let y = attach_input_gradient(&value, &flat, move |g| {
-            linear_product(&g.contiguous()?, &weight)
+            linear_value(&g.contiguous()?, &weight, None)
         })?;
         let mut out_dims = dims;
         if let Some(last) = out_dims.last_mut() {
@@ -62,13 +64,22 @@ impl Linear {
     }
 }
 
-/// `x · w` of a linear layer. bf16 weights with f32 activations (`ClipPrecision::Bf16`) round
-/// `x` to bf16 and the product back to f32; otherwise both are in one format.
-fn linear_product(x: &Tensor, w: &Tensor) -> candle_core::Result<Tensor> {
-    if w.dtype() == x.dtype() {
-        return checked_matmul(x, w);
+/// `x · w + bias` of a linear layer. bf16 weights with f32 activations (`ClipPrecision::Bf16`)
+/// round `x` to bf16 and the product back to f32 (in one fused op on the CPU, the same values);
+/// otherwise both are in one format.
+fn linear_value(x: &Tensor, w: &Tensor, bias: Option<&Tensor>) -> candle_core::Result<Tensor> {
+    if w.dtype() == DType::BF16 && is_cpu_f32(x) {
+        return bf16_linear_cpu(x, w, bias);
     }
-    checked_matmul(&x.to_dtype(w.dtype())?, w)?.to_dtype(x.dtype())
+    let product = if w.dtype() == x.dtype() {
+        checked_matmul(x, w)?
+    } else {
+        checked_matmul(&x.to_dtype(w.dtype())?, w)?.to_dtype(x.dtype())?
+    };
+    match bias {
+        Some(bias) => product.broadcast_add(bias),
+        None => Ok(product),
+    }
 }
 
 /// Layer normalization over the last dimension with affine parameters, built from ops with a
