@@ -79,11 +79,12 @@ pub fn checked_matmul(lhs: &Tensor, rhs: &Tensor) -> candle_core::Result<Tensor>
 struct CheckedMatmul;
 
 impl CheckedMatmul {
-    fn run<S: BackendStorage>(
-        s1: &S,
+    /// Checks the layouts, then runs `product` on the `(batch, m, n, k)` of the operands;
+    /// returns its result with the output's shape.
+    fn checked<S>(
         l1: &Layout,
-        s2: &S,
         l2: &Layout,
+        product: impl FnOnce((usize, usize, usize, usize)) -> candle_core::Result<S>,
     ) -> candle_core::Result<(S, Shape)> {
         if let Some(problem) = cuda_layout_problem(l1, l2) {
             candle_core::bail!("matmul: {problem}")
@@ -91,7 +92,17 @@ impl CheckedMatmul {
         let (batch, m, n, k) = product_dims(l1.shape(), l2.shape())?;
         let dims = l1.dims();
         let shape = Shape::from(&dims[..dims.len() - 2]).extend(&[m, n]);
-        Ok((s1.matmul(s2, (batch, m, n, k), l1, l2)?, shape))
+        Ok((product((batch, m, n, k))?, shape))
+    }
+
+    /// The backend's own product, checked.
+    fn run<S: BackendStorage>(
+        s1: &S,
+        l1: &Layout,
+        s2: &S,
+        l2: &Layout,
+    ) -> candle_core::Result<(S, Shape)> {
+        Self::checked(l1, l2, |dims| s1.matmul(s2, dims, l1, l2))
     }
 }
 
@@ -107,16 +118,12 @@ impl CustomOp2 for CheckedMatmul {
         s2: &CpuStorage,
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
-        if let (CpuStorage::BF16(a), CpuStorage::BF16(b), false) = (s1, s2, generic_path()) {
-            if let Some(problem) = cuda_layout_problem(l1, l2) {
-                candle_core::bail!("matmul: {problem}")
-            }
-            let dims = product_dims(l1.shape(), l2.shape())?;
-            let lead = &l1.dims()[..l1.dims().len() - 2];
-            let shape = Shape::from(lead).extend(&[dims.1, dims.2]);
-            return Ok((CpuStorage::BF16(bf16_matmul(a, l1, b, l2, dims)), shape));
+        match (s1, s2, generic_path()) {
+            (CpuStorage::BF16(a), CpuStorage::BF16(b), false) => Self::checked(l1, l2, |dims| {
+                Ok(CpuStorage::BF16(bf16_matmul(a, l1, b, l2, dims)))
+            }),
+            _ => Self::run(s1, l1, s2, l2),
         }
-        Self::run(s1, l1, s2, l2)
     }
 
     fn cuda_fwd(
