@@ -172,13 +172,8 @@ pub fn prepare(
                 compute_device::describe(&loss_device)
             );
             let models = load_style_models(settings, &weights, &loss_device)?;
-            if let Some(line) = precision_line(settings.clip_precision, models.clip.precision()) {
+            for line in precision_lines(settings, &models) {
                 println!("{line}");
-            }
-            if let Some(vgg) = &models.vgg {
-                if let Some(line) = vgg_precision_line(settings.vgg_precision, vgg.precision()) {
-                    println!("{line}");
-                }
             }
             Ok(PreparedRun {
                 settings: settings.clone(),
@@ -542,40 +537,48 @@ struct StyleModels {
     direction: StyleDirection,
 }
 
-/// The line that says which format CLIP runs in, when it is not plain f32 as asked: what `auto`
-/// chose (and why), or the half format asked for.
-fn precision_line(asked: ClipPrecision, chosen: ClipPrecision) -> Option<String> {
-    match (asked, chosen) {
-        (ClipPrecision::F32, _) => None,
-        (ClipPrecision::Auto, ClipPrecision::Bf16) => {
-            Some("CLIP precision: bf16 products (auto: this CPU has AVX-512 BF16)".to_string())
-        }
-        (ClipPrecision::Auto, _) => Some(format!(
-            "CLIP precision: {chosen} (auto: bf16 only on a CPU with AVX-512 BF16, unless \
-             {CPU_BF16_ENV}=0)"
-        )),
-        (ClipPrecision::Bf16, _) => Some("CLIP precision: bf16 products".to_string()),
-        _ => Some(format!("CLIP precision: {chosen}")),
-    }
+/// The lines that say which formats CLIP and VGG run in, for those not asked for f32.
+fn precision_lines(settings: &StyleSettings, models: &StyleModels) -> Vec<String> {
+    let clip = models.clip.precision();
+    let clip_bf16 = clip == ClipPrecision::Bf16;
+    let clip_runs = if clip_bf16 {
+        "bf16 products".to_string()
+    } else {
+        clip.to_string()
+    };
+    let asked = settings.clip_precision;
+    let clip_line = (asked != ClipPrecision::F32).then(|| {
+        let auto = (asked == ClipPrecision::Auto).then_some(clip_bf16);
+        precision_line("CLIP", &clip_runs, auto)
+    });
+    let asked = settings.vgg_precision;
+    let vgg_line = models
+        .vgg
+        .as_ref()
+        .filter(|_| asked != VggPrecision::F32)
+        .map(|vgg| {
+            let bf16 = vgg.precision() == VggPrecision::Bf16;
+            let runs = if bf16 {
+                "bf16 backward products"
+            } else {
+                "f32"
+            };
+            precision_line("VGG", runs, (asked == VggPrecision::Auto).then_some(bf16))
+        });
+    [clip_line, vgg_line].into_iter().flatten().collect()
 }
 
-/// The line that says which format VGG's products run in, when it is not f32 as asked.
-fn vgg_precision_line(asked: VggPrecision, chosen: VggPrecision) -> Option<String> {
-    let what = match chosen {
-        VggPrecision::Bf16 => "bf16 backward products",
-        _ => "f32",
+/// The line that says which format a network (CLIP, VGG) runs in, printed when it was not
+/// asked for f32: what `runs`, and, when `auto` chose it, whether that is bf16 and why.
+fn precision_line(network: &str, runs: &str, auto_chose_bf16: Option<bool>) -> String {
+    let reason = match auto_chose_bf16 {
+        Some(true) => " (auto: this CPU has AVX-512 BF16)".to_string(),
+        Some(false) => {
+            format!(" (auto: bf16 only on a CPU with AVX-512 BF16, unless {CPU_BF16_ENV}=0)")
+        }
+        None => String::new(),
     };
-    match asked {
-        VggPrecision::F32 => None,
-        VggPrecision::Auto if chosen == VggPrecision::Bf16 => Some(format!(
-            "VGG precision: {what} (auto: this CPU has AVX-512 BF16)"
-        )),
-        VggPrecision::Auto => Some(format!(
-            "VGG precision: {what} (auto: bf16 only on a CPU with AVX-512 BF16, unless \
-             {CPU_BF16_ENV}=0)"
-        )),
-        VggPrecision::Bf16 => Some(format!("VGG precision: {what}")),
-    }
+    format!("{network} precision: {runs}{reason}")
 }
 
 /// Loads the models of `settings`' loss from `files` on `device`, with the style's direction

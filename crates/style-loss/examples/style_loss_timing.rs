@@ -50,9 +50,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &device,
         precision,
     )?;
-    let vgg_precision: VggPrecision = serde_json::from_value(serde_json::Value::String(
-        std::env::var("STYLE_LOSS_VGG_PRECISION").unwrap_or_else(|_| "f32".into()),
-    ))?;
+    let vgg_precision: VggPrecision = std::env::var("STYLE_LOSS_VGG_PRECISION")
+        .as_deref()
+        .unwrap_or("f32")
+        .parse()?;
     let vgg = Vgg19Features::from_tensors_with_precision(
         &NamedTensors::random(&device),
         Vgg19Widths::default(),

@@ -27,7 +27,8 @@ pub enum ClipPrecision {
     /// its output to bf16, widened back to f32; the activations, attention and embeddings stay
     /// f32. On a CPU with AVX-512 BF16 the products run 1.5 to 1.8 times the f32 rate.
     Bf16,
-    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else (GPUs included); see [`ClipPrecision::resolve`].
+    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else (GPUs included);
+    /// see [`ClipPrecision::resolve`].
     Auto,
 }
 
@@ -168,35 +169,41 @@ impl fmt::Display for ClipPrecision {
 mod tests {
     use super::*;
 
+    /// Every value's name parses back, is its JSON string and reads back from JSON; `unknown`
+    /// is refused with an error that lists the names `listed`.
+    fn assert_names_round_trip<P>(values: &[P], unknown: &str, listed: &str)
+    where
+        P: Copy + PartialEq + fmt::Debug + fmt::Display + FromStr<Err = String>,
+        P: Serialize + serde::de::DeserializeOwned,
+    {
+        for &p in values {
+            assert_eq!(p.to_string().parse::<P>(), Ok(p));
+            let json = serde_json::to_string(&p).unwrap();
+            assert_eq!(json, format!("\"{p}\""));
+            assert_eq!(serde_json::from_str::<P>(&json).unwrap(), p);
+        }
+        assert!(unknown.parse::<P>().unwrap_err().contains(listed));
+        assert!(serde_json::from_str::<P>(&format!("\"{unknown}\"")).is_err());
+    }
+
     #[test]
     fn names_round_trip_and_unknown_names_are_refused() {
-        for p in [
-            ClipPrecision::F32,
-            ClipPrecision::F16,
-            ClipPrecision::Bf16,
-            ClipPrecision::Auto,
-        ] {
-            assert_eq!(p.to_string().parse::<ClipPrecision>(), Ok(p));
-            let json = serde_json::to_string(&p).unwrap();
-            assert_eq!(json, format!("\"{p}\""));
-            assert_eq!(serde_json::from_str::<ClipPrecision>(&json).unwrap(), p);
-        }
-        assert!("fp16"
-            .parse::<ClipPrecision>()
-            .unwrap_err()
-            .contains("f32, f16, bf16, auto"));
+        assert_names_round_trip(
+            &[
+                ClipPrecision::F32,
+                ClipPrecision::F16,
+                ClipPrecision::Bf16,
+                ClipPrecision::Auto,
+            ],
+            "fp16",
+            "f32, f16, bf16, auto",
+        );
         assert_eq!(ClipPrecision::default().matrix_dtype(), DType::F32);
-        for p in [VggPrecision::F32, VggPrecision::Bf16, VggPrecision::Auto] {
-            assert_eq!(p.to_string().parse::<VggPrecision>(), Ok(p));
-            let json = serde_json::to_string(&p).unwrap();
-            assert_eq!(json, format!("\"{p}\""));
-            assert_eq!(serde_json::from_str::<VggPrecision>(&json).unwrap(), p);
-        }
-        assert!("f16"
-            .parse::<VggPrecision>()
-            .unwrap_err()
-            .contains("f32, bf16, auto"));
-        assert!(serde_json::from_str::<VggPrecision>("\"f16\"").is_err());
+        assert_names_round_trip(
+            &[VggPrecision::F32, VggPrecision::Bf16, VggPrecision::Auto],
+            "f16",
+            "f32, bf16, auto",
+        );
         assert_eq!(VggPrecision::default(), VggPrecision::F32);
     }
 
