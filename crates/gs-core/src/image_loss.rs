@@ -64,19 +64,26 @@ fn window<T: Real>() -> [T; SSIM_WINDOW] {
 
 /// Separable Gaussian blur of a `w` x `h` plane with zero padding ("same" size). The window is
 /// symmetric, so this is also its own transpose.
+///
+/// Both passes run tap by tap over whole rows (loops the compiler vectorizes); every output
+/// still sums its taps from zero in increasing tap order, so the result is that of the plain
+/// per-pixel loop, bit for bit.
 fn blur<T: Real>(plane: &[T], w: usize, h: usize, k: &[T; SSIM_WINDOW]) -> Vec<T> {
     let r = SSIM_WINDOW / 2;
     let mut tmp = vec![T::ZERO; w * h];
     tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         let src = &plane[y * w..(y + 1) * w];
-        for (x, out) in row.iter_mut().enumerate() {
-            let lo = x.saturating_sub(r);
-            let hi = (x + r).min(w - 1);
-            let mut s = T::ZERO;
-            for xx in lo..=hi {
-                s += k[xx + r - x] * src[xx];
+        for (t, &wgt) in k.iter().enumerate() {
+            // Output x reads src[x + t - r]: x in [r - t, w + r - t) stays inside the row.
+            let lo = r.saturating_sub(t);
+            let hi = (w + r).saturating_sub(t).min(w);
+            if lo >= hi {
+                continue;
             }
-            *out = s;
+            let from = lo + t - r;
+            for (o, v) in row[lo..hi].iter_mut().zip(&src[from..from + (hi - lo)]) {
+                *o += wgt * *v;
+            }
         }
     });
     let mut out = vec![T::ZERO; w * h];
@@ -125,23 +132,39 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
         let m_xy = blur(&prod(&x, &y), width, height, &k);
         // Per-pixel SSIM and its partials with respect to mu_x, m_xx and m_xy, scaled by the
         // weight of the mean.
+        let mut s_map = vec![T::ZERO; n];
         let mut d_mu = vec![T::ZERO; n];
         let mut d_xx = vec![T::ZERO; n];
         let mut d_xy = vec![T::ZERO; n];
-        for i in 0..n {
-            let (mx, my) = (mu_x[i], mu_y[i]);
-            let a1 = two * mx * my + c1;
-            let a2 = two * (m_xy[i] - mx * my) + c2;
-            let b1 = mx * mx + my * my + c1;
-            let b2 = (m_xx[i] - mx * mx) + (m_yy[i] - my * my) + c2;
-            let den = b1 * b2;
-            let s = a1 * a2 / den;
+        (
+            s_map.par_chunks_mut(width),
+            d_mu.par_chunks_mut(width),
+            d_xx.par_chunks_mut(width),
+            d_xy.par_chunks_mut(width),
+        )
+            .into_par_iter()
+            .enumerate()
+            .for_each(|(row, (s_row, d_mu, d_xx, d_xy))| {
+                for (j, s_out) in s_row.iter_mut().enumerate() {
+                    let i = row * width + j;
+                    let (mx, my) = (mu_x[i], mu_y[i]);
+                    let a1 = two * mx * my + c1;
+                    let a2 = two * (m_xy[i] - mx * my) + c2;
+                    let b1 = mx * mx + my * my + c1;
+                    let b2 = (m_xx[i] - mx * mx) + (m_yy[i] - my * my) + c2;
+                    let den = b1 * b2;
+                    let s = a1 * a2 / den;
+                    *s_out = s;
+                    d_mu[j] = inv_count
+                        * ((two * my * a2 - two * my * a1) / den
+                            - s * (two * mx * b2 - two * mx * b1) / den);
+                    d_xx[j] = -inv_count * s / b2;
+                    d_xy[j] = inv_count * two * a1 / den;
+                }
+            });
+        // Summed in pixel order, channel after channel, as one thread would.
+        for s in &s_map {
             total += s.to_f64();
-            d_mu[i] = inv_count
-                * ((two * my * a2 - two * my * a1) / den
-                    - s * (two * mx * b2 - two * mx * b1) / den);
-            d_xx[i] = -inv_count * s / b2;
-            d_xy[i] = inv_count * two * a1 / den;
         }
         let g_mu = blur(&d_mu, width, height, &k);
         let g_xx = blur(&d_xx, width, height, &k);
@@ -320,6 +343,58 @@ mod tests {
             .map(|i| k[i / w + 5] * k[i % w + 5] * x[i])
             .sum();
         assert!((blur(&x, w, h, &k)[0] - corner).abs() < 1e-12);
+    }
+
+    /// The blur as a per-pixel loop: each output sums its taps from zero in increasing order.
+    fn blur_per_pixel(plane: &[f32], w: usize, h: usize, k: &[f32; SSIM_WINDOW]) -> Vec<f32> {
+        let r = SSIM_WINDOW as isize / 2;
+        let inside = |v: isize, len: usize| (0..len as isize).contains(&v);
+        let mut tmp = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0f32;
+                for (t, &wgt) in k.iter().enumerate() {
+                    let xx = x as isize + t as isize - r;
+                    if inside(xx, w) {
+                        s += wgt * plane[y * w + xx as usize];
+                    }
+                }
+                tmp[y * w + x] = s;
+            }
+        }
+        let mut out = vec![0f32; w * h];
+        for y in 0..h {
+            for x in 0..w {
+                let mut s = 0f32;
+                for (t, &wgt) in k.iter().enumerate() {
+                    let yy = y as isize + t as isize - r;
+                    if inside(yy, h) {
+                        s += wgt * tmp[yy as usize * w + x];
+                    }
+                }
+                out[y * w + x] = s;
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn blur_is_the_per_pixel_loop_bit_for_bit_at_any_size() {
+        let k = window::<f32>();
+        for (i, &(w, h)) in [(1, 1), (1, 9), (7, 1), (5, 3), (11, 11), (12, 4), (40, 23)]
+            .iter()
+            .enumerate()
+        {
+            let x: Vec<f32> = noise(10 + i as u64, w * h)
+                .iter()
+                .map(|&v| v as f32 - 0.3)
+                .collect();
+            let ours = blur(&x, w, h, &k);
+            let reference = blur_per_pixel(&x, w, h, &k);
+            for (p, (a, b)) in ours.iter().zip(&reference).enumerate() {
+                assert_eq!(a.to_bits(), b.to_bits(), "{w}x{h}, pixel {p}: {a} vs {b}");
+            }
+        }
     }
 
     #[test]

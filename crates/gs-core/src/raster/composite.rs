@@ -208,6 +208,44 @@ pub(crate) fn backward<T: Real>(
     grads: &OutputGrads<'_, T>,
     geometry: bool,
 ) -> (Vec<SplatGrad<T>>, [T; 3]) {
+    let bins = &rendered.bins;
+    let mut slots = vec![SplatGrad::<T>::default(); bins.ids.len()];
+    let mut bands: Vec<(usize, &mut [SplatGrad<T>])> = Vec::with_capacity(bins.tiles_y);
+    let mut rest: &mut [SplatGrad<T>] = &mut slots;
+    for ty in 0..bins.tiles_y {
+        let len = bins.offsets[(ty + 1) * bins.tiles_x] - bins.offsets[ty * bins.tiles_x];
+        let (head, tail) = rest.split_at_mut(len);
+        bands.push((ty, head));
+        rest = tail;
+    }
+    // Training passes only dL/dRGB; the alpha and depth terms then drop out of the loop.
+    let extras = grads.alpha.is_some() || grads.depth.is_some();
+    let bg_grad = bands
+        .into_par_iter()
+        .map(|(ty, band_slots)| {
+            if extras {
+                backward_band::<T, true>(rendered, grads, geometry, ty, band_slots)
+            } else {
+                backward_band::<T, false>(rendered, grads, geometry, ty, band_slots)
+            }
+        })
+        .reduce(
+            || [T::ZERO; 3],
+            |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]],
+        );
+    (slots, bg_grad)
+}
+
+/// The backward of tile row `ty` into its tile-list entries `band_slots`; returns the band's
+/// background gradient. With `EXTRAS` false (no alpha or depth gradient) the terms that would
+/// only add zeros are left out; the sums are otherwise the same.
+fn backward_band<T: Real, const EXTRAS: bool>(
+    rendered: &Rendered<T>,
+    grads: &OutputGrads<'_, T>,
+    geometry: bool,
+    ty: usize,
+    band_slots: &mut [SplatGrad<T>],
+) -> [T; 3] {
     let Rendered {
         splats,
         bins,
@@ -219,137 +257,123 @@ pub(crate) fn backward<T: Real>(
     let background = *background;
     let width = rendered.image.width as usize;
     let height = rendered.image.height as usize;
-    let mut slots = vec![SplatGrad::<T>::default(); bins.ids.len()];
-    let mut bands: Vec<(usize, &mut [SplatGrad<T>])> = Vec::with_capacity(bins.tiles_y);
-    let mut rest: &mut [SplatGrad<T>] = &mut slots;
-    for ty in 0..bins.tiles_y {
-        let len = bins.offsets[(ty + 1) * bins.tiles_x] - bins.offsets[ty * bins.tiles_x];
-        let (head, tail) = rest.split_at_mut(len);
-        bands.push((ty, head));
-        rest = tail;
-    }
-    let bg_grad = bands
-        .into_par_iter()
-        .map(|(ty, band_slots)| {
-            let band_start = bins.offsets[ty * bins.tiles_x];
-            let band_rows = TILE_SIZE.min(height - ty * TILE_SIZE);
-            let half = T::from_f64(0.5);
-            let one = T::ONE;
-            const P: usize = TILE_SIZE * TILE_SIZE;
-            let mut g_bg = [T::ZERO; 3];
-            let mut local = Vec::new();
-            for tx in 0..bins.tiles_x {
-                let tile = ty * bins.tiles_x + tx;
-                let start = bins.offsets[tile];
-                gather(splats, &bins.ids[start..bins.offsets[tile + 1]], &mut local);
-                let tile_slots =
-                    &mut band_slots[start - band_start..bins.offsets[tile + 1] - band_start];
-                let rect = TileRect::new(tx, ty, width, band_rows);
+    let band_start = bins.offsets[ty * bins.tiles_x];
+    let band_rows = TILE_SIZE.min(height - ty * TILE_SIZE);
+    let half = T::from_f64(0.5);
+    let one = T::ONE;
+    const P: usize = TILE_SIZE * TILE_SIZE;
+    let mut g_bg = [T::ZERO; 3];
+    let mut local = Vec::new();
+    for tx in 0..bins.tiles_x {
+        let tile = ty * bins.tiles_x + tx;
+        let start = bins.offsets[tile];
+        gather(splats, &bins.ids[start..bins.offsets[tile + 1]], &mut local);
+        let tile_slots = &mut band_slots[start - band_start..bins.offsets[tile + 1] - band_start];
+        let rect = TileRect::new(tx, ty, width, band_rows);
 
-                // Per-pixel state, walked back to front from each pixel's last contributor.
-                let mut trans = [T::ZERO; P];
-                let mut behind = [background; P];
-                let mut behind_depth = [T::ZERO; P];
-                let mut count = [0u32; P];
-                let mut g_rgb = [[T::ZERO; 3]; P];
-                let mut g_a = [T::ZERO; P];
-                let mut g_d = [T::ZERO; P];
-                let mut t_final = [T::ZERO; P];
-                let mut max_count = 0usize;
-                for ly in 0..rect.h {
-                    for lx in 0..rect.w {
-                        let q = ly * TILE_SIZE + lx;
-                        let p = (rect.y0 + ly) * width + rect.x0 + lx;
-                        g_rgb[q] = [grads.rgb[3 * p], grads.rgb[3 * p + 1], grads.rgb[3 * p + 2]];
-                        g_a[q] = grads.alpha.map_or(T::ZERO, |a| a[p]);
-                        g_d[q] = grads.depth.map_or(T::ZERO, |d| d[p]);
-                        t_final[q] = final_t[p];
-                        trans[q] = final_t[p];
-                        count[q] = n_contrib[p];
-                        max_count = max_count.max(n_contrib[p] as usize);
-                        for ch in 0..3 {
-                            g_bg[ch] += final_t[p] * g_rgb[q][ch];
-                        }
-                    }
-                }
-
-                // Each row's columns by decreasing count; a pixel joins at the first k below its
-                // count, and [active_lo, active_hi) spans every pixel of the row that has joined.
-                let mut by_count = [[0u8; TILE_SIZE]; TILE_SIZE];
-                let mut joined = [0usize; TILE_SIZE];
-                let mut active_lo = [rect.w; TILE_SIZE];
-                let mut active_hi = [0usize; TILE_SIZE];
-                for ly in 0..rect.h {
-                    let order = &mut by_count[ly][..rect.w];
-                    for (lx, o) in order.iter_mut().enumerate() {
-                        *o = lx as u8;
-                    }
-                    order.sort_unstable_by_key(|&lx| {
-                        std::cmp::Reverse(count[ly * TILE_SIZE + lx as usize])
-                    });
-                }
-
-                for k in (0..max_count).rev() {
-                    let s = &local[k];
-                    let (xs, ys) = rect.clip(s);
-                    let mut acc = SplatGrad::<T>::default();
-                    for ly in ys {
-                        while joined[ly] < rect.w {
-                            let lx = by_count[ly][joined[ly]] as usize;
-                            if count[ly * TILE_SIZE + lx] as usize <= k {
-                                break;
-                            }
-                            active_lo[ly] = active_lo[ly].min(lx);
-                            active_hi[ly] = active_hi[ly].max(lx + 1);
-                            joined[ly] += 1;
-                        }
-                        let lo = xs.start.max(active_lo[ly]);
-                        let hi = xs.end.min(active_hi[ly]);
-                        let py = T::from_f64((rect.y0 + ly) as f64) + half;
-                        for lx in lo..hi {
-                            let q = ly * TILE_SIZE + lx;
-                            if k as u32 >= count[q] {
-                                continue;
-                            }
-                            let px = T::from_f64((rect.x0 + lx) as f64) + half;
-                            let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
-                                continue;
-                            };
-                            let one_minus = one - a;
-                            let t_before = trans[q] / one_minus;
-                            let w = a * t_before;
-                            let mut g_alpha = g_a[q] * t_final[q] / one_minus;
-                            for ch in 0..3 {
-                                acc.color[ch] += w * g_rgb[q][ch];
-                                g_alpha += t_before * (s.color[ch] - behind[q][ch]) * g_rgb[q][ch];
-                                behind[q][ch] = a * s.color[ch] + one_minus * behind[q][ch];
-                            }
-                            acc.depth += w * g_d[q];
-                            g_alpha += t_before * (s.depth - behind_depth[q]) * g_d[q];
-                            behind_depth[q] = a * s.depth + one_minus * behind_depth[q];
-                            trans[q] = t_before;
-                            // alpha = opacity * exp(-sigma), differentiated as if the
-                            // cap at ALPHA_MAX were not there (INRIA's rule, see the module
-                            // documentation).
-                            acc.opacity += g_alpha * falloff;
-                            if geometry {
-                                let g_sigma = -g_alpha * s.opacity * falloff;
-                                acc.conic[0] += g_sigma * half * dx * dx;
-                                acc.conic[1] += g_sigma * dx * dy;
-                                acc.conic[2] += g_sigma * half * dy * dy;
-                                acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
-                                acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
-                            }
-                        }
-                    }
-                    tile_slots[k] = acc;
+        // Per-pixel state, walked back to front from each pixel's last contributor.
+        let mut trans = [T::ZERO; P];
+        let mut behind = [background; P];
+        let mut behind_depth = [T::ZERO; P];
+        let mut count = [0u32; P];
+        let mut g_rgb = [[T::ZERO; 3]; P];
+        let mut g_a = [T::ZERO; P];
+        let mut g_d = [T::ZERO; P];
+        let mut t_final = [T::ZERO; P];
+        let mut max_count = 0usize;
+        for ly in 0..rect.h {
+            for lx in 0..rect.w {
+                let q = ly * TILE_SIZE + lx;
+                let p = (rect.y0 + ly) * width + rect.x0 + lx;
+                g_rgb[q] = [grads.rgb[3 * p], grads.rgb[3 * p + 1], grads.rgb[3 * p + 2]];
+                g_a[q] = grads.alpha.map_or(T::ZERO, |a| a[p]);
+                g_d[q] = grads.depth.map_or(T::ZERO, |d| d[p]);
+                t_final[q] = final_t[p];
+                trans[q] = final_t[p];
+                count[q] = n_contrib[p];
+                max_count = max_count.max(n_contrib[p] as usize);
+                for ch in 0..3 {
+                    g_bg[ch] += final_t[p] * g_rgb[q][ch];
                 }
             }
-            g_bg
-        })
-        .reduce(
-            || [T::ZERO; 3],
-            |a, b| [a[0] + b[0], a[1] + b[1], a[2] + b[2]],
-        );
-    (slots, bg_grad)
+        }
+
+        // Each row's columns by decreasing count; a pixel joins at the first k below its
+        // count, and [active_lo, active_hi) spans every pixel of the row that has joined.
+        let mut by_count = [[0u8; TILE_SIZE]; TILE_SIZE];
+        let mut joined = [0usize; TILE_SIZE];
+        let mut active_lo = [rect.w; TILE_SIZE];
+        let mut active_hi = [0usize; TILE_SIZE];
+        for ly in 0..rect.h {
+            let order = &mut by_count[ly][..rect.w];
+            for (lx, o) in order.iter_mut().enumerate() {
+                *o = lx as u8;
+            }
+            order
+                .sort_unstable_by_key(|&lx| std::cmp::Reverse(count[ly * TILE_SIZE + lx as usize]));
+        }
+
+        for k in (0..max_count).rev() {
+            let s = &local[k];
+            let (xs, ys) = rect.clip(s);
+            let mut acc = SplatGrad::<T>::default();
+            for ly in ys {
+                while joined[ly] < rect.w {
+                    let lx = by_count[ly][joined[ly]] as usize;
+                    if count[ly * TILE_SIZE + lx] as usize <= k {
+                        break;
+                    }
+                    active_lo[ly] = active_lo[ly].min(lx);
+                    active_hi[ly] = active_hi[ly].max(lx + 1);
+                    joined[ly] += 1;
+                }
+                let lo = xs.start.max(active_lo[ly]);
+                let hi = xs.end.min(active_hi[ly]);
+                let py = T::from_f64((rect.y0 + ly) as f64) + half;
+                for lx in lo..hi {
+                    let q = ly * TILE_SIZE + lx;
+                    if k as u32 >= count[q] {
+                        continue;
+                    }
+                    let px = T::from_f64((rect.x0 + lx) as f64) + half;
+                    let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
+                        continue;
+                    };
+                    let one_minus = one - a;
+                    let t_before = trans[q] / one_minus;
+                    let w = a * t_before;
+                    let mut g_alpha = if EXTRAS {
+                        g_a[q] * t_final[q] / one_minus
+                    } else {
+                        T::ZERO
+                    };
+                    for ch in 0..3 {
+                        acc.color[ch] += w * g_rgb[q][ch];
+                        g_alpha += t_before * (s.color[ch] - behind[q][ch]) * g_rgb[q][ch];
+                        behind[q][ch] = a * s.color[ch] + one_minus * behind[q][ch];
+                    }
+                    if EXTRAS {
+                        acc.depth += w * g_d[q];
+                        g_alpha += t_before * (s.depth - behind_depth[q]) * g_d[q];
+                        behind_depth[q] = a * s.depth + one_minus * behind_depth[q];
+                    }
+                    trans[q] = t_before;
+                    // alpha = opacity * exp(-sigma), differentiated as if the
+                    // cap at ALPHA_MAX were not there (INRIA's rule, see the module
+                    // documentation).
+                    acc.opacity += g_alpha * falloff;
+                    if geometry {
+                        let g_sigma = -g_alpha * s.opacity * falloff;
+                        acc.conic[0] += g_sigma * half * dx * dx;
+                        acc.conic[1] += g_sigma * dx * dy;
+                        acc.conic[2] += g_sigma * half * dy * dy;
+                        acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
+                        acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
+                    }
+                }
+            }
+            tile_slots[k] = acc;
+        }
+    }
+    g_bg
 }
