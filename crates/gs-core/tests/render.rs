@@ -153,6 +153,56 @@ fn f32_render_and_gradients_match_the_f64_reference() {
 }
 
 #[test]
+fn the_rgb_only_backward_is_the_backward_with_zero_alpha_and_depth_gradients_bit_for_bit() {
+    // The compositing backward leaves the alpha and depth terms out when neither gradient is
+    // given (training); with zeros given it runs them. Both must give the same sums.
+    for (seed, n, (w, h)) in [(31, 25, (40, 30)), (32, 60, (47, 33)), (33, 8, (17, 64))] {
+        let g = random_scene::<f32>(seed, n, 2);
+        let cam = oblique_camera(w, h);
+        let r = render(&g, &cam, [0.2, 0.4, 0.6]);
+        assert!(
+            r.visible_count() > n / 2,
+            "seed {seed}: {} visible",
+            r.visible_count()
+        );
+        let rgb: Vec<f32> = weights(seed + 100, 3 * cam.pixel_count())
+            .iter()
+            .map(|v| *v as f32)
+            .collect();
+        let zeros = vec![0f32; cam.pixel_count()];
+        let rgb_only = OutputGrads {
+            rgb: &rgb,
+            alpha: None,
+            depth: None,
+        };
+        let with_zeros = OutputGrads {
+            rgb: &rgb,
+            alpha: Some(&zeros),
+            depth: Some(&zeros),
+        };
+        let a = backward(&g, &cam, &r, &rgb_only, GradMask::ALL);
+        let b = backward(&g, &cam, &r, &with_zeros, GradMask::ALL);
+        for (name, (x, y)) in gs_core::gaussians::PARAM_NAMES
+            .iter()
+            .zip(a.gaussians.arrays().iter().zip(b.gaussians.arrays()))
+        {
+            assert!(
+                x.iter().any(|v| *v != 0.0),
+                "seed {seed}: no {name} gradient"
+            );
+            for (i, (u, v)) in x.iter().zip(y.iter()).enumerate() {
+                assert_eq!(
+                    u.to_bits(),
+                    v.to_bits(),
+                    "seed {seed}, {name}[{i}]: {u} vs {v}"
+                );
+            }
+        }
+        assert_eq!(a.background, b.background, "seed {seed}");
+    }
+}
+
+#[test]
 fn frozen_groups_get_zero_gradient_and_the_rest_is_unchanged() {
     let g = random_scene::<f32>(8, 20, 2);
     let cam = oblique_camera(40, 30);
