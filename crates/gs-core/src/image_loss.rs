@@ -345,37 +345,30 @@ mod tests {
         assert!((blur(&x, w, h, &k)[0] - corner).abs() < 1e-12);
     }
 
-    /// The blur as a per-pixel loop: each output sums its taps from zero in increasing order.
+    /// The blur as a per-pixel loop: each output sums its taps from zero in increasing order,
+    /// along the rows and then along the columns.
     fn blur_per_pixel(plane: &[f32], w: usize, h: usize, k: &[f32; SSIM_WINDOW]) -> Vec<f32> {
         let r = SSIM_WINDOW as isize / 2;
-        let inside = |v: isize, len: usize| (0..len as isize).contains(&v);
-        let mut tmp = vec![0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let mut s = 0f32;
-                for (t, &wgt) in k.iter().enumerate() {
-                    let xx = x as isize + t as isize - r;
-                    if inside(xx, w) {
-                        s += wgt * plane[y * w + xx as usize];
+        let (wi, hi) = (w as isize, h as isize);
+        // Output (x, y) sums k[t] src[(x, y) + (t - r) step].
+        let pass = |src: &[f32], (step_x, step_y): (isize, isize)| {
+            let mut out = vec![0f32; w * h];
+            for y in 0..hi {
+                for x in 0..wi {
+                    let mut s = 0f32;
+                    for (t, &wgt) in k.iter().enumerate() {
+                        let (xx, yy) =
+                            (x + (t as isize - r) * step_x, y + (t as isize - r) * step_y);
+                        if (0..wi).contains(&xx) && (0..hi).contains(&yy) {
+                            s += wgt * src[(yy * wi + xx) as usize];
+                        }
                     }
+                    out[(y * wi + x) as usize] = s;
                 }
-                tmp[y * w + x] = s;
             }
-        }
-        let mut out = vec![0f32; w * h];
-        for y in 0..h {
-            for x in 0..w {
-                let mut s = 0f32;
-                for (t, &wgt) in k.iter().enumerate() {
-                    let yy = y as isize + t as isize - r;
-                    if inside(yy, h) {
-                        s += wgt * tmp[yy as usize * w + x];
-                    }
-                }
-                out[y * w + x] = s;
-            }
-        }
-        out
+            out
+        };
+        pass(&pass(plane, (1, 0)), (0, 1))
     }
 
     #[test]
