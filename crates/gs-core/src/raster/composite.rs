@@ -15,7 +15,7 @@
 use rayon::prelude::*;
 
 use super::bin::TileBins;
-use super::project::{mahalanobis, Splat, SplatGrad};
+use super::project::{mahalanobis_in_row, Splat, SplatGrad};
 use super::{OutputGrads, Rendered, ALPHA_MAX, ALPHA_MIN, TILE_SIZE, TRANSMITTANCE_MIN};
 use crate::real::Real;
 
@@ -30,20 +30,50 @@ pub(crate) struct Composited<T: Real> {
     pub n_contrib: Vec<u32>,
 }
 
-/// Alpha of a splat at a pixel centre with `exp(-sigma)` and the offsets `mean2d - pixel`;
-/// `None` when the splat is skipped there (`sigma < 0` or alpha below `ALPHA_MIN`; the
-/// `sigma_cut` pre-filter only spares the `exp` where alpha is surely below it).
+/// A splat's terms shared by one row of pixel centres `py`, with `dy = mean2d.y - py` and the
+/// conic `(a, b, c)`: `dy`, `b * dy`, `c * dy` and `c * dy * dy`, computed as the per-pixel
+/// expressions compute them, so that hoisting them changes no bit.
+#[derive(Clone, Copy)]
+struct SplatRow<T: Real> {
+    dy: T,
+    b_dy: T,
+    c_dy: T,
+    c_dy2: T,
+}
+
+impl<T: Real> SplatRow<T> {
+    #[inline]
+    fn new(s: &Splat<T>, py: T) -> Self {
+        let dy = s.mean2d[1] - py;
+        let c_dy = s.conic[2] * dy;
+        Self {
+            dy,
+            b_dy: s.conic[1] * dy,
+            c_dy,
+            c_dy2: c_dy * dy,
+        }
+    }
+}
+
+/// Alpha of a splat at the pixel centre `(px, row)` with `exp(-sigma)` and the offsets
+/// `mean2d - pixel`; `None` when the splat is skipped there (`sigma < 0` or alpha below
+/// `ALPHA_MIN`; the `sigma_cut` pre-filter only spares the `exp` where alpha is surely below it).
 #[inline]
-fn splat_alpha<T: Real>(s: &Splat<T>, px: T, py: T) -> Option<(T, T, T, T)> {
+fn splat_alpha<T: Real>(s: &Splat<T>, px: T, row: SplatRow<T>) -> Option<(T, T, T, T)> {
     let dx = s.mean2d[0] - px;
-    let dy = s.mean2d[1] - py;
-    let sigma = mahalanobis(s.conic, dx, dy);
+    let dy = row.dy;
+    let sigma = mahalanobis_in_row(s.conic, dx, dy, row.c_dy2);
     if sigma < T::ZERO || sigma > s.sigma_cut {
         return None;
     }
     let falloff = (-sigma).exp();
     let alpha = (s.opacity * falloff).min(T::from_f64(ALPHA_MAX));
     (alpha >= T::from_f64(ALPHA_MIN)).then_some((alpha, falloff, dx, dy))
+}
+
+/// Pixel-centre coordinates `origin + i + 0.5` of the `TILE_SIZE` pixels of a tile row or column.
+fn pixel_centres<T: Real>(origin: usize) -> [T; TILE_SIZE] {
+    std::array::from_fn(|i| T::from_f64((origin + i) as f64) + T::from_f64(0.5))
 }
 
 /// Copies the splats of one tile list into `out`, contiguous and in list order.
@@ -122,7 +152,6 @@ pub(crate) fn forward<T: Real>(
         .for_each(|(ty, (rgb, alpha, depth, final_t, n_contrib))| {
             let band_rows = alpha.len() / width;
             let t_min = T::from_f64(TRANSMITTANCE_MIN);
-            let half = T::from_f64(0.5);
             let mut local = Vec::new();
             const P: usize = TILE_SIZE * TILE_SIZE;
             for tx in 0..bins.tiles_x {
@@ -133,6 +162,8 @@ pub(crate) fn forward<T: Real>(
                     &mut local,
                 );
                 let rect = TileRect::new(tx, ty, width, band_rows);
+                let (centre_x, centre_y) =
+                    (pixel_centres::<T>(rect.x0), pixel_centres::<T>(rect.y0));
                 let mut trans = [T::ONE; P];
                 let mut color = [[T::ZERO; 3]; P];
                 let mut dep = [T::ZERO; P];
@@ -150,14 +181,13 @@ pub(crate) fn forward<T: Real>(
                     for ly in ys {
                         let lo = xs.start.max(alive_lo[ly]);
                         let hi = xs.end.min(alive_hi[ly]);
-                        let py = T::from_f64((rect.y0 + ly) as f64) + half;
+                        let row = SplatRow::new(s, centre_y[ly]);
                         for lx in lo..hi {
                             let q = ly * TILE_SIZE + lx;
                             if done[q] {
                                 continue;
                             }
-                            let px = T::from_f64((rect.x0 + lx) as f64) + half;
-                            let Some((a, _, _, _)) = splat_alpha(s, px, py) else {
+                            let Some((a, _, _, _)) = splat_alpha(s, centre_x[lx], row) else {
                                 continue;
                             };
                             let next = trans[q] * (T::ONE - a);
@@ -270,6 +300,7 @@ fn backward_band<T: Real, const EXTRAS: bool>(
         gather(splats, &bins.ids[start..bins.offsets[tile + 1]], &mut local);
         let tile_slots = &mut band_slots[start - band_start..bins.offsets[tile + 1] - band_start];
         let rect = TileRect::new(tx, ty, width, band_rows);
+        let (centre_x, centre_y) = (pixel_centres::<T>(rect.x0), pixel_centres::<T>(rect.y0));
 
         // Per-pixel state, walked back to front from each pixel's last contributor.
         let mut trans = [T::ZERO; P];
@@ -329,14 +360,13 @@ fn backward_band<T: Real, const EXTRAS: bool>(
                 }
                 let lo = xs.start.max(active_lo[ly]);
                 let hi = xs.end.min(active_hi[ly]);
-                let py = T::from_f64((rect.y0 + ly) as f64) + half;
+                let row = SplatRow::new(s, centre_y[ly]);
                 for lx in lo..hi {
                     let q = ly * TILE_SIZE + lx;
                     if k as u32 >= count[q] {
                         continue;
                     }
-                    let px = T::from_f64((rect.x0 + lx) as f64) + half;
-                    let Some((a, falloff, dx, dy)) = splat_alpha(s, px, py) else {
+                    let Some((a, falloff, dx, dy)) = splat_alpha(s, centre_x[lx], row) else {
                         continue;
                     };
                     let one_minus = one - a;
@@ -367,8 +397,8 @@ fn backward_band<T: Real, const EXTRAS: bool>(
                         acc.conic[0] += g_sigma * half * dx * dx;
                         acc.conic[1] += g_sigma * dx * dy;
                         acc.conic[2] += g_sigma * half * dy * dy;
-                        acc.mean2d[0] += g_sigma * (s.conic[0] * dx + s.conic[1] * dy);
-                        acc.mean2d[1] += g_sigma * (s.conic[1] * dx + s.conic[2] * dy);
+                        acc.mean2d[0] += g_sigma * (s.conic[0] * dx + row.b_dy);
+                        acc.mean2d[1] += g_sigma * (s.conic[1] * dx + row.c_dy);
                     }
                 }
             }
@@ -376,4 +406,78 @@ fn backward_band<T: Real, const EXTRAS: bool>(
         }
     }
     g_bg
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::project::mahalanobis;
+
+    /// A splat with the given centre and conic, opaque enough that most pixels near it count.
+    fn splat(mean2d: [f32; 2], conic: [f32; 3]) -> Splat<f32> {
+        Splat {
+            mean2d,
+            conic,
+            depth: 1.0,
+            opacity: 0.9,
+            color: [0.2, 0.5, 0.8],
+            radius: 20.0,
+            sigma_cut: 6.0,
+            extent: [20.0, 20.0],
+        }
+    }
+
+    /// The terms hoisted out of a row are the per-pixel expressions bit for bit: `sigma` through
+    /// `SplatRow` is `mahalanobis` of the same offsets, and the row's `b * dy` and `c * dy` are
+    /// those the mean gradient used per pixel, over centres, conics and rows of all signs and
+    /// scales (a wrong hoist, say `c * (dy * dy)`, differs on many of them).
+    #[test]
+    fn the_row_terms_are_the_per_pixel_expressions_bit_for_bit() {
+        let mut state = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+        };
+        let centres: [f32; TILE_SIZE] = pixel_centres(37);
+        let mut differing_sigma = 0;
+        for _ in 0..400 {
+            let scale = 10f32.powf(3.0 * next());
+            let (a, c) = (scale * (1.0 + next().abs()), scale * (1.0 + next().abs()));
+            let b = 0.9 * next() * (a * c).sqrt();
+            let s = splat([37.0 + 20.0 * next(), 11.0 + 20.0 * next()], [a, b, c]);
+            let py = 11.5 + (8.0 * next()).round();
+            let row = SplatRow::new(&s, py);
+            let dy = s.mean2d[1] - py;
+            assert_eq!(row.dy.to_bits(), dy.to_bits());
+            assert_eq!(row.b_dy.to_bits(), (s.conic[1] * dy).to_bits());
+            assert_eq!(row.c_dy.to_bits(), (s.conic[2] * dy).to_bits());
+            for &px in &centres {
+                let dx = s.mean2d[0] - px;
+                let direct = mahalanobis(s.conic, dx, dy);
+                let hoisted = mahalanobis_in_row(s.conic, dx, dy, row.c_dy2);
+                assert_eq!(hoisted.to_bits(), direct.to_bits(), "conic {:?}", s.conic);
+                let regrouped =
+                    0.5 * (s.conic[0] * dx * dx + s.conic[2] * (dy * dy)) + s.conic[1] * dx * dy;
+                differing_sigma += usize::from(regrouped.to_bits() != direct.to_bits());
+                let expected = (!(direct < 0.0 || direct > s.sigma_cut))
+                    .then(|| (s.opacity * (-direct).exp()).min(ALPHA_MAX as f32))
+                    .filter(|&alpha| alpha >= ALPHA_MIN as f32);
+                let got = splat_alpha(&s, px, row).map(|(alpha, ..)| alpha);
+                assert_eq!(got.map(f32::to_bits), expected.map(f32::to_bits));
+            }
+        }
+        // The check is sharp: another grouping of the same sum changes bits.
+        assert!(differing_sigma > 100, "{differing_sigma}");
+    }
+
+    /// Pixel centres are `origin + i + 0.5`, exactly, as the per-pixel loop computed them.
+    #[test]
+    fn pixel_centres_are_the_integer_plus_a_half() {
+        let centres: [f32; TILE_SIZE] = pixel_centres(4080);
+        for (i, &c) in centres.iter().enumerate() {
+            assert_eq!(c, (4080 + i) as f32 + 0.5);
+        }
+    }
 }

@@ -90,7 +90,14 @@ pub(crate) struct Splat<T: Real> {
 /// here, in this order of operations.
 #[inline(always)]
 pub(crate) fn mahalanobis<T: Real>(conic: [T; 3], dx: T, dy: T) -> T {
-    T::from_f64(0.5) * (conic[0] * dx * dx + conic[2] * dy * dy) + conic[1] * dx * dy
+    mahalanobis_in_row(conic, dx, dy, conic[2] * dy * dy)
+}
+
+/// [`mahalanobis`] given `c_dy2 = conic[2] * dy * dy`, the term every pixel of a row shares
+/// (computed once per row by the compositing loops); the same operations in the same order.
+#[inline(always)]
+pub(crate) fn mahalanobis_in_row<T: Real>(conic: [T; 3], dx: T, dy: T, c_dy2: T) -> T {
+    T::from_f64(0.5) * (conic[0] * dx * dx + c_dy2) + conic[1] * dx * dy
 }
 
 /// Gradients of a loss with respect to one splat's compositing inputs.
