@@ -86,8 +86,8 @@ pub(crate) struct Splat<T: Real> {
 }
 
 /// The Mahalanobis term `sigma = 0.5 (a dx^2 + c dy^2) + b dx dy` of the conic `(a, b, c)` at the
-/// offset `(dx, dy) = mean2d - pixel centre`. Compositing, binning and tests all evaluate it
-/// here, in this order of operations.
+/// offset `(dx, dy) = mean2d - pixel centre`. Binning and tests evaluate it here; compositing
+/// through [`mahalanobis_in_row`] with the row's term computed once. One order of operations.
 #[inline(always)]
 pub(crate) fn mahalanobis<T: Real>(conic: [T; 3], dx: T, dy: T) -> T {
     mahalanobis_in_row(conic, dx, dy, conic[2] * dy * dy)
