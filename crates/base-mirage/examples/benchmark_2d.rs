@@ -140,6 +140,7 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let args: Vec<String> = std::env::args().skip(1).collect();
     match args.first().map(String::as_str) {
         Some("fit") => {

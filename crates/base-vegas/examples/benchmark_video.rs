@@ -69,6 +69,7 @@ fn frame(f: usize) -> Image {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let steps: u64 = std::env::args().nth(1).map_or(Ok(600), |s| s.parse())?;
     let counts: Vec<usize> = std::env::args()
         .nth(2)

@@ -32,6 +32,7 @@ fn throughput(
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let repeats: usize = std::env::args().nth(1).map_or(Ok(5), |s| s.parse())?;
     println!("| product [m, k] x [k, n] | what | f32 GFLOP/s | f64 GFLOP/s | bf16 GFLOP/s |");
     println!("|---|---|---|---|---|");

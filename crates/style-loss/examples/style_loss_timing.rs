@@ -33,6 +33,7 @@ fn seconds_since(start: Instant) -> f64 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let repeats: usize = std::env::args().nth(1).map_or(Ok(1), |s| s.parse())?;
     let only_term = std::env::args().nth(2);
     let device = device()?;

@@ -22,6 +22,7 @@ fn peak_mb() -> f64 {
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let mut args = std::env::args().skip(1);
     let views: usize = args.next().map_or(Ok(10), |s| s.parse())?;
     let budget = match args.next().as_deref() {

@@ -32,6 +32,7 @@ pub mod compute_device;
 mod conv3x3;
 mod conv3x3_bf16;
 mod cpu_elements;
+pub mod cpu_threads;
 mod custom_grad;
 pub mod error;
 mod fused_cpu;

@@ -6,10 +6,12 @@ use candle_core::{DType, Tensor};
 use rand::Rng;
 
 use crate::clip::ClipModel;
+use crate::cpu_elements::generic_path;
 use crate::error::{Result, StyleLossError};
 use crate::patches::{PatchAugmentation, PatchSettings};
 use crate::style_direction::StyleDirection;
 use crate::terms;
+use crate::transfers::join_counted;
 use crate::vgg::{Vgg19Features, VggFeatures};
 
 /// The weights `lambda` of the four terms. A zero weight skips all work for its term.
@@ -188,6 +190,64 @@ fn scalar(t: &Tensor) -> Result<f64> {
     Ok(t.to_dtype(DType::F64)?.to_scalar::<f64>()?)
 }
 
+/// One of the four terms; the discriminant indexes [`StyleLoss::term_tensors`]'s array.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Term {
+    Directional = 0,
+    Patch = 1,
+    Content = 2,
+    Background = 3,
+}
+
+impl Term {
+    /// The term's name in messages.
+    fn name(self) -> &'static str {
+        match self {
+            Term::Directional => "directional",
+            Term::Patch => "patch",
+            Term::Content => "content",
+            Term::Background => "background",
+        }
+    }
+
+    /// Its weight `lambda`.
+    fn weight(self, weights: &LossWeights) -> f64 {
+        match self {
+            Term::Directional => weights.directional,
+            Term::Patch => weights.patch,
+            Term::Content => weights.content,
+            Term::Background => weights.background,
+        }
+    }
+}
+
+/// The terms that run CLIP.
+const CLIP_TERMS: [Term; 2] = [Term::Directional, Term::Patch];
+/// The terms computed on the image itself (VGG-19 features, pixels).
+const IMAGE_TERMS: [Term; 2] = [Term::Content, Term::Background];
+
+/// A group of terms' weighted sum and image gradient, and the values of the terms that are on.
+struct GroupValue {
+    present: Vec<(Term, Tensor)>,
+    total: Tensor,
+    grad: Tensor,
+}
+
+/// Refuses an image whose size is not the one its view was cached at.
+fn check_view_size(image: &Tensor, cache: &ViewCache) -> Result<()> {
+    let (_, _, height, width) = image.dims4()?;
+    if (height, width) != (cache.height, cache.width) {
+        return Err(StyleLossError::Input {
+            name: "image".into(),
+            reason: format!(
+                "{height}x{width}, but the view was cached at {}x{}",
+                cache.height, cache.width
+            ),
+        });
+    }
+    Ok(())
+}
+
 /// The style loss of a stylization run: models, style direction, weights, patch settings.
 #[derive(Clone, Debug)]
 pub struct StyleLoss {
@@ -341,17 +401,26 @@ impl StyleLoss {
         cache: &ViewCache,
         patches: &[PatchAugmentation],
     ) -> Result<[Option<Tensor>; 4]> {
-        let (_, _, height, width) = image.dims4()?;
-        if (height, width) != (cache.height, cache.width) {
-            return Err(StyleLossError::Input {
-                name: "image".into(),
-                reason: format!(
-                    "{height}x{width}, but the view was cached at {}x{}",
-                    cache.height, cache.width
-                ),
-            });
+        check_view_size(image, cache)?;
+        Ok([
+            self.term_tensor(Term::Directional, image, cache, patches)?,
+            self.term_tensor(Term::Patch, image, cache, patches)?,
+            self.term_tensor(Term::Content, image, cache, patches)?,
+            self.term_tensor(Term::Background, image, cache, patches)?,
+        ])
+    }
+
+    /// One term of [`Self::term_tensors`] (the image's size already checked).
+    fn term_tensor(
+        &self,
+        term: Term,
+        image: &Tensor,
+        cache: &ViewCache,
+        patches: &[PatchAugmentation],
+    ) -> Result<Option<Tensor>> {
+        if term.weight(&self.weights) <= 0.0 {
+            return Ok(None);
         }
-        let w = &self.weights;
         let missing = |what: &str| StyleLossError::Input {
             name: "cache".into(),
             reason: format!("the view cache has no {what}; build it with this StyleLoss"),
@@ -362,60 +431,91 @@ impl StyleLoss {
                 .as_ref()
                 .ok_or_else(|| missing("CLIP embedding"))
         };
-        let directional = if w.directional > 0.0 {
-            Some(terms::directional(
+        Ok(match term {
+            Term::Directional => Some(terms::directional(
                 &self.clip,
                 &self.direction,
                 image,
                 gt_embedding()?,
-            )?)
-        } else {
-            None
-        };
-        let patch = if w.patch > 0.0 {
-            if patches.is_empty() {
-                return Err(StyleLossError::Input {
-                    name: "patches".into(),
-                    reason: "the patch weight is positive but no patch was given".into(),
-                });
-            }
-            Some(terms::patch(
-                &self.clip,
-                &self.direction,
-                image,
-                gt_embedding()?,
-                patches,
-                self.patches.patch_size,
-            )?)
-        } else {
-            None
-        };
-        let content = match (w.content > 0.0, &self.vgg) {
-            (true, Some(vgg)) => {
-                let gt = cache.vgg.as_ref().ok_or_else(|| missing("VGG features"))?;
-                Some(terms::content(vgg, image, gt)?)
-            }
-            _ => None,
-        };
-        let background = if w.background > 0.0 {
-            let target = cache
-                .background
-                .as_ref()
-                .ok_or_else(|| missing("background mask"))?;
-            if target.count > 0.0 {
-                Some(terms::background(
+            )?),
+            Term::Patch => {
+                if patches.is_empty() {
+                    return Err(StyleLossError::Input {
+                        name: "patches".into(),
+                        reason: "the patch weight is positive but no patch was given".into(),
+                    });
+                }
+                Some(terms::patch(
+                    &self.clip,
+                    &self.direction,
                     image,
-                    &target.gt,
-                    &target.mask,
-                    target.count,
+                    gt_embedding()?,
+                    patches,
+                    self.patches.patch_size,
                 )?)
-            } else {
-                None
             }
-        } else {
-            None
-        };
-        Ok([directional, patch, content, background])
+            Term::Content => match &self.vgg {
+                Some(vgg) => {
+                    let gt = cache.vgg.as_ref().ok_or_else(|| missing("VGG features"))?;
+                    Some(terms::content(vgg, image, gt)?)
+                }
+                None => None,
+            },
+            Term::Background => {
+                let target = cache
+                    .background
+                    .as_ref()
+                    .ok_or_else(|| missing("background mask"))?;
+                if target.count > 0.0 {
+                    Some(terms::background(
+                        image,
+                        &target.gt,
+                        &target.mask,
+                        target.count,
+                    )?)
+                } else {
+                    None
+                }
+            }
+        })
+    }
+
+    /// The weighted sum of the terms of `group` that are on, its gradient with respect to
+    /// `image` (one backward pass), and each such term's value; `None` when none is on.
+    fn group_value_and_grad(
+        &self,
+        group: &[Term],
+        image: &Tensor,
+        cache: &ViewCache,
+        patches: &[PatchAugmentation],
+    ) -> Result<Option<GroupValue>> {
+        if group.iter().all(|t| t.weight(&self.weights) <= 0.0) {
+            return Ok(None);
+        }
+        let mut present = Vec::with_capacity(group.len());
+        let (total, grad) = terms::value_tensor_and_grad(image, |x| {
+            let mut total: Option<Tensor> = None;
+            for &term in group {
+                if let Some(value) = self.term_tensor(term, x, cache, patches)? {
+                    let weighted = (&value * term.weight(&self.weights))?;
+                    present.push((term, value.detach()));
+                    total = Some(match total {
+                        Some(t) => (t + weighted)?,
+                        None => weighted,
+                    });
+                }
+            }
+            // No term on (a view without background pixels): a constant 0, gradient zeros.
+            match total {
+                Some(total) => Ok(total),
+                None => Ok(Tensor::zeros((), DType::F32, x.device())?),
+            }
+        })?;
+        Ok(Some(GroupValue {
+            present,
+            total,
+            grad,
+        }))
     }
 
     /// Total loss and `d total / d image` for one view with patches drawn from `rng`.
@@ -439,29 +539,29 @@ impl StyleLoss {
         patches: &[PatchAugmentation],
     ) -> Result<StyleLossOutput> {
         let batched = as_batch_of_one(image, "image")?;
-        let w = &self.weights;
-        let weights = [w.directional, w.patch, w.content, w.background];
-        // The terms that are on, left on the device until the one read below.
-        let mut present: Vec<(usize, Tensor)> = Vec::with_capacity(4);
-        let (total, grad) = terms::value_tensor_and_grad(&batched, |x| {
-            let terms = self.term_tensors(x, cache, patches)?;
-            let mut total: Option<Tensor> = None;
-            for (i, (term, weight)) in terms.iter().zip(weights).enumerate() {
-                if let Some(term) = term {
-                    present.push((i, term.detach()));
-                    let weighted = (term * weight)?;
-                    total = Some(match total {
-                        Some(t) => (t + weighted)?,
-                        None => weighted,
-                    });
-                }
-            }
-            // No term on: a constant 0, whose gradient is zeros.
-            match total {
-                Some(total) => Ok(total),
-                None => Ok(Tensor::zeros((), DType::F32, x.device())?),
-            }
-        })?;
+        check_view_size(&batched, cache)?;
+        // Two independent graphs, CLIP's terms and the image-space ones, each with its own
+        // backward pass; their gradients add. On the CPU they run at once, each filling the
+        // other's idle moments (small ops, waits between products); a GPU, and the generic
+        // path that stands for it, runs them one after the other.
+        let clip_group = || self.group_value_and_grad(&CLIP_TERMS, &batched, cache, patches);
+        let image_group = || self.group_value_and_grad(&IMAGE_TERMS, &batched, cache, patches);
+        let (clip, image_space) = if batched.device().is_cpu() && !generic_path() {
+            join_counted(clip_group, image_group)
+        } else {
+            (clip_group(), image_group())
+        };
+        let groups: Vec<GroupValue> = [clip?, image_space?].into_iter().flatten().collect();
+        let present: Vec<(Term, Tensor)> = groups.iter().flat_map(|g| g.present.clone()).collect();
+        let (total, grad) = match groups.as_slice() {
+            [] => (
+                Tensor::zeros((), DType::F32, batched.device())?,
+                batched.zeros_like()?,
+            ),
+            [one] => (one.total.clone(), one.grad.clone()),
+            [a, b] => ((&a.total + &b.total)?, (&a.grad + &b.grad)?),
+            _ => unreachable!("two groups at most"),
+        };
         // One transfer for the step: the terms, the total and the gradient's squared norm.
         let mut parts = present
             .iter()
@@ -474,14 +574,13 @@ impl StyleLoss {
             .to_vec1::<f64>()?;
         crate::transfers::record_read(std::mem::size_of_val(read.as_slice()));
         let mut values = [0f64; 4];
-        let names = ["directional", "patch", "content", "background"];
-        for ((i, _), &value) in present.iter().zip(&read) {
+        for ((term, _), &value) in present.iter().zip(&read) {
             if !value.is_finite() {
                 return Err(StyleLossError::NonFinite {
-                    what: format!("the {} loss ({value})", names[*i]),
+                    what: format!("the {} loss ({value})", term.name()),
                 });
             }
-            values[*i] = value;
+            values[*term as usize] = value;
         }
         let (total, grad_norm) = (read[read.len() - 2], read[read.len() - 1]);
         if !grad_norm.is_finite() {

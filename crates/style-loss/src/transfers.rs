@@ -58,3 +58,38 @@ pub fn record_read(bytes: usize) {
     c.read_bytes += bytes as u64;
     COUNTS.set(c);
 }
+
+/// Adds `counts` to this thread's.
+fn add(counts: Transfers) {
+    let c = COUNTS.get();
+    COUNTS.set(Transfers {
+        uploads: c.uploads + counts.uploads,
+        uploaded_bytes: c.uploaded_bytes + counts.uploaded_bytes,
+        reads: c.reads + counts.reads,
+        read_bytes: c.read_bytes + counts.read_bytes,
+    });
+}
+
+/// Runs `f` and returns its value with what it transferred and the thread it ran on.
+fn counted<R>(f: impl FnOnce() -> R) -> (R, Transfers, std::thread::ThreadId) {
+    let before = snapshot();
+    let value = f();
+    (value, snapshot() - before, std::thread::current().id())
+}
+
+/// `rayon::join(a, b)`, with what either closure transfers counted on this thread, as if both
+/// had run here (rayon runs them on its own threads when it chooses).
+pub(crate) fn join_counted<RA: Send, RB: Send>(
+    a: impl FnOnce() -> RA + Send,
+    b: impl FnOnce() -> RB + Send,
+) -> (RA, RB) {
+    let here = std::thread::current().id();
+    let ((ra, a_counts, a_thread), (rb, b_counts, b_thread)) =
+        rayon::join(|| counted(a), || counted(b));
+    for (counts, thread) in [(a_counts, a_thread), (b_counts, b_thread)] {
+        if thread != here {
+            add(counts);
+        }
+    }
+    (ra, rb)
+}

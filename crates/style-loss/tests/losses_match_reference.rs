@@ -202,6 +202,44 @@ fn empty_background_mask_gives_zero_not_nan() {
     assert!(loss.cache_view(&s.tensors["gt"], None).is_err());
 }
 
+/// A step evaluates CLIP's terms and the image-space terms as two graphs (at once, on the
+/// CPU) and adds their gradients: the same as one graph of the weighted sum of all four terms.
+#[test]
+#[allow(clippy::result_large_err)]
+fn the_two_groups_add_up_to_one_graph_of_all_terms() {
+    let s = setup();
+    let loss = style_loss(&s, s.weights);
+    let cache = loss
+        .cache_view(&s.tensors["gt"], Some(&white_mask(&s)))
+        .unwrap();
+    let render = &s.tensors["render"];
+    let step = loss
+        .loss_and_grad_with_patches(render, &cache, &s.patches)
+        .unwrap();
+    let w = s.weights;
+    let weights = [w.directional, w.patch, w.content, w.background];
+    assert!(
+        weights.iter().all(|&w| w > 0.0),
+        "the fixture turns every term on"
+    );
+    let (total, grad) = style_loss::terms::value_and_grad(render, |x| {
+        let terms = loss.term_tensors(x, &cache, &s.patches)?;
+        let mut sum = Tensor::zeros((), DType::F32, x.device())?;
+        for (term, weight) in terms.iter().zip(weights) {
+            sum = (sum + (term.as_ref().expect("every term is on") * weight)?)?;
+        }
+        Ok(sum)
+    })
+    .unwrap();
+    assert!(
+        (step.total - total).abs() <= 1e-6 * total.abs(),
+        "{} vs {total}",
+        step.total
+    );
+    let err = relative_error(&step.grad, &grad);
+    assert!(err < 1e-6, "gradient relative error {err}");
+}
+
 #[test]
 fn seeded_runs_repeat_exactly_and_chw_input_is_accepted() {
     let s = setup();

@@ -305,6 +305,7 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
 fn main() -> ExitCode {
     // A step frees and re-allocates gigabytes of tensors: keep them in the process.
     style_loss::memory::keep_freed_memory();
+    style_loss::cpu_threads::candle_ops_on_calling_thread();
     let cli: Cli = gs_stylize::cli::parse_command_line();
     let result = match &cli.command {
         Command::Stylize(args) => stylize(args),
