@@ -233,6 +233,33 @@ struct GroupValue {
     grad: Tensor,
 }
 
+/// The error for a view cache built without `what`.
+fn missing_from_cache(what: &str) -> StyleLossError {
+    StyleLossError::Input {
+        name: "cache".into(),
+        reason: format!("the view cache has no {what}; build it with this StyleLoss"),
+    }
+}
+
+/// The ground truth's CLIP embedding of a view cache.
+fn clip_embedding_of(cache: &ViewCache) -> Result<&Tensor> {
+    cache
+        .clip_embedding
+        .as_ref()
+        .ok_or_else(|| missing_from_cache("CLIP embedding"))
+}
+
+/// Refuses an empty set of patches when the patch term is on.
+fn check_patches_given(patches: &[PatchAugmentation]) -> Result<()> {
+    if patches.is_empty() {
+        return Err(StyleLossError::Input {
+            name: "patches".into(),
+            reason: "the patch weight is positive but no patch was given".into(),
+        });
+    }
+    Ok(())
+}
+
 /// Refuses an image whose size is not the one its view was cached at.
 fn check_view_size(image: &Tensor, cache: &ViewCache) -> Result<()> {
     let (_, _, height, width) = image.dims4()?;
@@ -421,42 +448,30 @@ impl StyleLoss {
         if term.weight(&self.weights) <= 0.0 {
             return Ok(None);
         }
-        let missing = |what: &str| StyleLossError::Input {
-            name: "cache".into(),
-            reason: format!("the view cache has no {what}; build it with this StyleLoss"),
-        };
-        let gt_embedding = || {
-            cache
-                .clip_embedding
-                .as_ref()
-                .ok_or_else(|| missing("CLIP embedding"))
-        };
         Ok(match term {
             Term::Directional => Some(terms::directional(
                 &self.clip,
                 &self.direction,
                 image,
-                gt_embedding()?,
+                clip_embedding_of(cache)?,
             )?),
             Term::Patch => {
-                if patches.is_empty() {
-                    return Err(StyleLossError::Input {
-                        name: "patches".into(),
-                        reason: "the patch weight is positive but no patch was given".into(),
-                    });
-                }
+                check_patches_given(patches)?;
                 Some(terms::patch(
                     &self.clip,
                     &self.direction,
                     image,
-                    gt_embedding()?,
+                    clip_embedding_of(cache)?,
                     patches,
                     self.patches.patch_size,
                 )?)
             }
             Term::Content => match &self.vgg {
                 Some(vgg) => {
-                    let gt = cache.vgg.as_ref().ok_or_else(|| missing("VGG features"))?;
+                    let gt = cache
+                        .vgg
+                        .as_ref()
+                        .ok_or_else(|| missing_from_cache("VGG features"))?;
                     Some(terms::content(vgg, image, gt)?)
                 }
                 None => None,
@@ -465,7 +480,7 @@ impl StyleLoss {
                 let target = cache
                     .background
                     .as_ref()
-                    .ok_or_else(|| missing("background mask"))?;
+                    .ok_or_else(|| missing_from_cache("background mask"))?;
                 if target.count > 0.0 {
                     Some(terms::background(
                         image,
@@ -478,6 +493,37 @@ impl StyleLoss {
                 }
             }
         })
+    }
+
+    /// The values of the terms of `group` that are on, in the group's order. CLIP's two terms,
+    /// both on, share one pass of the vision tower ([`terms::directional_and_patch`]).
+    fn group_terms(
+        &self,
+        group: &[Term],
+        image: &Tensor,
+        cache: &ViewCache,
+        patches: &[PatchAugmentation],
+    ) -> Result<Vec<(Term, Tensor)>> {
+        let on = |t: &Term| t.weight(&self.weights) > 0.0;
+        if group == CLIP_TERMS && group.iter().all(on) {
+            check_patches_given(patches)?;
+            let (directional, patch) = terms::directional_and_patch(
+                &self.clip,
+                &self.direction,
+                image,
+                clip_embedding_of(cache)?,
+                patches,
+                self.patches.patch_size,
+            )?;
+            return Ok(vec![(Term::Directional, directional), (Term::Patch, patch)]);
+        }
+        let mut values = Vec::with_capacity(group.len());
+        for &term in group {
+            if let Some(value) = self.term_tensor(term, image, cache, patches)? {
+                values.push((term, value));
+            }
+        }
+        Ok(values)
     }
 
     /// The weighted sum of the terms of `group` that are on, its gradient with respect to
@@ -495,15 +541,13 @@ impl StyleLoss {
         let mut present = Vec::with_capacity(group.len());
         let (total, grad) = terms::value_tensor_and_grad(image, |x| {
             let mut total: Option<Tensor> = None;
-            for &term in group {
-                if let Some(value) = self.term_tensor(term, x, cache, patches)? {
-                    let weighted = (&value * term.weight(&self.weights))?;
-                    present.push((term, value.detach()));
-                    total = Some(match total {
-                        Some(t) => (t + weighted)?,
-                        None => weighted,
-                    });
-                }
+            for (term, value) in self.group_terms(group, x, cache, patches)? {
+                let weighted = (&value * term.weight(&self.weights))?;
+                present.push((term, value.detach()));
+                total = Some(match total {
+                    Some(t) => (t + weighted)?,
+                    None => weighted,
+                });
             }
             // No term on (a view without background pixels): a constant 0, gradient zeros.
             match total {

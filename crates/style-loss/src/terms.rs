@@ -23,8 +23,9 @@
 
 use candle_core::{DType, Tensor, Var};
 
-use crate::clip::ClipModel;
+use crate::clip::{clip_preprocess, ClipModel};
 use crate::error::Result;
+use crate::nn::l2_normalize;
 use crate::patches::{warped_patches, PatchAugmentation};
 use crate::style_direction::StyleDirection;
 use crate::torch_ties;
@@ -59,6 +60,29 @@ pub fn patch(
     Ok(direction
         .directional_loss(&embeddings, gt_embedding)?
         .mean_all()?)
+}
+
+/// `(L_d, L_p)` from one pass of CLIP's vision tower over the whole image and its patches
+/// together (a batch of `1 + patches.len()`), the values [`directional`] and [`patch`] give
+/// apart: one image alone makes products of few rows, whose fixed costs a batch shares.
+pub fn directional_and_patch(
+    clip: &ClipModel,
+    direction: &StyleDirection,
+    image: &Tensor,
+    gt_embedding: &Tensor,
+    patches: &[PatchAugmentation],
+    patch_size: usize,
+) -> Result<(Tensor, Tensor)> {
+    let size = clip.image_size();
+    let whole = clip_preprocess(image, size)?;
+    let crops = clip_preprocess(&warped_patches(image, patches, patch_size, size)?, size)?;
+    let pixels = Tensor::cat(&[&whole, &crops], 0)?;
+    let embeddings = l2_normalize(&clip.encode_pixels(&pixels)?)?;
+    let losses = direction.directional_loss(&embeddings, gt_embedding)?;
+    Ok((
+        losses.narrow(0, 0, 1)?.mean_all()?,
+        losses.narrow(0, 1, patches.len())?.mean_all()?,
+    ))
 }
 
 /// `L_c = mean((F4 - F4_gt)^2) + mean((F5 - F5_gt)^2)` over VGG-19's conv4_2 and conv5_2

@@ -203,7 +203,8 @@ fn empty_background_mask_gives_zero_not_nan() {
 }
 
 /// A step evaluates CLIP's terms and the image-space terms as two graphs (at once, on the
-/// CPU) and adds their gradients: the same as one graph of the weighted sum of all four terms.
+/// CPU), CLIP's two terms in one batch of the whole image and the patches, and adds the graphs'
+/// gradients: the same as one graph of the weighted sum of the four terms each computed alone.
 #[test]
 #[allow(clippy::result_large_err)]
 fn the_two_groups_add_up_to_one_graph_of_all_terms() {
@@ -222,6 +223,23 @@ fn the_two_groups_add_up_to_one_graph_of_all_terms() {
         weights.iter().all(|&w| w > 0.0),
         "the fixture turns every term on"
     );
+    let alone = loss.term_tensors(render, &cache, &s.patches).unwrap();
+    let alone: Vec<f64> = alone
+        .iter()
+        .map(|t| t.as_ref().unwrap().to_scalar::<f32>().unwrap() as f64)
+        .collect();
+    let stepped = [
+        step.terms.directional,
+        step.terms.patch,
+        step.terms.content,
+        step.terms.background,
+    ];
+    for (i, (ours, alone)) in stepped.iter().zip(&alone).enumerate() {
+        assert!(
+            (ours - alone).abs() <= 1e-6 * alone.abs(),
+            "term {i}: {ours} vs {alone} alone"
+        );
+    }
     let (total, grad) = style_loss::terms::value_and_grad(render, |x| {
         let terms = loss.term_tensors(x, &cache, &s.patches)?;
         let mut sum = Tensor::zeros((), DType::F32, x.device())?;
