@@ -31,6 +31,7 @@ pub mod clip;
 pub mod compute_device;
 mod conv3x3;
 mod conv3x3_bf16;
+mod conv3x3_winograd;
 mod cpu_elements;
 pub mod cpu_threads;
 mod custom_grad;
