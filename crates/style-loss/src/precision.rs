@@ -84,7 +84,7 @@ pub enum VggPrecision {
     F32,
     /// The backward's products (the adjoint convolutions on the gradient) in bf16: gradient and
     /// kernels rounded to bf16, f32 sums, each output rounded to bf16. The forward stays f32,
-    /// summed in f32 rather than exactly. The CPU only.
+    /// by Winograd's F(2x2, 3x3) rather than summed exactly. The CPU only.
     Bf16,
     /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else.
     Auto,
