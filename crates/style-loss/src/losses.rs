@@ -260,6 +260,20 @@ fn check_patches_given(patches: &[PatchAugmentation]) -> Result<()> {
     Ok(())
 }
 
+/// `(a(), b())`: at once on the CPU (two rayon tasks, their transfers counted on this thread),
+/// one after the other on a GPU and under [`crate::GenericPath`], which stands for it.
+fn at_once<RA: Send, RB: Send>(
+    device: &candle_core::Device,
+    a: impl FnOnce() -> RA + Send,
+    b: impl FnOnce() -> RB + Send,
+) -> (RA, RB) {
+    if device.is_cpu() && !generic_path() {
+        join_counted(a, b)
+    } else {
+        (a(), b())
+    }
+}
+
 /// Refuses an image whose size is not the one its view was cached at.
 fn check_view_size(image: &Tensor, cache: &ViewCache) -> Result<()> {
     let (_, _, height, width) = image.dims4()?;
@@ -358,20 +372,27 @@ impl StyleLoss {
 
     /// Computes what a view needs, once: the GT's CLIP embedding and VGG features, and its
     /// background mask (`[h, w]`, 1 = background; see [`background_mask_from_color`]) when the
-    /// background loss is on. `gt` is `[3, h, w]` or `[1, 3, h, w]` in [0, 1].
+    /// background loss is on. `gt` is `[3, h, w]` or `[1, 3, h, w]` in [0, 1]. On the CPU the
+    /// CLIP embedding and the VGG features are computed at once.
     pub fn cache_view(&self, gt: &Tensor, background_mask: Option<&Tensor>) -> Result<ViewCache> {
         let gt = as_batch_of_one(gt, "gt")?.detach();
         let (_, _, height, width) = gt.dims4()?;
         let w = &self.weights;
-        let clip_embedding = if w.directional > 0.0 || w.patch > 0.0 {
-            Some(self.clip.encode_images(&gt)?.detach())
-        } else {
-            None
+        let clip_embedding = || -> Result<Option<Tensor>> {
+            Ok(if w.directional > 0.0 || w.patch > 0.0 {
+                Some(self.clip.encode_images(&gt)?.detach())
+            } else {
+                None
+            })
         };
-        let vgg = match (&self.vgg, w.content > 0.0) {
-            (Some(vgg), true) => Some(vgg.forward(&gt)?.detach()),
-            _ => None,
+        let vgg = || -> Result<Option<VggFeatures>> {
+            Ok(match (&self.vgg, w.content > 0.0) {
+                (Some(vgg), true) => Some(vgg.forward(&gt)?.detach()),
+                _ => None,
+            })
         };
+        let (clip_embedding, vgg) = at_once(gt.device(), clip_embedding, vgg);
+        let (clip_embedding, vgg) = (clip_embedding?, vgg?);
         let background = match (background_mask, w.background > 0.0) {
             (Some(mask), true) => {
                 if mask.dims() != [height, width] {
@@ -588,13 +609,11 @@ impl StyleLoss {
         // backward pass; their gradients add. On the CPU they run at once, each filling the
         // other's idle moments (small ops, waits between products); a GPU, and the generic
         // path that stands for it, runs them one after the other.
-        let clip_group = || self.group_value_and_grad(&CLIP_TERMS, &batched, cache, patches);
-        let image_group = || self.group_value_and_grad(&IMAGE_TERMS, &batched, cache, patches);
-        let (clip, image_space) = if batched.device().is_cpu() && !generic_path() {
-            join_counted(clip_group, image_group)
-        } else {
-            (clip_group(), image_group())
-        };
+        let (clip, image_space) = at_once(
+            batched.device(),
+            || self.group_value_and_grad(&CLIP_TERMS, &batched, cache, patches),
+            || self.group_value_and_grad(&IMAGE_TERMS, &batched, cache, patches),
+        );
         let groups: Vec<GroupValue> = [clip?, image_space?].into_iter().flatten().collect();
         let present: Vec<(Term, Tensor)> = groups.iter().flat_map(|g| g.present.clone()).collect();
         let (total, grad) = match groups.as_slice() {
