@@ -24,7 +24,7 @@
 use candle_core::{DType, Tensor, Var};
 
 use crate::clip::{clip_preprocess, ClipModel};
-use crate::error::Result;
+use crate::error::{Result, StyleLossError};
 use crate::nn::l2_normalize;
 use crate::patches::{warped_patches, PatchAugmentation};
 use crate::style_direction::StyleDirection;
@@ -65,6 +65,7 @@ pub fn patch(
 /// `(L_d, L_p)` from one pass of CLIP's vision tower over the whole image and its patches
 /// together (a batch of `1 + patches.len()`), the values [`directional`] and [`patch`] give
 /// apart: one image alone makes products of few rows, whose fixed costs a batch shares.
+/// `patches` must not be empty (the patch loss would be the mean of nothing).
 pub fn directional_and_patch(
     clip: &ClipModel,
     direction: &StyleDirection,
@@ -73,6 +74,12 @@ pub fn directional_and_patch(
     patches: &[PatchAugmentation],
     patch_size: usize,
 ) -> Result<(Tensor, Tensor)> {
+    if patches.is_empty() {
+        return Err(StyleLossError::Input {
+            name: "patches".into(),
+            reason: "the patch loss needs at least one patch".into(),
+        });
+    }
     let size = clip.image_size();
     let whole = clip_preprocess(image, size)?;
     let crops = clip_preprocess(&warped_patches(image, patches, patch_size, size)?, size)?;

@@ -258,6 +258,23 @@ fn the_two_groups_add_up_to_one_graph_of_all_terms() {
     assert!(err < 1e-6, "gradient relative error {err}");
 }
 
+/// CLIP's two terms in one batch need a patch: the patch loss of none would be a silent NaN.
+#[test]
+fn the_joint_clip_terms_refuse_an_empty_set_of_patches() {
+    let s = setup();
+    let gt_embedding = s.clip.encode_images(&s.tensors["gt"]).unwrap();
+    let e = style_loss::terms::directional_and_patch(
+        &s.clip,
+        &s.direction,
+        &s.tensors["render"],
+        &gt_embedding,
+        &[],
+        s.settings.patch_size,
+    )
+    .unwrap_err();
+    assert!(e.to_string().contains("at least one patch"), "{e}");
+}
+
 #[test]
 fn seeded_runs_repeat_exactly_and_chw_input_is_accepted() {
     let s = setup();
