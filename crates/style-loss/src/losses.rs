@@ -249,17 +249,6 @@ fn clip_embedding_of(cache: &ViewCache) -> Result<&Tensor> {
         .ok_or_else(|| missing_from_cache("CLIP embedding"))
 }
 
-/// Refuses an empty set of patches when the patch term is on.
-fn check_patches_given(patches: &[PatchAugmentation]) -> Result<()> {
-    if patches.is_empty() {
-        return Err(StyleLossError::Input {
-            name: "patches".into(),
-            reason: "the patch weight is positive but no patch was given".into(),
-        });
-    }
-    Ok(())
-}
-
 /// `(a(), b())`: at once on the CPU (two rayon tasks, their transfers counted on this thread),
 /// one after the other on a GPU and under [`crate::GenericPath`], which stands for it.
 fn at_once<RA: Send, RB: Send>(
@@ -476,17 +465,14 @@ impl StyleLoss {
                 image,
                 clip_embedding_of(cache)?,
             )?),
-            Term::Patch => {
-                check_patches_given(patches)?;
-                Some(terms::patch(
-                    &self.clip,
-                    &self.direction,
-                    image,
-                    clip_embedding_of(cache)?,
-                    patches,
-                    self.patches.patch_size,
-                )?)
-            }
+            Term::Patch => Some(terms::patch(
+                &self.clip,
+                &self.direction,
+                image,
+                clip_embedding_of(cache)?,
+                patches,
+                self.patches.patch_size,
+            )?),
             Term::Content => match &self.vgg {
                 Some(vgg) => {
                     let gt = cache
@@ -527,7 +513,6 @@ impl StyleLoss {
     ) -> Result<Vec<(Term, Tensor)>> {
         let on = |t: &Term| t.weight(&self.weights) > 0.0;
         if group == CLIP_TERMS && group.iter().all(on) {
-            check_patches_given(patches)?;
             let (directional, patch) = terms::directional_and_patch(
                 &self.clip,
                 &self.direction,

@@ -47,6 +47,7 @@ pub fn directional(
 
 /// `L_p`: the mean over `patches` (crops of `patch_size` pixels, perspective-warped, resized
 /// to CLIP's input) of the directional loss of each patch against the full ground truth.
+/// `patches` must not be empty (the patch loss would be the mean of nothing).
 pub fn patch(
     clip: &ClipModel,
     direction: &StyleDirection,
@@ -55,11 +56,23 @@ pub fn patch(
     patches: &[PatchAugmentation],
     patch_size: usize,
 ) -> Result<Tensor> {
+    check_patches_given(patches)?;
     let crops = warped_patches(image, patches, patch_size, clip.image_size())?;
     let embeddings = clip.encode_images(&crops)?;
     Ok(direction
         .directional_loss(&embeddings, gt_embedding)?
         .mean_all()?)
+}
+
+/// Refuses an empty set of patches: the patch loss would be the mean of nothing, a NaN.
+fn check_patches_given(patches: &[PatchAugmentation]) -> Result<()> {
+    if patches.is_empty() {
+        return Err(StyleLossError::Input {
+            name: "patches".into(),
+            reason: "the patch loss needs at least one patch, and none was given".into(),
+        });
+    }
+    Ok(())
 }
 
 /// `(L_d, L_p)` from one pass of CLIP's vision tower over the whole image and its patches
@@ -74,12 +87,7 @@ pub fn directional_and_patch(
     patches: &[PatchAugmentation],
     patch_size: usize,
 ) -> Result<(Tensor, Tensor)> {
-    if patches.is_empty() {
-        return Err(StyleLossError::Input {
-            name: "patches".into(),
-            reason: "the patch loss needs at least one patch".into(),
-        });
-    }
+    check_patches_given(patches)?;
     let size = clip.image_size();
     let whole = clip_preprocess(image, size)?;
     let crops = clip_preprocess(&warped_patches(image, patches, patch_size, size)?, size)?;
