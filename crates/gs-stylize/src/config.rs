@@ -79,9 +79,9 @@ pub struct StyleSettings {
     /// The error of each against f32 is in docs/benchmarks.md.
     pub clip_precision: ClipPrecision,
     /// The format of VGG's products: `f32` (the forward summed exactly before each ReLU
-    /// decides, as the f32 PyTorch network decides); `bf16`, the backward's products in bf16
-    /// and the forward's in f32 by Winograd's F(2x2, 3x3) (the CPU only; its error against f32
-    /// is in docs/benchmarks.md);
+    /// decides, as the f32 PyTorch network decides); `bf16`, on the layers of 256 channels and
+    /// more, the backward's products in bf16 and the forward's in f32 by Winograd's F(2x2, 3x3)
+    /// (the CPU only; its error against f32 is in docs/benchmarks.md);
     /// `auto`, `bf16` on a CPU with AVX-512 BF16 and `f32` elsewhere.
     #[serde(default)]
     pub vgg_precision: VggPrecision,

@@ -1,6 +1,7 @@
-//! 3x3 convolution, stride 1, zero padding 1, then bias and ReLU, of channels-last f32 images
-//! on the CPU by Winograd's minimal filtering F(2x2, 3x3) (Lavin and Gray, "Fast Algorithms
-//! for Convolutional Neural Networks", 2016).
+//! 3x3 convolution, stride 1, zero padding 1, of channels-last f32 images on the CPU by
+//! Winograd's minimal filtering F(2x2, 3x3) (Lavin and Gray, "Fast Algorithms for
+//! Convolutional Neural Networks", 2016), with bias and ReLU (a forward) or with the input gated
+//! by a ReLU mask (a backward's adjoint convolution).
 //!
 //! Each 2x2 block of outputs is computed from the 4x4 block of padded input around it: the
 //! input block is transformed (`V = Bᵀ d B`), multiplied element by element with the transformed
@@ -11,9 +12,9 @@
 //!
 //! The transforms add and halve, so the outputs carry a few more f32 roundings than the direct
 //! convolution's, and other ones (errors up to 1.4e-7 of the largest output in the tests, the
-//! order of an f32 sum's): this runs only where VGG's backward is in bf16 (`vgg_precision` bf16
-//! or `auto`), whose error is far larger. The f32 network keeps the direct convolution, whose
-//! forward sums are exact before a ReLU decides (`conv3x3`).
+//! order of an f32 sum's). VGG runs it on its wide layers only (`vgg_channels_last`): for the
+//! f32 backward (which decides nothing) and, where the backward is bf16, for the forward too;
+//! the f32 forward whose ReLUs route a gradient stays direct and exact (`conv3x3`).
 #![allow(unsafe_code)]
 
 use rayon::prelude::*;
@@ -61,6 +62,22 @@ impl WinogradKernel {
         Self { data, cin, cout }
     }
 
+    /// The adjoint of the convolution by PyTorch weights `[cout, cin, 3, 3]` (the map of output
+    /// gradients `cout` to input gradients `cin`): channels swapped, each 3x3 slice flipped in
+    /// both directions.
+    pub(crate) fn adjoint(weight: &[f32], cout: usize, cin: usize) -> Self {
+        assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
+        let mut flipped = vec![0f32; cin * cout * 9];
+        for o in 0..cout {
+            for i in 0..cin {
+                for tap in 0..9 {
+                    flipped[(i * cout + o) * 9 + tap] = weight[(o * cin + i) * 9 + 8 - tap];
+                }
+            }
+        }
+        Self::new(&flipped, cin, cout)
+    }
+
     /// Input channels.
     pub(crate) fn cin(&self) -> usize {
         self.cin
@@ -78,17 +95,28 @@ fn band_block_rows(blocks_x: usize, channels: usize) -> usize {
     (4_000_000 / (16 * blocks_x * channels).max(1)).max(1)
 }
 
-/// `relu(conv(input) + bias)` of `input` `[images, h, w, kernel.cin()]` (PyTorch's ReLU: NaN
-/// kept); returns `[images, h, w, kernel.cout()]`.
-pub(crate) fn conv3x3_winograd_bias_relu(
+/// `conv(input)` of `input` `[images, h, w, kernel.cin()]`; returns
+/// `[images, h, w, kernel.cout()]`. With `input_gate` (same shape as `input`), an input value
+/// counts only where the gate is above 0 or NaN (PyTorch's `threshold_backward`: the ReLU mask of
+/// a backward pass); with `bias_relu`, the output is `relu(conv + bias)` (PyTorch's ReLU: NaN
+/// kept).
+pub(crate) fn conv3x3_winograd(
     input: &[f32],
     (images, h, w): (usize, usize, usize),
     kernel: &WinogradKernel,
-    bias: &[f32],
+    input_gate: Option<&[f32]>,
+    bias_relu: Option<&[f32]>,
 ) -> Vec<f32> {
     let (cin, cout) = (kernel.cin, kernel.cout);
     assert_eq!(input.len(), images * h * w * cin, "winograd: input size");
-    assert_eq!(bias.len(), cout, "winograd: bias size");
+    assert!(
+        input_gate.is_none_or(|g| g.len() == input.len()),
+        "winograd: gate size"
+    );
+    assert!(
+        bias_relu.is_none_or(|b| b.len() == cout),
+        "winograd: bias size"
+    );
     let (blocks_y, blocks_x) = (h.div_ceil(2), w.div_ceil(2));
     let band = band_block_rows(blocks_x, cin.max(cout));
     let mut out = vec![0f32; images * h * w * cout];
@@ -96,13 +124,14 @@ pub(crate) fn conv3x3_winograd_bias_relu(
     let mut products = Vec::new();
     for image in 0..images {
         let src = &input[image * h * w * cin..(image + 1) * h * w * cin];
+        let gate = input_gate.map(|g| &g[image * h * w * cin..(image + 1) * h * w * cin]);
         let dst = &mut out[image * h * w * cout..(image + 1) * h * w * cout];
         for by0 in (0..blocks_y).step_by(band) {
             let rows = band.min(blocks_y - by0);
             let blocks = rows * blocks_x;
             // Every value is written before it is read: no clearing between bands.
             transformed.resize(16 * blocks * cin, 0f32);
-            transform_input(src, h, w, cin, by0, rows, blocks_x, &mut transformed);
+            transform_input(src, gate, h, w, cin, by0, rows, blocks_x, &mut transformed);
             products.resize(16 * blocks * cout, 0f32);
             for xi in 0..16 {
                 let lhs = &transformed[xi * blocks * cin..(xi + 1) * blocks * cin];
@@ -135,7 +164,7 @@ pub(crate) fn conv3x3_winograd_bias_relu(
                     );
                 }
             }
-            transform_output(&products, dst, h, w, cout, by0, rows, blocks_x, bias);
+            transform_output(&products, dst, h, w, cout, by0, rows, blocks_x, bias_relu);
         }
     }
     out
@@ -146,6 +175,48 @@ const LANES: usize = 16;
 
 /// A vector of `LANES` channels.
 type Lanes = [f32; LANES];
+
+/// The first `src.len() <= LANES` lanes of `dst` from `src`: a whole vector moves as one
+/// (a copy of variable length is a call to `memmove`).
+#[inline(always)]
+fn load(dst: &mut Lanes, src: &[f32]) {
+    match <&Lanes>::try_from(src) {
+        Ok(whole) => *dst = *whole,
+        Err(_) => {
+            for (d, &s) in dst.iter_mut().zip(src) {
+                *d = s;
+            }
+        }
+    }
+}
+
+/// [`load`] of `src` where `gate` (as long) is above 0 or NaN, 0 elsewhere (PyTorch's
+/// `threshold_backward`: zero where the forward output is `<= 0`).
+#[inline(always)]
+fn load_gated(dst: &mut Lanes, src: &[f32], gate: &[f32]) {
+    let open = |s: f32, g: f32| if g <= 0.0 { 0.0 } else { s };
+    match (<&Lanes>::try_from(src), <&Lanes>::try_from(gate)) {
+        (Ok(src), Ok(gate)) => *dst = std::array::from_fn(|l| open(src[l], gate[l])),
+        _ => {
+            for ((d, &s), &g) in dst.iter_mut().zip(src).zip(gate) {
+                *d = open(s, g);
+            }
+        }
+    }
+}
+
+/// `dst` (`len() <= LANES`) from the first lanes of `src`, as [`load`].
+#[inline(always)]
+fn store(dst: &mut [f32], src: &Lanes) {
+    match <&mut Lanes>::try_from(&mut *dst) {
+        Ok(whole) => *whole = *src,
+        Err(_) => {
+            for (d, &s) in dst.iter_mut().zip(src) {
+                *d = s;
+            }
+        }
+    }
+}
 
 /// Row `k` of `Bᵀ = [[1, 0, -1, 0], [0, 1, 1, 0], [0, -1, 1, 0], [0, 1, 0, -1]]` applied to
 /// four vectors, lane by lane.
@@ -170,10 +241,11 @@ fn output_row(k: usize, x: [&Lanes; 4]) -> Lanes {
 
 /// `Bᵀ d B` of the 4x4 input blocks of block rows `by0..by0 + rows` into `transformed`
 /// (`[16][blocks][cin]`), `d` the padded input around each 2x2 output block (zeros outside the
-/// image).
+/// image; input values where `gate` is `<= 0` count as 0).
 #[allow(clippy::too_many_arguments)]
 fn transform_input(
     src: &[f32],
+    gate: Option<&[f32]>,
     h: usize,
     w: usize,
     cin: usize,
@@ -207,7 +279,10 @@ fn transform_input(
                         let x = (2 * bx + b).wrapping_sub(1);
                         if x < w {
                             let at = (y * w + x) * cin + i0;
-                            d[..n].copy_from_slice(&src[at..at + n]);
+                            match gate {
+                                None => load(d, &src[at..at + n]),
+                                Some(gate) => load_gated(d, &src[at..at + n], &gate[at..at + n]),
+                            }
                         }
                     }
                 }
@@ -219,7 +294,7 @@ fn transform_input(
                 for (k, t) in t.iter().enumerate() {
                     for c in 0..4 {
                         let v = input_row(c, [&t[0], &t[1], &t[2], &t[3]]);
-                        part[k * 4 + c][at..at + n].copy_from_slice(&v[..n]);
+                        store(&mut part[k * 4 + c][at..at + n], &v);
                     }
                 }
             }
@@ -227,9 +302,9 @@ fn transform_input(
     });
 }
 
-/// `relu(Aᵀ M A + bias)` of the products of block rows `by0..by0 + rows` (`[16][blocks][cout]`)
-/// into the output image `dst` (`[h, w, cout]`); the outputs of a block past the image's last
-/// row or column are dropped.
+/// `Aᵀ M A` (`relu(Aᵀ M A + bias)` with `bias_relu`) of the products of block rows
+/// `by0..by0 + rows` (`[16][blocks][cout]`) into the output image `dst` (`[h, w, cout]`); the
+/// outputs of a block past the image's last row or column are dropped.
 #[allow(clippy::too_many_arguments)]
 fn transform_output(
     products: &[f32],
@@ -240,7 +315,7 @@ fn transform_output(
     by0: usize,
     rows: usize,
     blocks_x: usize,
-    bias: &[f32],
+    bias_relu: Option<&[f32]>,
 ) {
     let blocks = rows * blocks_x;
     let first_row = 2 * by0;
@@ -257,10 +332,12 @@ fn transform_output(
                     let mut m = [[0f32; LANES]; 16];
                     for (xi, m) in m.iter_mut().enumerate() {
                         let at = (xi * blocks + block) * cout + o0;
-                        m[..n].copy_from_slice(&products[at..at + n]);
+                        load(m, &products[at..at + n]);
                     }
                     let mut b = [0f32; LANES];
-                    b[..n].copy_from_slice(&bias[o0..o0 + n]);
+                    if let Some(bias) = bias_relu {
+                        load(&mut b, &bias[o0..o0 + n]);
+                    }
                     // s = Aᵀ m (s[k][c]: row k, column c), then Y = s A.
                     let s: [[Lanes; 4]; 2] = std::array::from_fn(|k| {
                         std::array::from_fn(|c| {
@@ -275,16 +352,19 @@ fn transform_output(
                             }
                             let y = output_row(dx, [&s[0], &s[1], &s[2], &s[3]]);
                             // + bias, then PyTorch's relu (NaN kept).
-                            let v: Lanes = std::array::from_fn(|l| {
-                                let v = y[l] + b[l];
-                                if v < 0.0 {
-                                    0.0
-                                } else {
-                                    v
-                                }
-                            });
+                            let v: Lanes = match bias_relu {
+                                None => y,
+                                Some(_) => std::array::from_fn(|l| {
+                                    let v = y[l] + b[l];
+                                    if v < 0.0 {
+                                        0.0
+                                    } else {
+                                        v
+                                    }
+                                }),
+                            };
                             let at = (dy * w + x) * cout + o0;
-                            out_rows[at..at + n].copy_from_slice(&v[..n]);
+                            store(&mut out_rows[at..at + n], &v);
                         }
                     }
                 }
@@ -368,7 +448,7 @@ mod tests {
                 .map(|v| 0.1 * v)
                 .collect::<Vec<_>>();
             let kernel = WinogradKernel::new(&weight, cout, cin);
-            let out = conv3x3_winograd_bias_relu(&input, (images, h, w), &kernel, &bias);
+            let out = conv3x3_winograd(&input, (images, h, w), &kernel, None, Some(&bias));
             for image in 0..images {
                 let len = h * w * cin;
                 let expected = direct_bias_relu(
@@ -394,6 +474,60 @@ mod tests {
         assert!(zeros > 0 && zeros < outputs, "{zeros} zeros of {outputs}");
     }
 
+    /// The adjoint kernel on a gated input, no bias or ReLU (the backward's form), against the
+    /// f64 adjoint of the gated input: the gate closes at 0 and below, and passes NaN.
+    #[test]
+    fn the_gated_adjoint_matches_the_direct_one() {
+        for (seed, (h, w, cin, cout)) in [(5, 4, 3, 4), (7, 6, 16, 24), (9, 11, 32, 8)]
+            .into_iter()
+            .enumerate()
+        {
+            let seed = seed as u64;
+            // The adjoint maps `cout` channels to `cin`: its input has `cout`.
+            let grad = values(h * w * cout, seed + 300);
+            let mut gate = values(h * w * cout, seed + 400);
+            gate[0] = 0.0;
+            gate[1] = f32::NAN;
+            let weight: Vec<f32> = values(cout * cin * 9, seed + 500)
+                .iter()
+                .map(|v| v / (9 * cout) as f32)
+                .collect();
+            let kernel = WinogradKernel::adjoint(&weight, cout, cin);
+            let out = conv3x3_winograd(&grad, (1, h, w), &kernel, Some(&gate), None);
+            let gated: Vec<f32> = grad
+                .iter()
+                .zip(&gate)
+                .map(|(&g, &m)| if m <= 0.0 { 0.0 } else { g })
+                .collect();
+            let mut flipped = vec![0f32; cin * cout * 9];
+            for o in 0..cout {
+                for i in 0..cin {
+                    for tap in 0..9 {
+                        flipped[(i * cout + o) * 9 + tap] = weight[(o * cin + i) * 9 + 8 - tap];
+                    }
+                }
+            }
+            // relu(x + b) with b far below every value is x itself: the oracle without ReLU.
+            let shift = vec![1e3f32; cin];
+            let expected: Vec<f64> =
+                direct_bias_relu(&gated, (h, w), &flipped, &shift, (cin, cout))
+                    .iter()
+                    .map(|v| v - 1e3)
+                    .collect();
+            let scale = expected.iter().fold(1e-3f64, |m, v| m.max(v.abs()));
+            let mut negative = 0;
+            for (g, e) in out.iter().zip(&expected) {
+                assert!(
+                    (f64::from(*g) - e).abs() <= 1e-5 * scale,
+                    "{h}x{w} {cout}->{cin}: {g} vs {e}"
+                );
+                negative += usize::from(*g < 0.0);
+            }
+            // No ReLU: negative outputs stay.
+            assert!(negative > 0);
+        }
+    }
+
     #[test]
     fn a_nan_input_stays_nan_where_it_reaches_and_the_relu_keeps_it() {
         let (h, w, cin, cout) = (6, 6, 2, 3);
@@ -401,7 +535,7 @@ mod tests {
         input[(3 * w + 3) * cin] = f32::NAN;
         let weight = values(cout * cin * 9, 10);
         let kernel = WinogradKernel::new(&weight, cout, cin);
-        let out = conv3x3_winograd_bias_relu(&input, (1, h, w), &kernel, &[0.0; 3]);
+        let out = conv3x3_winograd(&input, (1, h, w), &kernel, None, Some(&[0.0; 3]));
         // The pixels whose 3x3 window holds (3, 3) are NaN; the ReLU passes NaN on.
         for o in 0..cout {
             assert!(out[(3 * w + 3) * cout + o].is_nan());

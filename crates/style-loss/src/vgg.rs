@@ -13,7 +13,7 @@ use crate::error::{Result, StyleLossError};
 use crate::precision::VggPrecision;
 use crate::tensor_file::NamedTensors;
 use crate::torch_ties::{max_pool_2x2, max_pool_2x2_channels_last};
-use crate::vgg_channels_last::{ConvReluChannelsLast, Scratch};
+use crate::vgg_channels_last::{ConvReluChannelsLast, Scratch, WIDE};
 
 /// ImageNet per-channel mean (RGB, for values in [0, 1]).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -137,7 +137,7 @@ impl Vgg19Features {
     /// on the CPU run channels-last (three matrix products per convolution); others run
     /// through candle's convolution on their device.
     pub fn from_tensors(w: &NamedTensors, widths: Vgg19Widths) -> Result<Self> {
-        Self::build(w, widths, true, VggPrecision::F32)
+        Self::build(w, widths, true, VggPrecision::F32, WIDE)
     }
 
     /// [`Self::from_tensors`] with the products in `precision` (bf16 runs channels-last on the
@@ -147,7 +147,7 @@ impl Vgg19Features {
         widths: Vgg19Widths,
         precision: VggPrecision,
     ) -> Result<Self> {
-        Self::build(w, widths, true, precision)
+        Self::build(w, widths, true, precision, WIDE)
     }
 
     /// The format the products run in (what `auto` chose, when it was asked for).
@@ -156,12 +156,15 @@ impl Vgg19Features {
     }
 
     /// As [`Self::from_tensors_with_precision`]; `channels_last` false keeps candle's
-    /// channels-first ops also on the CPU (the oracle of the channels-last kernels in tests).
+    /// channels-first ops also on the CPU (the oracle of the channels-last kernels in tests),
+    /// and the channels-last layers of `wide_from` channels or more in and out take Winograd's
+    /// or bf16 products ([`WIDE`] but in tests of small networks).
     fn build(
         w: &NamedTensors,
         widths: Vgg19Widths,
         channels_last: bool,
         precision: VggPrecision,
+        wide_from: usize,
     ) -> Result<Self> {
         let mut index = 0;
         let mut in_channels = 3;
@@ -207,7 +210,9 @@ impl Vgg19Features {
         }
         let layers = if channels_last {
             Layers::ChannelsLast(
-                map_layers(&weights, |w, b| ConvReluChannelsLast::new(w, b, bf16))?,
+                map_layers(&weights, |w, b| {
+                    ConvReluChannelsLast::new(w, b, bf16, wide_from)
+                })?,
                 Scratch::default(),
             )
         } else {
@@ -346,16 +351,23 @@ mod tests {
         (sum_sq(&(a - b).unwrap()) / sum_sq(b).max(1e-30)).sqrt()
     }
 
+    /// The direct f32 convolutions (the small network's layers are all narrower than [`WIDE`])
+    /// and, with every layer taken as wide, Winograd's in the backward.
     #[test]
     fn channels_last_matches_candles_convolution() {
-        assert_channels_last_within(VggPrecision::F32, 1e-5, 1e-4);
+        assert_channels_last_within(VggPrecision::F32, WIDE, 1e-5, 1e-4);
+        assert_channels_last_within(VggPrecision::F32, 0, 1e-5, 1e-4);
     }
 
-    /// bf16 backward products against candle's f32 convolution: the features are f32, the
-    /// gradient within bf16's rounding through ten layers (measured 7.7e-3 to 9.2e-3).
+    /// bf16 backward products against candle's f32 convolution, every layer taken as wide: the
+    /// features are f32 (Winograd's), the gradient within bf16's rounding through ten layers
+    /// (measured 7.7e-3 to 9.2e-3). Below [`WIDE`] channels the layers stay f32.
     #[test]
     fn bf16_products_stay_within_their_error_of_candles_convolution() {
-        assert_channels_last_within(VggPrecision::Bf16, 1e-5, 3e-2);
+        let error = assert_channels_last_within(VggPrecision::Bf16, 0, 1e-5, 3e-2);
+        assert!(error > 1e-3, "bf16's rounding shows: {error}");
+        let error = assert_channels_last_within(VggPrecision::Bf16, WIDE, 1e-5, 1e-4);
+        assert!(error < 1e-4, "narrow layers stay f32: {error}");
     }
 
     #[test]
@@ -366,6 +378,7 @@ mod tests {
             widths,
             false,
             VggPrecision::Bf16,
+            WIDE,
         )
         .unwrap_err()
         .to_string();
@@ -375,22 +388,31 @@ mod tests {
             widths,
             false,
             VggPrecision::Auto,
+            WIDE,
         )
         .unwrap();
         assert_eq!(auto.precision(), VggPrecision::F32, "auto takes f32 there");
     }
 
-    /// The channels-last network with `precision` products against the channels-first one in
-    /// f32: features and input gradient within the relative errors given.
-    fn assert_channels_last_within(precision: VggPrecision, feature_bound: f32, grad_bound: f32) {
+    /// The channels-last network with `precision` products (layers of `wide_from` channels or
+    /// more taken as wide) against the channels-first one in f32: features and input gradient
+    /// within the relative errors given. Returns the largest gradient error.
+    fn assert_channels_last_within(
+        precision: VggPrecision,
+        wide_from: usize,
+        feature_bound: f32,
+        grad_bound: f32,
+    ) -> f32 {
         let widths = Vgg19Widths([5, 8, 6, 7, 9]);
         let tensors = small_vgg_tensors(widths);
-        let fast = Vgg19Features::build(&tensors, widths, true, precision).unwrap();
-        let oracle = Vgg19Features::build(&tensors, widths, false, VggPrecision::F32).unwrap();
+        let fast = Vgg19Features::build(&tensors, widths, true, precision, wide_from).unwrap();
+        let oracle =
+            Vgg19Features::build(&tensors, widths, false, VggPrecision::F32, WIDE).unwrap();
         assert!(matches!(fast.layers, Layers::ChannelsLast(..)));
         assert!(matches!(oracle.layers, Layers::ChannelsFirst(..)));
         assert_eq!(fast.precision(), precision);
         let device = Device::Cpu;
+        let mut worst = 0f32;
         // Odd sizes (a dropped row and column at each pool), two images, and a flat image
         // (ties in every pooling window).
         for (n, h, w, flat) in [(2, 37, 45, false), (1, 16, 16, false), (1, 33, 19, true)] {
@@ -426,7 +448,9 @@ mod tests {
                 "{precision} {n}x{h}x{w}: gradient {}",
                 relative_error(&g_fast, &g_ref)
             );
+            worst = worst.max(relative_error(&g_fast, &g_ref));
         }
+        worst
     }
 
     /// One output channel `x0 - x1` at the centre tap: a pre-activation of exactly 0 where the

@@ -9,7 +9,7 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 
 use crate::conv3x3::{conv3x3, Epilogue, ImageShape, PackedKernel};
 use crate::conv3x3_bf16::{conv3x3_bf16, StackedKernel};
-use crate::conv3x3_winograd::{conv3x3_winograd_bias_relu, WinogradKernel};
+use crate::conv3x3_winograd::{conv3x3_winograd, WinogradKernel};
 use crate::cpu_elements::{elements, same_shape_elements};
 
 /// The padded-image buffer the convolutions of one network share (forward and backward run
@@ -23,20 +23,17 @@ enum Kernel {
     F32(Arc<PackedKernel>),
     /// bf16 products (`conv3x3_bf16`).
     Bf16(Arc<StackedKernel>),
-    /// f32 products of Winograd's F(2x2, 3x3) (`conv3x3_winograd`), with bias and ReLU.
+    /// f32 products of Winograd's F(2x2, 3x3) (`conv3x3_winograd`).
     Winograd(Arc<WinogradKernel>),
 }
 
-impl Kernel {
-    /// `packed`, kept in f32 or stacked in bf16.
-    fn new(packed: PackedKernel, bf16: bool) -> Self {
-        if bf16 {
-            Self::Bf16(Arc::new(StackedKernel::new(&packed)))
-        } else {
-            Self::F32(Arc::new(packed))
-        }
-    }
+/// The fewest input and output channels at which a convolution's products leave the direct f32
+/// convolution for Winograd's F(2x2, 3x3) or bf16: on narrower layers the transforms or the
+/// bf16 conversions cost more than the multiply-adds they save (each layer of VGG-19 at 800x800
+/// timed on a 2-core Zen 4, docs/benchmarks.md).
+pub(crate) const WIDE: usize = 256;
 
+impl Kernel {
     fn cin(&self) -> usize {
         match self {
             Self::F32(k) => k.cin(),
@@ -55,20 +52,25 @@ impl Kernel {
 }
 
 /// A 3x3 convolution, padding 1, then ReLU, on channels-last f32 CPU tensors. Its forward
-/// products are f32 (direct, or Winograd's with a bf16 backward); its backward products (the
-/// adjoint on the gradient) f32 or bf16.
+/// products are f32 (direct, or Winograd's on wide layers with a bf16 backward); its backward
+/// products (the adjoint on the gradient) f32 (direct, or Winograd's on wide layers) or, on
+/// wide layers with a bf16 backward, bf16.
 #[derive(Clone, Debug)]
 pub(crate) struct ConvReluChannelsLast {
     kernel: Kernel,
     adjoint: Kernel,
     bias: Arc<Vec<f32>>,
+    /// Whether the backward was asked in bf16 (its forward then decides its ReLUs in f32).
+    bf16_backward: bool,
 }
 
 impl ConvReluChannelsLast {
-    /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`; `bf16_backward` runs the
-    /// backward products in bf16 and the forward by Winograd's F(2x2, 3x3) in f32 (2.25 times
-    /// fewer multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's)
-    /// rather than exactly.
+    /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`. On layers of `wide_from`
+    /// channels or more in and out ([`WIDE`] but in tests), `bf16_backward` runs the backward products in bf16 and the forward by
+    /// Winograd's F(2x2, 3x3) in f32 (2.25 times fewer multiply-adds, errors of the order of an
+    /// f32 sum's, far under the bf16 backward's), and an f32 backward runs by Winograd's
+    /// F(2x2, 3x3) (the backward decides nothing); narrower layers take the direct f32
+    /// convolution both ways.
     ///
     /// The forward stays f32 in either case: its outputs decide the ReLUs and the max pools,
     /// and outputs rounded to bf16 tie inside pooling windows, which routes the gradient to
@@ -78,31 +80,41 @@ impl ConvReluChannelsLast {
         weight: &Tensor,
         bias: &Tensor,
         bf16_backward: bool,
+        wide_from: usize,
     ) -> candle_core::Result<Self> {
         let (cout, cin, _, _) = weight.dims4()?;
         let w = weight.flatten_all()?.to_vec1::<f32>()?;
-        let kernel = if bf16_backward {
+        let wide = cin.min(cout) >= wide_from;
+        let kernel = if bf16_backward && wide {
             Kernel::Winograd(Arc::new(WinogradKernel::new(&w, cout, cin)))
         } else {
             Kernel::F32(Arc::new(PackedKernel::forward(&w, cout, cin)))
         };
+        let adjoint = match (bf16_backward, wide) {
+            (true, true) => Kernel::Bf16(Arc::new(StackedKernel::new(&PackedKernel::adjoint(
+                &w, cout, cin,
+            )))),
+            (false, true) => Kernel::Winograd(Arc::new(WinogradKernel::adjoint(&w, cout, cin))),
+            (_, false) => Kernel::F32(Arc::new(PackedKernel::adjoint(&w, cout, cin))),
+        };
         Ok(Self {
             kernel,
-            adjoint: Kernel::new(PackedKernel::adjoint(&w, cout, cin), bf16_backward),
+            adjoint,
+            bf16_backward,
             bias: Arc::new(bias.flatten_all()?.to_vec1::<f32>()?),
         })
     }
 
     /// `relu(conv(x) + bias)` of `x` `[n, h, w, cin]`. The input gradient is the adjoint
     /// convolution of the upstream gradient where the output is not `<= 0` (PyTorch's ReLU:
-    /// 0 at an exact 0). When a gradient is taken through `x` and the backward is f32, the sums
-    /// are exact before their ReLU decides ([`Epilogue::ExactBiasRelu`]); else f32 (a bf16
+    /// 0 at an exact 0). When a gradient is taken through `x` and the backward is f32, each ReLU
+    /// decides as the exact sum ([`Epilogue::ExactBiasRelu`]); else as the f32 sum (a bf16
     /// backward's error is larger than the decisions the exact sums change).
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
         x.contiguous()?.apply_op1(ConvOp {
             kernel: self.kernel.clone(),
             epilogue_bias: Some(self.bias.clone()),
-            exact: x.track_op() && matches!(self.adjoint, Kernel::F32(_)),
+            exact: x.track_op() && !self.bf16_backward,
             adjoint: Some(self.adjoint.clone()),
             scratch: scratch.clone(),
         })
@@ -115,7 +127,7 @@ impl ConvReluChannelsLast {
 struct ConvOp {
     kernel: Kernel,
     epilogue_bias: Option<Arc<Vec<f32>>>,
-    /// Whether the bias and ReLU follow exact sums ([`Epilogue::ExactBiasRelu`]; f32 products).
+    /// Whether the ReLUs decide as the exact sums ([`Epilogue::ExactBiasRelu`]; f32 products).
     exact: bool,
     adjoint: Option<Kernel>,
     scratch: Scratch,
@@ -146,12 +158,7 @@ impl ConvOp {
         let bias = self.epilogue_bias.as_deref().map(Vec::as_slice);
         let out = match &self.kernel {
             Kernel::Bf16(kernel) => conv3x3_bf16(data, shape, kernel, gate, bias),
-            Kernel::Winograd(kernel) => match (gate, bias) {
-                (None, Some(bias)) => {
-                    conv3x3_winograd_bias_relu(data, (images, h, w), kernel, bias)
-                }
-                _ => candle_core::bail!("conv3x3: the Winograd forward takes a bias and no gate"),
-            },
+            Kernel::Winograd(kernel) => conv3x3_winograd(data, (images, h, w), kernel, gate, bias),
             Kernel::F32(kernel) => {
                 let epilogue = match (bias, self.exact) {
                     (Some(bias), true) => Epilogue::ExactBiasRelu(bias),
@@ -214,5 +221,136 @@ impl CustomOp2 for ConvOp {
         l2: &Layout,
     ) -> candle_core::Result<(CpuStorage, Shape)> {
         self.run((s1, l1), Some((s2, l2)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use candle_core::{Device, Tensor, Var};
+
+    use super::*;
+
+    /// Values in [-1, 1) from a small linear congruential generator.
+    fn values(len: usize, seed: u64) -> Vec<f32> {
+        let mut state = seed.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+        (0..len)
+            .map(|_| {
+                state = state
+                    .wrapping_mul(6_364_136_223_846_793_005)
+                    .wrapping_add(1_442_695_040_888_963_407);
+                ((state >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect()
+    }
+
+    /// The layer and its input gradient for the upstream gradient `r`, in f64 from PyTorch
+    /// weights: `relu(conv(x) + b)` and `adjoint(r where the output is > 0)`.
+    fn reference(
+        x: &[f32],
+        (h, w, cin, cout): (usize, usize, usize, usize),
+        weight: &[f32],
+        bias: &[f32],
+        r: &[f32],
+    ) -> (Vec<f64>, Vec<f64>) {
+        let at = |y: usize, x: usize, dy: usize, dx: usize| {
+            let (sy, sx) = ((y + dy).wrapping_sub(1), (x + dx).wrapping_sub(1));
+            (sy < h && sx < w).then_some((sy, sx))
+        };
+        let mut out = vec![0f64; h * w * cout];
+        for y in 0..h {
+            for xx in 0..w {
+                for o in 0..cout {
+                    let mut acc = f64::from(bias[o]);
+                    for (dy, dx) in (0..3).flat_map(|dy| (0..3).map(move |dx| (dy, dx))) {
+                        if let Some((sy, sx)) = at(y, xx, dy, dx) {
+                            for i in 0..cin {
+                                acc += f64::from(x[(sy * w + sx) * cin + i])
+                                    * f64::from(weight[((o * cin + i) * 3 + dy) * 3 + dx]);
+                            }
+                        }
+                    }
+                    out[(y * w + xx) * cout + o] = acc.max(0.0);
+                }
+            }
+        }
+        let mut grad = vec![0f64; h * w * cin];
+        for y in 0..h {
+            for xx in 0..w {
+                for o in 0..cout {
+                    if out[(y * w + xx) * cout + o] <= 0.0 {
+                        continue;
+                    }
+                    let g = f64::from(r[(y * w + xx) * cout + o]);
+                    for (dy, dx) in (0..3).flat_map(|dy| (0..3).map(move |dx| (dy, dx))) {
+                        if let Some((sy, sx)) = at(y, xx, dy, dx) {
+                            for i in 0..cin {
+                                grad[(sy * w + sx) * cin + i] +=
+                                    g * f64::from(weight[((o * cin + i) * 3 + dy) * 3 + dx]);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        (out, grad)
+    }
+
+    /// A layer wide enough for Winograd's products (and, with a bf16 backward, bf16 ones) and
+    /// a narrow one, forward and input gradient against f64, with the f32 and the bf16 backward.
+    #[test]
+    fn wide_and_narrow_layers_match_f64_both_ways() {
+        for (h, w, cin, cout) in [(5, 6, WIDE, WIDE), (4, 3, WIDE, 2 * WIDE), (5, 4, 8, 16)] {
+            let x = values(h * w * cin, 1);
+            let weight: Vec<f32> = values(cout * cin * 9, 2)
+                .iter()
+                .map(|v| v / (3 * cin) as f32)
+                .collect();
+            let bias: Vec<f32> = values(cout, 3).iter().map(|v| 0.1 * v).collect();
+            let r = values(h * w * cout, 4);
+            let (out, grad) = reference(&x, (h, w, cin, cout), &weight, &bias, &r);
+            let scale = |v: &[f64]| v.iter().fold(1e-6f64, |m, v| m.max(v.abs()));
+            let (out_scale, grad_scale) = (scale(&out), scale(&grad));
+            for (bf16_backward, grad_tolerance) in [(false, 1e-5), (true, 2e-2)] {
+                let dev = Device::Cpu;
+                let layer = ConvReluChannelsLast::new(
+                    &Tensor::from_vec(weight.clone(), (cout, cin, 3, 3), &dev).unwrap(),
+                    &Tensor::from_vec(bias.clone(), cout, &dev).unwrap(),
+                    bf16_backward,
+                    WIDE,
+                )
+                .unwrap();
+                let input = Var::from_vec(x.clone(), (1, h, w, cin), &dev).unwrap();
+                let scratch = Scratch::default();
+                let y = layer.forward(input.as_tensor(), &scratch).unwrap();
+                let upstream = Tensor::from_vec(r.clone(), (1, h, w, cout), &dev).unwrap();
+                let grads = (y.clone() * upstream)
+                    .unwrap()
+                    .sum_all()
+                    .unwrap()
+                    .backward()
+                    .unwrap();
+                let got_out = y.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+                let got_grad = grads
+                    .get(input.as_tensor())
+                    .unwrap()
+                    .flatten_all()
+                    .unwrap()
+                    .to_vec1::<f32>()
+                    .unwrap();
+                let case = format!("{h}x{w} {cin}->{cout}, bf16 backward {bf16_backward}");
+                for (g, e) in got_out.iter().zip(&out) {
+                    assert!(
+                        (f64::from(*g) - e).abs() <= 1e-6 * out_scale,
+                        "{case}: {g} vs {e}"
+                    );
+                }
+                for (g, e) in got_grad.iter().zip(&grad) {
+                    assert!(
+                        (f64::from(*g) - e).abs() <= grad_tolerance * grad_scale,
+                        "{case}: gradient {g} vs {e}"
+                    );
+                }
+            }
+        }
     }
 }

@@ -376,7 +376,9 @@ fn one_term_alone_matches_without_a_style_loss() {
 fn reduced_precision_stays_within_its_recorded_error() {
     // (precisions, largest relative error of a CLIP term, of the total gradient): about three
     // times what was measured (f16: terms 6.5e-4, gradient 4.6e-3; bf16 products: 3.4e-3,
-    // 3.2e-2; VGG's bf16 backward: the content gradient 8.0e-3, against 1.1e-6 in f32).
+    // 3.2e-2). VGG's bf16 products run on layers of 256 channels and more, which the fixture's
+    // small network has none of: its content gradient stays f32's (1.9e-6, against 1.1e-6 with
+    // the exact forward; the bf16 products' own error is held by `vgg`'s unit tests).
     for (precision, vgg_precision, term_bound, grad_bound) in [
         (ClipPrecision::F16, VggPrecision::F32, 2e-3, 1.5e-2),
         (ClipPrecision::Bf16, VggPrecision::F32, 1e-2, 1e-1),
@@ -421,12 +423,8 @@ fn reduced_precision_stays_within_its_recorded_error() {
         .unwrap();
         let content_error = relative_error(&content_grad, &s.tensors["grad.content"]);
         println!("{precision}: content gradient {content_error:.2e}");
-        let content_bound = match vgg_precision {
-            VggPrecision::Bf16 => 3e-2,
-            _ => 1e-3,
-        };
         assert!(
-            content_error < content_bound,
+            content_error < 1e-4,
             "{precision}: content gradient relative error {content_error}"
         );
     }
