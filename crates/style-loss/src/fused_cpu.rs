@@ -9,6 +9,7 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::cpu_elements::{elements, same_shape_elements};
+use crate::vector_exp::{exp, sigmoid};
 
 /// Applies `row_fn` to consecutive rows of `len` elements of `inputs` (equal lengths) and the
 /// matching rows of the output, in parallel blocks of whole rows; a last partial row is passed
@@ -131,16 +132,6 @@ impl CustomOp2 for LayerNormOp {
     }
 }
 
-/// `sigmoid(z)` without overflow.
-fn sigmoid(z: f32) -> f32 {
-    if z >= 0.0 {
-        1.0 / (1.0 + (-z).exp())
-    } else {
-        let e = z.exp();
-        e / (1.0 + e)
-    }
-}
-
 /// OpenAI CLIP's `x * sigmoid(1.702 x)`.
 pub(crate) struct QuickGeluOp;
 
@@ -212,11 +203,10 @@ impl CustomOp1 for SoftmaxOp {
         let x = elements(s, l)?;
         let out = map_rows(self.len, [x], |rows, y| {
             let max = rows[0].iter().fold(f32::NEG_INFINITY, |m, &v| m.max(v));
-            let mut sum = 0f32;
             for (y, &x) in y.iter_mut().zip(rows[0]) {
-                *y = (x - max).exp();
-                sum += *y;
+                *y = exp(x - max);
             }
+            let sum: f32 = y.iter().sum();
             for y in y.iter_mut() {
                 *y /= sum;
             }

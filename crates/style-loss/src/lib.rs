@@ -58,6 +58,7 @@ pub mod test_models;
 pub mod tokenizer;
 pub mod torch_ties;
 pub mod transfers;
+mod vector_exp;
 pub mod vgg;
 mod vgg_channels_last;
 pub mod weight_resolution;
