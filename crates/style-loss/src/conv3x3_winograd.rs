@@ -12,31 +12,115 @@
 //!
 //! The transforms add and halve, so the outputs carry a few more f32 roundings than the direct
 //! convolution's, and other ones (errors up to 1.4e-7 of the largest output in the tests, the
-//! order of an f32 sum's). VGG runs it on its wide layers only (`vgg_channels_last`): for the
-//! f32 backward (which decides nothing) and, where the backward is bf16, for the forward too;
-//! the f32 forward whose ReLUs route a gradient stays direct and exact (`conv3x3`).
+//! order of an f32 sum's). VGG runs it on its wide layers only (`vgg_channels_last`): in f32
+//! for the f32 backward (which decides nothing) and, where the backward is bf16, for the
+//! forward too; in f64 for the forward whose ReLUs route an f32 backward (its sums within about
+//! 1e-16 of their terms, rounded once, as the direct f64 sums of `conv3x3` on narrow layers).
 #![allow(unsafe_code)]
+
+use std::ops::{Add, Mul, Sub};
 
 use rayon::prelude::*;
 
+/// The format the transforms and products run in: f32, or f64 for a forward whose ReLUs
+/// decide as the exact sums (its rounding errors, about 1e-16 of the terms, far under f32's).
+pub(crate) trait WinogradReal:
+    Copy
+    + Default
+    + PartialOrd
+    + Send
+    + Sync
+    + 'static
+    + Add<Output = Self>
+    + Sub<Output = Self>
+    + Mul<Output = Self>
+{
+    /// The value of an f32.
+    fn from_f32(v: f32) -> Self;
+    /// The nearest value to an f64.
+    fn from_f64(v: f64) -> Self;
+    /// The nearest f32.
+    fn to_f32(self) -> f32;
+    /// The value in f64 (exact for both formats).
+    fn to_f64(self) -> f64;
+    /// `v` of another format: exact from f32 into f64, the nearest value otherwise.
+    #[inline(always)]
+    fn convert<S: WinogradReal>(v: S) -> Self {
+        Self::from_f64(v.to_f64())
+    }
+}
+
+impl WinogradReal for f32 {
+    #[inline(always)]
+    fn from_f32(v: f32) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v as f32
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        f64::from(self)
+    }
+}
+
+impl WinogradReal for f64 {
+    #[inline(always)]
+    fn from_f32(v: f32) -> Self {
+        f64::from(v)
+    }
+    #[inline(always)]
+    fn from_f64(v: f64) -> Self {
+        v
+    }
+    #[inline(always)]
+    fn to_f32(self) -> f32 {
+        self as f32
+    }
+    #[inline(always)]
+    fn to_f64(self) -> f64 {
+        self
+    }
+}
+
 /// Values of a transformed kernel: `[16 (position in the 4x4 block)][cin][cout]`, row-major.
 #[derive(Clone, Debug)]
-pub(crate) struct WinogradKernel {
-    data: Vec<f32>,
+pub(crate) struct WinogradKernel<T = f32> {
+    data: Vec<T>,
     cin: usize,
     cout: usize,
 }
 
-impl WinogradKernel {
+impl<T: WinogradReal> WinogradKernel<T> {
     /// `G g Gᵀ` of each 3x3 slice of PyTorch weights `[cout, cin, 3, 3]` (row-major in
     /// `weight`), with `G = [[1, 0, 0], [½, ½, ½], [½, -½, ½], [0, 0, 1]]`, computed in f64 and
-    /// rounded once.
+    /// rounded once to `T`.
     pub(crate) fn new(weight: &[f32], cout: usize, cin: usize) -> Self {
         assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
-        let mut data = vec![0f32; 16 * cin * cout];
-        for o in 0..cout {
-            for i in 0..cin {
-                let g = |r: usize, c: usize| weight[((o * cin + i) * 3 + r) * 3 + c] as f64;
+        Self::from_taps(cout, cin, |o, i, r, c| {
+            weight[((o * cin + i) * 3 + r) * 3 + c]
+        })
+    }
+
+    /// As [`Self::new`], with `tap(o, i, dy, dx)` the weight of output channel `o`, input
+    /// channel `i`, kernel row `dy` and column `dx`.
+    pub(crate) fn from_taps(
+        cout: usize,
+        cin: usize,
+        tap: impl Fn(usize, usize, usize, usize) -> f32 + Sync,
+    ) -> Self {
+        let mut data = vec![T::default(); 16 * cin * cout];
+        // One (output, input) channel pair per task: 16 values, one in each matrix.
+        let columns: Vec<[T; 16]> = (0..cout * cin)
+            .into_par_iter()
+            .map(|oi| {
+                let (o, i) = (oi / cin.max(1), oi % cin.max(1));
+                let g = |r: usize, c: usize| f64::from(tap(o, i, r, c));
                 // Rows of G g (4 x 3), then (G g) Gᵀ (4 x 4).
                 let gg: [[f64; 3]; 4] = std::array::from_fn(|r| {
                     std::array::from_fn(|c| match r {
@@ -46,17 +130,25 @@ impl WinogradKernel {
                         _ => g(2, c),
                     })
                 });
+                let mut u = [T::default(); 16];
                 for (r, row) in gg.iter().enumerate() {
-                    let u = [
+                    let u_row = [
                         row[0],
                         0.5 * (row[0] + row[1] + row[2]),
                         0.5 * (row[0] - row[1] + row[2]),
                         row[2],
                     ];
-                    for (c, &v) in u.iter().enumerate() {
-                        data[((r * 4 + c) * cin + i) * cout + o] = v as f32;
+                    for (c, &v) in u_row.iter().enumerate() {
+                        u[r * 4 + c] = T::from_f64(v);
                     }
                 }
+                u
+            })
+            .collect();
+        for (oi, u) in columns.iter().enumerate() {
+            let (o, i) = (oi / cin.max(1), oi % cin.max(1));
+            for (xi, &v) in u.iter().enumerate() {
+                data[(xi * cin + i) * cout + o] = v;
             }
         }
         Self { data, cin, cout }
@@ -67,15 +159,9 @@ impl WinogradKernel {
     /// both directions.
     pub(crate) fn adjoint(weight: &[f32], cout: usize, cin: usize) -> Self {
         assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
-        let mut flipped = vec![0f32; cin * cout * 9];
-        for o in 0..cout {
-            for i in 0..cin {
-                for tap in 0..9 {
-                    flipped[(i * cout + o) * 9 + tap] = weight[(o * cin + i) * 9 + 8 - tap];
-                }
-            }
-        }
-        Self::new(&flipped, cin, cout)
+        Self::from_taps(cin, cout, |i, o, r, c| {
+            weight[((o * cin + i) * 3 + 2 - r) * 3 + 2 - c]
+        })
     }
 
     /// Input channels.
@@ -100,10 +186,10 @@ fn band_block_rows(blocks_x: usize, channels: usize) -> usize {
 /// counts only where the gate is above 0 or NaN (PyTorch's `threshold_backward`: the ReLU mask of
 /// a backward pass); with `bias_relu`, the output is `relu(conv + bias)` (PyTorch's ReLU: NaN
 /// kept).
-pub(crate) fn conv3x3_winograd(
+pub(crate) fn conv3x3_winograd<T: WinogradReal>(
     input: &[f32],
     (images, h, w): (usize, usize, usize),
-    kernel: &WinogradKernel,
+    kernel: &WinogradKernel<T>,
     input_gate: Option<&[f32]>,
     bias_relu: Option<&[f32]>,
 ) -> Vec<f32> {
@@ -130,9 +216,9 @@ pub(crate) fn conv3x3_winograd(
             let rows = band.min(blocks_y - by0);
             let blocks = rows * blocks_x;
             // Every value is written before it is read: no clearing between bands.
-            transformed.resize(16 * blocks * cin, 0f32);
+            transformed.resize(16 * blocks * cin, T::default());
             transform_input(src, gate, h, w, cin, by0, rows, blocks_x, &mut transformed);
-            products.resize(16 * blocks * cout, 0f32);
+            products.resize(16 * blocks * cout, T::default());
             for xi in 0..16 {
                 let lhs = &transformed[xi * blocks * cin..(xi + 1) * blocks * cin];
                 let rhs = &kernel.data[xi * cin * cout..(xi + 1) * cin * cout];
@@ -155,8 +241,8 @@ pub(crate) fn conv3x3_winograd(
                         rhs.as_ptr(),
                         1,
                         cout as isize,
-                        0f32,
-                        1f32,
+                        T::default(),
+                        T::from_f32(1.0),
                         false,
                         false,
                         false,
@@ -174,17 +260,17 @@ pub(crate) fn conv3x3_winograd(
 const LANES: usize = 16;
 
 /// A vector of `LANES` channels.
-type Lanes = [f32; LANES];
+type Lanes<T> = [T; LANES];
 
-/// The first `src.len() <= LANES` lanes of `dst` from `src`: a whole vector moves as one
-/// (a copy of variable length is a call to `memmove`).
+/// The first `src.len() <= LANES` lanes of `dst` from `src`, converted: a whole vector moves as
+/// one (a copy of variable length is a call to `memmove`).
 #[inline(always)]
-fn load(dst: &mut Lanes, src: &[f32]) {
-    match <&Lanes>::try_from(src) {
-        Ok(whole) => *dst = *whole,
+fn load<S: WinogradReal, T: WinogradReal>(dst: &mut Lanes<T>, src: &[S]) {
+    match <&Lanes<S>>::try_from(src) {
+        Ok(whole) => *dst = std::array::from_fn(|l| T::convert(whole[l])),
         Err(_) => {
             for (d, &s) in dst.iter_mut().zip(src) {
-                *d = s;
+                *d = T::convert(s);
             }
         }
     }
@@ -193,9 +279,9 @@ fn load(dst: &mut Lanes, src: &[f32]) {
 /// [`load`] of `src` where `gate` (as long) is above 0 or NaN, 0 elsewhere (PyTorch's
 /// `threshold_backward`: zero where the forward output is `<= 0`).
 #[inline(always)]
-fn load_gated(dst: &mut Lanes, src: &[f32], gate: &[f32]) {
-    let open = |s: f32, g: f32| if g <= 0.0 { 0.0 } else { s };
-    match (<&Lanes>::try_from(src), <&Lanes>::try_from(gate)) {
+fn load_gated<T: WinogradReal>(dst: &mut Lanes<T>, src: &[f32], gate: &[f32]) {
+    let open = |s: f32, g: f32| T::from_f32(if g <= 0.0 { 0.0 } else { s });
+    match (<&Lanes<f32>>::try_from(src), <&Lanes<f32>>::try_from(gate)) {
         (Ok(src), Ok(gate)) => *dst = std::array::from_fn(|l| open(src[l], gate[l])),
         _ => {
             for ((d, &s), &g) in dst.iter_mut().zip(src).zip(gate) {
@@ -207,8 +293,8 @@ fn load_gated(dst: &mut Lanes, src: &[f32], gate: &[f32]) {
 
 /// `dst` (`len() <= LANES`) from the first lanes of `src`, as [`load`].
 #[inline(always)]
-fn store(dst: &mut [f32], src: &Lanes) {
-    match <&mut Lanes>::try_from(&mut *dst) {
+fn store<T: Copy>(dst: &mut [T], src: &Lanes<T>) {
+    match <&mut Lanes<T>>::try_from(&mut *dst) {
         Ok(whole) => *whole = *src,
         Err(_) => {
             for (d, &s) in dst.iter_mut().zip(src) {
@@ -221,7 +307,7 @@ fn store(dst: &mut [f32], src: &Lanes) {
 /// Row `k` of `Bᵀ = [[1, 0, -1, 0], [0, 1, 1, 0], [0, -1, 1, 0], [0, 1, 0, -1]]` applied to
 /// four vectors, lane by lane.
 #[inline(always)]
-fn input_row(k: usize, x: [&Lanes; 4]) -> Lanes {
+fn input_row<T: WinogradReal>(k: usize, x: [&Lanes<T>; 4]) -> Lanes<T> {
     std::array::from_fn(|l| match k {
         0 => x[0][l] - x[2][l],
         1 => x[1][l] + x[2][l],
@@ -232,7 +318,7 @@ fn input_row(k: usize, x: [&Lanes; 4]) -> Lanes {
 
 /// Row `k` of `Aᵀ = [[1, 1, 1, 0], [0, 1, -1, -1]]` applied to four vectors, lane by lane.
 #[inline(always)]
-fn output_row(k: usize, x: [&Lanes; 4]) -> Lanes {
+fn output_row<T: WinogradReal>(k: usize, x: [&Lanes<T>; 4]) -> Lanes<T> {
     std::array::from_fn(|l| match k {
         0 => x[0][l] + x[1][l] + x[2][l],
         _ => x[1][l] - x[2][l] - x[3][l],
@@ -243,7 +329,7 @@ fn output_row(k: usize, x: [&Lanes; 4]) -> Lanes {
 /// (`[16][blocks][cin]`), `d` the padded input around each 2x2 output block (zeros outside the
 /// image; input values where `gate` is `<= 0` count as 0).
 #[allow(clippy::too_many_arguments)]
-fn transform_input(
+fn transform_input<T: WinogradReal>(
     src: &[f32],
     gate: Option<&[f32]>,
     h: usize,
@@ -252,11 +338,11 @@ fn transform_input(
     by0: usize,
     rows: usize,
     blocks_x: usize,
-    transformed: &mut [f32],
+    transformed: &mut [T],
 ) {
     let blocks = rows * blocks_x;
     // Each block row fills its own range of every one of the 16 matrices: split them by rows.
-    let mut parts: Vec<Vec<&mut [f32]>> = (0..rows).map(|_| Vec::with_capacity(16)).collect();
+    let mut parts: Vec<Vec<&mut [T]>> = (0..rows).map(|_| Vec::with_capacity(16)).collect();
     for matrix in transformed.chunks_mut(blocks * cin) {
         for (part, block_row) in parts.iter_mut().zip(matrix.chunks_mut(blocks_x * cin)) {
             part.push(block_row);
@@ -269,7 +355,7 @@ fn transform_input(
                 let n = LANES.min(cin - i0);
                 // The block's 16 input pixels (padded row 2 by + a, column 2 bx + b), channels
                 // i0..i0 + n.
-                let mut d = [[[0f32; LANES]; 4]; 4];
+                let mut d = [[[T::default(); LANES]; 4]; 4];
                 for (a, d_row) in d.iter_mut().enumerate() {
                     let y = (2 * by + a).wrapping_sub(1);
                     if y >= h {
@@ -287,7 +373,7 @@ fn transform_input(
                     }
                 }
                 // t = Bᵀ d (t[k][b]: row k, column b), then V = t B.
-                let t: [[Lanes; 4]; 4] = std::array::from_fn(|k| {
+                let t: [[Lanes<T>; 4]; 4] = std::array::from_fn(|k| {
                     std::array::from_fn(|b| input_row(k, [&d[0][b], &d[1][b], &d[2][b], &d[3][b]]))
                 });
                 let at = bx * cin + i0;
@@ -302,12 +388,13 @@ fn transform_input(
     });
 }
 
-/// `Aᵀ M A` (`relu(Aᵀ M A + bias)` with `bias_relu`) of the products of block rows
-/// `by0..by0 + rows` (`[16][blocks][cout]`) into the output image `dst` (`[h, w, cout]`); the
-/// outputs of a block past the image's last row or column are dropped.
+/// `Aᵀ M A` (`relu(Aᵀ M A + bias)` with `bias_relu`, added and decided in `T`, then rounded
+/// once) of the products of block rows `by0..by0 + rows` (`[16][blocks][cout]`) into the
+/// output image `dst` (`[h, w, cout]`); the outputs of a block past the image's last row or
+/// column are dropped.
 #[allow(clippy::too_many_arguments)]
-fn transform_output(
-    products: &[f32],
+fn transform_output<T: WinogradReal>(
+    products: &[T],
     dst: &mut [f32],
     h: usize,
     w: usize,
@@ -329,17 +416,17 @@ fn transform_output(
                 let block = r * blocks_x + bx;
                 for o0 in (0..cout).step_by(LANES) {
                     let n = LANES.min(cout - o0);
-                    let mut m = [[0f32; LANES]; 16];
+                    let mut m = [[T::default(); LANES]; 16];
                     for (xi, m) in m.iter_mut().enumerate() {
                         let at = (xi * blocks + block) * cout + o0;
                         load(m, &products[at..at + n]);
                     }
-                    let mut b = [0f32; LANES];
+                    let mut b = [T::default(); LANES];
                     if let Some(bias) = bias_relu {
                         load(&mut b, &bias[o0..o0 + n]);
                     }
                     // s = Aᵀ m (s[k][c]: row k, column c), then Y = s A.
-                    let s: [[Lanes; 4]; 2] = std::array::from_fn(|k| {
+                    let s: [[Lanes<T>; 4]; 2] = std::array::from_fn(|k| {
                         std::array::from_fn(|c| {
                             output_row(k, [&m[c], &m[4 + c], &m[8 + c], &m[12 + c]])
                         })
@@ -352,14 +439,14 @@ fn transform_output(
                             }
                             let y = output_row(dx, [&s[0], &s[1], &s[2], &s[3]]);
                             // + bias, then PyTorch's relu (NaN kept).
-                            let v: Lanes = match bias_relu {
-                                None => y,
+                            let v: Lanes<f32> = match bias_relu {
+                                None => std::array::from_fn(|l| y[l].to_f32()),
                                 Some(_) => std::array::from_fn(|l| {
                                     let v = y[l] + b[l];
-                                    if v < 0.0 {
+                                    if v < T::default() {
                                         0.0
                                     } else {
-                                        v
+                                        v.to_f32()
                                     }
                                 }),
                             };
@@ -447,7 +534,7 @@ mod tests {
                 .iter()
                 .map(|v| 0.1 * v)
                 .collect::<Vec<_>>();
-            let kernel = WinogradKernel::new(&weight, cout, cin);
+            let kernel = WinogradKernel::<f32>::new(&weight, cout, cin);
             let out = conv3x3_winograd(&input, (images, h, w), &kernel, None, Some(&bias));
             for image in 0..images {
                 let len = h * w * cin;
@@ -492,7 +579,7 @@ mod tests {
                 .iter()
                 .map(|v| v / (9 * cout) as f32)
                 .collect();
-            let kernel = WinogradKernel::adjoint(&weight, cout, cin);
+            let kernel = WinogradKernel::<f32>::adjoint(&weight, cout, cin);
             let out = conv3x3_winograd(&grad, (1, h, w), &kernel, Some(&gate), None);
             let gated: Vec<f32> = grad
                 .iter()
@@ -534,7 +621,7 @@ mod tests {
         let mut input = values(h * w * cin, 9);
         input[(3 * w + 3) * cin] = f32::NAN;
         let weight = values(cout * cin * 9, 10);
-        let kernel = WinogradKernel::new(&weight, cout, cin);
+        let kernel = WinogradKernel::<f32>::new(&weight, cout, cin);
         let out = conv3x3_winograd(&input, (1, h, w), &kernel, None, Some(&[0.0; 3]));
         // The pixels whose 3x3 window holds (3, 3) are NaN; the ReLU passes NaN on.
         for o in 0..cout {

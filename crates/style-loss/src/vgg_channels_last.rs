@@ -3,7 +3,7 @@
 //! convolution: a candle op with an input-only gradient that follows PyTorch's ReLU at exact
 //! zeros (as the channels-first op in `vgg`). Its max pool is `torch_ties::max_pool_2x2_channels_last`.
 
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Mutex, OnceLock};
 
 use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 
@@ -25,6 +25,9 @@ enum Kernel {
     Bf16(Arc<StackedKernel>),
     /// f32 products of Winograd's F(2x2, 3x3) (`conv3x3_winograd`).
     Winograd(Arc<WinogradKernel>),
+    /// f64 transforms and products of Winograd's F(2x2, 3x3), the bias added and the ReLU
+    /// decided in f64, each output rounded once (the exact forward of a wide layer).
+    ExactWinograd(Arc<WinogradKernel<f64>>),
 }
 
 /// The fewest input and output channels at which a convolution's products leave the direct f32
@@ -39,6 +42,7 @@ impl Kernel {
             Self::F32(k) => k.cin(),
             Self::Bf16(k) => k.cin(),
             Self::Winograd(k) => k.cin(),
+            Self::ExactWinograd(k) => k.cin(),
         }
     }
 
@@ -47,6 +51,7 @@ impl Kernel {
             Self::F32(k) => k.cout(),
             Self::Bf16(k) => k.cout(),
             Self::Winograd(k) => k.cout(),
+            Self::ExactWinograd(k) => k.cout(),
         }
     }
 }
@@ -62,15 +67,21 @@ pub(crate) struct ConvReluChannelsLast {
     bias: Arc<Vec<f32>>,
     /// Whether the backward was asked in bf16 (its forward then decides its ReLUs in f32).
     bf16_backward: bool,
+    /// On a wide layer with an f32 backward, the f64 kernel of the exact forward, built from
+    /// `kernel` on the first forward with a gradient (3.6 times the f32 weights' memory, spent
+    /// only by runs that take it).
+    exact_forward: Option<Arc<OnceLock<Arc<WinogradKernel<f64>>>>>,
 }
 
 impl ConvReluChannelsLast {
     /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`. On layers of `wide_from`
-    /// channels or more in and out ([`WIDE`] but in tests), `bf16_backward` runs the backward products in bf16 and the forward by
-    /// Winograd's F(2x2, 3x3) in f32 (2.25 times fewer multiply-adds, errors of the order of an
-    /// f32 sum's, far under the bf16 backward's), and an f32 backward runs by Winograd's
-    /// F(2x2, 3x3) (the backward decides nothing); narrower layers take the direct f32
-    /// convolution both ways.
+    /// channels or more in and out ([`WIDE`] but in tests), `bf16_backward` runs the backward
+    /// products in bf16 and the forward by Winograd's F(2x2, 3x3) in f32 (2.25 times fewer
+    /// multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's); with
+    /// an f32 backward, the backward runs by Winograd's F(2x2, 3x3) in f32 (it decides
+    /// nothing) and a forward with a gradient by Winograd's F(2x2, 3x3) in f64 (its sums within
+    /// about 1e-16 of their terms when the ReLU decides, as the direct f64 sums of narrower
+    /// layers). Narrower layers take the direct convolution both ways.
     ///
     /// The forward stays f32 in either case: its outputs decide the ReLUs and the max pools,
     /// and outputs rounded to bf16 tie inside pooling windows, which routes the gradient to
@@ -101,6 +112,7 @@ impl ConvReluChannelsLast {
             kernel,
             adjoint,
             bf16_backward,
+            exact_forward: (!bf16_backward && wide).then(|| Arc::new(OnceLock::new())),
             bias: Arc::new(bias.flatten_all()?.to_vec1::<f32>()?),
         })
     }
@@ -111,10 +123,26 @@ impl ConvReluChannelsLast {
     /// decides as the exact sum ([`Epilogue::ExactBiasRelu`]); else as the f32 sum (a bf16
     /// backward's error is larger than the decisions the exact sums change).
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
+        let exact = x.track_op() && !self.bf16_backward;
+        let kernel = match (&self.exact_forward, &self.kernel) {
+            (Some(cell), Kernel::F32(packed)) if exact => {
+                let (cin, cout) = (packed.cin(), packed.cout());
+                let taps = packed.taps();
+                Kernel::ExactWinograd(
+                    cell.get_or_init(|| {
+                        Arc::new(WinogradKernel::from_taps(cout, cin, |o, i, dy, dx| {
+                            taps[((dy * 3 + dx) * cin + i) * cout + o]
+                        }))
+                    })
+                    .clone(),
+                )
+            }
+            _ => self.kernel.clone(),
+        };
         x.contiguous()?.apply_op1(ConvOp {
-            kernel: self.kernel.clone(),
+            kernel,
             epilogue_bias: Some(self.bias.clone()),
-            exact: x.track_op() && !self.bf16_backward,
+            exact,
             adjoint: Some(self.adjoint.clone()),
             scratch: scratch.clone(),
         })
@@ -159,6 +187,9 @@ impl ConvOp {
         let out = match &self.kernel {
             Kernel::Bf16(kernel) => conv3x3_bf16(data, shape, kernel, gate, bias),
             Kernel::Winograd(kernel) => conv3x3_winograd(data, (images, h, w), kernel, gate, bias),
+            Kernel::ExactWinograd(kernel) => {
+                conv3x3_winograd(data, (images, h, w), kernel, gate, bias)
+            }
             Kernel::F32(kernel) => {
                 let epilogue = match (bias, self.exact) {
                     (Some(bias), true) => Epilogue::ExactBiasRelu(bias),
@@ -293,6 +324,73 @@ mod tests {
             }
         }
         (out, grad)
+    }
+
+    /// The exact forward of a wide layer (f64 Winograd) against the f64 direct convolution:
+    /// biases that put one pre-activation per channel within an f32 rounding of 0 (both signs)
+    /// decide as the exact sums, and each output is the f64 sum rounded once: to the ulp, or
+    /// within 1e-13 (f64's error on the terms, of order 1) where the sum nearly cancels.
+    #[test]
+    fn the_exact_forward_of_a_wide_layer_rounds_the_exact_sums() {
+        let (h, w, cin, cout) = (5, 7, WIDE, WIDE);
+        let x = values(h * w * cin, 11);
+        let weight: Vec<f32> = values(cout * cin * 9, 12)
+            .iter()
+            .map(|v| v / (3 * cin) as f32)
+            .collect();
+        let zeros = vec![0f32; cout];
+        let r = vec![1f32; h * w * cout];
+        // Sums without bias, relu'd: take them at a pixel where every channel's is positive or
+        // use its negative (the ReLU is odd-symmetric in what it keeps).
+        let (plain, _) = reference(&x, (h, w, cin, cout), &weight, &zeros, &r);
+        let (negated, _) = reference(
+            &x,
+            (h, w, cin, cout),
+            &weight.iter().map(|v| -v).collect::<Vec<_>>(),
+            &zeros,
+            &r,
+        );
+        let sum = |k: usize| plain[k] - negated[k];
+        let bias: Vec<f32> = (0..cout)
+            .map(|o| -(sum(((o * 5) % (h * w)) * cout + o) as f32))
+            .collect();
+        let (out, _) = reference(&x, (h, w, cin, cout), &weight, &bias, &r);
+        let dev = Device::Cpu;
+        let layer = ConvReluChannelsLast::new(
+            &Tensor::from_vec(weight.clone(), (cout, cin, 3, 3), &dev).unwrap(),
+            &Tensor::from_vec(bias.clone(), cout, &dev).unwrap(),
+            false,
+            WIDE,
+        )
+        .unwrap();
+        let input = Var::from_vec(x, (1, h, w, cin), &dev).unwrap();
+        let y = layer
+            .forward(input.as_tensor(), &Scratch::default())
+            .unwrap();
+        let got = y.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let (mut near_zero, mut rounded_apart) = (0, 0);
+        for (k, (&g, &e)) in got.iter().zip(&out).enumerate() {
+            let pre_activation = sum(k) + f64::from(bias[k % cout]);
+            assert_eq!(
+                g > 0.0,
+                pre_activation > 0.0,
+                "output {k}: {g} vs {pre_activation:e}"
+            );
+            if pre_activation.abs() < 1e-6 {
+                near_zero += 1;
+                assert!((f64::from(g) - e).abs() < 1e-13, "output {k}: {g} vs {e:e}");
+                continue;
+            }
+            let rounded = e as f32;
+            let ulps = (i64::from(g.to_bits() as i32) - i64::from(rounded.to_bits() as i32)).abs();
+            assert!(ulps <= 1, "output {k}: {g} vs {rounded} ({ulps} ulp)");
+            rounded_apart += usize::from(ulps > 0);
+        }
+        assert!(near_zero >= cout, "{near_zero} pre-activations near 0");
+        assert!(
+            rounded_apart * 1000 <= got.len(),
+            "{rounded_apart} outputs off by an ulp"
+        );
     }
 
     /// A layer wide enough for Winograd's products (and, with a bf16 backward, bf16 ones) and
