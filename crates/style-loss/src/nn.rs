@@ -82,6 +82,62 @@ fn linear_value(x: &Tensor, w: &Tensor, bias: Option<&Tensor>) -> candle_core::R
     }
 }
 
+/// A transformer's feed-forward block `fc2(activation(fc1(x)))`, differentiable in `x` only.
+#[derive(Clone, Debug)]
+pub(crate) struct Mlp {
+    /// `in -> hidden`.
+    pub fc1: Linear,
+    /// `hidden -> in`.
+    pub fc2: Linear,
+    /// Between the two.
+    pub activation: Activation,
+}
+
+impl Mlp {
+    /// Applies the block to the last dimension of `x` (any leading dimensions). For f32 on the
+    /// CPU with quick-GELU, as one node of the graph whose backward is written out (`fc2`'s
+    /// adjoint, the activation's derivative, `fc1`'s adjoint): the two hidden-sized
+    /// intermediate values are neither copied into the graph nor given zeroed gradients to add
+    /// into, as three nodes would be; elsewhere the three layers in turn.
+    pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        if self.activation != Activation::QuickGelu || !is_cpu_f32(x) {
+            return self.forward_with_layers(x);
+        }
+        let dims = x.dims().to_vec();
+        let (in_features, rows) = match dims.split_last() {
+            Some((last, lead)) => (*last, lead.iter().product::<usize>()),
+            None => candle_core::bail!("Mlp: scalar input"),
+        };
+        let flat = x.reshape((rows, in_features))?;
+        let (fc1, fc2) = (&self.fc1, &self.fc2);
+        let hidden = linear_value(
+            &flat.detach().contiguous()?,
+            &fc1.weight_t,
+            fc1.bias.as_ref(),
+        )?;
+        let activated = hidden.apply_op1_no_bwd(&QuickGeluOp)?;
+        let value = linear_value(&activated, &fc2.weight_t, fc2.bias.as_ref())?;
+        drop(activated);
+        let (w1, w2) = (fc1.weight.clone(), fc2.weight.clone());
+        let y = attach_input_gradient(&value, &flat, move |g| {
+            let g_activated = linear_value(&g.contiguous()?, &w2, None)?;
+            let g_hidden = hidden.apply_op2_no_bwd(&g_activated, &QuickGeluOp)?;
+            linear_value(&g_hidden, &w1, None)
+        })?;
+        let mut out_dims = dims;
+        if let Some(last) = out_dims.last_mut() {
+            *last = fc2.weight.dim(0)?;
+        }
+        y.reshape(out_dims)
+    }
+
+    /// [`Self::forward`] as three nodes of the graph (any device and activation).
+    pub(crate) fn forward_with_layers(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        self.fc2
+            .forward(&self.activation.forward(&self.fc1.forward(x)?)?)
+    }
+}
+
 /// Layer normalization over the last dimension with affine parameters, built from ops with a
 /// backward: `(x - mean) / sqrt(var + eps) * gamma + beta` (biased variance, as PyTorch).
 #[derive(Clone, Debug)]
@@ -291,6 +347,35 @@ mod fused_tests {
                 range,
                 |x| Activation::QuickGelu.forward(x).unwrap(),
                 |x| Activation::QuickGelu.forward_with_ops(x).unwrap(),
+            );
+        }
+    }
+
+    /// The feed-forward block as one node against its three layers, f32 and bf16 weights.
+    #[test]
+    fn fused_mlp_matches_its_three_layers() {
+        let device = Device::Cpu;
+        for dtype in [DType::F32, DType::BF16] {
+            let layer = |out: usize, inp: usize| {
+                Linear::new(
+                    (Tensor::rand(-1f32, 1.0, (out, inp), &device).unwrap() / (inp as f64).sqrt())
+                        .unwrap()
+                        .to_dtype(dtype)
+                        .unwrap(),
+                    Some(Tensor::rand(-0.5f32, 0.5, out, &device).unwrap()),
+                )
+                .unwrap()
+            };
+            let mlp = Mlp {
+                fc1: layer(24, 5),
+                fc2: layer(5, 24),
+                activation: Activation::QuickGelu,
+            };
+            check(
+                5,
+                3.0,
+                |x| mlp.forward(x).unwrap(),
+                |x| mlp.forward_with_layers(x).unwrap(),
             );
         }
     }

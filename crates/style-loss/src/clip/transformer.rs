@@ -6,7 +6,7 @@ use super::ClipPrecision;
 
 use crate::error::Result;
 use crate::matmul::checked_matmul;
-use crate::nn::{softmax_last_dim, Activation, LayerNorm, Linear};
+use crate::nn::{softmax_last_dim, Activation, LayerNorm, Linear, Mlp};
 use crate::tensor_file::NamedTensors;
 
 /// Sizes of one encoder stack.
@@ -102,16 +102,13 @@ struct EncoderLayer {
     ln1: LayerNorm,
     attention: Attention,
     ln2: LayerNorm,
-    fc1: Linear,
-    fc2: Linear,
-    activation: Activation,
+    mlp: Mlp,
 }
 
 impl EncoderLayer {
     fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
         let x = (x + self.attention.forward(&self.ln1.forward(x)?, mask)?)?;
-        let h = self.fc1.forward(&self.ln2.forward(&x)?)?;
-        let h = self.fc2.forward(&self.activation.forward(&h)?)?;
+        let h = self.mlp.forward(&self.ln2.forward(&x)?)?;
         Ok((x + h)?)
     }
 }
@@ -140,23 +137,25 @@ impl Encoder {
                         head_dim: h / shape.heads,
                     },
                     ln2: load_layer_norm(w, &format!("{p}.layer_norm2"), h, shape.layer_norm_eps)?,
-                    fc1: load_linear(
-                        w,
-                        &format!("{p}.mlp.fc1"),
-                        shape.intermediate,
-                        h,
-                        true,
-                        dtype,
-                    )?,
-                    fc2: load_linear(
-                        w,
-                        &format!("{p}.mlp.fc2"),
-                        h,
-                        shape.intermediate,
-                        true,
-                        dtype,
-                    )?,
-                    activation: shape.activation,
+                    mlp: Mlp {
+                        fc1: load_linear(
+                            w,
+                            &format!("{p}.mlp.fc1"),
+                            shape.intermediate,
+                            h,
+                            true,
+                            dtype,
+                        )?,
+                        fc2: load_linear(
+                            w,
+                            &format!("{p}.mlp.fc2"),
+                            h,
+                            shape.intermediate,
+                            true,
+                            dtype,
+                        )?,
+                        activation: shape.activation,
+                    },
                 })
             })
             .collect::<Result<Vec<_>>>()?;
