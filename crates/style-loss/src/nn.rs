@@ -47,11 +47,7 @@ impl Linear {
             None => candle_core::bail!("Linear: scalar input"),
         };
         let flat = x.reshape((rows, in_features))?;
-        let value = linear_value(
-            &flat.detach().contiguous()?,
-            &self.weight_t,
-            self.bias.as_ref(),
-        )?;
+        let value = self.value(&flat.detach().contiguous()?)?;
         let weight = self.weight.clone();
         let y = attach_input_gradient(&value, &flat, move |g| {
             linear_value(&g.contiguous()?, &weight, None)
@@ -61,6 +57,16 @@ impl Linear {
             *last = self.weight.dim(0)?;
         }
         y.reshape(out_dims)
+    }
+
+    /// The layer's value on `[rows, in]` (contiguous), outside the graph.
+    pub(crate) fn value(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+        linear_value(x, &self.weight_t, self.bias.as_ref())
+    }
+
+    /// The input gradient `g · W` of an upstream gradient `g` `[rows, out]` (contiguous).
+    pub(crate) fn input_gradient(&self, g: &Tensor) -> candle_core::Result<Tensor> {
+        linear_value(g, &self.weight, None)
     }
 }
 
@@ -109,24 +115,19 @@ impl Mlp {
             None => candle_core::bail!("Mlp: scalar input"),
         };
         let flat = x.reshape((rows, in_features))?;
-        let (fc1, fc2) = (&self.fc1, &self.fc2);
-        let hidden = linear_value(
-            &flat.detach().contiguous()?,
-            &fc1.weight_t,
-            fc1.bias.as_ref(),
-        )?;
+        let hidden = self.fc1.value(&flat.detach().contiguous()?)?;
         let activated = hidden.apply_op1_no_bwd(&QuickGeluOp)?;
-        let value = linear_value(&activated, &fc2.weight_t, fc2.bias.as_ref())?;
+        let value = self.fc2.value(&activated)?;
         drop(activated);
-        let (w1, w2) = (fc1.weight.clone(), fc2.weight.clone());
+        let (fc1, fc2) = (self.fc1.clone(), self.fc2.clone());
         let y = attach_input_gradient(&value, &flat, move |g| {
-            let g_activated = linear_value(&g.contiguous()?, &w2, None)?;
+            let g_activated = fc2.input_gradient(&g.contiguous()?)?;
             let g_hidden = hidden.apply_op2_no_bwd(&g_activated, &QuickGeluOp)?;
-            linear_value(&g_hidden, &w1, None)
+            fc1.input_gradient(&g_hidden)
         })?;
         let mut out_dims = dims;
         if let Some(last) = out_dims.last_mut() {
-            *last = fc2.weight.dim(0)?;
+            *last = self.fc2.weight.dim(0)?;
         }
         y.reshape(out_dims)
     }
