@@ -88,6 +88,11 @@ fn linear_value(x: &Tensor, w: &Tensor, bias: Option<&Tensor>) -> candle_core::R
     }
 }
 
+/// The input gradient of a map computed outside the graph: the adjoint of its Jacobian at the
+/// input, applied to an upstream gradient of the output's shape.
+pub(crate) type InputAdjoint =
+    Box<dyn Fn(&Tensor) -> candle_core::Result<Tensor> + Send + Sync + 'static>;
+
 /// A transformer's feed-forward block `fc2(activation(fc1(x)))`, differentiable in `x` only.
 #[derive(Clone, Debug)]
 pub(crate) struct Mlp {
@@ -100,39 +105,40 @@ pub(crate) struct Mlp {
 }
 
 impl Mlp {
-    /// Applies the block to the last dimension of `x` (any leading dimensions). For f32 on the
-    /// CPU with quick-GELU, as one node of the graph whose backward is written out (`fc2`'s
-    /// adjoint, the activation's derivative, `fc1`'s adjoint): the two hidden-sized
-    /// intermediate values are neither copied into the graph nor given zeroed gradients to add
-    /// into, as three nodes would be; elsewhere the three layers in turn.
-    pub(crate) fn forward(&self, x: &Tensor) -> candle_core::Result<Tensor> {
+    /// For f32 on the CPU with quick-GELU, the block's value on `x` (contiguous, outside the
+    /// graph; the block acts on the last dimension) and its input adjoint (`fc2`'s adjoint, the activation's derivative,
+    /// `fc1`'s adjoint): the hidden-sized intermediate values are neither copied into the graph
+    /// nor given zeroed gradients to add into, as three nodes would be. `None` elsewhere.
+    pub(crate) fn value_and_adjoint(
+        &self,
+        x: &Tensor,
+    ) -> candle_core::Result<Option<(Tensor, InputAdjoint)>> {
         if self.activation != Activation::QuickGelu || !is_cpu_f32(x) {
-            return self.forward_with_layers(x);
+            return Ok(None);
         }
         let dims = x.dims().to_vec();
         let (in_features, rows) = match dims.split_last() {
             Some((last, lead)) => (*last, lead.iter().product::<usize>()),
             None => candle_core::bail!("Mlp: scalar input"),
         };
-        let flat = x.reshape((rows, in_features))?;
-        let hidden = self.fc1.value(&flat.detach().contiguous()?)?;
+        let hidden = self.fc1.value(&x.reshape((rows, in_features))?)?;
         let activated = hidden.apply_op1_no_bwd(&QuickGeluOp)?;
         let value = self.fc2.value(&activated)?;
         drop(activated);
         let (fc1, fc2) = (self.fc1.clone(), self.fc2.clone());
-        let y = attach_input_gradient(&value, &flat, move |g| {
-            let g_activated = fc2.input_gradient(&g.contiguous()?)?;
+        let adjoint: InputAdjoint = Box::new(move |g| {
+            let g_activated = fc2.input_gradient(&g.reshape((rows, ()))?.contiguous()?)?;
             let g_hidden = hidden.apply_op2_no_bwd(&g_activated, &QuickGeluOp)?;
-            fc1.input_gradient(&g_hidden)
-        })?;
-        let mut out_dims = dims;
+            fc1.input_gradient(&g_hidden)?.reshape(dims.as_slice())
+        });
+        let mut out_dims = x.dims().to_vec();
         if let Some(last) = out_dims.last_mut() {
-            *last = self.fc2.weight.dim(0)?;
+            *last = value.dim(1)?;
         }
-        y.reshape(out_dims)
+        Ok(Some((value.reshape(out_dims)?, adjoint)))
     }
 
-    /// [`Self::forward`] as three nodes of the graph (any device and activation).
+    /// The block as three nodes of the graph (any device and activation).
     pub(crate) fn forward_with_layers(&self, x: &Tensor) -> candle_core::Result<Tensor> {
         self.fc2
             .forward(&self.activation.forward(&self.fc1.forward(x)?)?)
@@ -181,6 +187,21 @@ impl LayerNorm {
             Some(op) if is_cpu_f32(x) => x.contiguous()?.apply_op1(op.clone()),
             _ => self.forward_with_ops(x),
         }
+    }
+
+    /// For f32 on the CPU, the normalized value of `x` (contiguous, outside the graph) and its
+    /// input adjoint (one fused pass each); `None` elsewhere.
+    pub(crate) fn value_and_adjoint(
+        &self,
+        x: &Tensor,
+    ) -> candle_core::Result<Option<(Tensor, InputAdjoint)>> {
+        let Some(op) = self.fused.clone().filter(|_| is_cpu_f32(x)) else {
+            return Ok(None);
+        };
+        let value = x.apply_op1_no_bwd(&op)?;
+        let x = x.clone();
+        let adjoint: InputAdjoint = Box::new(move |g| x.apply_op2_no_bwd(&g.contiguous()?, &op));
+        Ok(Some((value, adjoint)))
     }
 
     /// [`Self::forward`] composed from candle ops with a backward (any device).
@@ -375,7 +396,11 @@ mod fused_tests {
             check(
                 5,
                 3.0,
-                |x| mlp.forward(x).unwrap(),
+                |x| {
+                    let input = x.detach().contiguous().unwrap();
+                    let (value, adjoint) = mlp.value_and_adjoint(&input).unwrap().unwrap();
+                    attach_input_gradient(&value, x, adjoint).unwrap()
+                },
                 |x| mlp.forward_with_layers(x).unwrap(),
             );
         }

@@ -9,7 +9,7 @@ use crate::custom_grad::attach_input_gradient;
 use crate::error::Result;
 use crate::fused_cpu::SoftmaxOp;
 use crate::matmul::checked_matmul;
-use crate::nn::{softmax_last_dim, Activation, LayerNorm, Linear, Mlp};
+use crate::nn::{softmax_last_dim, Activation, InputAdjoint, LayerNorm, Linear, Mlp};
 use crate::tensor_file::NamedTensors;
 
 /// Sizes of one encoder stack.
@@ -76,22 +76,20 @@ struct Attention {
 }
 
 impl Attention {
-    /// `x` is `[batch, tokens, hidden]`; `mask`, if any, is added to the `[tokens, tokens]`
-    /// attention logits (0 or -inf, any float type). For f32 on the CPU, as one node of the
-    /// graph whose backward is written out ([`Self::forward_as_one_node`]); elsewhere as the
-    /// ops in turn ([`Self::forward_with_ops`]).
-    fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
-        if is_cpu_f32(x) {
-            return self.forward_as_one_node(x, mask);
+    /// For f32 on the CPU, the attention's value on `x` `[batch, tokens, hidden]` (contiguous,
+    /// outside the graph) and its input adjoint: `Wo`'s adjoint, the two products' and the
+    /// softmax's derivatives, the three projections' adjoints summed. The intermediate values
+    /// (queries, keys, values, the probabilities) are kept once, and none gets a zeroed
+    /// gradient to add into, as a node of its own would. `mask` as in [`Self::forward_with_ops`].
+    /// `None` elsewhere.
+    fn value_and_adjoint(
+        &self,
+        x: &Tensor,
+        mask: Option<&Tensor>,
+    ) -> candle_core::Result<Option<(Tensor, InputAdjoint)>> {
+        if !is_cpu_f32(x) {
+            return Ok(None);
         }
-        self.forward_with_ops(x, mask)
-    }
-
-    /// [`Self::forward`] outside the graph, with the input gradient attached by hand: `Wo`'s
-    /// adjoint, the two products' and the softmax's derivatives, the three projections'
-    /// adjoints summed. The intermediate values (queries, keys, values, the probabilities) are
-    /// kept once, and no node of their own gets a zeroed gradient to add into.
-    fn forward_as_one_node(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
         let (batch, tokens, hidden) = x.dims3()?;
         let (heads, head_dim) = (self.heads, self.head_dim);
         // [batch * tokens, hidden] <-> [batch, heads, tokens, head_dim].
@@ -107,8 +105,7 @@ impl Attention {
         };
         let softmax = SoftmaxOp { len: tokens };
         let scale = 1.0 / (head_dim as f64).sqrt();
-        let flat = x.reshape((batch * tokens, hidden))?;
-        let input = flat.detach().contiguous()?;
+        let input = x.reshape((batch * tokens, hidden))?;
         let q = split((self.q.value(&input)? * scale)?)?;
         let k = split(self.k.value(&input)?)?;
         let v = split(self.v.value(&input)?)?;
@@ -120,15 +117,17 @@ impl Attention {
         drop(logits);
         let value = self
             .out
-            .value(&merge(checked_matmul(&probabilities, &v)?)?)?;
+            .value(&merge(checked_matmul(&probabilities, &v)?)?)?
+            .reshape((batch, tokens, hidden))?;
         let (q_layer, k_layer, v_layer, out) = (
             self.q.clone(),
             self.k.clone(),
             self.v.clone(),
             self.out.clone(),
         );
-        let y = attach_input_gradient(&value, &flat, move |g| {
-            let g_context = split(out.input_gradient(&g.contiguous()?)?)?;
+        let adjoint: InputAdjoint = Box::new(move |g| {
+            let g = g.reshape((batch * tokens, hidden))?.contiguous()?;
+            let g_context = split(out.input_gradient(&g)?)?;
             let g_probabilities = checked_matmul(&g_context, &v.t()?.contiguous()?)?;
             let g_v = checked_matmul(&probabilities.t()?.contiguous()?, &g_context)?;
             let g_logits = probabilities.apply_op2_no_bwd(&g_probabilities, &softmax)?;
@@ -136,12 +135,14 @@ impl Attention {
             let g_k = checked_matmul(&g_logits.t()?.contiguous()?, &q)?;
             let g_x =
                 (q_layer.input_gradient(&merge(g_q)?)? + k_layer.input_gradient(&merge(g_k)?)?)?;
-            g_x + v_layer.input_gradient(&merge(g_v)?)?
-        })?;
-        Ok(y.reshape((batch, tokens, hidden))?)
+            (g_x + v_layer.input_gradient(&merge(g_v)?)?)?.reshape((batch, tokens, hidden))
+        });
+        Ok(Some((value, adjoint)))
     }
 
-    /// [`Self::forward`] as candle ops with a backward (any device and format).
+    /// `x` is `[batch, tokens, hidden]`; `mask`, if any, is added to the `[tokens, tokens]`
+    /// attention logits (0 or -inf, any float type). Candle ops with a backward (any device and
+    /// format).
     fn forward_with_ops(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
         let (batch, tokens, hidden) = x.dims3()?;
         let split = |t: Tensor| -> candle_core::Result<Tensor> {
@@ -174,10 +175,40 @@ struct EncoderLayer {
 
 impl EncoderLayer {
     fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
-        let x = (x + self.attention.forward(&self.ln1.forward(x)?, mask)?)?;
-        let h = self.mlp.forward(&self.ln2.forward(&x)?)?;
-        Ok((x + h)?)
+        let x = pre_norm_residual(
+            x,
+            &self.ln1,
+            |normed| self.attention.value_and_adjoint(normed, mask),
+            |normed| self.attention.forward_with_ops(normed, mask),
+        )?;
+        pre_norm_residual(
+            &x,
+            &self.ln2,
+            |normed| self.mlp.value_and_adjoint(normed),
+            |normed| Ok(self.mlp.forward_with_layers(normed)?),
+        )
     }
+}
+
+/// `x + inner(norm(x))`. Where the norm and `inner` give their values and input adjoints (f32
+/// on the CPU: `fused`), one node of the graph whose input gradient is
+/// `g + norm'(inner'(g))`; elsewhere the norm, `ops` and the sum as nodes in turn.
+fn pre_norm_residual(
+    x: &Tensor,
+    norm: &LayerNorm,
+    fused: impl FnOnce(&Tensor) -> candle_core::Result<Option<(Tensor, InputAdjoint)>>,
+    ops: impl FnOnce(&Tensor) -> Result<Tensor>,
+) -> Result<Tensor> {
+    let input = x.detach().contiguous()?;
+    if let Some((normed, norm_adjoint)) = norm.value_and_adjoint(&input)? {
+        if let Some((inner, inner_adjoint)) = fused(&normed)? {
+            let value = (&input + inner)?;
+            return Ok(attach_input_gradient(&value, x, move |g| {
+                g + norm_adjoint(&inner_adjoint(g)?)?
+            })?);
+        }
+    }
+    Ok((x + ops(&norm.forward(x)?)?)?)
 }
 
 /// A stack of encoder layers (`{prefix}.layers.{i}.*` in the checkpoint).
@@ -251,12 +282,13 @@ mod tests {
         [y, grads.get(var.as_tensor()).unwrap().clone()]
     }
 
-    /// The attention as one node against its ops, value and gradient: f32 and bf16 weights,
-    /// with and without a causal mask, three heads over a hidden size of 12.
+    /// The encoder layer as two nodes (each pre-norm residual block computed outside the graph
+    /// with its adjoint) against the ops in turn, value and gradient: f32 and bf16 weights, with
+    /// and without a causal mask, three heads over a hidden size of 12.
     #[test]
-    fn attention_as_one_node_matches_its_ops() {
+    fn the_layer_as_two_nodes_matches_its_ops() {
         let device = Device::Cpu;
-        let (batch, tokens, hidden, heads) = (2, 5, 12, 3);
+        let (batch, tokens, hidden, heads, intermediate) = (2, 5, 12, 3, 20);
         let causal: Vec<f32> = (0..tokens * tokens)
             .map(|k| {
                 if k % tokens > k / tokens {
@@ -267,34 +299,67 @@ mod tests {
             })
             .collect();
         let causal = Tensor::from_vec(causal, (tokens, tokens), &device).unwrap();
+        let norm = || {
+            LayerNorm::new(
+                Tensor::rand(0.5f32, 1.5, hidden, &device).unwrap(),
+                Tensor::rand(-0.5f32, 0.5, hidden, &device).unwrap(),
+                1e-5,
+            )
+            .unwrap()
+        };
         for dtype in [DType::F32, DType::BF16] {
-            let layer = || {
+            let linear = |out: usize, inp: usize| {
                 Linear::new(
-                    (Tensor::rand(-1f32, 1.0, (hidden, hidden), &device).unwrap() / 2.0)
+                    (Tensor::rand(-1f32, 1.0, (out, inp), &device).unwrap() / (inp as f64).sqrt())
                         .unwrap()
                         .to_dtype(dtype)
                         .unwrap(),
-                    Some(Tensor::rand(-0.5f32, 0.5, hidden, &device).unwrap()),
+                    Some(Tensor::rand(-0.5f32, 0.5, out, &device).unwrap()),
                 )
                 .unwrap()
             };
-            let attention = Attention {
-                q: layer(),
-                k: layer(),
-                v: layer(),
-                out: layer(),
-                heads,
-                head_dim: hidden / heads,
+            let layer = EncoderLayer {
+                ln1: norm(),
+                attention: Attention {
+                    q: linear(hidden, hidden),
+                    k: linear(hidden, hidden),
+                    v: linear(hidden, hidden),
+                    out: linear(hidden, hidden),
+                    heads,
+                    head_dim: hidden / heads,
+                },
+                ln2: norm(),
+                mlp: Mlp {
+                    fc1: linear(intermediate, hidden),
+                    fc2: linear(hidden, intermediate),
+                    activation: Activation::QuickGelu,
+                },
             };
             let x = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device).unwrap();
             let probe = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device).unwrap();
             for mask in [None, Some(&causal)] {
-                let one = value_and_grad(&x, &probe, |x| {
-                    attention.forward_as_one_node(x, mask).unwrap()
+                // The fused path is the one taken.
+                let normed = layer.ln1.forward(&x).unwrap();
+                assert!(layer
+                    .attention
+                    .value_and_adjoint(&normed, mask)
+                    .unwrap()
+                    .is_some());
+                assert!(layer.mlp.value_and_adjoint(&normed).unwrap().is_some());
+                let two_nodes = value_and_grad(&x, &probe, |x| layer.forward(x, mask).unwrap());
+                let ops = value_and_grad(&x, &probe, |x| {
+                    let attended = layer
+                        .attention
+                        .forward_with_ops(&layer.ln1.forward_with_ops(x).unwrap(), mask)
+                        .unwrap();
+                    let x = (x + attended).unwrap();
+                    let fed = layer
+                        .mlp
+                        .forward_with_layers(&layer.ln2.forward_with_ops(&x).unwrap())
+                        .unwrap();
+                    (x + fed).unwrap()
                 });
-                let ops =
-                    value_and_grad(&x, &probe, |x| attention.forward_with_ops(x, mask).unwrap());
-                for (a, b) in one.iter().zip(&ops) {
+                for (a, b) in two_nodes.iter().zip(&ops) {
                     let diff = (a - b)
                         .unwrap()
                         .abs()
