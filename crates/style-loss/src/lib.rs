@@ -49,6 +49,7 @@ pub mod perspective;
 pub mod pil_resize;
 pub mod precision;
 pub mod resize;
+mod simd_dispatch;
 pub mod style_direction;
 pub mod templates;
 pub mod tensor_file;
