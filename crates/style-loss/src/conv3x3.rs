@@ -13,8 +13,8 @@
 //! pre-activation a hair from 0 gets the ReLU decision of the exact network, not one that f32
 //! summation order picks (PyTorch's f32 picks its own; where the two disagree, one unit's
 //! decision moves the content gradient by 1e-3 relative or more). It costs twice the products.
-//! (VGG's layers of 256 channels and more take Winograd's F(2x2, 3x3) in f64 for this instead:
-//! `conv3x3_winograd`.)
+//! (VGG's layers of 64 channels and more in and out take Winograd's F(4x4, 3x3) in f64 for
+//! this instead: `conv3x3_winograd`; here, the first layer's 3 input channels.)
 //! A forward without gradient (the ground truth's features: its decisions route nothing, they
 //! move values by a rounding) and the backward (the adjoint on the gradient, which decides
 //! nothing) stay in f32.

@@ -13,7 +13,7 @@ use crate::error::{Result, StyleLossError};
 use crate::precision::VggPrecision;
 use crate::tensor_file::NamedTensors;
 use crate::torch_ties::{max_pool_2x2, max_pool_2x2_channels_last};
-use crate::vgg_channels_last::{ConvReluChannelsLast, Scratch, WIDE};
+use crate::vgg_channels_last::{ConvReluChannelsLast, KernelWidths, Scratch, MEASURED};
 
 /// ImageNet per-channel mean (RGB, for values in [0, 1]).
 pub const IMAGENET_MEAN: [f32; 3] = [0.485, 0.456, 0.406];
@@ -137,7 +137,7 @@ impl Vgg19Features {
     /// on the CPU run channels-last (three matrix products per convolution); others run
     /// through candle's convolution on their device.
     pub fn from_tensors(w: &NamedTensors, widths: Vgg19Widths) -> Result<Self> {
-        Self::build(w, widths, true, VggPrecision::F32, WIDE)
+        Self::build(w, widths, true, VggPrecision::F32, MEASURED)
     }
 
     /// [`Self::from_tensors`] with the products in `precision` (bf16 runs channels-last on the
@@ -147,7 +147,7 @@ impl Vgg19Features {
         widths: Vgg19Widths,
         precision: VggPrecision,
     ) -> Result<Self> {
-        Self::build(w, widths, true, precision, WIDE)
+        Self::build(w, widths, true, precision, MEASURED)
     }
 
     /// The format the products run in (what `auto` chose, when it was asked for).
@@ -157,14 +157,14 @@ impl Vgg19Features {
 
     /// As [`Self::from_tensors_with_precision`]; `channels_last` false keeps candle's
     /// channels-first ops also on the CPU (the oracle of the channels-last kernels in tests),
-    /// and the channels-last layers of `wide_from` channels or more in and out take Winograd's
-    /// or bf16 products ([`WIDE`] but in tests of small networks).
+    /// and `kernels` picks the channels-last layers' algorithms by their width ([`MEASURED`] but
+    /// in tests of small networks).
     fn build(
         w: &NamedTensors,
         widths: Vgg19Widths,
         channels_last: bool,
         precision: VggPrecision,
-        wide_from: usize,
+        kernels: KernelWidths,
     ) -> Result<Self> {
         let mut index = 0;
         let mut in_channels = 3;
@@ -211,7 +211,7 @@ impl Vgg19Features {
         let layers = if channels_last {
             Layers::ChannelsLast(
                 map_layers(&weights, |w, b| {
-                    ConvReluChannelsLast::new(w, b, bf16, wide_from)
+                    ConvReluChannelsLast::new(w, b, bf16, kernels)
                 })?,
                 Scratch::default(),
             )
@@ -351,22 +351,35 @@ mod tests {
         (sum_sq(&(a - b).unwrap()) / sum_sq(b).max(1e-30)).sqrt()
     }
 
-    /// The direct f32 convolutions (the small network's layers are all narrower than [`WIDE`])
-    /// and, with every layer taken as wide, Winograd's in the backward.
+    /// Every layer taken as wide, as wider than [`MEASURED`]'s widths' narrowest.
+    const ALL_WIDE: KernelWidths = KernelWidths {
+        wide: 0,
+        exact_winograd: 0,
+    };
+
+    /// The direct convolutions (the small network's layers are all narrower than [`MEASURED`]'s
+    /// widths), Winograd's F(2x2, 3x3) in f64 for the exact forward of the narrower layers and
+    /// F(4x4, 3x3) for the wider ones, and every layer taken as wide (Winograd's F(2x2, 3x3) in
+    /// the backward, F(4x4, 3x3) in the exact forward).
     #[test]
     fn channels_last_matches_candles_convolution() {
-        assert_channels_last_within(VggPrecision::F32, WIDE, 1e-5, 1e-4);
-        assert_channels_last_within(VggPrecision::F32, 0, 1e-5, 1e-4);
+        let mixed = KernelWidths {
+            wide: 7,
+            exact_winograd: 0,
+        };
+        for kernels in [MEASURED, mixed, ALL_WIDE] {
+            assert_channels_last_within(VggPrecision::F32, kernels, 1e-5, 1e-4);
+        }
     }
 
     /// bf16 backward products against candle's f32 convolution, every layer taken as wide: the
     /// features are f32 (Winograd's), the gradient within bf16's rounding through ten layers
-    /// (measured 7.7e-3 to 9.2e-3). Below [`WIDE`] channels the layers stay f32.
+    /// (measured 7.7e-3 to 9.2e-3). Below [`MEASURED`]'s wide layers the layers stay f32.
     #[test]
     fn bf16_products_stay_within_their_error_of_candles_convolution() {
-        let error = assert_channels_last_within(VggPrecision::Bf16, 0, 1e-5, 3e-2);
+        let error = assert_channels_last_within(VggPrecision::Bf16, ALL_WIDE, 1e-5, 3e-2);
         assert!(error > 1e-3, "bf16's rounding shows: {error}");
-        let error = assert_channels_last_within(VggPrecision::Bf16, WIDE, 1e-5, 1e-4);
+        let error = assert_channels_last_within(VggPrecision::Bf16, MEASURED, 1e-5, 1e-4);
         assert!(error < 1e-4, "narrow layers stay f32: {error}");
     }
 
@@ -378,7 +391,7 @@ mod tests {
             widths,
             false,
             VggPrecision::Bf16,
-            WIDE,
+            MEASURED,
         )
         .unwrap_err()
         .to_string();
@@ -388,26 +401,25 @@ mod tests {
             widths,
             false,
             VggPrecision::Auto,
-            WIDE,
+            MEASURED,
         )
         .unwrap();
         assert_eq!(auto.precision(), VggPrecision::F32, "auto takes f32 there");
     }
 
-    /// The channels-last network with `precision` products (layers of `wide_from` channels or
-    /// more taken as wide) against the channels-first one in f32: features and input gradient
+    /// The channels-last network with `precision` products (the algorithms chosen by `kernels`) against the channels-first one in f32: features and input gradient
     /// within the relative errors given. Returns the largest gradient error.
     fn assert_channels_last_within(
         precision: VggPrecision,
-        wide_from: usize,
+        kernels: KernelWidths,
         feature_bound: f32,
         grad_bound: f32,
     ) -> f32 {
         let widths = Vgg19Widths([5, 8, 6, 7, 9]);
         let tensors = small_vgg_tensors(widths);
-        let fast = Vgg19Features::build(&tensors, widths, true, precision, wide_from).unwrap();
+        let fast = Vgg19Features::build(&tensors, widths, true, precision, kernels).unwrap();
         let oracle =
-            Vgg19Features::build(&tensors, widths, false, VggPrecision::F32, WIDE).unwrap();
+            Vgg19Features::build(&tensors, widths, false, VggPrecision::F32, MEASURED).unwrap();
         assert!(matches!(fast.layers, Layers::ChannelsLast(..)));
         assert!(matches!(oracle.layers, Layers::ChannelsFirst(..)));
         assert_eq!(fast.precision(), precision);
@@ -477,5 +489,75 @@ mod tests {
         let g = grads.get(x.as_tensor()).unwrap().flatten_all().unwrap();
         // PyTorch: [0, 1] for x0 and [0, -1] for x1; candle's ReLU would give [1, 1], [-1, -1].
         assert_eq!(g.to_vec1::<f32>().unwrap(), [0.0, 1.0, 0.0, -1.0]);
+    }
+
+    /// The PyTorch content-loss fixtures of `tests/vgg_matches_torchvision.rs` (ties in pooling
+    /// windows, exact zeros of zero biases, pre-activations a hair from 0 near every border) on
+    /// the tiny VGG-19 whose layers (4 to 32 channels) all take the direct f64 forward there,
+    /// here with Winograd's algorithms in the places of VGG-19's: F(2x2, 3x3) in f64 for the
+    /// exact forward from the second layer, F(4x4, 3x3) in f64 from the fourth (8 channels in and
+    /// out) with F(2x2, 3x3) in f32 in its backward. Loss within 1e-5 and gradient within 1e-4 of
+    /// PyTorch's, as there. (F(4x4, 3x3) from the second layer moves the gradient by 1.8e-2:
+    /// see [`MEASURED`].)
+    #[test]
+    fn winograds_exact_forward_matches_pytorch_at_ties_zeros_and_borders() {
+        let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");
+        let load =
+            |name: &str| candle_core::safetensors::load(fixtures.join(name), &Device::Cpu).unwrap();
+        let network = |file: &str| {
+            let tensors = NamedTensors::load_safetensors(&fixtures.join(file), &Device::Cpu);
+            let widths = Vgg19Widths([4, 8, 16, 32, 32]);
+            let kernels = KernelWidths {
+                wide: 8,
+                exact_winograd: 4,
+            };
+            Vgg19Features::build(&tensors.unwrap(), widths, true, VggPrecision::F32, kernels)
+                .unwrap()
+        };
+        let ties = load("vgg_ties_reference.safetensors");
+        let borders = load("vgg_border_ties_reference.safetensors");
+        let ties_cases: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(fixtures.join("vgg_ties_reference.json")).unwrap(),
+        )
+        .unwrap();
+        let mut cases: Vec<(String, &str, &HashMap<String, Tensor>)> = ties_cases
+            .as_object()
+            .unwrap()
+            .iter()
+            .map(|(name, weights)| {
+                let file = match weights.as_str().unwrap() {
+                    "random_bias" => "tiny_vgg19.safetensors",
+                    _ => "tiny_vgg19_torchvision_init.safetensors",
+                };
+                (name.clone(), file, &ties)
+            })
+            .collect();
+        for name in ["128x96", "61x45", "97x131"] {
+            cases.push((
+                name.into(),
+                "tiny_vgg19_torchvision_init.safetensors",
+                &borders,
+            ));
+        }
+        assert_eq!(cases.len(), 8);
+        for (name, file, reference) in cases {
+            let vgg = network(file);
+            let t = |what: &str| reference[&format!("{name}.{what}")].clone();
+            let gt = vgg.forward(&t("gt")).unwrap().detach();
+            let render = Var::from_tensor(&t("render")).unwrap();
+            let f = vgg.forward(render.as_tensor()).unwrap();
+            let mse = |a: &Tensor, b: &Tensor| (a - b).unwrap().sqr().unwrap().mean_all().unwrap();
+            let loss = (mse(&f.relu4_2, &gt.relu4_2) + mse(&f.relu5_2, &gt.relu5_2)).unwrap();
+            let grads = loss.backward().unwrap();
+            let grad = grads.get(render.as_tensor()).unwrap();
+            let loss = f64::from(loss.to_scalar::<f32>().unwrap());
+            let expected = f64::from(t("loss").flatten_all().unwrap().to_vec1::<f32>().unwrap()[0]);
+            assert!(
+                (loss - expected).abs() <= 1e-5 * expected.abs(),
+                "{name}: loss {loss} vs {expected}"
+            );
+            let error = relative_error(grad, &t("grad"));
+            assert!(error < 1e-4, "{name}: gradient relative error {error}");
+        }
     }
 }

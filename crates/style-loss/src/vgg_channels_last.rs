@@ -9,7 +9,7 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 
 use crate::conv3x3::{conv3x3, Epilogue, ImageShape, PackedKernel};
 use crate::conv3x3_bf16::{conv3x3_bf16, StackedKernel};
-use crate::conv3x3_winograd::{conv3x3_winograd, WinogradKernel};
+use crate::conv3x3_winograd::{conv3x3_winograd, WinogradKernel, F2X2, F4X4};
 use crate::cpu_elements::{elements, same_shape_elements};
 
 /// The padded-image buffer the convolutions of one network share (forward and backward run
@@ -26,15 +26,43 @@ enum Kernel {
     /// f32 products of Winograd's F(2x2, 3x3) (`conv3x3_winograd`).
     Winograd(Arc<WinogradKernel>),
     /// f64 transforms and products of Winograd's F(2x2, 3x3), the bias added and the ReLU
-    /// decided in f64, each output rounded once (the exact forward of a wide layer).
-    ExactWinograd(Arc<WinogradKernel<f64>>),
+    /// decided in f64, each output rounded once (the exact forward of a layer between
+    /// [`KernelWidths::exact_winograd`] and [`KernelWidths::wide`] channels).
+    ExactWinograd2(Arc<WinogradKernel<f64, F2X2>>),
+    /// The same by F(4x4, 3x3) (the exact forward of a wide layer).
+    ExactWinograd4(Arc<WinogradKernel<f64, F4X4>>),
 }
 
-/// The fewest input and output channels at which a convolution's products leave the direct f32
-/// convolution for Winograd's F(2x2, 3x3) or bf16: on narrower layers the transforms or the
-/// bf16 conversions cost more than the multiply-adds they save (each layer of VGG-19 at 800x800
-/// timed on a 2-core Zen 4, docs/benchmarks.md).
-pub(crate) const WIDE: usize = 256;
+/// Which algorithm a layer's products take, by the layer's width (the fewer of its input and
+/// output channels).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct KernelWidths {
+    /// From this width on a layer is wide: its backward runs by Winograd's F(2x2, 3x3) in f32
+    /// or, with a bf16 backward, in bf16 (its forward then by F(2x2, 3x3) in f32), and its
+    /// exact forward (f64 sums, a gradient taken through an f32 backward) by F(4x4, 3x3) in
+    /// f64. Below it the products are direct f32 both ways.
+    pub wide: usize,
+    /// From this width on, and below `wide`, the exact forward runs by F(2x2, 3x3) in f64;
+    /// narrower layers sum it directly in f64.
+    pub exact_winograd: usize,
+}
+
+/// The widths measured on VGG-19 (docs/benchmarks.md): on layers narrower than 256 channels
+/// the bf16 conversions, and on a 2-core Zen 4 the f32 transforms, cost more than they saved;
+/// in f64, F(2x2, 3x3) beat the direct sums on every layer but the first (3 input channels),
+/// and F(4x4, 3x3) (2.25 multiply-adds per output and channel pair, against 4 and 9) beat both
+/// on all of them (timed layer by layer at 384x384 and 800x800 on a 2-core Zen 3). It runs on
+/// the wide layers only: each of its outputs mixes the whole 6x6 tile, whose inputs outside the
+/// output's window cancel up to a rounding of their size (about 1e-16 in f64). Beside a flat
+/// region's border, where outputs a hair from 0 (as after a ReLU a hair from 0 on the
+/// picture's first layer) sit next to large ones, that rounding tells equal outputs apart and a
+/// 2x2 max pool routes their gradient elsewhere than PyTorch's (1.8e-2 of the content gradient
+/// on `scripts/make_vgg_border_ties_fixture.py`'s cases with it on the second layer; none with
+/// it from the fourth). F(2x2, 3x3)'s outputs read their own window only.
+pub(crate) const MEASURED: KernelWidths = KernelWidths {
+    wide: 256,
+    exact_winograd: 64,
+};
 
 impl Kernel {
     fn cin(&self) -> usize {
@@ -42,7 +70,8 @@ impl Kernel {
             Self::F32(k) => k.cin(),
             Self::Bf16(k) => k.cin(),
             Self::Winograd(k) => k.cin(),
-            Self::ExactWinograd(k) => k.cin(),
+            Self::ExactWinograd2(k) => k.cin(),
+            Self::ExactWinograd4(k) => k.cin(),
         }
     }
 
@@ -51,7 +80,8 @@ impl Kernel {
             Self::F32(k) => k.cout(),
             Self::Bf16(k) => k.cout(),
             Self::Winograd(k) => k.cout(),
-            Self::ExactWinograd(k) => k.cout(),
+            Self::ExactWinograd2(k) => k.cout(),
+            Self::ExactWinograd4(k) => k.cout(),
         }
     }
 }
@@ -67,21 +97,23 @@ pub(crate) struct ConvReluChannelsLast {
     bias: Arc<Vec<f32>>,
     /// Whether the backward was asked in bf16 (its forward then decides its ReLUs in f32).
     bf16_backward: bool,
-    /// On a wide layer with an f32 backward, the f64 kernel of the exact forward, built from
-    /// `kernel` on the first forward with a gradient (3.6 times the f32 weights' memory, spent
-    /// only by runs that take it).
-    exact_forward: Option<Arc<OnceLock<Arc<WinogradKernel<f64>>>>>,
+    /// On a layer of [`KernelWidths::exact_winograd`] channels or more with an f32 backward, the
+    /// tile size and the f64 kernel of the exact forward by Winograd's algorithm, built from
+    /// `kernel` on the first forward with a gradient (4 or 9 times the f32 weights' memory, about
+    /// 480 MB for VGG-19 to conv5_2, spent only by runs that take it).
+    exact_forward: Option<(usize, Arc<OnceLock<Kernel>>)>,
 }
 
 impl ConvReluChannelsLast {
-    /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`. On layers of `wide_from`
-    /// channels or more in and out ([`WIDE`] but in tests), `bf16_backward` runs the backward
+    /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`, the algorithms chosen by
+    /// `widths` ([`MEASURED`] but in tests). On a wide layer `bf16_backward` runs the backward
     /// products in bf16 and the forward by Winograd's F(2x2, 3x3) in f32 (2.25 times fewer
     /// multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's); with
     /// an f32 backward, the backward runs by Winograd's F(2x2, 3x3) in f32 (it decides
-    /// nothing) and a forward with a gradient by Winograd's F(2x2, 3x3) in f64 (its sums within
-    /// about 1e-16 of their terms when the ReLU decides, as the direct f64 sums of narrower
-    /// layers). Narrower layers take the direct convolution both ways.
+    /// nothing). Narrower layers take the direct f32 convolution both ways. With an f32
+    /// backward, a forward with a gradient sums in f64, within about 1e-15 of its terms when the
+    /// ReLU decides: by Winograd's F(4x4, 3x3) on wide layers, F(2x2, 3x3) from
+    /// `widths.exact_winograd`, directly on narrower ones.
     ///
     /// The forward stays f32 in either case: its outputs decide the ReLUs and the max pools,
     /// and outputs rounded to bf16 tie inside pooling windows, which routes the gradient to
@@ -91,11 +123,12 @@ impl ConvReluChannelsLast {
         weight: &Tensor,
         bias: &Tensor,
         bf16_backward: bool,
-        wide_from: usize,
+        widths: KernelWidths,
     ) -> candle_core::Result<Self> {
         let (cout, cin, _, _) = weight.dims4()?;
         let w = weight.flatten_all()?.to_vec1::<f32>()?;
-        let wide = cin.min(cout) >= wide_from;
+        let wide = cin.min(cout) >= widths.wide;
+        let exact_tile = if wide { F4X4 } else { F2X2 };
         let kernel = if bf16_backward && wide {
             Kernel::Winograd(Arc::new(WinogradKernel::new(&w, cout, cin)))
         } else {
@@ -112,7 +145,8 @@ impl ConvReluChannelsLast {
             kernel,
             adjoint,
             bf16_backward,
-            exact_forward: (!bf16_backward && wide).then(|| Arc::new(OnceLock::new())),
+            exact_forward: (!bf16_backward && cin.min(cout) >= widths.exact_winograd)
+                .then(|| (exact_tile, Arc::new(OnceLock::new()))),
             bias: Arc::new(bias.flatten_all()?.to_vec1::<f32>()?),
         })
     }
@@ -125,18 +159,18 @@ impl ConvReluChannelsLast {
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
         let exact = x.track_op() && !self.bf16_backward;
         let kernel = match (&self.exact_forward, &self.kernel) {
-            (Some(cell), Kernel::F32(packed)) if exact => {
-                let (cin, cout) = (packed.cin(), packed.cout());
-                let taps = packed.taps();
-                Kernel::ExactWinograd(
-                    cell.get_or_init(|| {
-                        Arc::new(WinogradKernel::from_taps(cout, cin, |o, i, dy, dx| {
-                            taps[((dy * 3 + dx) * cin + i) * cout + o]
-                        }))
-                    })
-                    .clone(),
-                )
-            }
+            (Some((tile, cell)), Kernel::F32(packed)) if exact => cell
+                .get_or_init(|| {
+                    let (cin, cout) = (packed.cin(), packed.cout());
+                    let taps = packed.taps();
+                    let tap = |o, i, dy, dx| taps[((dy * 3 + dx) * cin + i) * cout + o];
+                    if *tile == F4X4 {
+                        Kernel::ExactWinograd4(Arc::new(WinogradKernel::from_taps(cout, cin, tap)))
+                    } else {
+                        Kernel::ExactWinograd2(Arc::new(WinogradKernel::from_taps(cout, cin, tap)))
+                    }
+                })
+                .clone(),
             _ => self.kernel.clone(),
         };
         x.contiguous()?.apply_op1(ConvOp {
@@ -187,7 +221,10 @@ impl ConvOp {
         let out = match &self.kernel {
             Kernel::Bf16(kernel) => conv3x3_bf16(data, shape, kernel, gate, bias),
             Kernel::Winograd(kernel) => conv3x3_winograd(data, (images, h, w), kernel, gate, bias),
-            Kernel::ExactWinograd(kernel) => {
+            Kernel::ExactWinograd2(kernel) => {
+                conv3x3_winograd(data, (images, h, w), kernel, gate, bias)
+            }
+            Kernel::ExactWinograd4(kernel) => {
                 conv3x3_winograd(data, (images, h, w), kernel, gate, bias)
             }
             Kernel::F32(kernel) => {
@@ -332,7 +369,7 @@ mod tests {
     /// within 1e-13 (f64's error on the terms, of order 1) where the sum nearly cancels.
     #[test]
     fn the_exact_forward_of_a_wide_layer_rounds_the_exact_sums() {
-        let (h, w, cin, cout) = (5, 7, WIDE, WIDE);
+        let (h, w, cin, cout) = (5, 7, MEASURED.wide, MEASURED.wide);
         let x = values(h * w * cin, 11);
         let weight: Vec<f32> = values(cout * cin * 9, 12)
             .iter()
@@ -360,7 +397,7 @@ mod tests {
             &Tensor::from_vec(weight.clone(), (cout, cin, 3, 3), &dev).unwrap(),
             &Tensor::from_vec(bias.clone(), cout, &dev).unwrap(),
             false,
-            WIDE,
+            MEASURED,
         )
         .unwrap();
         let input = Var::from_vec(x, (1, h, w, cin), &dev).unwrap();
@@ -393,11 +430,18 @@ mod tests {
         );
     }
 
-    /// A layer wide enough for Winograd's products (and, with a bf16 backward, bf16 ones) and
-    /// a narrow one, forward and input gradient against f64, with the f32 and the bf16 backward.
+    /// Layers wide enough for Winograd's products (and, with a bf16 backward, bf16 ones), one
+    /// whose exact forward takes F(2x2, 3x3) in f64 and a narrow one, forward and input gradient
+    /// against f64, with the f32 and the bf16 backward.
     #[test]
     fn wide_and_narrow_layers_match_f64_both_ways() {
-        for (h, w, cin, cout) in [(5, 6, WIDE, WIDE), (4, 3, WIDE, 2 * WIDE), (5, 4, 8, 16)] {
+        let (wide, exact) = (MEASURED.wide, MEASURED.exact_winograd);
+        for (h, w, cin, cout) in [
+            (5, 6, wide, wide),
+            (4, 3, wide, 2 * wide),
+            (7, 5, exact, exact),
+            (5, 4, 8, 16),
+        ] {
             let x = values(h * w * cin, 1);
             let weight: Vec<f32> = values(cout * cin * 9, 2)
                 .iter()
@@ -414,7 +458,7 @@ mod tests {
                     &Tensor::from_vec(weight.clone(), (cout, cin, 3, 3), &dev).unwrap(),
                     &Tensor::from_vec(bias.clone(), cout, &dev).unwrap(),
                     bf16_backward,
-                    WIDE,
+                    MEASURED,
                 )
                 .unwrap();
                 let input = Var::from_vec(x.clone(), (1, h, w, cin), &dev).unwrap();
