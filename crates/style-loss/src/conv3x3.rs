@@ -9,12 +9,14 @@
 //! rows are compacted. The products run in `gemm`, candle's own matrix-product crate.
 //!
 //! A forward convolution whose gradient is taken ([`Epilogue::ExactBiasRelu`]) accumulates in f64
-//! and rounds once: its outputs are the correctly rounded values of the exact sums, so a
+//! and rounds once: its outputs are the exact sums rounded once (but where an exact sum lies
+//! within an f64 rounding of its terms' sizes of a rounding's edge), so a
 //! pre-activation a hair from 0 gets the ReLU decision of the exact network, not one that f32
 //! summation order picks (PyTorch's f32 picks its own; where the two disagree, one unit's
 //! decision moves the content gradient by 1e-3 relative or more). It costs twice the products.
 //! (VGG's layers of 64 channels and more in and out take Winograd's F(4x4, 3x3) in f64 for
-//! this instead: `conv3x3_winograd`; here, the first layer's 3 input channels.)
+//! this instead, with the same outputs: `conv3x3_winograd_exact`; here, the first layer's 3
+//! input channels.)
 //! A forward without gradient (the ground truth's features: its decisions route nothing, they
 //! move values by a rounding) and the backward (the adjoint on the gradient, which decides
 //! nothing) stay in f32.

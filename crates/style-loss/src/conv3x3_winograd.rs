@@ -18,8 +18,11 @@
 //! in `Aᵀ`, 5 in `Bᵀ`, sixths in `G`) make it about ten times worse, so it runs only in f64,
 //! where its error stays about 1e-15 of the terms. VGG runs F(2x2, 3x3) in f32 on its wide
 //! layers (the f32 backward, which decides nothing, and the forward where the backward is bf16)
-//! and F(4x4, 3x3) in f64 for the forward whose ReLUs route an f32 backward (`vgg_channels_last`:
-//! its sums far within an f32 rounding of the exact sums, each output rounded once).
+//! and F(4x4, 3x3) in f64 for the forward whose ReLUs route an f32 backward
+//! ([`conv3x3_winograd_exact`]): each output rounded once, and those whose error bound reaches
+//! 0 or a rounding's edge (an output a hair from 0 beside large inputs, whose tile's other
+//! inputs cancel only up to a rounding) summed again directly, so that every output is the
+//! direct f64 sum's.
 #![allow(unsafe_code)]
 
 use std::ops::{Add, Mul, Sub};
@@ -195,6 +198,71 @@ impl<T: WinogradReal, const A: usize> WinogradKernel<T, A> {
     }
 }
 
+/// A forward convolution with bias and ReLU by Winograd's algorithm in f64 whose outputs are
+/// those of the direct f64 sum rounded once to f32 ([`conv3x3_winograd_exact`]): the Winograd
+/// kernel, the taps to sum again directly the outputs whose rounding the two sums' errors could
+/// change, and the size of those errors per output channel.
+#[derive(Clone, Debug)]
+pub(crate) struct ExactWinogradKernel<const A: usize> {
+    winograd: WinogradKernel<f64, A>,
+    /// Weights `[cout][3 (dy)][3 (dx)][cin]`.
+    taps: Vec<f32>,
+    /// Per output channel, [`EXACT_TOLERANCE`] times the sum of `|weight|` over its taps and
+    /// input channels: times the largest `|input|` of a tile, a bound on both sums' errors.
+    tolerance: Vec<f64>,
+}
+
+/// The error of an f64 sum of a convolution's terms, Winograd's or the direct one, relative
+/// to `max |input| * sum |weight| + |bias|` (the largest the terms can add up to): about 1e-15
+/// measured for F(4x4, 3x3) up to 512 channels; bounded with a margin of over a hundred.
+pub(crate) const EXACT_TOLERANCE: f64 = 1e-13;
+
+impl<const A: usize> ExactWinogradKernel<A> {
+    /// The convolution by PyTorch weights `[cout, cin, 3, 3]` (row-major in `weight`).
+    #[cfg(test)]
+    pub(crate) fn new(weight: &[f32], cout: usize, cin: usize) -> Self {
+        assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
+        Self::from_taps(cout, cin, |o, i, r, c| {
+            weight[((o * cin + i) * 3 + r) * 3 + c]
+        })
+    }
+
+    /// As [`Self::new`], with `tap(o, i, dy, dx)` the weight of output channel `o`, input
+    /// channel `i`, kernel row `dy` and column `dx`.
+    pub(crate) fn from_taps(
+        cout: usize,
+        cin: usize,
+        tap: impl Fn(usize, usize, usize, usize) -> f32 + Sync,
+    ) -> Self {
+        let taps: Vec<f32> = (0..cout * 9 * cin)
+            .into_par_iter()
+            .map(|k| {
+                let (o, t, i) = (k / (9 * cin), (k / cin) % 9, k % cin);
+                tap(o, i, t / 3, t % 3)
+            })
+            .collect();
+        let tolerance = taps
+            .chunks(9 * cin.max(1))
+            .map(|o| EXACT_TOLERANCE * o.iter().map(|&v| f64::from(v.abs())).sum::<f64>())
+            .collect();
+        Self {
+            winograd: WinogradKernel::from_taps(cout, cin, tap),
+            taps,
+            tolerance,
+        }
+    }
+
+    /// Input channels.
+    pub(crate) fn cin(&self) -> usize {
+        self.winograd.cin
+    }
+
+    /// Output channels.
+    pub(crate) fn cout(&self) -> usize {
+        self.winograd.cout
+    }
+}
+
 /// Blocks (`m x m` outputs each) per band: the band's transformed input and products take
 /// about 4M values each.
 fn band_block_rows(blocks_x: usize, channels: usize, tile_values: usize) -> usize {
@@ -208,10 +276,48 @@ fn band_block_rows(blocks_x: usize, channels: usize, tile_values: usize) -> usiz
 /// kept).
 pub(crate) fn conv3x3_winograd<T: WinogradReal, const A: usize>(
     input: &[f32],
+    shape: (usize, usize, usize),
+    kernel: &WinogradKernel<T, A>,
+    input_gate: Option<&[f32]>,
+    bias_relu: Option<&[f32]>,
+) -> Vec<f32> {
+    winograd(input, shape, kernel, input_gate, bias_relu, None)
+}
+
+/// `relu(conv(input) + bias)` of `input` `[images, h, w, kernel.cin()]` by Winograd's algorithm
+/// in f64, each output bit for bit the direct f64 sum's rounded once to f32 (`conv3x3`'s
+/// exact forward): where an output lies within its error bound (the errors of both sums,
+/// [`EXACT_TOLERANCE`] times the largest `|input|` of its tile times its channel's
+/// `sum |weight|`, plus as much of `|bias|`) of 0 or of a point where the rounding to f32
+/// changes, it is summed again directly. Near-zero sums beside large inputs (where the
+/// tile's other inputs cancel only up to a rounding), flat regions that must tie in a max pool
+/// and the rare sum at a rounding's edge come out as the direct sum's. A non-finite input
+/// makes its tile's outputs summed directly: NaN reaches the outputs whose window holds it.
+pub(crate) fn conv3x3_winograd_exact<const A: usize>(
+    input: &[f32],
+    shape: (usize, usize, usize),
+    kernel: &ExactWinogradKernel<A>,
+    bias: &[f32],
+) -> Vec<f32> {
+    winograd(
+        input,
+        shape,
+        &kernel.winograd,
+        None,
+        Some(bias),
+        Some(kernel),
+    )
+}
+
+/// [`conv3x3_winograd`], and [`conv3x3_winograd_exact`] with `exact` (then `bias_relu` is the
+/// bias and there is no gate).
+fn winograd<T: WinogradReal, const A: usize>(
+    input: &[f32],
     (images, h, w): (usize, usize, usize),
     kernel: &WinogradKernel<T, A>,
     input_gate: Option<&[f32]>,
     bias_relu: Option<&[f32]>,
+    exact: Option<&ExactWinogradKernel<A>>,
 ) -> Vec<f32> {
     let (cin, cout) = (kernel.cin, kernel.cout);
     assert_eq!(input.len(), images * h * w * cin, "winograd: input size");
@@ -229,17 +335,20 @@ pub(crate) fn conv3x3_winograd<T: WinogradReal, const A: usize>(
     let mut out = vec![0f32; images * h * w * cout];
     let mut transformed = Vec::new();
     let mut products = Vec::new();
+    // Per output channel, the part of the error bound the bias adds.
+    let bias_tolerance: Vec<f64> = match (exact, bias_relu) {
+        (Some(_), Some(bias)) => bias
+            .iter()
+            .map(|&b| EXACT_TOLERANCE * f64::from(b.abs()))
+            .collect(),
+        _ => Vec::new(),
+    };
     for image in 0..images {
         let src = &input[image * h * w * cin..(image + 1) * h * w * cin];
         let gate = input_gate.map(|g| &g[image * h * w * cin..(image + 1) * h * w * cin]);
         let dst = &mut out[image * h * w * cout..(image + 1) * h * w * cout];
-        // F(2x2, 3x3)'s outputs read their own 3x3 windows only; F(4x4, 3x3)'s the whole 6x6
-        // tile, whose other inputs cancel up to a rounding.
-        let zero_windows = if A == F2X2 {
-            None
-        } else {
-            zero_windows(src, gate, (h, w, cin))
-        };
+        let tile_max = exact.map(|_| tile_max_abs::<A>(src, (h, w, cin)));
+        let mut uncertain = Vec::new();
         for by0 in (0..blocks_y).step_by(band) {
             let rows = band.min(blocks_y - by0);
             let blocks = rows * blocks_x;
@@ -286,56 +395,110 @@ pub(crate) fn conv3x3_winograd<T: WinogradReal, const A: usize>(
                     );
                 }
             }
-            transform_output::<T, A>(
+            let bounds = match (exact, &tile_max) {
+                (Some(exact), Some(tile_max)) => Some(Bounds {
+                    tile_max: &tile_max[by0 * blocks_x..(by0 + rows) * blocks_x],
+                    tolerance: &exact.tolerance,
+                    bias_tolerance: &bias_tolerance,
+                }),
+                _ => None,
+            };
+            uncertain.extend(transform_output::<T, A>(
                 &products,
                 dst,
                 (h, w, cout),
                 (by0, rows, blocks_x),
                 bias_relu,
-                zero_windows.as_deref(),
-            );
+                bounds,
+            ));
+        }
+        if let (Some(exact), Some(bias)) = (exact, bias_relu) {
+            let sums: Vec<f32> = uncertain
+                .par_iter()
+                .map(|&at| direct_bias_relu_f64(src, (h, w, cin), &exact.taps, bias, at))
+                .collect();
+            for (&at, v) in uncertain.iter().zip(sums) {
+                dst[at] = v;
+            }
         }
     }
     out
 }
 
-/// Whether each output pixel's 3x3 window (`[h, w]`, row-major) holds only zeros: every channel
-/// of every pixel of it 0 (or gated shut, with `gate`), pixels outside the image counting as 0.
-/// There the exact sum is 0 and the direct convolution's is too; F(4x4, 3x3) computes it from
-/// its whole 6x6 tile, where non-zero inputs beyond the window cancel only up to a rounding
-/// (about 1e-16 of them in f64), which a zero bias's ReLU would then pass. `None` where no
-/// window is all zero.
-fn zero_windows(
-    src: &[f32],
-    gate: Option<&[f32]>,
-    (h, w, cin): (usize, usize, usize),
-) -> Option<Vec<bool>> {
-    let zero_pixel: Vec<bool> = (0..h * w)
+/// The largest `|input|` of each block's `A x A` tile (`[blocks_y][blocks_x]`, every channel
+/// of the padded input around the block's outputs), in f64; infinite where the tile holds a
+/// NaN or an infinity.
+fn tile_max_abs<const A: usize>(src: &[f32], (h, w, cin): (usize, usize, usize)) -> Vec<f64> {
+    let m = outputs_per_side(A);
+    // |v|'s bits, read as an integer, order the finite values and put infinities and NaNs
+    // above them: a maximum of integers, which vectorizes.
+    let pixel_max: Vec<u32> = src
+        .par_chunks(cin.max(1))
+        .map(|pixel| {
+            pixel
+                .iter()
+                .fold(0u32, |acc, &v| acc.max(v.to_bits() & 0x7fff_ffff))
+        })
+        .collect();
+    let (blocks_y, blocks_x) = (h.div_ceil(m), w.div_ceil(m));
+    (0..blocks_y * blocks_x)
         .into_par_iter()
-        .map(|p| {
-            let at = p * cin..(p + 1) * cin;
-            match gate {
-                None => src[at].iter().all(|&v| v == 0.0),
-                Some(gate) => src[at.clone()]
-                    .iter()
-                    .zip(&gate[at])
-                    .all(|(&v, &g)| v == 0.0 || g <= 0.0),
+        .map(|block| {
+            let (by, bx) = (block / blocks_x, block % blocks_x);
+            let rows = (m * by).saturating_sub(1)..(m * by + A - 1).min(h);
+            let cols = (m * bx).saturating_sub(1)..(m * bx + A - 1).min(w);
+            let mut max = 0u32;
+            for y in rows {
+                for &v in &pixel_max[y * w + cols.start..y * w + cols.end] {
+                    max = max.max(v);
+                }
+            }
+            if max >= f32::INFINITY.to_bits() {
+                f64::INFINITY
+            } else {
+                f64::from(f32::from_bits(max))
             }
         })
-        .collect();
-    if !zero_pixel.contains(&true) {
-        return None;
+        .collect()
+}
+
+/// `relu(sum + bias)` of the output at `at` (`(pixel * cout + o)` of an `[h, w, cout]` image)
+/// summed directly in f64 from `src` (`[h, w, cin]`) and `taps` (`[cout][3][3][cin]`), rounded
+/// once to f32 (PyTorch's ReLU: NaN kept).
+fn direct_bias_relu_f64(
+    src: &[f32],
+    (h, w, cin): (usize, usize, usize),
+    taps: &[f32],
+    bias: &[f32],
+    at: usize,
+) -> f32 {
+    let cout = bias.len();
+    let (pixel, o) = (at / cout, at % cout);
+    let (y, x) = (pixel / w, pixel % w);
+    let mut sum = 0f64;
+    for dy in 0..3 {
+        let sy = (y + dy).wrapping_sub(1);
+        if sy >= h {
+            continue;
+        }
+        for dx in 0..3 {
+            let sx = (x + dx).wrapping_sub(1);
+            if sx >= w {
+                continue;
+            }
+            let input = &src[(sy * w + sx) * cin..(sy * w + sx + 1) * cin];
+            let weight = &taps[((o * 3 + dy) * 3 + dx) * cin..((o * 3 + dy) * 3 + dx + 1) * cin];
+            for (&v, &k) in input.iter().zip(weight) {
+                sum += f64::from(v) * f64::from(k);
+            }
+        }
     }
-    let zero = |y: usize, x: usize| y >= h || x >= w || zero_pixel[y * w + x];
-    let windows: Vec<bool> = (0..h * w)
-        .into_par_iter()
-        .map(|p| {
-            let (y, x) = (p / w, p % w);
-            (0..3)
-                .all(|dy| (0..3).all(|dx| zero((y + dy).wrapping_sub(1), (x + dx).wrapping_sub(1))))
-        })
-        .collect();
-    windows.contains(&true).then_some(windows)
+    let v = sum + f64::from(bias[o]);
+    if v < 0.0 {
+        0.0
+    } else {
+        v as f32
+    }
 }
 
 /// Channels handled together by the transforms: fixed-size arrays the compiler vectorizes.
@@ -528,54 +691,74 @@ fn transform_input_block_row<T: WinogradReal, const A: usize>(
 }
 }
 
+/// What [`conv3x3_winograd_exact`] bounds an output's error by, for the blocks of one band.
+#[derive(Clone, Copy)]
+struct Bounds<'a> {
+    /// The largest `|input|` of each block's tile ([`tile_max_abs`]), the band's blocks.
+    tile_max: &'a [f64],
+    /// Per output channel, the error per unit of `tile_max` ([`ExactWinogradKernel`]).
+    tolerance: &'a [f64],
+    /// Per output channel, the error the bias adds.
+    bias_tolerance: &'a [f64],
+}
+
 /// `Aᵀ M A` (`relu(Aᵀ M A + bias)` with `bias_relu`, added and decided in `T`, then rounded
 /// once) of the products of block rows `by0..by0 + rows` (`[A²][blocks][cout]`) into the
 /// output image `dst` (`[h, w, cout]`); the outputs of a block past the image's last row or
-/// column are dropped.
+/// column are dropped. With `bounds`, returns the outputs (indices into `dst`) whose ReLU
+/// decision or rounding their error bound leaves open, written as 0.
 fn transform_output<T: WinogradReal, const A: usize>(
     products: &[T],
     dst: &mut [f32],
     (h, w, cout): (usize, usize, usize),
     (by0, rows, blocks_x): (usize, usize, usize),
     bias_relu: Option<&[f32]>,
-    zero_windows: Option<&[bool]>,
-) {
+    bounds: Option<Bounds<'_>>,
+) -> Vec<usize> {
     let m = outputs_per_side(A);
     let blocks = rows * blocks_x;
     let first_row = m * by0;
     let last_row = (m * (by0 + rows)).min(h);
+    let chunk = m * w * cout;
     dst[first_row * w * cout..last_row * w * cout]
-        .par_chunks_mut(m * w * cout)
+        .par_chunks_mut(chunk)
         .enumerate()
-        .for_each(|(r, out_rows)| {
-            let zero_windows = zero_windows.map(|z| &z[(by0 + r) * m * w..]);
+        .flat_map_iter(|(r, out_rows)| {
+            let mut uncertain = Vec::new();
             transform_output_block_row::<T, A>(
                 products,
                 out_rows,
                 (w, cout),
                 (r, blocks, blocks_x),
                 bias_relu,
-                zero_windows,
-            )
-        });
+                bounds,
+                &mut uncertain,
+            );
+            let offset = first_row * w * cout + r * chunk;
+            uncertain.into_iter().map(move |at| offset + at)
+        })
+        .collect()
 }
 
 widest_simd! {
 /// [`transform_output`] of the `r`-th block row of the band (of `blocks` blocks, `blocks_x` to
-/// a row) into its output rows `out_rows` (`m`, or fewer at the image's last); `zero_windows`
-/// from the first of those rows on (see [`zero_windows`]): there the sum is exactly 0.
+/// a row) into its output rows `out_rows` (`m`, or fewer at the image's last); with `bounds`,
+/// the outputs left open pushed onto `uncertain` (indices into `out_rows`).
 fn transform_output_block_row<T: WinogradReal, const A: usize>(
     products: &[T],
     out_rows: &mut [f32],
     (w, cout): (usize, usize),
     (r, blocks, blocks_x): (usize, usize, usize),
     bias_relu: Option<&[f32]>,
-    zero_windows: Option<&[bool]>,
+    bounds: Option<Bounds<'_>>,
+    uncertain: &mut Vec<usize>,
 ) {
     let m = outputs_per_side(A);
     let out_h = out_rows.len() / (w * cout);
     // Every value of `p` is written for each block before it is read (no clearing).
     let mut p = [[[T::default(); LANES]; A]; A];
+    // Per lane: the error bound, and 1 where the value is left open.
+    let (mut error, mut open) = ([0f64; LANES], [0u32; LANES]);
     for bx in 0..blocks_x {
         let block = r * blocks_x + bx;
         for o0 in (0..cout).step_by(LANES) {
@@ -587,6 +770,13 @@ fn transform_output_block_row<T: WinogradReal, const A: usize>(
             let mut b = [T::default(); LANES];
             if let Some(bias) = bias_relu {
                 load(&mut b, &bias[o0..o0 + n]);
+            }
+            if let Some(bounds) = bounds {
+                let (mut tolerance, mut bias_tolerance) = ([0f64; LANES], [0f64; LANES]);
+                load(&mut tolerance, &bounds.tolerance[o0..o0 + n]);
+                load(&mut bias_tolerance, &bounds.bias_tolerance[o0..o0 + n]);
+                let tile_max = bounds.tile_max[block];
+                lanewise!(error, l => tile_max * tolerance[l] + bias_tolerance[l]);
             }
             // Row dy of s = Aᵀ p (s[c]: column c), then row dy of Y = s A.
             let (mut s, mut y) = ([[T::default(); LANES]; A], [T::default(); LANES]);
@@ -601,14 +791,11 @@ fn transform_output_block_row<T: WinogradReal, const A: usize>(
                         continue;
                     }
                     output_row::<T, A>(dx, &s, &mut y);
-                    if zero_windows.is_some_and(|z| z[dy * w + x]) {
-                        y = [T::default(); LANES];
-                    }
                     // + bias, then PyTorch's relu (NaN kept).
                     let mut v = [0f32; LANES];
-                    match bias_relu {
-                        None => lanewise!(v, l => y[l].to_f32()),
-                        Some(_) => lanewise!(v, l => {
+                    match (bias_relu, bounds) {
+                        (None, _) => lanewise!(v, l => y[l].to_f32()),
+                        (Some(_), None) => lanewise!(v, l => {
                             let v = y[l] + b[l];
                             if v < T::default() {
                                 0.0
@@ -616,6 +803,33 @@ fn transform_output_block_row<T: WinogradReal, const A: usize>(
                                 v.to_f32()
                             }
                         }),
+                        (Some(_), Some(_)) => {
+                            lanewise!(v, l => {
+                                // The direct sum lies in `sum ± error`: where the whole
+                                // interval is `<= 0` the ReLU cuts both; where it is above 0
+                                // and both its ends round to one f32, both sums round to it
+                                // (rounding is monotonic). NaN settles nothing.
+                                let sum = (y[l] + b[l]).to_f64();
+                                let (low, high) = (sum - error[l], sum + error[l]);
+                                let rounded = low as f32;
+                                let off = high <= 0.0;
+                                let on = low > 0.0 && rounded == high as f32;
+                                open[l] = u32::from(!(off || on));
+                                if on {
+                                    rounded
+                                } else {
+                                    0.0
+                                }
+                            });
+                            if open[..n].iter().any(|&o| o != 0) {
+                                let at = (dy * w + x) * cout + o0;
+                                for (l, &open) in open[..n].iter().enumerate() {
+                                    if open != 0 {
+                                        uncertain.push(at + l);
+                                    }
+                                }
+                            }
+                        }
                     }
                     let at = (dy * w + x) * cout + o0;
                     store(&mut out_rows[at..at + n], &v);
@@ -825,40 +1039,175 @@ mod tests {
 
     /// Where an output's 3x3 window is all zero (a dead region after a ReLU) its value is the
     /// bias exactly, as the direct sum gives, also where F(4x4, 3x3)'s tile holds non-zero
-    /// inputs beyond the window (their transformed terms cancel only up to a rounding): with
-    /// zero biases the ReLU then sees an exact 0 and its gradient stops there, as PyTorch's.
+    /// inputs beyond the window (their transformed terms cancel only up to a rounding, which
+    /// the exact forward's bound catches): with zero biases the ReLU then sees an exact 0 and
+    /// its gradient stops there, as PyTorch's. F(2x2, 3x3)'s outputs read their own window
+    /// only; F(4x4, 3x3) without the bound does not give the bias exactly there.
     #[test]
     fn an_output_whose_window_is_all_zero_is_exactly_the_bias() {
-        fn check<T: WinogradReal, const A: usize>() {
-            let (h, w, cin, cout) = (12, 13, 24, 20);
-            // Non-zero inputs only in columns 4, 5 and from 10: outputs in columns 1, 2 and 7, 8
-            // see zero windows, with non-zero inputs in their tiles.
-            let mut input = values(h * w * cin, 21);
-            for (k, v) in input.iter_mut().enumerate() {
-                let x = (k / cin) % w;
-                if !(x == 4 || x == 5 || x >= 10) {
-                    *v = 0.0;
-                }
+        let (h, w, cin, cout) = (12, 13, 24, 20);
+        // Non-zero inputs only in columns 4, 5 and from 10: outputs in columns 1, 2 and 7, 8
+        // see zero windows, with non-zero inputs in their tiles.
+        let mut input = values(h * w * cin, 21);
+        for (k, v) in input.iter_mut().enumerate() {
+            let x = (k / cin) % w;
+            if !(x == 4 || x == 5 || x >= 10) {
+                *v = 0.0;
             }
-            let weight: Vec<f32> = values(cout * cin * 9, 22).iter().map(|v| v * 7.0).collect();
-            let kernel = WinogradKernel::<T, A>::new(&weight, cout, cin);
-            for bias in [vec![0f32; cout], values(cout, 23)] {
-                let out = conv3x3_winograd(&input, (1, h, w), &kernel, None, Some(&bias));
-                let raw = conv3x3_winograd(&input, (1, h, w), &kernel, None, None);
-                for y in 0..h {
-                    for x in [1, 2, 7, 8] {
-                        for o in 0..cout {
-                            let at = (y * w + x) * cout + o;
-                            assert_eq!(raw[at].to_bits(), 0, "tile {A}: ({y}, {x}) {}", raw[at]);
-                            assert_eq!(out[at].to_bits(), bias[o].max(0.0).to_bits(), "tile {A}");
-                        }
-                    }
+        }
+        let weight: Vec<f32> = values(cout * cin * 9, 22).iter().map(|v| v * 7.0).collect();
+        let zero_windows = |out: &[f32], bias: &[f32]| {
+            (0..h).all(|y| {
+                [1, 2, 7, 8].iter().all(|&x| {
+                    (0..cout).all(|o| {
+                        out[(y * w + x) * cout + o].to_bits() == bias[o].max(0.0).to_bits()
+                    })
+                })
+            })
+        };
+        for bias in [vec![0f32; cout], values(cout, 23)] {
+            let f32_tile = WinogradKernel::<f32, F2X2>::new(&weight, cout, cin);
+            let f64_tile = WinogradKernel::<f64, F2X2>::new(&weight, cout, cin);
+            let exact = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+            for out in [
+                conv3x3_winograd(&input, (1, h, w), &f32_tile, None, Some(&bias)),
+                conv3x3_winograd(&input, (1, h, w), &f64_tile, None, Some(&bias)),
+                conv3x3_winograd_exact(&input, (1, h, w), &exact, &bias),
+            ] {
+                assert!(zero_windows(&out, &bias));
+            }
+            // With zero biases the rounding F(4x4, 3x3) leaves reaches the output (a bias
+            // absorbs it).
+            if bias.iter().all(|&b| b == 0.0) {
+                let unbounded =
+                    conv3x3_winograd(&input, (1, h, w), &exact.winograd, None, Some(&bias));
+                assert!(
+                    !zero_windows(&unbounded, &bias),
+                    "the test sees the rounding"
+                );
+            }
+        }
+    }
+
+    /// `relu(sum + bias)` of the output at `at`, summed with Neumaier's compensation (far
+    /// within an f64 rounding of the exact sum), and the sum of the terms' sizes.
+    fn compensated_bias_relu(
+        input: &[f32],
+        (h, w, cin): (usize, usize, usize),
+        weight: &[f32],
+        bias: &[f32],
+        at: usize,
+    ) -> (f64, f64) {
+        let cout = bias.len();
+        let (pixel, o) = (at / cout, at % cout);
+        let (y, x) = (pixel / w, pixel % w);
+        let (mut sum, mut compensation, mut size) =
+            (f64::from(bias[o]), 0f64, f64::from(bias[o].abs()));
+        for dy in 0..3 {
+            for dx in 0..3 {
+                let (sy, sx) = ((y + dy).wrapping_sub(1), (x + dx).wrapping_sub(1));
+                if sy >= h || sx >= w {
+                    continue;
+                }
+                for i in 0..cin {
+                    let term = f64::from(input[(sy * w + sx) * cin + i])
+                        * f64::from(weight[((o * cin + i) * 3 + dy) * 3 + dx]);
+                    let next = sum + term;
+                    compensation += if sum.abs() >= term.abs() {
+                        (sum - next) + term
+                    } else {
+                        (term - next) + sum
+                    };
+                    sum = next;
+                    size += term.abs();
                 }
             }
         }
-        check::<f32, F2X2>();
-        check::<f64, F2X2>();
-        check::<f64, F4X4>();
+        ((sum + compensation).max(0.0), size)
+    }
+
+    /// The exact forward by F(4x4, 3x3) rounds the exact sums: against a compensated sum, every
+    /// output is its value rounded once to f32, or one ulp off where that value lies within
+    /// 1e-14 of its terms' sizes of a rounding's edge (where the direct f64 sum's own error
+    /// decides too). On random inputs; on post-ReLU-like ones with flat regions (equal windows,
+    /// equal outputs: the max pool's ties); and on outputs a hair from 0 beside large inputs:
+    /// biases that cancel one output's sum to within 1e-9 of it, and zero biases over zero
+    /// windows. Over a thousand outputs left open by the bound are summed again.
+    #[test]
+    fn the_exact_forward_rounds_the_exact_sums() {
+        let (mut open, mut outputs, mut zeros) = (0usize, 0usize, 0usize);
+        for (seed, (h, w, cin, cout)) in SHAPES.into_iter().enumerate() {
+            let seed = seed as u64;
+            for kind in 0..3 {
+                let mut input = values(h * w * cin, seed + 600);
+                if kind > 0 {
+                    // After a ReLU: non-negative, a third zero, the left half flat.
+                    for (k, v) in input.iter_mut().enumerate() {
+                        let (x, i) = ((k / cin) % w, k % cin);
+                        *v = if x < w / 2 {
+                            if i % 3 == 0 {
+                                0.0
+                            } else {
+                                0.25
+                            }
+                        } else {
+                            (*v - 0.3).max(0.0) * 4.0
+                        };
+                    }
+                }
+                let weight: Vec<f32> = values(cout * cin * 9, seed + 700)
+                    .iter()
+                    .map(|v| v / (3 * cin) as f32)
+                    .collect();
+                let mut bias: Vec<f32> = values(cout, seed + 800).iter().map(|v| 0.1 * v).collect();
+                let shape = (h, w, cin);
+                if kind == 2 {
+                    // Each channel's bias cancels the sum of one output in the image's middle
+                    // (flat when the image is wide enough) to within an f32 rounding of the bias.
+                    let pixel = (h / 2) * w + w / 2;
+                    for o in 0..cout {
+                        let at = pixel * cout + o;
+                        let no_bias = vec![0f32; cout];
+                        let (sum, _) = compensated_bias_relu(&input, shape, &weight, &no_bias, at);
+                        let (neg, _) = compensated_bias_relu(
+                            &input.iter().map(|v| -v).collect::<Vec<_>>(),
+                            shape,
+                            &weight,
+                            &no_bias,
+                            at,
+                        );
+                        bias[o] = (neg - sum) as f32;
+                        if o % 2 == 0 {
+                            bias[o] = 0.0;
+                        }
+                    }
+                }
+                let kernel = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+                let out = conv3x3_winograd_exact(&input, (1, h, w), &kernel, &bias);
+                let tile_max = tile_max_abs::<F4X4>(&input, shape);
+                for (at, &got) in out.iter().enumerate() {
+                    let (exact, size) = compensated_bias_relu(&input, shape, &weight, &bias, at);
+                    let rounded = exact as f32;
+                    zeros += usize::from(got == 0.0);
+                    if got.to_bits() != rounded.to_bits() {
+                        let edge = 0.5 * (f64::from(got) + f64::from(rounded));
+                        assert!(
+                            (exact - edge).abs() <= 1e-14 * size,
+                            "{h}x{w} {cin}->{cout}, kind {kind}, output {at}: {got:e} vs {exact:e}"
+                        );
+                    }
+                    // The outputs the bound leaves open, counted as the kernel does.
+                    let (pixel, o) = (at / cout, at % cout);
+                    let block = (pixel / w / 4) * w.div_ceil(4) + (pixel % w) / 4;
+                    let error = tile_max[block] * kernel.tolerance[o]
+                        + EXACT_TOLERANCE * f64::from(bias[o].abs());
+                    open += usize::from(exact.abs() <= error);
+                }
+                outputs += out.len();
+            }
+        }
+        assert!(zeros > 0 && zeros < outputs, "{zeros} zeros of {outputs}");
+        assert!(open > 1000, "{open} outputs near 0 of {outputs}");
     }
 
     /// A NaN input reaches every output of the blocks whose input tile holds it (the
@@ -884,5 +1233,28 @@ mod tests {
         }
         check::<f32, F2X2>();
         check::<f64, F4X4>();
+    }
+
+    /// The exact forward sums a tile holding a NaN or an infinity directly: NaN reaches the
+    /// outputs whose 3x3 window holds it and no other (the direct convolution's, PyTorch's),
+    /// and an infinity leaves every output outside its windows finite.
+    #[test]
+    fn the_exact_forward_keeps_a_non_finite_input_to_its_windows() {
+        let (h, w, cin, cout) = (11, 11, 2, 3);
+        let weight = values(cout * cin * 9, 10);
+        let kernel = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+        for bad in [f32::NAN, f32::INFINITY] {
+            let mut input = values(h * w * cin, 9);
+            input[(5 * w + 5) * cin] = bad;
+            let out = conv3x3_winograd_exact(&input, (1, h, w), &kernel, &[0.0; 3]);
+            for (at, v) in out.iter().enumerate() {
+                let (y, x) = (at / cout / w, at / cout % w);
+                if y.abs_diff(5) > 1 || x.abs_diff(5) > 1 {
+                    assert!(v.is_finite(), "{bad}: ({y}, {x}) {v}");
+                } else if bad.is_nan() {
+                    assert!(v.is_nan(), "({y}, {x}) {v}");
+                }
+            }
+        }
     }
 }

@@ -358,9 +358,9 @@ mod tests {
     };
 
     /// The direct convolutions (the small network's layers are all narrower than [`MEASURED`]'s
-    /// widths), Winograd's F(2x2, 3x3) in f64 for the exact forward of the narrower layers and
-    /// F(4x4, 3x3) for the wider ones, and every layer taken as wide (Winograd's F(2x2, 3x3) in
-    /// the backward, F(4x4, 3x3) in the exact forward).
+    /// widths), Winograd's F(4x4, 3x3) in f64 for the exact forward of every layer with the
+    /// narrower layers direct otherwise, and every layer taken as wide (Winograd's F(2x2, 3x3)
+    /// in the backward too).
     #[test]
     fn channels_last_matches_candles_convolution() {
         let mixed = KernelWidths {
@@ -494,11 +494,11 @@ mod tests {
     /// The PyTorch content-loss fixtures of `tests/vgg_matches_torchvision.rs` (ties in pooling
     /// windows, exact zeros of zero biases, pre-activations a hair from 0 near every border) on
     /// the tiny VGG-19 whose layers (4 to 32 channels) all take the direct f64 forward there,
-    /// here with Winograd's algorithms in the places of VGG-19's: F(2x2, 3x3) in f64 for the
-    /// exact forward from the second layer, F(4x4, 3x3) in f64 from the fourth (8 channels in and
-    /// out) with F(2x2, 3x3) in f32 in its backward. Loss within 1e-5 and gradient within 1e-4 of
-    /// PyTorch's, as there. (F(4x4, 3x3) from the second layer moves the gradient by 1.8e-2:
-    /// see [`MEASURED`].)
+    /// here with Winograd's algorithms in the places of VGG-19's: F(4x4, 3x3) in f64, its
+    /// bound checked, for the exact forward from the second layer, F(2x2, 3x3) in f32 in the
+    /// backward from the fourth (8 channels in and out). Loss within 1e-5 and gradient within
+    /// 1e-4 of PyTorch's, as there. (F(4x4, 3x3) without its bound from the second layer moves
+    /// the gradient by 1.8e-2: see [`MEASURED`].)
     #[test]
     fn winograds_exact_forward_matches_pytorch_at_ties_zeros_and_borders() {
         let fixtures = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/fixtures");

@@ -9,7 +9,9 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 
 use crate::conv3x3::{conv3x3, Epilogue, ImageShape, PackedKernel};
 use crate::conv3x3_bf16::{conv3x3_bf16, StackedKernel};
-use crate::conv3x3_winograd::{conv3x3_winograd, WinogradKernel, F2X2, F4X4};
+use crate::conv3x3_winograd::{
+    conv3x3_winograd, conv3x3_winograd_exact, ExactWinogradKernel, WinogradKernel, F4X4,
+};
 use crate::cpu_elements::{elements, same_shape_elements};
 
 /// The padded-image buffer the convolutions of one network share (forward and backward run
@@ -25,12 +27,11 @@ enum Kernel {
     Bf16(Arc<StackedKernel>),
     /// f32 products of Winograd's F(2x2, 3x3) (`conv3x3_winograd`).
     Winograd(Arc<WinogradKernel>),
-    /// f64 transforms and products of Winograd's F(2x2, 3x3), the bias added and the ReLU
-    /// decided in f64, each output rounded once (the exact forward of a layer between
-    /// [`KernelWidths::exact_winograd`] and [`KernelWidths::wide`] channels).
-    ExactWinograd2(Arc<WinogradKernel<f64, F2X2>>),
-    /// The same by F(4x4, 3x3) (the exact forward of a wide layer).
-    ExactWinograd4(Arc<WinogradKernel<f64, F4X4>>),
+    /// f64 transforms and products of Winograd's F(4x4, 3x3), the bias added and the ReLU
+    /// decided in f64, each output rounded once, those its error bound leaves open summed
+    /// again directly (`conv3x3_winograd_exact`: the exact forward of a layer of
+    /// [`KernelWidths::exact_winograd`] channels or more).
+    ExactWinograd(Arc<ExactWinogradKernel<F4X4>>),
 }
 
 /// Which algorithm a layer's products take, by the layer's width (the fewer of its input and
@@ -38,27 +39,23 @@ enum Kernel {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct KernelWidths {
     /// From this width on a layer is wide: its backward runs by Winograd's F(2x2, 3x3) in f32
-    /// or, with a bf16 backward, in bf16 (its forward then by F(2x2, 3x3) in f32), and its
-    /// exact forward (f64 sums, a gradient taken through an f32 backward) by F(4x4, 3x3) in
-    /// f64. Below it the products are direct f32 both ways.
+    /// or, with a bf16 backward, in bf16 (its forward then by F(2x2, 3x3) in f32). Below it
+    /// the products are direct f32 both ways.
     pub wide: usize,
-    /// From this width on, and below `wide`, the exact forward runs by F(2x2, 3x3) in f64;
-    /// narrower layers sum it directly in f64.
+    /// From this width on the exact forward (f64 sums, a gradient taken through an f32
+    /// backward) runs by F(4x4, 3x3) in f64 (`conv3x3_winograd_exact`); narrower layers sum it
+    /// directly in f64.
     pub exact_winograd: usize,
 }
 
 /// The widths measured on VGG-19 (docs/benchmarks.md): on layers narrower than 256 channels
-/// the bf16 conversions, and on a 2-core Zen 4 the f32 transforms, cost more than they saved;
-/// in f64, F(2x2, 3x3) beat the direct sums on every layer but the first (3 input channels),
-/// and F(4x4, 3x3) (2.25 multiply-adds per output and channel pair, against 4 and 9) beat both
-/// on all of them (timed layer by layer at 384x384 and 800x800 on a 2-core Zen 3). It runs on
-/// the wide layers only: each of its outputs mixes the whole 6x6 tile, whose inputs outside the
-/// output's window cancel up to a rounding of their size (about 1e-16 in f64). Beside a flat
-/// region's border, where outputs a hair from 0 (as after a ReLU a hair from 0 on the
-/// picture's first layer) sit next to large ones, that rounding tells equal outputs apart and a
-/// 2x2 max pool routes their gradient elsewhere than PyTorch's (1.8e-2 of the content gradient
-/// on `scripts/make_vgg_border_ties_fixture.py`'s cases with it on the second layer; none with
-/// it from the fourth). F(2x2, 3x3)'s outputs read their own window only.
+/// the bf16 conversions, and on a 2-core Zen 4 the f32 transforms, cost more than they saved.
+/// In f64, F(4x4, 3x3) (2.25 multiply-adds per output and channel pair, against 4 for
+/// F(2x2, 3x3) and 9 directly) with its bound checked beat F(2x2, 3x3) and the direct sums on
+/// every layer but the first (3 input channels; timed layer by layer at 384x384 and 800x800 on
+/// a 2-core Zen 3). Without the bound it moved the content gradient by 1.8e-2 on
+/// `scripts/make_vgg_border_ties_fixture.py`'s cases from the second layer: outputs a hair from
+/// 0 beside large ones, told apart by the rounding of their tile's other inputs.
 pub(crate) const MEASURED: KernelWidths = KernelWidths {
     wide: 256,
     exact_winograd: 64,
@@ -70,8 +67,7 @@ impl Kernel {
             Self::F32(k) => k.cin(),
             Self::Bf16(k) => k.cin(),
             Self::Winograd(k) => k.cin(),
-            Self::ExactWinograd2(k) => k.cin(),
-            Self::ExactWinograd4(k) => k.cin(),
+            Self::ExactWinograd(k) => k.cin(),
         }
     }
 
@@ -80,8 +76,7 @@ impl Kernel {
             Self::F32(k) => k.cout(),
             Self::Bf16(k) => k.cout(),
             Self::Winograd(k) => k.cout(),
-            Self::ExactWinograd2(k) => k.cout(),
-            Self::ExactWinograd4(k) => k.cout(),
+            Self::ExactWinograd(k) => k.cout(),
         }
     }
 }
@@ -98,10 +93,10 @@ pub(crate) struct ConvReluChannelsLast {
     /// Whether the backward was asked in bf16 (its forward then decides its ReLUs in f32).
     bf16_backward: bool,
     /// On a layer of [`KernelWidths::exact_winograd`] channels or more with an f32 backward, the
-    /// tile size and the f64 kernel of the exact forward by Winograd's algorithm, built from
-    /// `kernel` on the first forward with a gradient (4 or 9 times the f32 weights' memory, about
-    /// 480 MB for VGG-19 to conv5_2, spent only by runs that take it).
-    exact_forward: Option<(usize, Arc<OnceLock<Kernel>>)>,
+    /// kernel of the exact forward by Winograd's F(4x4, 3x3) in f64, built from `kernel` on the
+    /// first forward with a gradient (9 times the f32 weights' memory, and a copy of them: about
+    /// 560 MB for VGG-19 to conv5_2, spent only by runs that take it).
+    exact_forward: Option<Arc<OnceLock<Kernel>>>,
 }
 
 impl ConvReluChannelsLast {
@@ -111,9 +106,9 @@ impl ConvReluChannelsLast {
     /// multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's); with
     /// an f32 backward, the backward runs by Winograd's F(2x2, 3x3) in f32 (it decides
     /// nothing). Narrower layers take the direct f32 convolution both ways. With an f32
-    /// backward, a forward with a gradient sums in f64, within about 1e-15 of its terms when the
-    /// ReLU decides: by Winograd's F(4x4, 3x3) on wide layers, F(2x2, 3x3) from
-    /// `widths.exact_winograd`, directly on narrower ones.
+    /// backward, a forward with a gradient gives the direct f64 sums rounded once: by
+    /// Winograd's F(4x4, 3x3) in f64, its bound checked, from `widths.exact_winograd`
+    /// channels, directly on narrower layers.
     ///
     /// The forward stays f32 in either case: its outputs decide the ReLUs and the max pools,
     /// and outputs rounded to bf16 tie inside pooling windows, which routes the gradient to
@@ -128,7 +123,6 @@ impl ConvReluChannelsLast {
         let (cout, cin, _, _) = weight.dims4()?;
         let w = weight.flatten_all()?.to_vec1::<f32>()?;
         let wide = cin.min(cout) >= widths.wide;
-        let exact_tile = if wide { F4X4 } else { F2X2 };
         let kernel = if bf16_backward && wide {
             Kernel::Winograd(Arc::new(WinogradKernel::new(&w, cout, cin)))
         } else {
@@ -146,7 +140,7 @@ impl ConvReluChannelsLast {
             adjoint,
             bf16_backward,
             exact_forward: (!bf16_backward && cin.min(cout) >= widths.exact_winograd)
-                .then(|| (exact_tile, Arc::new(OnceLock::new()))),
+                .then(|| Arc::new(OnceLock::new())),
             bias: Arc::new(bias.flatten_all()?.to_vec1::<f32>()?),
         })
     }
@@ -159,16 +153,12 @@ impl ConvReluChannelsLast {
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
         let exact = x.track_op() && !self.bf16_backward;
         let kernel = match (&self.exact_forward, &self.kernel) {
-            (Some((tile, cell)), Kernel::F32(packed)) if exact => cell
+            (Some(cell), Kernel::F32(packed)) if exact => cell
                 .get_or_init(|| {
                     let (cin, cout) = (packed.cin(), packed.cout());
                     let taps = packed.taps();
                     let tap = |o, i, dy, dx| taps[((dy * 3 + dx) * cin + i) * cout + o];
-                    if *tile == F4X4 {
-                        Kernel::ExactWinograd4(Arc::new(WinogradKernel::from_taps(cout, cin, tap)))
-                    } else {
-                        Kernel::ExactWinograd2(Arc::new(WinogradKernel::from_taps(cout, cin, tap)))
-                    }
+                    Kernel::ExactWinograd(Arc::new(ExactWinogradKernel::from_taps(cout, cin, tap)))
                 })
                 .clone(),
             _ => self.kernel.clone(),
@@ -221,12 +211,10 @@ impl ConvOp {
         let out = match &self.kernel {
             Kernel::Bf16(kernel) => conv3x3_bf16(data, shape, kernel, gate, bias),
             Kernel::Winograd(kernel) => conv3x3_winograd(data, (images, h, w), kernel, gate, bias),
-            Kernel::ExactWinograd2(kernel) => {
-                conv3x3_winograd(data, (images, h, w), kernel, gate, bias)
-            }
-            Kernel::ExactWinograd4(kernel) => {
-                conv3x3_winograd(data, (images, h, w), kernel, gate, bias)
-            }
+            Kernel::ExactWinograd(kernel) => match (bias, gate) {
+                (Some(bias), None) => conv3x3_winograd_exact(data, (images, h, w), kernel, bias),
+                _ => candle_core::bail!("conv3x3: the exact forward takes a bias and no gate"),
+            },
             Kernel::F32(kernel) => {
                 let epilogue = match (bias, self.exact) {
                     (Some(bias), true) => Epilogue::ExactBiasRelu(bias),
@@ -431,8 +419,8 @@ mod tests {
     }
 
     /// Layers wide enough for Winograd's products (and, with a bf16 backward, bf16 ones), one
-    /// whose exact forward takes F(2x2, 3x3) in f64 and a narrow one, forward and input gradient
-    /// against f64, with the f32 and the bf16 backward.
+    /// whose exact forward alone takes Winograd's (F(4x4, 3x3) in f64) and a narrow one, forward
+    /// and input gradient against f64, with the f32 and the bf16 backward.
     #[test]
     fn wide_and_narrow_layers_match_f64_both_ways() {
         let (wide, exact) = (MEASURED.wide, MEASURED.exact_winograd);
