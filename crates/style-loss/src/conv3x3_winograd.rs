@@ -464,7 +464,9 @@ fn tile_max_abs<const A: usize>(src: &[f32], (h, w, cin): (usize, usize, usize))
 
 /// `relu(sum + bias)` of the output at `at` (`(pixel * cout + o)` of an `[h, w, cout]` image)
 /// summed directly in f64 from `src` (`[h, w, cin]`) and `taps` (`[cout][3][3][cin]`), rounded
-/// once to f32 (PyTorch's ReLU: NaN kept).
+/// once to f32 (PyTorch's ReLU: NaN kept). The products go to [`LANES`] partial sums, which
+/// vectorize (one running sum waits on each addition); any order keeps the direct sum's error
+/// bound.
 fn direct_bias_relu_f64(
     src: &[f32],
     (h, w, cin): (usize, usize, usize),
@@ -475,7 +477,7 @@ fn direct_bias_relu_f64(
     let cout = bias.len();
     let (pixel, o) = (at / cout, at % cout);
     let (y, x) = (pixel / w, pixel % w);
-    let mut sum = 0f64;
+    let mut partial = [0f64; LANES];
     for dy in 0..3 {
         let sy = (y + dy).wrapping_sub(1);
         if sy >= h {
@@ -488,12 +490,10 @@ fn direct_bias_relu_f64(
             }
             let input = &src[(sy * w + sx) * cin..(sy * w + sx + 1) * cin];
             let weight = &taps[((o * 3 + dy) * 3 + dx) * cin..((o * 3 + dy) * 3 + dx + 1) * cin];
-            for (&v, &k) in input.iter().zip(weight) {
-                sum += f64::from(v) * f64::from(k);
-            }
+            add_products(&mut partial, input, weight);
         }
     }
-    let v = sum + f64::from(bias[o]);
+    let v = partial.iter().sum::<f64>() + f64::from(bias[o]);
     if v < 0.0 {
         0.0
     } else {
@@ -836,6 +836,20 @@ fn transform_output_block_row<T: WinogradReal, const A: usize>(
                 }
             }
         }
+    }
+}
+}
+
+widest_simd! {
+/// `partial[l] += input[i] weight[i]` in f64 over `i = l mod LANES`.
+fn add_products(partial: &mut Lanes<f64>, input: &[f32], weight: &[f32]) {
+    let mut terms = [0f64; LANES];
+    for (input, weight) in input.chunks(LANES).zip(weight.chunks(LANES)) {
+        let (mut a, mut b) = ([0f64; LANES], [0f64; LANES]);
+        load(&mut a, input);
+        load(&mut b, weight);
+        lanewise!(terms, l => a[l] * b[l]);
+        lanewise!(partial, l => partial[l] + terms[l]);
     }
 }
 }
