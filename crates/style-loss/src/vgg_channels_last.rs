@@ -95,7 +95,7 @@ pub(crate) struct ConvReluChannelsLast {
     /// On a layer of [`KernelWidths::exact_winograd`] channels or more with an f32 backward, the
     /// kernel of the exact forward by Winograd's F(4x4, 3x3) in f64, built from `kernel` on the
     /// first forward with a gradient (9 times the f32 weights' memory, and a copy of them: about
-    /// 560 MB for VGG-19 to conv5_2, spent only by runs that take it).
+    /// 550 MB for VGG-19 to conv5_2, spent only by runs that take it).
     exact_forward: Option<Arc<OnceLock<Kernel>>>,
 }
 
