@@ -135,14 +135,22 @@ pub(crate) struct WinogradKernel<T = f32, const A: usize = F2X2> {
     cout: usize,
 }
 
+/// `tap(o, i, dy, dx)` of PyTorch weights `[cout, cin, 3, 3]` (row-major in `weight`): output
+/// channel `o`, input channel `i`, kernel row `dy` and column `dx`.
+fn pytorch_taps(
+    weight: &[f32],
+    cout: usize,
+    cin: usize,
+) -> impl Fn(usize, usize, usize, usize) -> f32 + Sync + '_ {
+    assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
+    move |o, i, r, c| weight[((o * cin + i) * 3 + r) * 3 + c]
+}
+
 impl<T: WinogradReal, const A: usize> WinogradKernel<T, A> {
     /// `G g Gᵀ` of each 3x3 slice of PyTorch weights `[cout, cin, 3, 3]` (row-major in
     /// `weight`), computed in f64 and rounded once to `T`.
     pub(crate) fn new(weight: &[f32], cout: usize, cin: usize) -> Self {
-        assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
-        Self::from_taps(cout, cin, |o, i, r, c| {
-            weight[((o * cin + i) * 3 + r) * 3 + c]
-        })
+        Self::from_taps(cout, cin, pytorch_taps(weight, cout, cin))
     }
 
     /// As [`Self::new`], with `tap(o, i, dy, dx)` the weight of output channel `o`, input
@@ -218,17 +226,8 @@ pub(crate) struct ExactWinogradKernel<const A: usize> {
 pub(crate) const EXACT_TOLERANCE: f64 = 1e-13;
 
 impl<const A: usize> ExactWinogradKernel<A> {
-    /// The convolution by PyTorch weights `[cout, cin, 3, 3]` (row-major in `weight`).
-    #[cfg(test)]
-    pub(crate) fn new(weight: &[f32], cout: usize, cin: usize) -> Self {
-        assert_eq!(weight.len(), cout * cin * 9, "winograd kernel: weight size");
-        Self::from_taps(cout, cin, |o, i, r, c| {
-            weight[((o * cin + i) * 3 + r) * 3 + c]
-        })
-    }
-
-    /// As [`Self::new`], with `tap(o, i, dy, dx)` the weight of output channel `o`, input
-    /// channel `i`, kernel row `dy` and column `dx`.
+    /// The convolution whose weight of output channel `o`, input channel `i`, kernel row `dy`
+    /// and column `dx` is `tap(o, i, dy, dx)`.
     pub(crate) fn from_taps(
         cout: usize,
         cin: usize,
@@ -858,7 +857,8 @@ fn add_products(partial: &mut Lanes<f64>, input: &[f32], weight: &[f32]) {
 mod tests {
     use super::*;
 
-    /// `relu(direct convolution + bias)` in f64 (NCHW weights): the oracle.
+    /// `relu(direct convolution + bias)` in f64 (NCHW weights), each sum compensated
+    /// ([`compensated_bias_relu`]): the oracle.
     fn direct_bias_relu(
         input: &[f32],
         (h, w): (usize, usize),
@@ -866,28 +866,9 @@ mod tests {
         bias: &[f32],
         (cout, cin): (usize, usize),
     ) -> Vec<f64> {
-        let mut out = vec![0f64; h * w * cout];
-        for y in 0..h {
-            for x in 0..w {
-                for o in 0..cout {
-                    let mut acc = bias[o] as f64;
-                    for dy in 0..3 {
-                        for dx in 0..3 {
-                            let (sy, sx) = ((y + dy).wrapping_sub(1), (x + dx).wrapping_sub(1));
-                            if sy >= h || sx >= w {
-                                continue;
-                            }
-                            for i in 0..cin {
-                                let v = input[(sy * w + sx) * cin + i] as f64;
-                                acc += v * weight[((o * cin + i) * 3 + dy) * 3 + dx] as f64;
-                            }
-                        }
-                    }
-                    out[(y * w + x) * cout + o] = acc.max(0.0);
-                }
-            }
-        }
-        out
+        (0..h * w * cout)
+            .map(|at| compensated_bias_relu(input, (h, w, cin), weight, bias, at).0)
+            .collect()
     }
 
     /// Values in [-1, 1) from a small linear congruential generator.
@@ -1082,7 +1063,8 @@ mod tests {
         for bias in [vec![0f32; cout], values(cout, 23)] {
             let f32_tile = WinogradKernel::<f32, F2X2>::new(&weight, cout, cin);
             let f64_tile = WinogradKernel::<f64, F2X2>::new(&weight, cout, cin);
-            let exact = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+            let exact =
+                ExactWinogradKernel::<F4X4>::from_taps(cout, cin, pytorch_taps(&weight, cout, cin));
             for out in [
                 conv3x3_winograd(&input, (1, h, w), &f32_tile, None, Some(&bias)),
                 conv3x3_winograd(&input, (1, h, w), &f64_tile, None, Some(&bias)),
@@ -1196,7 +1178,11 @@ mod tests {
                         }
                     }
                 }
-                let kernel = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+                let kernel = ExactWinogradKernel::<F4X4>::from_taps(
+                    cout,
+                    cin,
+                    pytorch_taps(&weight, cout, cin),
+                );
                 let out = conv3x3_winograd_exact(&input, (1, h, w), &kernel, &bias);
                 let tile_max = tile_max_abs::<F4X4>(&input, shape);
                 for (at, &got) in out.iter().enumerate() {
@@ -1256,7 +1242,8 @@ mod tests {
     fn the_exact_forward_keeps_a_non_finite_input_to_its_windows() {
         let (h, w, cin, cout) = (11, 11, 2, 3);
         let weight = values(cout * cin * 9, 10);
-        let kernel = ExactWinogradKernel::<F4X4>::new(&weight, cout, cin);
+        let kernel =
+            ExactWinogradKernel::<F4X4>::from_taps(cout, cin, pytorch_taps(&weight, cout, cin));
         for bad in [f32::NAN, f32::INFINITY] {
             let mut input = values(h * w * cin, 9);
             input[(5 * w + 5) * cin] = bad;
