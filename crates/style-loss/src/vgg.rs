@@ -407,8 +407,9 @@ mod tests {
         assert_eq!(auto.precision(), VggPrecision::F32, "auto takes f32 there");
     }
 
-    /// The channels-last network with `precision` products (the algorithms chosen by `kernels`) against the channels-first one in f32: features and input gradient
-    /// within the relative errors given. Returns the largest gradient error.
+    /// The channels-last network with `precision` products (the algorithms chosen by
+    /// `kernels`) against the channels-first one in f32: features and input gradient within
+    /// the relative errors given. Returns the largest gradient error.
     fn assert_channels_last_within(
         precision: VggPrecision,
         kernels: KernelWidths,
