@@ -16,17 +16,14 @@ use rayon::prelude::*;
 use crate::cpu_elements::{elements, is_cpu_f32};
 use crate::custom_grad::attach_input_gradient;
 
-/// 2x2 max pool, stride 2, dropping a last odd row or column (PyTorch's floor mode). The
-/// gradient of each window goes to its first maximum in row-major order, as in PyTorch: on the
-/// cpu in one pass ([`route_to_first_maximum`], which also follows PyTorch at NaN), on other
-/// devices with tensor ops, where a window whose maximum is NaN passes no gradient.
+/// 2x2 max pool, stride 2, of `x` `[n, c, h, w]`, dropping a last odd row or column (PyTorch's
+/// floor mode). As PyTorch's `max_pool2d`, a window holding a NaN gives NaN, and the gradient of
+/// each window goes to its first maximum in row-major order (to its last NaN where it holds
+/// one): on the cpu in one pass ([`route_to_first_maximum`]), on other devices with candle's
+/// pooling and upsampling kernels ([`route_with_tensor_ops`]).
 pub fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
-    let (n, c, h, w) = x.dims4()?;
-    let value = windows(x)?
-        .max_keepdim(5)?
-        .max_keepdim(3)?
-        .reshape((n, c, h / 2, w / 2))?;
     let input = x.detach();
+    let value = pooled_with_nans(&input)?;
     attach_input_gradient(&value, x, move |g| {
         if is_cpu_f32(&input) {
             route_to_first_maximum(&input, g)
@@ -36,60 +33,51 @@ pub fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
     })
 }
 
-/// `x` (`[n, c, h, w]`, detached) as its 2x2 windows `[n, c, h / 2, 2, w / 2, 2]`, a last odd
-/// row or column dropped.
-fn windows(x: &Tensor) -> candle_core::Result<Tensor> {
-    let (n, c, h, w) = x.dims4()?;
-    let (h2, w2) = (h / 2, w / 2);
-    x.detach()
-        .narrow(2, 0, 2 * h2)?
-        .narrow(3, 0, 2 * w2)?
-        .reshape(vec![n, c, h2, 2, w2, 2])
+/// `x` `[n, c, h, w]` cut to even sides `[n, c, 2 (h / 2), 2 (w / 2)]`.
+fn even_sides(x: &Tensor) -> candle_core::Result<Tensor> {
+    let (_, _, h, w) = x.dims4()?;
+    x.narrow(2, 0, h / 2 * 2)?.narrow(3, 0, w / 2 * 2)
 }
 
-/// [`route_to_first_maximum`] with tensor ops, on any device (a window whose maximum is NaN
-/// passes nothing).
+/// The 2x2 maxima of `x` `[n, c, h, w]`, NaN where a window holds a NaN (candle's pooling
+/// skips NaNs on a GPU and keeps a leading one on the cpu; PyTorch's returns it).
+fn pooled_with_nans(x: &Tensor) -> candle_core::Result<Tensor> {
+    let x = even_sides(x)?;
+    let maxima = x.max_pool2d(2)?;
+    let holds_nan = x.ne(&x)?.max_pool2d(2)?;
+    let nan = Tensor::full(f32::NAN, maxima.shape(), x.device())?.to_dtype(x.dtype())?;
+    holds_nan.where_cond(&nan, &maxima)
+}
+
+/// [`route_to_first_maximum`] with candle's pooling, upsampling and elementwise kernels, on any
+/// device. Each element of a window gets a rank, the highest for the element PyTorch picks:
+/// among the elements equal to the window's maximum, 4, 3, 2, 1 in row-major order; in a window
+/// holding a NaN, among its NaNs, 1, 2, 3, 4. The window's gradient goes where the rank equals
+/// the window's largest rank.
 fn route_with_tensor_ops(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
-    let (n, c, h, w) = x.dims4()?;
-    let (h2, w2) = (h / 2, w / 2);
-    let windows = windows(x)?;
-    let pooled = windows.max_keepdim(5)?.max_keepdim(3)?;
-    let g = g.reshape(vec![n, c, h2, 1, w2, 1])?;
-    let routed = first_maximum_mask(&windows, &pooled)?
-        .broadcast_mul(&g)?
-        .reshape((n, c, 2 * h2, 2 * w2))?;
+    let (_, _, h, w) = x.dims4()?;
+    let x = even_sides(x)?;
+    let (_, _, h_even, w_even) = x.dims4()?;
+    let spread = |t: &Tensor| t.upsample_nearest2d(h_even, w_even);
+    let order = |ranks: [f32; 4]| {
+        Tensor::from_slice(&ranks, (2, 2), x.device())?
+            .to_dtype(x.dtype())?
+            .repeat((h_even / 2, w_even / 2))
+    };
+    let is_max = x.eq(&spread(&x.max_pool2d(2)?)?)?.to_dtype(x.dtype())?;
+    let is_nan = x.ne(&x)?;
+    let window_nan = spread(&is_nan.max_pool2d(2)?)?;
+    let rank = window_nan.where_cond(
+        &is_nan
+            .to_dtype(x.dtype())?
+            .broadcast_mul(&order([1.0, 2.0, 3.0, 4.0])?)?,
+        &is_max.broadcast_mul(&order([4.0, 3.0, 2.0, 1.0])?)?,
+    )?;
+    let taken = rank.eq(&spread(&rank.max_pool2d(2)?)?)?;
+    let routed = taken.to_dtype(g.dtype())?.mul(&spread(&g.contiguous()?)?)?;
     routed
-        .pad_with_zeros(2, 0, h - 2 * h2)?
-        .pad_with_zeros(3, 0, w - 2 * w2)
-}
-
-/// `[n, c, h2, 2, w2, 2]` with 1 at the first element of each window (row-major in the
-/// window: (0,0), (0,1), (1,0), (1,1)) equal to the window's maximum `pooled`
-/// (`[n, c, h2, 1, w2, 1]`), 0 elsewhere.
-fn first_maximum_mask(windows: &Tensor, pooled: &Tensor) -> candle_core::Result<Tensor> {
-    let mut taken: Option<Tensor> = None;
-    let mut rows = Vec::with_capacity(2);
-    for dy in 0..2 {
-        let mut row = Vec::with_capacity(2);
-        for dx in 0..2 {
-            let is_max = windows
-                .narrow(3, dy, 1)?
-                .narrow(5, dx, 1)?
-                .broadcast_eq(pooled)?
-                .to_dtype(windows.dtype())?;
-            let first = match &taken {
-                Some(t) => (&is_max * t.affine(-1.0, 1.0)?)?,
-                None => is_max.clone(),
-            };
-            taken = Some(match taken {
-                Some(t) => t.maximum(&is_max)?,
-                None => is_max,
-            });
-            row.push(first);
-        }
-        rows.push(Tensor::cat(&row, 5)?);
-    }
-    Tensor::cat(&rows, 3)
+        .pad_with_zeros(2, 0, h - h_even)?
+        .pad_with_zeros(3, 0, w - w_even)
 }
 
 /// The gradient of a 2x2 max pool of `x` (`[n, c, h, w]`, f32 on the cpu) given `g`, the
@@ -288,20 +276,71 @@ mod tests {
         assert_eq!(g, [1.0, 0.0, 0.0, 0.0]);
     }
 
+    /// `[2, 3, h, w]` values from {0, 1, 2}, so that most windows tie, with NaN, -inf and +inf
+    /// mixed in when `special`.
+    fn tied_values(h: usize, w: usize, special: bool) -> Tensor {
+        let x: Vec<f32> = (0..2 * 3 * h * w)
+            .map(|i| match ((i * 7 + i / 5) % 13, special) {
+                (10, true) => f32::NAN,
+                (11, true) => f32::NEG_INFINITY,
+                (12, true) => f32::INFINITY,
+                (k, _) => (k % 3) as f32,
+            })
+            .collect();
+        Tensor::from_vec(x, (2, 3, h, w), &Device::Cpu).unwrap()
+    }
+
     #[test]
     fn the_cpu_kernel_and_the_tensor_ops_route_alike() {
-        let device = Device::Cpu;
-        for (h, w) in [(6, 8), (7, 5)] {
-            // Values from {0, 1, 2}: most windows tie somewhere.
-            let x: Vec<f32> = (0..2 * 3 * h * w)
-                .map(|i| ((i * 7 + i / 5) % 3) as f32)
-                .collect();
-            let x = Tensor::from_vec(x, (2, 3, h, w), &device).unwrap();
-            let g = Tensor::rand(-1f32, 1f32, (2, 3, h / 2, w / 2), &device).unwrap();
-            let kernel = route_to_first_maximum(&x, &g).unwrap();
-            let ops = route_with_tensor_ops(&x, &g).unwrap();
-            let diff = (kernel - ops).unwrap().abs().unwrap().max_all().unwrap();
-            assert_eq!(diff.to_scalar::<f32>().unwrap(), 0.0, "{h}x{w}");
+        for (h, w) in [(6, 8), (7, 5), (2, 3), (9, 9)] {
+            for special in [false, true] {
+                let x = tied_values(h, w, special);
+                let g = Tensor::rand(-1f32, 1f32, (2, 3, h / 2, w / 2), &Device::Cpu).unwrap();
+                let kernel = route_to_first_maximum(&x, &g).unwrap();
+                let ops = route_with_tensor_ops(&x, &g).unwrap();
+                assert_eq!(
+                    kernel.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                    ops.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                    "{h}x{w}, special values {special}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn pooled_values_are_the_routed_elements_nan_included() {
+        for (h, w) in [(6, 8), (7, 5), (9, 9)] {
+            let x = tied_values(h, w, true);
+            let pooled = max_pool_2x2(&x).unwrap();
+            let pooled = pooled.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let ones =
+                Tensor::ones((2, 3, h / 2, w / 2), candle_core::DType::F32, &Device::Cpu).unwrap();
+            let routed = route_to_first_maximum(&x, &ones).unwrap();
+            let routed = routed.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let x = x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let mut chosen = Vec::new();
+            for plane in 0..6 {
+                for i in 0..h / 2 {
+                    for j in 0..w / 2 {
+                        let top = plane * h * w + 2 * i * w + 2 * j;
+                        let taken: Vec<usize> = [top, top + 1, top + w, top + w + 1]
+                            .into_iter()
+                            .filter(|&k| routed[k] == 1.0)
+                            .collect();
+                        assert_eq!(taken.len(), 1);
+                        chosen.push(x[taken[0]]);
+                    }
+                }
+            }
+            assert_eq!(pooled.len(), chosen.len());
+            let nans = pooled.iter().filter(|p| p.is_nan()).count();
+            assert!(
+                nans > 0 && nans < pooled.len(),
+                "{h}x{w}: {nans} NaN windows"
+            );
+            for (p, e) in pooled.iter().zip(&chosen) {
+                assert!(p == e || p.is_nan() && e.is_nan(), "{h}x{w}: {p} vs {e}");
+            }
         }
     }
 
