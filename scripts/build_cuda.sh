@@ -8,6 +8,7 @@
 #   scripts/build_cuda.sh             # for the GPU nvidia-smi reports, else PTX for 8.0 (Ampere)
 #   CUDA_COMPUTE_CAP=89 scripts/build_cuda.sh    # for one compute capability (here an RTX 4090)
 #   scripts/build_cuda.sh --cuda 12   # CUDA 12.0, for NVIDIA drivers 525 to 579
+#   scripts/build_cuda.sh --pack      # also packs the binaries into one small file (below)
 #   scripts/build_cuda.sh --dry-run   # says what it would build, fetches and builds nothing
 #
 # Which CUDA: 13 (the default) needs an NVIDIA driver 580 or newer; `nvidia-smi` prints the
@@ -26,21 +27,26 @@
 #
 # Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d, clipgaussian-video and
 # clipgaussian-4d (whose deformation network runs on the CUDA device too), and the timing
-# examples target/cuda/release/examples/{step_timing,style_loss_timing,benchmark_4d}; stripped
-# copies of all seven (52-67 MB each, without the debug information) in target/cuda/dist, which
-# scripts/gpu_check.sh runs. With --cuda 12 the same under target/cuda12. To run them, the
+# examples target/cuda/release/examples/{step_timing,style_loss_timing,vgg_op_timing,
+# benchmark_4d}; stripped copies of all eight (52-69 MB each, without the debug information) in
+# target/cuda/dist, which scripts/gpu_check.sh runs. With --pack, also target/cuda/dist.tar.xz:
+# the eight in one xz stream whose window spans them all, so the CUDA kernels they share are
+# stored once (about 20 MB in all, under a 64 MiB upload to a GPU machine; about 2 minutes);
+# `scripts/gpu_check.sh --bin target/cuda/dist.tar.xz` unpacks it. With --cuda 12 the same under target/cuda12. To run them, the
 # loader needs the NVIDIA driver and that CUDA's cuBLAS, cuRAND and NVRTC, for example those of
 # PyTorch's wheels (CUDA 13):
 #   export LD_LIBRARY_PATH=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))'):$LD_LIBRARY_PATH
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-usage="usage: scripts/build_cuda.sh [--cuda 12|13] [--dry-run]"
+usage="usage: scripts/build_cuda.sh [--cuda 12|13] [--pack] [--dry-run]"
 dry_run=false
+pack=false
 cuda_major=13
 while [ $# -gt 0 ]; do
     case "$1" in
         --dry-run) dry_run=true ;;
+        --pack) pack=true ;;
         --cuda)
             cuda_major=${2:-}
             shift
@@ -159,10 +165,18 @@ export CARGO_TARGET_DIR=${CARGO_TARGET_DIR:-$default_target}
 cargo build --release \
     -p base-mirage -p base-3dgs -p base-vegas -p base-dmiso -p integration-tests -p style-loss \
     --features base-mirage/cuda,base-3dgs/cuda,base-vegas/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
-    --bins --example step_timing --example style_loss_timing --example benchmark_4d
+    --bins --example step_timing --example style_loss_timing --example vgg_op_timing \
+    --example benchmark_4d
 mkdir -p "$CARGO_TARGET_DIR/dist"
 for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d \
-    examples/step_timing examples/style_loss_timing examples/benchmark_4d; do
+    examples/step_timing examples/style_loss_timing examples/vgg_op_timing examples/benchmark_4d; do
     strip -o "$CARGO_TARGET_DIR/dist/$(basename "$binary")" "$CARGO_TARGET_DIR/release/$binary"
 done
 echo "built with CUDA $cuda_version (compute capability $CUDA_COMPUTE_CAP) in $CARGO_TARGET_DIR/release"
+if $pack; then
+    # One block with a window larger than the eight together: each shared kernel is kept once.
+    tar -C "$CARGO_TARGET_DIR/dist" -cf - . |
+        xz -T1 --lzma2=preset=3,dict=768MiB > "$CARGO_TARGET_DIR/dist.tar.xz.tmp"
+    mv "$CARGO_TARGET_DIR/dist.tar.xz.tmp" "$CARGO_TARGET_DIR/dist.tar.xz"
+    echo "packed: $CARGO_TARGET_DIR/dist.tar.xz ($(du -h "$CARGO_TARGET_DIR/dist.tar.xz" | cut -f1))"
+fi

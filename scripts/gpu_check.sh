@@ -2,23 +2,30 @@
 # One command for a machine with an NVIDIA GPU: proves and times the GPU path from binaries built
 # elsewhere by scripts/build_cuda.sh (no Rust toolchain, no network needed here).
 #
-#   scripts/gpu_check.sh [--bin DIR] [--out FILE] [--dry-run]
+#   scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--dry-run]
 #
-# DIR holds the binaries (default target/cuda/dist, what build_cuda.sh writes: clipgaussian-2d,
-# -3d, -video, -4d, and the examples step_timing and style_loss_timing); FILE is the markdown
-# report (default gpu_check.md). In order, each part's command, exit status and output go into
-# the report:
+# DIR holds the binaries, or is the .tar.xz that `build_cuda.sh --pack` writes, unpacked here
+# into a temporary folder (default target/cuda/dist, what build_cuda.sh writes: clipgaussian-2d,
+# -3d, -video, -4d, and the examples step_timing, style_loss_timing, vgg_op_timing and
+# benchmark_4d); FILE is the markdown report (default gpu_check.md). In order, each part's
+# command, exit status and output go into the report:
 #   1. the GPU and driver (nvidia-smi);
 #   2. `selftest --device gpu` of every binary in DIR (each part against the cpu);
 #   3. the 3D step timing (300,000 Gaussians of SH degree 3, 800x800, 64 patches of 128), with
 #      CLIP in f32 and in f16;
-#   4. the style loss alone on CUDA with CLIP in f16 (style_loss_timing), the authors' setting,
-#      and with CLIP's linear layers in bf16 (clip_precision bf16, whose CUDA form is candle's
-#      conversions around cuBLAS's bf16 product) (the 4D step is timed with clipgaussian-4d itself, docs/benchmarks.md: benchmark_4d opens
-#      the cpu);
-#   5. the authors' PyTorch loss on the same GPU (scripts/time_style_loss_torch.py cuda f16) when
-#      the python3 on the PATH has torch and transformers.
-# A part that fails is recorded and the others still run; the exit status is that of the worst.
+#   4. the style loss alone on CUDA (style_loss_timing) with CLIP in f32, in f16 (the authors'
+#      setting), and with CLIP's linear layers in bf16 (clip_precision bf16, whose CUDA form is
+#      candle's conversions around cuBLAS's bf16 product), and the content term's pieces
+#      (vgg_op_timing: each convolution, the ReLU, the max pool and its backward);
+#   5. the 4D stylization step (benchmark_4d stylize: a batch of 4 views of 800x800, 2000 cores
+#      of 500 sub-Gaussians) with the rasterizer, the network and the loss on the GPU;
+#   6. the authors' PyTorch loss on the same GPU (scripts/time_style_loss_torch.py cuda, f32 and
+#      f16) when the python3 on the PATH has torch and transformers.
+# A part that fails is recorded and the others still run; the exit status is that of the last
+# part that failed (0 when none did).
+# A part still running after SECONDS (default 150) is stopped and recorded with exit 124, so one
+# hung part cannot use up a lease's time; the report is written part by part, so what ran before
+# an interruption is kept.
 # The binaries need CUDA 13's libraries on the loader path: when LD_LIBRARY_PATH does not have
 # them, the ones of the python3's nvidia wheels (PyTorch's) are added. --dry-run prints the
 # commands and runs none.
@@ -27,15 +34,26 @@ cd "$(dirname "$0")/.."
 
 bin=target/cuda/dist
 out=gpu_check.md
+part_timeout=150
 dry_run=false
 while [ $# -gt 0 ]; do
     case "$1" in
         --bin) bin=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
+        --part-timeout) part_timeout=$2; shift 2 ;;
         --dry-run) dry_run=true; shift ;;
-        *) echo "usage: scripts/gpu_check.sh [--bin DIR] [--out FILE] [--dry-run]" >&2; exit 2 ;;
+        *) echo "usage: scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--dry-run]" >&2; exit 2 ;;
     esac
 done
+
+# A packed build: unpacked with python3's tarfile (the GPU machine may have no xz).
+if ! $dry_run && [[ "$bin" == *.tar.xz ]]; then
+    unpacked=$(mktemp -d)
+    trap 'rm -rf "$unpacked"' EXIT
+    python3 -c 'import sys, tarfile; tarfile.open(sys.argv[1]).extractall(sys.argv[2])' \
+        "$bin" "$unpacked" || { echo "could not unpack $bin" >&2; exit 2; }
+    bin=$unpacked
+fi
 
 # CUDA 13's libraries from the python3's nvidia wheels, when the loader does not have them.
 if ! $dry_run && command -v python3 >/dev/null 2>&1; then
@@ -65,13 +83,15 @@ part() {
     echo "== $title" >&2
     local log
     log=$(mktemp)
-    "$@" > "$log" 2>&1
+    local start=$SECONDS
+    timeout "$part_timeout" "$@" > "$log" 2>&1
     local rc=$?
+    echo "   exit $rc after $((SECONDS - start)) s" >&2
     {
         echo
         echo "## $title"
         echo
-        echo "\`$*\`: exit $rc"
+        echo "\`$*\`: exit $rc$([ $rc -eq 124 ] && echo ", stopped after $part_timeout s") ($((SECONDS - start)) s)"
         echo
         if grep -q '^|' "$log"; then
             grep '^|' "$log"
@@ -106,11 +126,16 @@ for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d
 done
 part "3D step, CLIP f32" "$bin/step_timing" 300000 gpu 3 f32 800x800
 part "3D step, CLIP f16" "$bin/step_timing" 300000 gpu 3 f16 800x800
+part "style loss, CUDA, CLIP f32" env STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=f32 \
+    "$bin/style_loss_timing" 3
 part "style loss, CUDA, CLIP f16" env STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=f16 \
     "$bin/style_loss_timing" 3
 part "style loss, CUDA, CLIP bf16 products" env STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=bf16 \
     "$bin/style_loss_timing" 3
+part "VGG-19's pieces, CUDA" env STYLE_LOSS_DEVICE=cuda "$bin/vgg_op_timing"
+part "4D stylization step" env BENCHMARK_4D_DEVICE=gpu "$bin/benchmark_4d" 0 stylize
 if $dry_run || python3 -c 'import torch, transformers' >/dev/null 2>&1; then
+    part "the authors' loss in PyTorch, cuda f32" python3 scripts/time_style_loss_torch.py 16 3 cuda f32
     part "the authors' loss in PyTorch, cuda f16" python3 scripts/time_style_loss_torch.py 16 3 cuda f16
 else
     part "the authors' loss in PyTorch" echo "python3 has no torch or transformers: skipped"

@@ -2,7 +2,7 @@
 //! `scripts/build_cuda.sh` picks the compute capability as documented (`CUDA_COMPUTE_CAP` when
 //! set, else the GPU `nvidia-smi` reports, else 8.0, PTX that runs on every GPU from Ampere on;
 //! a malformed value is refused) and CUDA 13 or, on request, 12; `scripts/gpu_check.sh` lists
-//! every part it would run.
+//! every part it would run, and, run on fake binaries, stops a hung part and reports the others.
 
 use std::path::{Path, PathBuf};
 use std::process::Command;
@@ -11,17 +11,22 @@ fn script() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/build_cuda.sh")
 }
 
+/// Writes an executable `dir/name` whose text is `body`.
+fn fake_program(dir: &Path, name: &str, body: &str) {
+    let path = dir.join(name);
+    std::fs::write(&path, body).unwrap();
+    let mut permissions = std::fs::metadata(&path).unwrap().permissions();
+    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
+    std::fs::set_permissions(&path, permissions).unwrap();
+}
+
 /// A folder holding an `nvidia-smi` that prints `compute_cap` (or fails when `None`).
 fn fake_nvidia_smi(dir: &Path, compute_cap: Option<&str>) {
     let body = match compute_cap {
         Some(cap) => format!("#!/bin/sh\necho {cap}\n"),
         None => "#!/bin/sh\necho 'NVIDIA-SMI has failed' >&2\nexit 9\n".to_string(),
     };
-    let path = dir.join("nvidia-smi");
-    std::fs::write(&path, body).unwrap();
-    let mut permissions = std::fs::metadata(&path).unwrap().permissions();
-    std::os::unix::fs::PermissionsExt::set_mode(&mut permissions, 0o755);
-    std::fs::set_permissions(&path, permissions).unwrap();
+    fake_program(dir, "nvidia-smi", &body);
 }
 
 /// The dry run's status and output, `nvidia-smi` faked in front of the system's.
@@ -187,6 +192,8 @@ fn the_gpu_check_parses_and_its_dry_run_lists_every_part() {
         "step_timing 300000 gpu 3 f16 800x800",
         "STYLE_LOSS_DEVICE=cuda STYLE_LOSS_PRECISION=f16 some/dir/style_loss_timing 3",
         "time_style_loss_torch.py 16 3 cuda f16",
+        "STYLE_LOSS_DEVICE=cuda some/dir/vgg_op_timing",
+        "BENCHMARK_4D_DEVICE=gpu some/dir/benchmark_4d 0 stylize",
     ] {
         assert!(text.contains(part), "{part}: {text}");
     }
@@ -196,4 +203,90 @@ fn the_gpu_check_parses_and_its_dry_run_lists_every_part() {
         .output()
         .unwrap();
     assert_eq!(bad.status.code(), Some(2));
+}
+
+/// Runs `scripts/gpu_check.sh --part-timeout 1` on fake binaries (a `clipgaussian-2d` that
+/// hangs, the others printing a table row), as a folder or packed as `build_cuda.sh --pack`
+/// packs them; returns the exit status and the report.
+fn gpu_check_on_fakes(packed: bool) -> (Option<i32>, String) {
+    let script = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scripts/gpu_check.sh");
+    let dir = tempfile::tempdir().unwrap();
+    let (bin, path) = (dir.path().join("bin"), dir.path().join("path"));
+    std::fs::create_dir_all(&bin).unwrap();
+    std::fs::create_dir_all(&path).unwrap();
+    fake_nvidia_smi(&path, Some("9.0"));
+    // No torch here: the PyTorch parts are skipped, as on a machine without it. The script
+    // unpacks with python3's tarfile, done here by tar.
+    fake_program(
+        &path,
+        "python3",
+        "#!/bin/sh\ncase \"$2\" in *tarfile*) exec tar -xJf \"$3\" -C \"$4\" ;; esac\nexit 1\n",
+    );
+    fake_program(&bin, "clipgaussian-2d", "#!/bin/sh\nexec sleep 30\n");
+    for binary in ["clipgaussian-3d", "clipgaussian-video", "clipgaussian-4d"] {
+        fake_program(&bin, binary, "#!/bin/sh\necho '| part | ok |'\n");
+    }
+    for example in [
+        "step_timing",
+        "style_loss_timing",
+        "vgg_op_timing",
+        "benchmark_4d",
+    ] {
+        fake_program(&bin, example, "#!/bin/sh\necho \"| $* |\"\n");
+    }
+    let bin_arg = if packed {
+        let archive = dir.path().join("dist.tar.xz");
+        let status = Command::new("tar")
+            .arg("-cJf")
+            .arg(&archive)
+            .arg("-C")
+            .arg(&bin)
+            .arg(".")
+            .status()
+            .unwrap();
+        assert!(status.success());
+        std::fs::remove_dir_all(&bin).unwrap();
+        archive
+    } else {
+        bin
+    };
+    let report = dir.path().join("report.md");
+    let start = std::time::Instant::now();
+    let out = Command::new("bash")
+        .arg(&script)
+        .arg("--bin")
+        .arg(&bin_arg)
+        .arg("--out")
+        .arg(&report)
+        .args(["--part-timeout", "1"])
+        .env(
+            "PATH",
+            format!("{}:{}", path.display(), std::env::var("PATH").unwrap()),
+        )
+        .output()
+        .unwrap();
+    assert!(
+        start.elapsed().as_secs() < 25,
+        "the hung part was not stopped"
+    );
+    (out.status.code(), std::fs::read_to_string(&report).unwrap())
+}
+
+#[test]
+fn the_gpu_check_stops_a_hung_part_and_runs_the_others() {
+    for packed in [false, true] {
+        let (code, text) = gpu_check_on_fakes(packed);
+        assert_eq!(code, Some(124), "packed {packed}: {text}");
+        assert!(
+            text.contains("selftest --device gpu`: exit 124, stopped after 1 s"),
+            "{text}"
+        );
+        assert_eq!(text.matches("| part | ok |").count(), 3, "{text}");
+        assert!(text.contains("| 300000 gpu 3 f16 800x800 |"), "{text}");
+        assert!(text.contains("| 0 stylize |"), "{text}");
+        assert!(
+            text.contains("python3 has no torch or transformers: skipped"),
+            "{text}"
+        );
+    }
 }

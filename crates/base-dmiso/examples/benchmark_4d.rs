@@ -7,7 +7,10 @@
 //!    weights, the paper's 64 patches) on a model of 2000 cores of 500 sub-Gaussians.
 //!
 //! Run: `cargo run --release -p base-dmiso --example benchmark_4d -- [<small fit steps>
-//! [small]]` (default 3000; `small`: the small scene only).
+//! [small|stylize]]` (default 3000; `small`: the small scene only; `stylize`: the stylization
+//! step only). `BENCHMARK_4D_DEVICE=gpu` (or `auto`) runs the rasterizer, the network and the
+//! loss where `--device gpu` puts them (with the `cuda` feature, the loss and the network on
+//! CUDA); the default is the cpu.
 
 #[path = "../tests/common/mod.rs"]
 mod common;
@@ -19,11 +22,11 @@ use base_dmiso::deform_net::NetShape;
 use base_dmiso::fit::{fit, mean_psnr, render_views, FitSettings};
 use base_dmiso::init::{initial_model, with_sub_gaussians};
 use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
-use candle_core::Device;
 use gs_core::adam::AdamHyper;
 use gs_core::dataset::scene_extent;
+use gs_core::device::DeviceChoice;
 use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
-use gs_wgpu::backend::{Backend, Trainer};
+use gs_wgpu::backend::{OpenDevice, Trainer};
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 
@@ -33,7 +36,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .map(|s| s.parse())
         .transpose()?
         .unwrap_or(3000);
-    println!("threads: {}", rayon::current_num_threads());
+    let choice: DeviceChoice = std::env::var("BENCHMARK_4D_DEVICE")
+        .as_deref()
+        .unwrap_or("cpu")
+        .parse()?;
+    let backend = choice.open()?;
+    let (device, note) = style_loss::compute_device::open_for(choice)?;
+    let note = if note.is_empty() {
+        note
+    } else {
+        format!(" ({note})")
+    };
+    println!(
+        "threads: {}; rasterizer on {}; loss and network on {device:?}{note}",
+        rayon::current_num_threads(),
+        backend.describe()
+    );
+    let only = std::env::args().nth(2);
+    if only.as_deref() == Some("stylize") {
+        return stylization_step(&backend, &device);
+    }
 
     // 1. The small scene.
     let train = common::views(24, 0.0, 64);
@@ -59,12 +81,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             &images,
             extent,
             &settings,
-            &Backend::Cpu,
-            &Device::Cpu,
+            &backend,
+            &device,
             |_| ControlFlow::Continue(()),
         )?;
         let seconds = start.elapsed().as_secs_f64();
-        let renders = render_views(&mut model, &test, [1.0; 3], &Backend::Cpu)?;
+        let renders = render_views(&mut model, &test, [1.0; 3], &backend)?;
         println!(
             "small scene: {points} points, width {width}, {steps} steps: {seconds:.1} s \
              ({:.1} ms/step), {} cores of 4 sub-Gaussians, held-out PSNR {:.2} dB",
@@ -74,7 +96,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
 
-    if std::env::args().nth(2).as_deref() == Some("small") {
+    if only.as_deref() == Some("small") {
         return Ok(());
     }
 
@@ -97,8 +119,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &big_images,
         scene_extent(&big_train),
         &settings,
-        &Backend::Cpu,
-        &Device::Cpu,
+        &backend,
+        &device,
         |r| {
             per_step.push((
                 r.step,
@@ -121,14 +143,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         estimate / 3600.0
     );
 
-    // 3. One stylization step at a batch of 4 views of 800 x 800.
-    let views = big_train[..8].to_vec();
-    let targets = big_images[..8].to_vec();
-    let base = initial_model(2000, NetShape::DEFAULT, 0, &Device::Cpu)?;
+    stylization_step(&backend, &device)
+}
+
+/// 3. One stylization step at a batch of 4 views of 800 x 800.
+fn stylization_step(
+    backend: &gs_wgpu::backend::Backend,
+    device: &candle_core::Device,
+) -> Result<(), Box<dyn std::error::Error>> {
+    let views = common::views(150, 0.0, 800)[..8].to_vec();
+    let targets: Vec<_> = views.iter().map(|v| common::render(v, [1.0; 3])).collect();
+    let base = initial_model(2000, NetShape::DEFAULT, 0, device)?;
     let model = with_sub_gaussians(&base, 2000, 500, 0)?;
-    let loss = random_full_size_loss(PatchSettings::default(), ClipPrecision::F32, &Device::Cpu)?;
+    let loss = random_full_size_loss(PatchSettings::default(), ClipPrecision::F32, device)?;
     let start = Instant::now();
-    let mut objective = StyleObjective::new(loss, &targets, None, 0, &Device::Cpu)?;
+    let mut objective = StyleObjective::new(loss, &targets, None, 0, device)?;
     println!(
         "stylization: per-view cache of {} views: {:.1} s",
         views.len(),
@@ -136,9 +165,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     let config = DynamicStylizeConfig::default();
     let mut trainer = Trainer::new(
-        &Backend::Cpu,
+        backend,
         model,
-        stylize_groups(&config.learning_rates, scene_extent(&big_train))?,
+        stylize_groups(&config.learning_rates, scene_extent(&views))?,
         AdamHyper::default(),
     )?;
     let mut times = Vec::new();
