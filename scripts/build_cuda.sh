@@ -167,6 +167,8 @@ cargo build --release \
     --features base-mirage/cuda,base-3dgs/cuda,base-vegas/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
     --bins --example step_timing --example style_loss_timing --example vgg_op_timing \
     --example benchmark_4d
+# Only this build's binaries: nothing stale is packed or checked.
+rm -rf "$CARGO_TARGET_DIR/dist"
 mkdir -p "$CARGO_TARGET_DIR/dist"
 for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d \
     examples/step_timing examples/style_loss_timing examples/vgg_op_timing examples/benchmark_4d; do

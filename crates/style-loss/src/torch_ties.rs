@@ -57,21 +57,24 @@ fn pooled_with_nans(x: &Tensor) -> candle_core::Result<Tensor> {
 fn route_with_tensor_ops(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
     let (_, _, h, w) = x.dims4()?;
     let x = even_sides(x)?;
-    let (_, _, h_even, w_even) = x.dims4()?;
+    let (n, c, h_even, w_even) = x.dims4()?;
     let spread = |t: &Tensor| t.upsample_nearest2d(h_even, w_even);
-    let order = |ranks: [f32; 4]| {
-        Tensor::from_slice(&ranks, (2, 2), x.device())?
-            .to_dtype(x.dtype())?
-            .repeat((h_even / 2, w_even / 2))
+    // `mask` (1 where an element is a candidate) times each window's ranks, in row-major
+    // window order: one broadcast product over the windows' view `[n, c, h / 2, 2, w / 2, 2]`.
+    let ranked = |mask: &Tensor, ranks: [f32; 4]| {
+        let ranks =
+            Tensor::from_slice(&ranks, vec![1, 1, 1, 2, 1, 2], x.device())?.to_dtype(x.dtype())?;
+        mask.to_dtype(x.dtype())?
+            .reshape(vec![n, c, h_even / 2, 2, w_even / 2, 2])?
+            .broadcast_mul(&ranks)?
+            .reshape((n, c, h_even, w_even))
     };
-    let is_max = x.eq(&spread(&x.max_pool2d(2)?)?)?.to_dtype(x.dtype())?;
+    let is_max = x.eq(&spread(&x.max_pool2d(2)?)?)?;
     let is_nan = x.ne(&x)?;
     let window_nan = spread(&is_nan.max_pool2d(2)?)?;
     let rank = window_nan.where_cond(
-        &is_nan
-            .to_dtype(x.dtype())?
-            .broadcast_mul(&order([1.0, 2.0, 3.0, 4.0])?)?,
-        &is_max.broadcast_mul(&order([4.0, 3.0, 2.0, 1.0])?)?,
+        &ranked(&is_nan, [1.0, 2.0, 3.0, 4.0])?,
+        &ranked(&is_max, [4.0, 3.0, 2.0, 1.0])?,
     )?;
     let taken = rank.eq(&spread(&rank.max_pool2d(2)?)?)?;
     let routed = taken.to_dtype(g.dtype())?.mul(&spread(&g.contiguous()?)?)?;
