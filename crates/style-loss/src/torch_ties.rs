@@ -293,6 +293,32 @@ mod tests {
         Tensor::from_vec(x, (2, 3, h, w), &Device::Cpu).unwrap()
     }
 
+    /// For `x` `[n, c, h, w]`, the element of each 2x2 window, in window order, that
+    /// [`route_to_first_maximum`] gives the window's gradient to (checking that it gives it to
+    /// exactly one).
+    pub(super) fn routed_elements(x: &Tensor) -> Vec<f32> {
+        let (n, c, h, w) = x.dims4().unwrap();
+        let ones = Tensor::ones((n, c, h / 2, w / 2), x.dtype(), x.device()).unwrap();
+        let routed = route_to_first_maximum(x, &ones).unwrap();
+        let routed = routed.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let x = x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+        let mut chosen = Vec::new();
+        for plane in 0..n * c {
+            for i in 0..h / 2 {
+                for j in 0..w / 2 {
+                    let top = plane * h * w + 2 * i * w + 2 * j;
+                    let taken: Vec<usize> = [top, top + 1, top + w, top + w + 1]
+                        .into_iter()
+                        .filter(|&k| routed[k] == 1.0)
+                        .collect();
+                    assert_eq!(taken.len(), 1);
+                    chosen.push(x[taken[0]]);
+                }
+            }
+        }
+        chosen
+    }
+
     #[test]
     fn the_cpu_kernel_and_the_tensor_ops_route_alike() {
         for (h, w) in [(6, 8), (7, 5), (2, 3), (9, 9)] {
@@ -316,25 +342,7 @@ mod tests {
             let x = tied_values(h, w, true);
             let pooled = max_pool_2x2(&x).unwrap();
             let pooled = pooled.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let ones =
-                Tensor::ones((2, 3, h / 2, w / 2), candle_core::DType::F32, &Device::Cpu).unwrap();
-            let routed = route_to_first_maximum(&x, &ones).unwrap();
-            let routed = routed.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let x = x.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let mut chosen = Vec::new();
-            for plane in 0..6 {
-                for i in 0..h / 2 {
-                    for j in 0..w / 2 {
-                        let top = plane * h * w + 2 * i * w + 2 * j;
-                        let taken: Vec<usize> = [top, top + 1, top + w, top + w + 1]
-                            .into_iter()
-                            .filter(|&k| routed[k] == 1.0)
-                            .collect();
-                        assert_eq!(taken.len(), 1);
-                        chosen.push(x[taken[0]]);
-                    }
-                }
-            }
+            let chosen = routed_elements(&x);
             assert_eq!(pooled.len(), chosen.len());
             let nans = pooled.iter().filter(|p| p.is_nan()).count();
             assert!(
@@ -409,26 +417,7 @@ mod channels_last_tests {
                     .unwrap()
             );
             // Each value is the element its window's gradient went to (NaN where that is NaN).
-            let ones =
-                Tensor::ones((n, c, h / 2, w / 2), candle_core::DType::F32, &device).unwrap();
-            let routed = route_to_first_maximum(&first(&x), &ones).unwrap();
-            let routed = routed.flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let x_first = first(&x).flatten_all().unwrap().to_vec1::<f32>().unwrap();
-            let (h2, w2) = (h / 2, w / 2);
-            let mut chosen = Vec::new();
-            for plane in 0..n * c {
-                for i in 0..h2 {
-                    for j in 0..w2 {
-                        let top = plane * h * w + 2 * i * w + 2 * j;
-                        let taken: Vec<usize> = [top, top + 1, top + w, top + w + 1]
-                            .into_iter()
-                            .filter(|&k| routed[k] == 1.0)
-                            .collect();
-                        assert_eq!(taken.len(), 1);
-                        chosen.push(x_first[taken[0]]);
-                    }
-                }
-            }
+            let chosen = super::tests::routed_elements(&first(&x));
             let pooled = first(&pooled)
                 .flatten_all()
                 .unwrap()
