@@ -32,9 +32,9 @@
 # target/cuda/dist, which scripts/gpu_check.sh runs. With --pack, also target/cuda/dist.tar.xz:
 # the eight in one xz stream whose window spans them all, so the CUDA kernels they share are
 # stored once (about 20 MB in all, under a 64 MiB upload to a GPU machine; about 2 minutes);
-# `scripts/gpu_check.sh --bin target/cuda/dist.tar.xz` unpacks it. With --cuda 12 the same under target/cuda12. To run them, the
-# loader needs the NVIDIA driver and that CUDA's cuBLAS, cuRAND and NVRTC, for example those of
-# PyTorch's wheels (CUDA 13):
+# `scripts/gpu_check.sh --bin target/cuda/dist.tar.xz` unpacks it. With --cuda 12 the same
+# under target/cuda12. To run them, the loader needs the NVIDIA driver and that CUDA's cuBLAS,
+# cuRAND and NVRTC, for example those of PyTorch's wheels (CUDA 13):
 #   export LD_LIBRARY_PATH=$(python3 -c 'import nvidia, os; print(os.path.join(nvidia.__path__[0], "cu13", "lib"))'):$LD_LIBRARY_PATH
 set -euo pipefail
 cd "$(dirname "$0")/.."

@@ -24,11 +24,12 @@ use crate::custom_grad::attach_input_gradient;
 pub fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
     let input = x.detach();
     let value = pooled_with_nans(&input)?;
+    let pooled = value.clone();
     attach_input_gradient(&value, x, move |g| {
         if is_cpu_f32(&input) {
             route_to_first_maximum(&input, g)
         } else {
-            route_with_tensor_ops(&input, g)
+            route_with_tensor_ops(&input, &pooled, g)
         }
     })
 }
@@ -50,11 +51,11 @@ fn pooled_with_nans(x: &Tensor) -> candle_core::Result<Tensor> {
 }
 
 /// [`route_to_first_maximum`] with candle's pooling, upsampling and elementwise kernels, on any
-/// device. Each element of a window gets a rank, the highest for the element PyTorch picks:
+/// device, given `pooled`, the forward's [`pooled_with_nans`] of `x`. Each element of a window gets a rank, the highest for the element PyTorch picks:
 /// among the elements equal to the window's maximum, 4, 3, 2, 1 in row-major order; in a window
 /// holding a NaN, among its NaNs, 1, 2, 3, 4. The window's gradient goes where the rank equals
 /// the window's largest rank.
-fn route_with_tensor_ops(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
+fn route_with_tensor_ops(x: &Tensor, pooled: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
     let (_, _, h, w) = x.dims4()?;
     let x = even_sides(x)?;
     let (n, c, h_even, w_even) = x.dims4()?;
@@ -69,9 +70,11 @@ fn route_with_tensor_ops(x: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> 
             .broadcast_mul(&ranks)?
             .reshape((n, c, h_even, w_even))
     };
-    let is_max = x.eq(&spread(&x.max_pool2d(2)?)?)?;
+    // Each window's value over its elements: NaN exactly where the window holds a NaN.
+    let window_value = spread(pooled)?;
+    let is_max = x.eq(&window_value)?;
     let is_nan = x.ne(&x)?;
-    let window_nan = spread(&is_nan.max_pool2d(2)?)?;
+    let window_nan = window_value.ne(&window_value)?;
     let rank = window_nan.where_cond(
         &ranked(&is_nan, [1.0, 2.0, 3.0, 4.0])?,
         &ranked(&is_max, [4.0, 3.0, 2.0, 1.0])?,
@@ -326,7 +329,8 @@ mod tests {
                 let x = tied_values(h, w, special);
                 let g = Tensor::rand(-1f32, 1f32, (2, 3, h / 2, w / 2), &Device::Cpu).unwrap();
                 let kernel = route_to_first_maximum(&x, &g).unwrap();
-                let ops = route_with_tensor_ops(&x, &g).unwrap();
+                let pooled = pooled_with_nans(&x).unwrap();
+                let ops = route_with_tensor_ops(&x, &pooled, &g).unwrap();
                 assert_eq!(
                     kernel.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
                     ops.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
