@@ -76,49 +76,53 @@ struct Attention {
 }
 
 impl Attention {
-    /// For f32 on the CPU, the attention's value on `x` `[batch, tokens, hidden]` (contiguous,
-    /// outside the graph) and its input adjoint: `Wo`'s adjoint, the two products' and the
-    /// softmax's derivatives, the three projections' adjoints summed. The intermediate values
-    /// (queries, keys, values, the probabilities) are kept once, and none gets a zeroed
-    /// gradient to add into, as a node of its own would. `mask` as in [`Self::forward_with_ops`].
-    /// `None` elsewhere.
+    /// For f32 on the CPU, the attention's value for the first `queries` tokens of `x` `[batch,
+    /// tokens, hidden]` (contiguous, outside the graph; keys and values from every token) and its
+    /// input adjoint, from `[batch, queries, hidden]` to `x`'s shape: `Wo`'s adjoint, the two
+    /// products' and the softmax's derivatives, the three projections' adjoints summed. The
+    /// intermediate values (queries, keys, values, the probabilities) are kept once, and none
+    /// gets a zeroed gradient to add into, as a node of its own would. `mask` as in
+    /// [`Self::forward_with_ops`]. `None` elsewhere.
     fn value_and_adjoint(
         &self,
         x: &Tensor,
         mask: Option<&Tensor>,
+        queries: usize,
     ) -> candle_core::Result<Option<(Tensor, InputAdjoint)>> {
         if !is_cpu_f32(x) {
             return Ok(None);
         }
         let (batch, tokens, hidden) = x.dims3()?;
         let (heads, head_dim) = (self.heads, self.head_dim);
-        // [batch * tokens, hidden] <-> [batch, heads, tokens, head_dim].
-        let split = move |t: Tensor| -> candle_core::Result<Tensor> {
-            t.reshape((batch, tokens, heads, head_dim))?
+        // [batch * rows, hidden] <-> [batch, heads, rows, head_dim].
+        let split = move |t: Tensor, rows: usize| -> candle_core::Result<Tensor> {
+            t.reshape((batch, rows, heads, head_dim))?
                 .transpose(1, 2)?
                 .contiguous()
         };
-        let merge = move |t: Tensor| -> candle_core::Result<Tensor> {
+        let merge = move |t: Tensor, rows: usize| -> candle_core::Result<Tensor> {
             t.transpose(1, 2)?
                 .contiguous()?
-                .reshape((batch * tokens, hidden))
+                .reshape((batch * rows, hidden))
         };
         let softmax = SoftmaxOp { len: tokens };
         let scale = 1.0 / (head_dim as f64).sqrt();
         let input = x.reshape((batch * tokens, hidden))?;
-        let q = split((self.q.value(&input)? * scale)?)?;
-        let k = split(self.k.value(&input)?)?;
-        let v = split(self.v.value(&input)?)?;
+        let query_input = leading_tokens(x, queries)?.reshape((batch * queries, hidden))?;
+        let q = split((self.q.value(&query_input)? * scale)?, queries)?;
+        let k = split(self.k.value(&input)?, tokens)?;
+        let v = split(self.v.value(&input)?, tokens)?;
         let mut logits = checked_matmul(&q, &k.t()?.contiguous()?)?;
         if let Some(mask) = mask {
-            logits = logits.broadcast_add(&mask.to_dtype(logits.dtype())?)?;
+            logits =
+                logits.broadcast_add(&mask.narrow(0, 0, queries)?.to_dtype(logits.dtype())?)?;
         }
         let probabilities = logits.apply_op1_no_bwd(&softmax)?;
         drop(logits);
         let value = self
             .out
-            .value(&merge(checked_matmul(&probabilities, &v)?)?)?
-            .reshape((batch, tokens, hidden))?;
+            .value(&merge(checked_matmul(&probabilities, &v)?, queries)?)?
+            .reshape((batch, queries, hidden))?;
         let (q_layer, k_layer, v_layer, out) = (
             self.q.clone(),
             self.k.clone(),
@@ -126,42 +130,76 @@ impl Attention {
             self.out.clone(),
         );
         let adjoint: InputAdjoint = Box::new(move |g| {
-            let g = g.reshape((batch * tokens, hidden))?.contiguous()?;
-            let g_context = split(out.input_gradient(&g)?)?;
+            let g = g.reshape((batch * queries, hidden))?.contiguous()?;
+            let g_context = split(out.input_gradient(&g)?, queries)?;
             let g_probabilities = checked_matmul(&g_context, &v.t()?.contiguous()?)?;
             let g_v = checked_matmul(&probabilities.t()?.contiguous()?, &g_context)?;
             let g_logits = probabilities.apply_op2_no_bwd(&g_probabilities, &softmax)?;
             let g_q = (checked_matmul(&g_logits, &k)? * scale)?;
             let g_k = checked_matmul(&g_logits.t()?.contiguous()?, &q)?;
-            let g_x =
-                (q_layer.input_gradient(&merge(g_q)?)? + k_layer.input_gradient(&merge(g_k)?)?)?;
-            (g_x + v_layer.input_gradient(&merge(g_v)?)?)?.reshape((batch, tokens, hidden))
+            let g_query_input = q_layer
+                .input_gradient(&merge(g_q, queries)?)?
+                .reshape((batch, queries, hidden))?;
+            let g_x = (k_layer.input_gradient(&merge(g_k, tokens)?)?
+                + v_layer.input_gradient(&merge(g_v, tokens)?)?)?
+            .reshape((batch, tokens, hidden))?;
+            g_x + pad_tokens(&g_query_input, tokens)?
         });
         Ok(Some((value, adjoint)))
     }
 
-    /// `x` is `[batch, tokens, hidden]`; `mask`, if any, is added to the `[tokens, tokens]`
-    /// attention logits (0 or -inf, any float type). Candle ops with a backward (any device and
-    /// format).
-    fn forward_with_ops(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+    /// The attention's value for the first `queries` tokens of `x` `[batch, tokens, hidden]`
+    /// (keys and values from every token), `[batch, queries, hidden]`; `mask`, if any, is added
+    /// to the `[tokens, tokens]` attention logits (0 or -inf, any float type; its first
+    /// `queries` rows). Candle ops with a backward (any device and format).
+    fn forward_with_ops(
+        &self,
+        x: &Tensor,
+        mask: Option<&Tensor>,
+        queries: usize,
+    ) -> Result<Tensor> {
         let (batch, tokens, hidden) = x.dims3()?;
-        let split = |t: Tensor| -> candle_core::Result<Tensor> {
-            t.reshape((batch, tokens, self.heads, self.head_dim))?
+        let split = |t: Tensor, rows: usize| -> candle_core::Result<Tensor> {
+            t.reshape((batch, rows, self.heads, self.head_dim))?
                 .transpose(1, 2)?
                 .contiguous()
         };
         let scale = 1.0 / (self.head_dim as f64).sqrt();
-        let q = split((self.q.forward(x)? * scale)?)?;
-        let k = split(self.k.forward(x)?)?;
-        let v = split(self.v.forward(x)?)?;
+        let q = split(
+            (self.q.forward(&x.narrow(1, 0, queries)?)? * scale)?,
+            queries,
+        )?;
+        let k = split(self.k.forward(x)?, tokens)?;
+        let v = split(self.v.forward(x)?, tokens)?;
         let mut logits = checked_matmul(&q, &k.t()?.contiguous()?)?;
         if let Some(mask) = mask {
-            logits = logits.broadcast_add(&mask.to_dtype(logits.dtype())?)?;
+            logits =
+                logits.broadcast_add(&mask.narrow(0, 0, queries)?.to_dtype(logits.dtype())?)?;
         }
         let context = checked_matmul(&softmax_last_dim(&logits)?, &v)?;
-        let context = context.transpose(1, 2)?.reshape((batch, tokens, hidden))?;
+        let context = context.transpose(1, 2)?.reshape((batch, queries, hidden))?;
         Ok(self.out.forward(&context)?)
     }
+}
+
+/// The first `count` tokens of `x` `[batch, tokens, hidden]`, contiguous (`x` itself when that
+/// is all of them).
+fn leading_tokens(x: &Tensor, count: usize) -> candle_core::Result<Tensor> {
+    if count == x.dim(1)? {
+        return Ok(x.clone());
+    }
+    x.narrow(1, 0, count)?.contiguous()
+}
+
+/// `g` `[batch, queries, hidden]` followed by zeros up to `tokens` tokens: the gradient of
+/// [`leading_tokens`]'s input.
+fn pad_tokens(g: &Tensor, tokens: usize) -> candle_core::Result<Tensor> {
+    let (batch, queries, hidden) = g.dims3()?;
+    if queries == tokens {
+        return Ok(g.clone());
+    }
+    let zeros = Tensor::zeros((batch, tokens - queries, hidden), g.dtype(), g.device())?;
+    Tensor::cat(&[g, &zeros], 1)
 }
 
 /// One pre-norm layer: `x + attn(ln1(x))`, then `x + mlp(ln2(x))`.
@@ -174,15 +212,20 @@ struct EncoderLayer {
 }
 
 impl EncoderLayer {
-    fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+    /// The layer's output for the first `queries` tokens of `x` `[batch, tokens, hidden]`:
+    /// every token is a key and a value of the attention, but only those rows go on through
+    /// the residual and the MLP.
+    fn forward(&self, x: &Tensor, mask: Option<&Tensor>, queries: usize) -> Result<Tensor> {
         let x = pre_norm_residual(
             x,
+            queries,
             &self.ln1,
-            |normed| self.attention.value_and_adjoint(normed, mask),
-            |normed| self.attention.forward_with_ops(normed, mask),
+            |normed| self.attention.value_and_adjoint(normed, mask, queries),
+            |normed| self.attention.forward_with_ops(normed, mask, queries),
         )?;
         pre_norm_residual(
             &x,
+            queries,
             &self.ln2,
             |normed| self.mlp.value_and_adjoint(normed),
             |normed| Ok(self.mlp.forward_with_layers(normed)?),
@@ -190,11 +233,13 @@ impl EncoderLayer {
     }
 }
 
-/// `x + inner(norm(x))`. Where the norm and `inner` give their values and input adjoints (f32
+/// `x[:, ..queries] + inner(norm(x))`, where `inner` maps `[batch, tokens, hidden]` to the first
+/// `queries` tokens' rows. Where the norm and `inner` give their values and input adjoints (f32
 /// on the CPU: `fused`), one node of the graph whose input gradient is
-/// `g + norm'(inner'(g))`; elsewhere the norm, `ops` and the sum as nodes in turn.
+/// `pad(g) + norm'(inner'(g))`; elsewhere the norm, `ops` and the sum as nodes in turn.
 fn pre_norm_residual(
     x: &Tensor,
+    queries: usize,
     norm: &LayerNorm,
     fused: impl FnOnce(&Tensor) -> candle_core::Result<Option<(Tensor, InputAdjoint)>>,
     ops: impl FnOnce(&Tensor) -> Result<Tensor>,
@@ -202,13 +247,14 @@ fn pre_norm_residual(
     let input = x.detach().contiguous()?;
     if let Some((normed, norm_adjoint)) = norm.value_and_adjoint(&input)? {
         if let Some((inner, inner_adjoint)) = fused(&normed)? {
-            let value = (&input + inner)?;
+            let tokens = input.dim(1)?;
+            let value = (leading_tokens(&input, queries)? + inner)?;
             return Ok(attach_input_gradient(&value, x, move |g| {
-                g + norm_adjoint(&inner_adjoint(g)?)?
+                pad_tokens(g, tokens)? + norm_adjoint(&inner_adjoint(g)?)?
             })?);
         }
     }
-    Ok((x + ops(&norm.forward(x)?)?)?)
+    Ok((x.narrow(1, 0, queries)? + ops(&norm.forward(x)?)?)?)
 }
 
 /// A stack of encoder layers (`{prefix}.layers.{i}.*` in the checkpoint).
@@ -262,9 +308,25 @@ impl Encoder {
 
     /// Runs all layers on `[batch, tokens, hidden]`.
     pub(crate) fn forward(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+        let tokens = x.dim(1)?;
         self.layers
             .iter()
-            .try_fold(x.clone(), |x, layer| layer.forward(&x, mask))
+            .try_fold(x.clone(), |x, layer| layer.forward(&x, mask, tokens))
+    }
+
+    /// The last layer's output for the first token of `[batch, tokens, hidden]`, `[batch,
+    /// hidden]`: the same value as `forward(x)`'s first token, with the last layer's query,
+    /// output projection and MLP computed for that token alone (a pooled CLS token needs no
+    /// other row, so about a twelfth of ViT-B/32's products is skipped, forward and backward).
+    pub(crate) fn forward_first_token(&self, x: &Tensor, mask: Option<&Tensor>) -> Result<Tensor> {
+        let tokens = x.dim(1)?;
+        let Some((last, first)) = self.layers.split_last() else {
+            return Ok(x.narrow(1, 0, 1)?.squeeze(1)?);
+        };
+        let x = first
+            .iter()
+            .try_fold(x.clone(), |x, layer| layer.forward(&x, mask, tokens))?;
+        Ok(last.forward(&x, mask, 1)?.squeeze(1)?)
     }
 }
 
@@ -282,13 +344,76 @@ mod tests {
         [y, grads.get(var.as_tensor()).unwrap().clone()]
     }
 
-    /// The encoder layer as two nodes (each pre-norm residual block computed outside the graph
-    /// with its adjoint) against the ops in turn, value and gradient: f32 and bf16 weights, with
-    /// and without a causal mask, three heads over a hidden size of 12.
-    #[test]
-    fn the_layer_as_two_nodes_matches_its_ops() {
+    /// Largest `|a - b|` within `tol` of `b`'s largest magnitude (at least 1).
+    fn assert_close(a: &Tensor, b: &Tensor, tol: f32, what: &str) {
+        assert_eq!(a.dims(), b.dims(), "{what}");
+        let max = |t: Tensor| {
+            t.abs()
+                .unwrap()
+                .max_all()
+                .unwrap()
+                .to_scalar::<f32>()
+                .unwrap()
+        };
+        let diff = max((a - b).unwrap());
+        let scale = max(b.clone());
+        assert!(diff <= tol * scale.max(1.0), "{what}: {diff} of {scale}");
+    }
+
+    /// A random layer, its weight matrices in `dtype` and its biases in `bias_dtype` (layer
+    /// norms in f32).
+    fn random_layer(
+        dtype: DType,
+        bias_dtype: DType,
+        hidden: usize,
+        heads: usize,
+        intermediate: usize,
+    ) -> EncoderLayer {
         let device = Device::Cpu;
-        let (batch, tokens, hidden, heads, intermediate) = (2, 5, 12, 3, 20);
+        let norm = || {
+            LayerNorm::new(
+                Tensor::rand(0.5f32, 1.5, hidden, &device).unwrap(),
+                Tensor::rand(-0.5f32, 0.5, hidden, &device).unwrap(),
+                1e-5,
+            )
+            .unwrap()
+        };
+        let linear = |out: usize, inp: usize| {
+            Linear::new(
+                (Tensor::rand(-1f32, 1.0, (out, inp), &device).unwrap() / (inp as f64).sqrt())
+                    .unwrap()
+                    .to_dtype(dtype)
+                    .unwrap(),
+                Some(
+                    Tensor::rand(-0.5f32, 0.5, out, &device)
+                        .unwrap()
+                        .to_dtype(bias_dtype)
+                        .unwrap(),
+                ),
+            )
+            .unwrap()
+        };
+        EncoderLayer {
+            ln1: norm(),
+            attention: Attention {
+                q: linear(hidden, hidden),
+                k: linear(hidden, hidden),
+                v: linear(hidden, hidden),
+                out: linear(hidden, hidden),
+                heads,
+                head_dim: hidden / heads,
+            },
+            ln2: norm(),
+            mlp: Mlp {
+                fc1: linear(intermediate, hidden),
+                fc2: linear(hidden, intermediate),
+                activation: Activation::QuickGelu,
+            },
+        }
+    }
+
+    /// A `[tokens, tokens]` causal mask: 0 on and below the diagonal, -inf above.
+    fn causal_mask(tokens: usize) -> Tensor {
         let causal: Vec<f32> = (0..tokens * tokens)
             .map(|k| {
                 if k % tokens > k / tokens {
@@ -298,89 +423,113 @@ mod tests {
                 }
             })
             .collect();
-        let causal = Tensor::from_vec(causal, (tokens, tokens), &device).unwrap();
-        let norm = || {
-            LayerNorm::new(
-                Tensor::rand(0.5f32, 1.5, hidden, &device).unwrap(),
-                Tensor::rand(-0.5f32, 0.5, hidden, &device).unwrap(),
-                1e-5,
-            )
-            .unwrap()
-        };
+        Tensor::from_vec(causal, (tokens, tokens), &Device::Cpu).unwrap()
+    }
+
+    /// The encoder layer as two nodes (each pre-norm residual block computed outside the graph
+    /// with its adjoint) against the ops in turn, and both for the first 1 or 2 tokens against
+    /// the whole layer's first rows, value and gradient: f32 and bf16 weights, with and without
+    /// a causal mask, three heads over a hidden size of 12.
+    #[test]
+    fn the_layer_as_two_nodes_matches_its_ops() {
+        let device = Device::Cpu;
+        let (batch, tokens, hidden, heads, intermediate) = (2, 5, 12, 3, 20);
+        let causal = causal_mask(tokens);
         for dtype in [DType::F32, DType::BF16] {
-            let linear = |out: usize, inp: usize| {
-                Linear::new(
-                    (Tensor::rand(-1f32, 1.0, (out, inp), &device).unwrap() / (inp as f64).sqrt())
-                        .unwrap()
-                        .to_dtype(dtype)
-                        .unwrap(),
-                    Some(Tensor::rand(-0.5f32, 0.5, out, &device).unwrap()),
-                )
-                .unwrap()
-            };
-            let layer = EncoderLayer {
-                ln1: norm(),
-                attention: Attention {
-                    q: linear(hidden, hidden),
-                    k: linear(hidden, hidden),
-                    v: linear(hidden, hidden),
-                    out: linear(hidden, hidden),
-                    heads,
-                    head_dim: hidden / heads,
-                },
-                ln2: norm(),
-                mlp: Mlp {
-                    fc1: linear(intermediate, hidden),
-                    fc2: linear(hidden, intermediate),
-                    activation: Activation::QuickGelu,
-                },
-            };
+            let layer = random_layer(dtype, DType::F32, hidden, heads, intermediate);
             let x = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device).unwrap();
-            let probe = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device).unwrap();
-            for mask in [None, Some(&causal)] {
-                // The fused path is the one taken.
-                let normed = layer.ln1.forward(&x).unwrap();
-                assert!(layer
-                    .attention
-                    .value_and_adjoint(&normed, mask)
-                    .unwrap()
-                    .is_some());
-                assert!(layer.mlp.value_and_adjoint(&normed).unwrap().is_some());
-                let two_nodes = value_and_grad(&x, &probe, |x| layer.forward(x, mask).unwrap());
-                let ops = value_and_grad(&x, &probe, |x| {
-                    let attended = layer
+            for queries in [tokens, 1, 2] {
+                let probe = Tensor::rand(-1f32, 1.0, (batch, queries, hidden), &device).unwrap();
+                for mask in [None, Some(&causal)] {
+                    let what = format!("{dtype:?}, {queries} queries, mask {}", mask.is_some());
+                    // The fused path is the one taken.
+                    let normed = layer.ln1.forward(&x).unwrap();
+                    assert!(layer
                         .attention
-                        .forward_with_ops(&layer.ln1.forward_with_ops(x).unwrap(), mask)
-                        .unwrap();
-                    let x = (x + attended).unwrap();
-                    let fed = layer
-                        .mlp
-                        .forward_with_layers(&layer.ln2.forward_with_ops(&x).unwrap())
-                        .unwrap();
-                    (x + fed).unwrap()
-                });
-                for (a, b) in two_nodes.iter().zip(&ops) {
-                    let diff = (a - b)
+                        .value_and_adjoint(&normed, mask, queries)
                         .unwrap()
-                        .abs()
-                        .unwrap()
-                        .max_all()
-                        .unwrap()
-                        .to_scalar::<f32>()
-                        .unwrap();
-                    let scale = b
-                        .abs()
-                        .unwrap()
-                        .max_all()
-                        .unwrap()
-                        .to_scalar::<f32>()
-                        .unwrap();
-                    assert!(
-                        diff <= 1e-5 * scale.max(1.0),
-                        "{dtype:?}, mask {}: {diff} of {scale}",
-                        mask.is_some()
-                    );
+                        .is_some());
+                    assert!(layer.mlp.value_and_adjoint(&normed).unwrap().is_some());
+                    let two_nodes =
+                        value_and_grad(&x, &probe, |x| layer.forward(x, mask, queries).unwrap());
+                    let ops = value_and_grad(&x, &probe, |x| {
+                        let attended = layer
+                            .attention
+                            .forward_with_ops(
+                                &layer.ln1.forward_with_ops(x).unwrap(),
+                                mask,
+                                queries,
+                            )
+                            .unwrap();
+                        let x = (x.narrow(1, 0, queries).unwrap() + attended).unwrap();
+                        let fed = layer
+                            .mlp
+                            .forward_with_layers(&layer.ln2.forward_with_ops(&x).unwrap())
+                            .unwrap();
+                        (x + fed).unwrap()
+                    });
+                    let whole = value_and_grad(&x, &probe, |x| {
+                        layer
+                            .forward(x, mask, tokens)
+                            .unwrap()
+                            .narrow(1, 0, queries)
+                            .unwrap()
+                    });
+                    for (k, name) in ["value", "gradient"].iter().enumerate() {
+                        assert_close(&two_nodes[k], &ops[k], 1e-5, &format!("{what}, {name}"));
+                        assert_close(&two_nodes[k], &whole[k], 1e-5, &format!("{what}, {name}"));
+                    }
                 }
+            }
+        }
+    }
+
+    /// The encoder's first token computed alone in the last layer against the whole encoder's
+    /// first token, value and gradient, on the fused path (f32) and the ops' (f64, which every
+    /// device and format but the CPU's f32 takes), with and without a causal mask; the gradient
+    /// reaches every token of the input but under the mask.
+    #[test]
+    fn the_first_token_alone_matches_the_whole_encoders() {
+        let device = Device::Cpu;
+        let (batch, tokens, hidden, heads, intermediate) = (3, 6, 12, 3, 20);
+        let causal = causal_mask(tokens);
+        for dtype in [DType::F32, DType::F64] {
+            let encoder = Encoder {
+                layers: (0..3)
+                    .map(|_| random_layer(dtype, dtype, hidden, heads, intermediate))
+                    .collect(),
+            };
+            let x = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device)
+                .unwrap()
+                .to_dtype(dtype)
+                .unwrap();
+            let probe = Tensor::rand(-1f32, 1.0, (batch, hidden), &device)
+                .unwrap()
+                .to_dtype(dtype)
+                .unwrap();
+            for mask in [None, Some(&causal)] {
+                let what = format!("{dtype:?}, mask {}", mask.is_some());
+                let f32_of = |t: &Tensor| t.to_dtype(DType::F32).unwrap();
+                let alone = value_and_grad(&x, &probe, |x| {
+                    encoder.forward_first_token(x, mask).unwrap()
+                });
+                let whole = value_and_grad(&x, &probe, |x| {
+                    let y = encoder.forward(x, mask).unwrap();
+                    y.narrow(1, 0, 1).unwrap().squeeze(1).unwrap()
+                });
+                for k in 0..2 {
+                    assert_close(&f32_of(&alone[k]), &f32_of(&whole[k]), 1e-5, &what);
+                }
+                // Under the causal mask the first token sees only itself: the other tokens'
+                // gradients are zero there and not elsewhere.
+                let rest = f32_of(&alone[1].narrow(1, 1, tokens - 1).unwrap())
+                    .abs()
+                    .unwrap()
+                    .max_all()
+                    .unwrap()
+                    .to_scalar::<f32>()
+                    .unwrap();
+                assert_eq!(rest == 0.0, mask.is_some(), "{what}: {rest}");
             }
         }
     }

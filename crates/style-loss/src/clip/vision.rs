@@ -110,8 +110,7 @@ impl VisionTower {
         let x =
             Tensor::cat(&[&class, &patch_embeds], 1)?.broadcast_add(&self.position_embedding)?;
         let x = self.pre_layernorm.forward(&x)?;
-        let x = self.encoder.forward(&x, None)?;
-        let pooled = x.narrow(1, 0, 1)?.squeeze(1)?;
+        let pooled = self.encoder.forward_first_token(&x, None)?;
         Ok(self.post_layernorm.forward(&pooled)?)
     }
 }
