@@ -54,6 +54,8 @@ pub mod style_direction;
 pub mod templates;
 pub mod tensor_file;
 pub mod terms;
+#[cfg(test)]
+mod test_grad;
 #[cfg(feature = "test-models")]
 pub mod test_models;
 pub mod tokenizer;

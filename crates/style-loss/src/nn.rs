@@ -278,31 +278,14 @@ impl Activation {
 
 #[cfg(test)]
 mod fused_tests {
-    use candle_core::{Device, Tensor, Var};
+    use candle_core::{Device, Tensor};
+
+    use crate::test_grad::{max_abs, value_and_grad};
 
     use super::*;
 
-    /// `f(x)` and `d sum(f(x) * probe) / dx`.
-    fn value_and_grad(
-        x: &Tensor,
-        probe: &Tensor,
-        f: impl Fn(&Tensor) -> Tensor,
-    ) -> (Tensor, Tensor) {
-        let var = Var::from_tensor(x).unwrap();
-        let y = f(var.as_tensor());
-        let grads = (&y * probe).unwrap().sum_all().unwrap().backward().unwrap();
-        (y, grads.get(var.as_tensor()).unwrap().clone())
-    }
-
     fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
-        (a - b)
-            .unwrap()
-            .abs()
-            .unwrap()
-            .max_all()
-            .unwrap()
-            .to_scalar::<f32>()
-            .unwrap()
+        max_abs(&(a - b).unwrap())
     }
 
     /// The fused CPU kernel against the candle ops, value and gradient, on rows of `len`
@@ -321,15 +304,7 @@ mod fused_tests {
         let probe = Tensor::rand(-1f32, 1f32, (5, 6, len), &device).unwrap();
         let (y_fused, g_fused) = value_and_grad(&x, &probe, &fused);
         let (y_ops, g_ops) = value_and_grad(&x, &probe, &ops);
-        let scale = |t: &Tensor| {
-            t.abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-                .max(1.0)
-        };
+        let scale = |t: &Tensor| max_abs(t).max(1.0);
         assert!(
             max_abs_diff(&y_fused, &y_ops) <= 2e-6 * scale(&y_ops),
             "value"

@@ -332,31 +332,23 @@ impl Encoder {
 
 #[cfg(test)]
 mod tests {
-    use candle_core::{DType, Device, Tensor, Var};
+    use candle_core::{DType, Device, Tensor};
+
+    use crate::test_grad::max_abs;
 
     use super::*;
 
-    /// `f(x)` and `d sum(f(x) * probe) / dx`.
+    /// `f(x)` and `d sum(f(x) * probe) / dx`, as an array.
     fn value_and_grad(x: &Tensor, probe: &Tensor, f: impl Fn(&Tensor) -> Tensor) -> [Tensor; 2] {
-        let var = Var::from_tensor(x).unwrap();
-        let y = f(var.as_tensor());
-        let grads = (&y * probe).unwrap().sum_all().unwrap().backward().unwrap();
-        [y, grads.get(var.as_tensor()).unwrap().clone()]
+        let (y, g) = crate::test_grad::value_and_grad(x, probe, f);
+        [y, g]
     }
 
     /// Largest `|a - b|` within `tol` of `b`'s largest magnitude (at least 1).
     fn assert_close(a: &Tensor, b: &Tensor, tol: f32, what: &str) {
         assert_eq!(a.dims(), b.dims(), "{what}");
-        let max = |t: Tensor| {
-            t.abs()
-                .unwrap()
-                .max_all()
-                .unwrap()
-                .to_scalar::<f32>()
-                .unwrap()
-        };
-        let diff = max((a - b).unwrap());
-        let scale = max(b.clone());
+        let diff = max_abs(&(a - b).unwrap());
+        let scale = max_abs(b);
         assert!(diff <= tol * scale.max(1.0), "{what}: {diff} of {scale}");
     }
 
@@ -522,13 +514,7 @@ mod tests {
                 }
                 // Under the causal mask the first token sees only itself: the other tokens'
                 // gradients are zero there and not elsewhere.
-                let rest = f32_of(&alone[1].narrow(1, 1, tokens - 1).unwrap())
-                    .abs()
-                    .unwrap()
-                    .max_all()
-                    .unwrap()
-                    .to_scalar::<f32>()
-                    .unwrap();
+                let rest = max_abs(&f32_of(&alone[1].narrow(1, 1, tokens - 1).unwrap()));
                 assert_eq!(rest == 0.0, mask.is_some(), "{what}: {rest}");
             }
         }
