@@ -17,9 +17,8 @@
 //! (VGG's layers of 64 channels and more in and out take Winograd's F(4x4, 3x3) in f64 for
 //! this instead, with the same outputs: `conv3x3_winograd_exact`; here, the first layer's 3
 //! input channels.)
-//! A forward without gradient (the ground truth's features: its decisions route nothing, they
-//! move values by a rounding) and the backward (the adjoint on the gradient, which decides
-//! nothing) stay in f32.
+//! The ground truth's features take the same exact forward (equal pictures give equal
+//! features); the backward (the adjoint on the gradient, which decides nothing) stays in f32.
 #![allow(unsafe_code)]
 
 use rayon::prelude::*;

@@ -94,8 +94,8 @@ pub(crate) struct ConvReluChannelsLast {
     bf16_backward: bool,
     /// On a layer of [`KernelWidths::exact_winograd`] channels or more with an f32 backward, the
     /// kernel of the exact forward by Winograd's F(4x4, 3x3) in f64, built from `kernel` on the
-    /// first forward with a gradient (9 times the f32 weights' memory, and a copy of them: about
-    /// 550 MB for VGG-19 to conv5_2, spent only by runs that take it).
+    /// first forward (9 times the f32 weights' memory, and a copy of them: about 550 MB for
+    /// VGG-19 to conv5_2, spent only by runs that take it).
     exact_forward: Option<Arc<OnceLock<Kernel>>>,
 }
 
@@ -147,13 +147,15 @@ impl ConvReluChannelsLast {
 
     /// `relu(conv(x) + bias)` of `x` `[n, h, w, cin]`. The input gradient is the adjoint
     /// convolution of the upstream gradient where the output is not `<= 0` (PyTorch's ReLU:
-    /// 0 at an exact 0). When a gradient is taken through `x` and the backward is f32, each ReLU
-    /// decides as the exact sum ([`Epilogue::ExactBiasRelu`]); else as the f32 sum (a bf16
-    /// backward's error is larger than the decisions the exact sums change).
+    /// 0 at an exact 0). With an f32 backward each output is the exact sum rounded once and its
+    /// ReLU decides as the exact sum ([`Epilogue::ExactBiasRelu`], or the exact Winograd
+    /// kernel), with or without a gradient through `x`: the ground truth's features are the
+    /// same function as the render's, so equal pictures give equal features. With a bf16
+    /// backward, as the f32 sum (its error is larger than the decisions the exact sums change).
     pub(crate) fn forward(&self, x: &Tensor, scratch: &Scratch) -> candle_core::Result<Tensor> {
-        let exact = x.track_op() && !self.bf16_backward;
+        let exact = !self.bf16_backward;
         let kernel = match (&self.exact_forward, &self.kernel) {
-            (Some(cell), Kernel::F32(packed)) if exact => cell
+            (Some(cell), Kernel::F32(packed)) => cell
                 .get_or_init(|| {
                     let (cin, cout) = (packed.cin(), packed.cout());
                     let taps = packed.taps();
@@ -416,6 +418,59 @@ mod tests {
             rounded_apart * 1000 <= got.len(),
             "{rounded_apart} outputs off by an ulp"
         );
+    }
+
+    /// A forward without gradient gives the forward with a gradient's outputs bit for bit,
+    /// before and after the exact kernel is built and through a clone of the layer (the ground
+    /// truth's features and the render's share the kernel), on a layer of the exact Winograd
+    /// forward and on a 3-channel one; the direct f32 sums (what it took before) differ.
+    #[test]
+    fn a_forward_without_gradient_is_the_forward_with_one() {
+        let dev = Device::Cpu;
+        let (h, w) = (6, 9);
+        for (cin, cout) in [(MEASURED.exact_winograd, MEASURED.exact_winograd), (3, 16)] {
+            let weight: Vec<f32> = values(cout * cin * 9, 31)
+                .iter()
+                .map(|v| v / (3 * cin) as f32)
+                .collect();
+            let weight = Tensor::from_vec(weight, (cout, cin, 3, 3), &dev).unwrap();
+            let bias = Tensor::from_vec(values(cout, 32), cout, &dev).unwrap();
+            let layer = ConvReluChannelsLast::new(&weight, &bias, false, MEASURED).unwrap();
+            let clone = layer.clone();
+            let scratch = Scratch::default();
+            let x = Tensor::from_vec(values(h * w * cin, 33), (1, h, w, cin), &dev).unwrap();
+            let outputs = |t: Tensor| t.flatten_all().unwrap().to_vec1::<f32>().unwrap();
+            let before = outputs(clone.forward(&x, &scratch).unwrap());
+            let var = Var::from_tensor(&x).unwrap();
+            let with_gradient = outputs(layer.forward(var.as_tensor(), &scratch).unwrap());
+            let after = outputs(clone.forward(&x, &scratch).unwrap());
+            let apart = |v: &[f32]| {
+                v.iter()
+                    .zip(&with_gradient)
+                    .filter(|(a, e)| a.to_bits() != e.to_bits())
+                    .count()
+            };
+            let what = format!("{cin}->{cout}, of {} outputs", with_gradient.len());
+            assert_eq!(apart(&before), 0, "before: {what}");
+            assert_eq!(apart(&after), 0, "after: {what}");
+            let packed = PackedKernel::forward(
+                &weight.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                cout,
+                cin,
+            );
+            let direct = conv3x3(
+                &x.flatten_all().unwrap().to_vec1::<f32>().unwrap(),
+                ImageShape { images: 1, h, w },
+                &packed,
+                None,
+                Epilogue::BiasRelu(&bias.to_vec1::<f32>().unwrap()),
+                &mut Vec::new(),
+            );
+            assert!(
+                apart(&direct) > 0,
+                "{what}: the f32 sums round as the exact ones"
+            );
+        }
     }
 
     /// Layers wide enough for Winograd's products (and, with a bf16 backward, bf16 ones), one
