@@ -78,9 +78,9 @@ pub fn auto_takes_bf16(device: &Device) -> bool {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum VggPrecision {
-    /// f32 products; with a gradient, the forward sums are exact before the ReLU decides, as
-    /// the f32 PyTorch network decides; the backward on the layers of 256 channels and more by
-    /// Winograd's F(2x2, 3x3) (the default).
+    /// f32 products; on the CPU the forward sums (the render's and the ground truth's alike)
+    /// are exact before the ReLU decides, as the f32 PyTorch network decides; the backward on
+    /// the layers of 256 channels and more by Winograd's F(2x2, 3x3) (the default).
     #[default]
     F32,
     /// On the layers of 256 channels and more, the backward's products (the adjoint

@@ -51,10 +51,10 @@ fn pooled_with_nans(x: &Tensor) -> candle_core::Result<Tensor> {
 }
 
 /// [`route_to_first_maximum`] with candle's pooling, upsampling and elementwise kernels, on any
-/// device, given `pooled`, the forward's [`pooled_with_nans`] of `x`. Each element of a window gets a rank, the highest for the element PyTorch picks:
-/// among the elements equal to the window's maximum, 4, 3, 2, 1 in row-major order; in a window
-/// holding a NaN, among its NaNs, 1, 2, 3, 4. The window's gradient goes where the rank equals
-/// the window's largest rank.
+/// device, given `pooled`, the forward's [`pooled_with_nans`] of `x`. Each element of a window
+/// gets a rank, the highest for the element PyTorch picks: among the elements equal to the
+/// window's maximum, 4, 3, 2, 1 in row-major order; in a window holding a NaN, among its NaNs,
+/// 1, 2, 3, 4. The window's gradient goes where the rank equals the window's largest rank.
 fn route_with_tensor_ops(x: &Tensor, pooled: &Tensor, g: &Tensor) -> candle_core::Result<Tensor> {
     let (_, _, h, w) = x.dims4()?;
     let x = even_sides(x)?;

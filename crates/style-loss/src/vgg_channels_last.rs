@@ -81,10 +81,10 @@ impl Kernel {
     }
 }
 
-/// A 3x3 convolution, padding 1, then ReLU, on channels-last f32 CPU tensors. Its forward
-/// products are f32 (direct, or Winograd's on wide layers with a bf16 backward); its backward
-/// products (the adjoint on the gradient) f32 (direct, or Winograd's on wide layers) or, on
-/// wide layers with a bf16 backward, bf16.
+/// A 3x3 convolution, padding 1, then ReLU, on channels-last f32 CPU tensors. Its forward sums
+/// are exact (f64, rounded once) with an f32 backward, f32 (direct, or Winograd's on wide
+/// layers) with a bf16 one; its backward products (the adjoint on the gradient) f32 (direct,
+/// or Winograd's on wide layers) or, on wide layers with a bf16 backward, bf16.
 #[derive(Clone, Debug)]
 pub(crate) struct ConvReluChannelsLast {
     kernel: Kernel,
@@ -106,7 +106,7 @@ impl ConvReluChannelsLast {
     /// multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's); with
     /// an f32 backward, the backward runs by Winograd's F(2x2, 3x3) in f32 (it decides
     /// nothing). Narrower layers take the direct f32 convolution both ways. With an f32
-    /// backward, a forward with a gradient gives the direct f64 sums rounded once: by
+    /// backward, every forward gives the direct f64 sums rounded once: by
     /// Winograd's F(4x4, 3x3) in f64, its bound checked, from `widths.exact_winograd`
     /// channels, directly on narrower layers.
     ///
