@@ -280,13 +280,9 @@ impl Activation {
 mod fused_tests {
     use candle_core::{Device, Tensor};
 
-    use crate::test_grad::{max_abs, value_and_grad};
+    use crate::test_grad::{assert_close, value_and_grad};
 
     use super::*;
-
-    fn max_abs_diff(a: &Tensor, b: &Tensor) -> f32 {
-        max_abs(&(a - b).unwrap())
-    }
 
     /// The fused CPU kernel against the candle ops, value and gradient, on rows of `len`
     /// values drawn in `[-range, range]` (a strided view as input, as the encoder passes).
@@ -304,16 +300,8 @@ mod fused_tests {
         let probe = Tensor::rand(-1f32, 1f32, (5, 6, len), &device).unwrap();
         let (y_fused, g_fused) = value_and_grad(&x, &probe, &fused);
         let (y_ops, g_ops) = value_and_grad(&x, &probe, &ops);
-        let scale = |t: &Tensor| max_abs(t).max(1.0);
-        assert!(
-            max_abs_diff(&y_fused, &y_ops) <= 2e-6 * scale(&y_ops),
-            "value"
-        );
-        assert!(
-            max_abs_diff(&g_fused, &g_ops) <= 2e-5 * scale(&g_ops),
-            "gradient {}",
-            max_abs_diff(&g_fused, &g_ops)
-        );
+        assert_close(&y_fused, &y_ops, 2e-6, "value");
+        assert_close(&g_fused, &g_ops, 2e-5, "gradient");
     }
 
     #[test]

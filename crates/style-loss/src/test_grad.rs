@@ -23,3 +23,11 @@ pub(crate) fn max_abs(t: &Tensor) -> f32 {
         .to_scalar::<f32>()
         .unwrap()
 }
+
+/// Asserts the largest `|a - b|` is within `tol` of `b`'s largest magnitude (at least 1).
+pub(crate) fn assert_close(a: &Tensor, b: &Tensor, tol: f32, what: &str) {
+    assert_eq!(a.dims(), b.dims(), "{what}");
+    let diff = max_abs(&(a - b).unwrap());
+    let scale = max_abs(b);
+    assert!(diff <= tol * scale.max(1.0), "{what}: {diff} of {scale}");
+}

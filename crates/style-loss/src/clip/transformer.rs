@@ -334,7 +334,7 @@ impl Encoder {
 mod tests {
     use candle_core::{DType, Device, Tensor};
 
-    use crate::test_grad::max_abs;
+    use crate::test_grad::{assert_close, max_abs};
 
     use super::*;
 
@@ -342,14 +342,6 @@ mod tests {
     fn value_and_grad(x: &Tensor, probe: &Tensor, f: impl Fn(&Tensor) -> Tensor) -> [Tensor; 2] {
         let (y, g) = crate::test_grad::value_and_grad(x, probe, f);
         [y, g]
-    }
-
-    /// Largest `|a - b|` within `tol` of `b`'s largest magnitude (at least 1).
-    fn assert_close(a: &Tensor, b: &Tensor, tol: f32, what: &str) {
-        assert_eq!(a.dims(), b.dims(), "{what}");
-        let diff = max_abs(&(a - b).unwrap());
-        let scale = max_abs(b);
-        assert!(diff <= tol * scale.max(1.0), "{what}: {diff} of {scale}");
     }
 
     /// A random layer, its weight matrices in `dtype` and its biases in `bias_dtype` (layer
