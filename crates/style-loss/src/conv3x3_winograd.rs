@@ -262,10 +262,54 @@ impl<const A: usize> ExactWinogradKernel<A> {
     }
 }
 
-/// Blocks (`m x m` outputs each) per band: the band's transformed input and products take
-/// about 4M values each.
-fn band_block_rows(blocks_x: usize, channels: usize, tile_values: usize) -> usize {
-    (4_000_000 / (tile_values * blocks_x * channels).max(1)).max(1)
+/// How [`winograd`] spreads a convolution over the threads: by its transformed kernel's size.
+///
+/// A kernel that stays in the last-level cache runs bands of a few block rows in parallel,
+/// each on one thread from its input transform through its products to its outputs, so that a
+/// band's transformed input and products stay in the core's caches between the three passes.
+/// A larger kernel (VGG's 256- and 512-channel layers in f64, its 512-channel ones in f32) runs
+/// the bands one after another, each product split over the threads, so that the kernel is read
+/// from memory once per band rather than once per band and thread. Timed layer by layer on a
+/// 2-core Zen 3 (docs/benchmarks.md, 2026-11-29): parallel bands took 384x384 64->64 from
+/// 175 to 98 ms in f64 F(4x4, 3x3) and from 110 to 65 ms in f32 F(2x2, 3x3), and 192x192
+/// 128->128 from 115 to 68 ms in f64; sequential bands stayed faster from 256 channels in f64
+/// (19 MB) and 512 in f32 (17 MB).
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Schedule {
+    /// Bands of `rows` block rows, one thread each, in parallel.
+    ParallelBands { rows: usize },
+    /// Bands of `rows` block rows in turn, each product split over the threads.
+    SequentialBands { rows: usize },
+}
+
+/// The largest transformed kernel (bytes) whose convolution runs in [`Schedule::ParallelBands`].
+const PARALLEL_BANDS_MAX_KERNEL_BYTES: usize = 8 << 20;
+
+/// Bytes of one parallel band's transformed input and products together (at least one block
+/// row): about a core's share of the last-level cache.
+const PARALLEL_BAND_BYTES: usize = 4 << 20;
+
+/// Values of one sequential band's transformed input, and of its products (about 4M each).
+const SEQUENTIAL_BAND_VALUES: usize = 4_000_000;
+
+impl Schedule {
+    /// The schedule of `kernel` on images `w` wide.
+    fn of<T, const A: usize>(kernel: &WinogradKernel<T, A>, w: usize) -> Self {
+        let (cin, cout) = (kernel.cin, kernel.cout);
+        let value_bytes = std::mem::size_of::<T>();
+        let kernel_bytes = kernel.data.len() * value_bytes;
+        let row_values = (A * A * w.div_ceil(outputs_per_side(A))).max(1);
+        if kernel_bytes <= PARALLEL_BANDS_MAX_KERNEL_BYTES {
+            let row_bytes = row_values * (cin + cout) * value_bytes;
+            Self::ParallelBands {
+                rows: (PARALLEL_BAND_BYTES / row_bytes.max(1)).max(1),
+            }
+        } else {
+            Self::SequentialBands {
+                rows: (SEQUENTIAL_BAND_VALUES / (row_values * cin.max(cout)).max(1)).max(1),
+            }
+        }
+    }
 }
 
 /// `conv(input)` of `input` `[images, h, w, kernel.cin()]`; returns
@@ -280,7 +324,8 @@ pub(crate) fn conv3x3_winograd<T: WinogradReal, const A: usize>(
     input_gate: Option<&[f32]>,
     bias_relu: Option<&[f32]>,
 ) -> Vec<f32> {
-    winograd(input, shape, kernel, input_gate, bias_relu, None)
+    let schedule = Schedule::of(kernel, shape.2);
+    winograd(input, shape, kernel, input_gate, bias_relu, None, schedule)
 }
 
 /// `relu(conv(input) + bias)` of `input` `[images, h, w, kernel.cin()]` by Winograd's algorithm
@@ -298,6 +343,7 @@ pub(crate) fn conv3x3_winograd_exact<const A: usize>(
     kernel: &ExactWinogradKernel<A>,
     bias: &[f32],
 ) -> Vec<f32> {
+    let schedule = Schedule::of(&kernel.winograd, shape.2);
     winograd(
         input,
         shape,
@@ -305,11 +351,106 @@ pub(crate) fn conv3x3_winograd_exact<const A: usize>(
         None,
         Some(bias),
         Some(kernel),
+        schedule,
     )
 }
 
+/// One image's convolution as [`winograd`] runs it band by band.
+struct ImageConv<'a, T, const A: usize> {
+    /// The image, `[h, w, cin]`.
+    src: &'a [f32],
+    /// The input's gate (a backward's ReLU mask), as `src`.
+    gate: Option<&'a [f32]>,
+    /// `(h, w)` of the image.
+    size: (usize, usize),
+    kernel: &'a WinogradKernel<T, A>,
+    /// The bias, added before a ReLU.
+    bias_relu: Option<&'a [f32]>,
+    /// With the exact forward: each block's largest `|input|` ([`tile_max_abs`]), per output
+    /// channel the error per unit of it, and the error the bias adds.
+    bounds: Option<Bounds<'a>>,
+}
+
+impl<T: WinogradReal, const A: usize> ImageConv<'_, T, A> {
+    /// Block rows `by0..by0 + rows` into `dst` (their output rows, `[.., w, cout]`), through
+    /// the scratch buffers `transformed` and `products`; with `parallel`, the transforms and
+    /// products split over the threads. Returns the outputs the exact forward's bound leaves
+    /// open (indices into `dst`).
+    fn band(
+        &self,
+        (by0, rows): (usize, usize),
+        dst: &mut [f32],
+        (transformed, products): (&mut Vec<T>, &mut Vec<T>),
+        parallel: bool,
+    ) -> Vec<usize> {
+        let ((h, w), (cin, cout)) = (self.size, (self.kernel.cin, self.kernel.cout));
+        let blocks_x = w.div_ceil(outputs_per_side(A));
+        let blocks = rows * blocks_x;
+        // Every value is written before it is read: no clearing between bands.
+        transformed.resize(A * A * blocks * cin, T::default());
+        transform_input::<T, A>(
+            self.src,
+            self.gate,
+            (h, w, cin),
+            (by0, rows, blocks_x),
+            transformed,
+            parallel,
+        );
+        products.resize(A * A * blocks * cout, T::default());
+        let parallelism = if parallel {
+            gemm::Parallelism::Rayon(0)
+        } else {
+            gemm::Parallelism::None
+        };
+        for xi in 0..A * A {
+            let lhs = &transformed[xi * blocks * cin..(xi + 1) * blocks * cin];
+            let rhs = &self.kernel.data[xi * cin * cout..(xi + 1) * cin * cout];
+            let prod = &mut products[xi * blocks * cout..(xi + 1) * blocks * cout];
+            // SAFETY: `prod` is `blocks x cout`, `lhs` `blocks x cin` and `rhs` `cin x cout`,
+            // each row-major with unit column stride and exactly its slice's length; `prod` is
+            // a buffer of its own, apart from the two operands.
+            unsafe {
+                gemm::gemm(
+                    blocks,
+                    cout,
+                    cin,
+                    prod.as_mut_ptr(),
+                    1,
+                    cout as isize,
+                    false,
+                    lhs.as_ptr(),
+                    1,
+                    cin as isize,
+                    rhs.as_ptr(),
+                    1,
+                    cout as isize,
+                    T::default(),
+                    T::from_f32(1.0),
+                    false,
+                    false,
+                    false,
+                    parallelism,
+                );
+            }
+        }
+        let bounds = self.bounds.map(|b| Bounds {
+            tile_max: &b.tile_max[by0 * blocks_x..(by0 + rows) * blocks_x],
+            ..b
+        });
+        transform_output::<T, A>(
+            products,
+            dst,
+            (w, cout),
+            (rows, blocks_x),
+            self.bias_relu,
+            bounds,
+            parallel,
+        )
+    }
+}
+
 /// [`conv3x3_winograd`], and [`conv3x3_winograd_exact`] with `exact` (then `bias_relu` is the
-/// bias and there is no gate).
+/// bias and there is no gate), run in `schedule`.
 fn winograd<T: WinogradReal, const A: usize>(
     input: &[f32],
     (images, h, w): (usize, usize, usize),
@@ -317,6 +458,7 @@ fn winograd<T: WinogradReal, const A: usize>(
     input_gate: Option<&[f32]>,
     bias_relu: Option<&[f32]>,
     exact: Option<&ExactWinogradKernel<A>>,
+    schedule: Schedule,
 ) -> Vec<f32> {
     let (cin, cout) = (kernel.cin, kernel.cout);
     assert_eq!(input.len(), images * h * w * cin, "winograd: input size");
@@ -329,11 +471,9 @@ fn winograd<T: WinogradReal, const A: usize>(
         "winograd: bias size"
     );
     let m = outputs_per_side(A);
-    let (blocks_y, blocks_x) = (h.div_ceil(m), w.div_ceil(m));
-    let band = band_block_rows(blocks_x, cin.max(cout), A * A);
+    let blocks_y = h.div_ceil(m);
     let mut out = vec![0f32; images * h * w * cout];
-    let mut transformed = Vec::new();
-    let mut products = Vec::new();
+    let (mut transformed, mut products) = (Vec::new(), Vec::new());
     // Per output channel, the part of the error bound the bias adds.
     let bias_tolerance: Vec<f64> = match (exact, bias_relu) {
         (Some(_), Some(bias)) => bias
@@ -344,73 +484,55 @@ fn winograd<T: WinogradReal, const A: usize>(
     };
     for image in 0..images {
         let src = &input[image * h * w * cin..(image + 1) * h * w * cin];
-        let gate = input_gate.map(|g| &g[image * h * w * cin..(image + 1) * h * w * cin]);
         let dst = &mut out[image * h * w * cout..(image + 1) * h * w * cout];
         let tile_max = exact.map(|_| tile_max_abs::<A>(src, (h, w, cin)));
-        let mut uncertain = Vec::new();
-        for by0 in (0..blocks_y).step_by(band) {
-            let rows = band.min(blocks_y - by0);
-            let blocks = rows * blocks_x;
-            // Every value is written before it is read: no clearing between bands.
-            transformed.resize(A * A * blocks * cin, T::default());
-            transform_input::<T, A>(
-                src,
-                gate,
-                (h, w, cin),
-                by0,
-                rows,
-                blocks_x,
-                &mut transformed,
-            );
-            products.resize(A * A * blocks * cout, T::default());
-            for xi in 0..A * A {
-                let lhs = &transformed[xi * blocks * cin..(xi + 1) * blocks * cin];
-                let rhs = &kernel.data[xi * cin * cout..(xi + 1) * cin * cout];
-                let prod = &mut products[xi * blocks * cout..(xi + 1) * blocks * cout];
-                // SAFETY: `prod` is `blocks x cout`, `lhs` `blocks x cin` and `rhs` `cin x cout`,
-                // each row-major with unit column stride and exactly its slice's length; `prod`
-                // is a buffer of its own, apart from the two operands.
-                unsafe {
-                    gemm::gemm(
-                        blocks,
-                        cout,
-                        cin,
-                        prod.as_mut_ptr(),
-                        1,
-                        cout as isize,
-                        false,
-                        lhs.as_ptr(),
-                        1,
-                        cin as isize,
-                        rhs.as_ptr(),
-                        1,
-                        cout as isize,
-                        T::default(),
-                        T::from_f32(1.0),
-                        false,
-                        false,
-                        false,
-                        gemm::Parallelism::Rayon(0),
-                    );
-                }
-            }
-            let bounds = match (exact, &tile_max) {
-                (Some(exact), Some(tile_max)) => Some(Bounds {
-                    tile_max: &tile_max[by0 * blocks_x..(by0 + rows) * blocks_x],
+        let conv = ImageConv {
+            src,
+            gate: input_gate.map(|g| &g[image * h * w * cin..(image + 1) * h * w * cin]),
+            size: (h, w),
+            kernel,
+            bias_relu,
+            bounds: exact
+                .zip(tile_max.as_deref())
+                .map(|(exact, tile_max)| Bounds {
+                    tile_max,
                     tolerance: &exact.tolerance,
                     bias_tolerance: &bias_tolerance,
                 }),
-                _ => None,
-            };
-            uncertain.extend(transform_output::<T, A>(
-                &products,
-                dst,
-                (h, w, cout),
-                (by0, rows, blocks_x),
-                bias_relu,
-                bounds,
-            ));
-        }
+        };
+        // A band's outputs: its block rows' output rows (fewer at the image's last).
+        let uncertain: Vec<usize> = match schedule {
+            Schedule::ParallelBands { rows } => {
+                let band_values = (rows * m * w * cout).max(1);
+                dst.par_chunks_mut(band_values)
+                    .enumerate()
+                    .map_init(
+                        || (Vec::new(), Vec::new()),
+                        |(transformed, products), (k, band_dst)| {
+                            let by0 = k * rows;
+                            let band = (by0, rows.min(blocks_y - by0));
+                            conv.band(band, band_dst, (transformed, products), false)
+                                .into_iter()
+                                .map(|at| k * band_values + at)
+                                .collect::<Vec<_>>()
+                        },
+                    )
+                    .flatten_iter()
+                    .collect()
+            }
+            Schedule::SequentialBands { rows } => {
+                let band_values = (rows * m * w * cout).max(1);
+                let mut uncertain = Vec::new();
+                for (k, band_dst) in dst.chunks_mut(band_values).enumerate() {
+                    let by0 = k * rows;
+                    let band = (by0, rows.min(blocks_y - by0));
+                    let buffers = (&mut transformed, &mut products);
+                    let open = conv.band(band, band_dst, buffers, true);
+                    uncertain.extend(open.into_iter().map(|at| k * band_values + at));
+                }
+                uncertain
+            }
+        };
         if let (Some(exact), Some(bias)) = (exact, bias_relu) {
             let sums: Vec<f32> = uncertain
                 .par_iter()
@@ -613,15 +735,15 @@ fn refs<'a, T, const A: usize>(column: impl Fn(usize) -> &'a Lanes<T>) -> [&'a L
 
 /// `Bᵀ d B` of the `A x A` input blocks of block rows `by0..by0 + rows` into `transformed`
 /// (`[A²][blocks][cin]`), `d` the padded input around each output block (zeros outside the
-/// image; input values where `gate` is `<= 0` count as 0).
+/// image; input values where `gate` is `<= 0` count as 0); with `parallel`, the block rows
+/// split over the threads.
 fn transform_input<T: WinogradReal, const A: usize>(
     src: &[f32],
     gate: Option<&[f32]>,
     (h, w, cin): (usize, usize, usize),
-    by0: usize,
-    rows: usize,
-    blocks_x: usize,
+    (by0, rows, blocks_x): (usize, usize, usize),
     transformed: &mut [T],
+    parallel: bool,
 ) {
     let blocks = rows * blocks_x;
     // Each block row fills its own range of every one of the A² matrices: split them by rows.
@@ -631,9 +753,14 @@ fn transform_input<T: WinogradReal, const A: usize>(
             part.push(block_row);
         }
     }
-    parts.into_par_iter().enumerate().for_each(|(r, mut part)| {
+    let row = |(r, mut part): (usize, Vec<&mut [T]>)| {
         transform_input_block_row::<T, A>(src, gate, (h, w, cin), by0 + r, blocks_x, &mut part)
-    });
+    };
+    if parallel {
+        parts.into_par_iter().enumerate().for_each(row);
+    } else {
+        parts.into_iter().enumerate().for_each(row);
+    }
 }
 
 widest_simd! {
@@ -702,41 +829,43 @@ struct Bounds<'a> {
 }
 
 /// `Aᵀ M A` (`relu(Aᵀ M A + bias)` with `bias_relu`, added and decided in `T`, then rounded
-/// once) of the products of block rows `by0..by0 + rows` (`[A²][blocks][cout]`) into the
-/// output image `dst` (`[h, w, cout]`); the outputs of a block past the image's last row or
-/// column are dropped. With `bounds`, returns the outputs (indices into `dst`) whose ReLU
-/// decision or rounding their error bound leaves open, written as 0.
+/// once) of a band's `rows` block rows (products `[A²][blocks][cout]`) into its output rows
+/// `dst` (`[.., w, cout]`: `m` per block row, fewer at the image's last); the outputs of a
+/// block past the image's last row or column are dropped. With `bounds`, returns the outputs
+/// (indices into `dst`) whose ReLU decision or rounding their error bound leaves open, written
+/// as 0. With `parallel`, the block rows split over the threads.
 fn transform_output<T: WinogradReal, const A: usize>(
     products: &[T],
     dst: &mut [f32],
-    (h, w, cout): (usize, usize, usize),
-    (by0, rows, blocks_x): (usize, usize, usize),
+    (w, cout): (usize, usize),
+    (rows, blocks_x): (usize, usize),
     bias_relu: Option<&[f32]>,
     bounds: Option<Bounds<'_>>,
+    parallel: bool,
 ) -> Vec<usize> {
-    let m = outputs_per_side(A);
     let blocks = rows * blocks_x;
-    let first_row = m * by0;
-    let last_row = (m * (by0 + rows)).min(h);
-    let chunk = m * w * cout;
-    dst[first_row * w * cout..last_row * w * cout]
-        .par_chunks_mut(chunk)
-        .enumerate()
-        .flat_map_iter(|(r, out_rows)| {
-            let mut uncertain = Vec::new();
-            transform_output_block_row::<T, A>(
-                products,
-                out_rows,
-                (w, cout),
-                (r, blocks, blocks_x),
-                bias_relu,
-                bounds,
-                &mut uncertain,
-            );
-            let offset = first_row * w * cout + r * chunk;
-            uncertain.into_iter().map(move |at| offset + at)
-        })
-        .collect()
+    let chunk = outputs_per_side(A) * w * cout;
+    let row = |(r, out_rows): (usize, &mut [f32])| {
+        let mut uncertain = Vec::new();
+        transform_output_block_row::<T, A>(
+            products,
+            out_rows,
+            (w, cout),
+            (r, blocks, blocks_x),
+            bias_relu,
+            bounds,
+            &mut uncertain,
+        );
+        uncertain.into_iter().map(move |at| r * chunk + at)
+    };
+    if parallel {
+        dst.par_chunks_mut(chunk)
+            .enumerate()
+            .flat_map_iter(row)
+            .collect()
+    } else {
+        dst.chunks_mut(chunk).enumerate().flat_map(row).collect()
+    }
 }
 
 widest_simd! {
@@ -1261,5 +1390,114 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Every schedule (bands in parallel or in turn, of one block row up to the whole image,
+    /// the image's height a multiple of the band's or not) gives the same outputs, bit for
+    /// bit: the f32 gated adjoint, the f32 forward with bias and ReLU, and the f64 exact
+    /// forward with its bound checked, two images each.
+    #[test]
+    fn every_schedule_gives_the_same_outputs() {
+        fn check<T: WinogradReal, const A: usize>(exact: bool) {
+            for (seed, (h, w, cin, cout)) in [(1, 1, 1, 1), (7, 9, 8, 5), (13, 10, 17, 3)]
+                .into_iter()
+                .enumerate()
+            {
+                let seed = seed as u64;
+                let input = values(2 * h * w * cin, seed + 800);
+                let gate = values(2 * h * w * cin, seed + 810);
+                let weight: Vec<f32> = values(cout * cin * 9, seed + 820)
+                    .iter()
+                    .map(|v| v / (3 * cin) as f32)
+                    .collect();
+                let bias: Vec<f32> = values(cout, seed + 830).iter().map(|v| 0.1 * v).collect();
+                let exact_kernel = ExactWinogradKernel::<A>::from_taps(cout, cin, |o, i, y, x| {
+                    weight[((o * cin + i) * 3 + y) * 3 + x]
+                });
+                let kernel = WinogradKernel::<T, A>::new(&weight, cout, cin);
+                let run = |schedule| {
+                    if exact {
+                        let (kernel, bias) = (&exact_kernel.winograd, Some(&bias[..]));
+                        let exact = Some(&exact_kernel);
+                        winograd(&input, (2, h, w), kernel, None, bias, exact, schedule)
+                    } else {
+                        let gated = winograd(
+                            &input,
+                            (2, h, w),
+                            &kernel,
+                            Some(&gate),
+                            None,
+                            None,
+                            schedule,
+                        );
+                        let biased = winograd(
+                            &input,
+                            (2, h, w),
+                            &kernel,
+                            None,
+                            Some(&bias),
+                            None,
+                            schedule,
+                        );
+                        [gated, biased].concat()
+                    }
+                };
+                let expected = run(Schedule::SequentialBands { rows: h });
+                for schedule in [
+                    Schedule::ParallelBands { rows: 1 },
+                    Schedule::ParallelBands { rows: 2 },
+                    Schedule::ParallelBands { rows: h },
+                    Schedule::SequentialBands { rows: 1 },
+                    Schedule::SequentialBands { rows: 3 },
+                ] {
+                    let got = run(schedule);
+                    assert!(
+                        got.iter()
+                            .zip(&expected)
+                            .all(|(g, e)| g.to_bits() == e.to_bits()),
+                        "tile {A}, {h}x{w} {cin}->{cout}, exact {exact}, {schedule:?}"
+                    );
+                }
+            }
+        }
+        check::<f32, F2X2>(false);
+        check::<f64, F4X4>(false);
+        check::<f64, F4X4>(true);
+    }
+
+    /// The schedules VGG-19's layers take at 384x384: parallel bands of one block row or more
+    /// while the transformed kernel stays under 8 MB (f64 F(4x4, 3x3) to 128 channels, f32
+    /// F(2x2, 3x3) to 256), bands in turn above.
+    #[test]
+    fn small_kernels_run_their_bands_in_parallel_and_large_ones_in_turn() {
+        fn schedule<T: WinogradReal, const A: usize>(w: usize, channels: usize) -> Schedule {
+            let weight = vec![0f32; channels * channels * 9];
+            Schedule::of(&WinogradKernel::<T, A>::new(&weight, channels, channels), w)
+        }
+        for (w, channels) in [(384, 64), (192, 128)] {
+            assert!(matches!(
+                schedule::<f64, F4X4>(w, channels),
+                Schedule::ParallelBands { rows: 1.. }
+            ));
+        }
+        for (w, channels) in [(384, 64), (192, 128), (96, 256)] {
+            assert!(matches!(
+                schedule::<f32, F2X2>(w, channels),
+                Schedule::ParallelBands { rows: 1.. }
+            ));
+        }
+        assert!(matches!(
+            schedule::<f64, F4X4>(96, 256),
+            Schedule::SequentialBands { .. }
+        ));
+        assert!(matches!(
+            schedule::<f32, F2X2>(48, 512),
+            Schedule::SequentialBands { .. }
+        ));
+        // A band of a narrow, small image holds several block rows.
+        assert!(matches!(
+            schedule::<f32, F2X2>(24, 8),
+            Schedule::ParallelBands { rows: 2.. }
+        ));
     }
 }

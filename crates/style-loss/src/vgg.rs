@@ -353,7 +353,8 @@ mod tests {
 
     /// Every layer taken as wide, as wider than [`MEASURED`]'s widths' narrowest.
     const ALL_WIDE: KernelWidths = KernelWidths {
-        wide: 0,
+        bf16_backward: 0,
+        winograd_backward: 0,
         exact_winograd: 0,
     };
 
@@ -364,7 +365,8 @@ mod tests {
     #[test]
     fn channels_last_matches_candles_convolution() {
         let mixed = KernelWidths {
-            wide: 7,
+            bf16_backward: 7,
+            winograd_backward: 7,
             exact_winograd: 0,
         };
         for kernels in [MEASURED, mixed, ALL_WIDE] {
@@ -374,7 +376,7 @@ mod tests {
 
     /// bf16 backward products against candle's f32 convolution, every layer taken as wide: the
     /// features are f32 (Winograd's), the gradient within bf16's rounding through ten layers
-    /// (measured 7.7e-3 to 9.2e-3). Below [`MEASURED`]'s wide layers the layers stay f32.
+    /// (measured 7.7e-3 to 9.2e-3). Below [`MEASURED`]'s bf16 width the layers stay f32.
     #[test]
     fn bf16_products_stay_within_their_error_of_candles_convolution() {
         let error = assert_channels_last_within(VggPrecision::Bf16, ALL_WIDE, 1e-5, 3e-2);
@@ -509,7 +511,8 @@ mod tests {
             let tensors = NamedTensors::load_safetensors(&fixtures.join(file), &Device::Cpu);
             let widths = Vgg19Widths([4, 8, 16, 32, 32]);
             let kernels = KernelWidths {
-                wide: 8,
+                bf16_backward: 8,
+                winograd_backward: 8,
                 exact_winograd: 4,
             };
             Vgg19Features::build(&tensors.unwrap(), widths, true, VggPrecision::F32, kernels)

@@ -38,10 +38,13 @@ enum Kernel {
 /// output channels).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct KernelWidths {
-    /// From this width on a layer is wide: its backward runs by Winograd's F(2x2, 3x3) in f32
-    /// or, with a bf16 backward, in bf16 (its forward then by F(2x2, 3x3) in f32). Below it
-    /// the products are direct f32 both ways.
-    pub wide: usize,
+    /// From this width on, a bf16 backward runs its products in bf16 (its forward then by
+    /// Winograd's F(2x2, 3x3) in f32); below it such a layer is f32 both ways, as with an f32
+    /// backward.
+    pub bf16_backward: usize,
+    /// From this width on, an f32 backward runs by Winograd's F(2x2, 3x3) in f32; below it,
+    /// directly in f32.
+    pub winograd_backward: usize,
     /// From this width on the exact forward (f64 sums, a gradient taken through an f32
     /// backward) runs by F(4x4, 3x3) in f64 (`conv3x3_winograd_exact`); narrower layers sum it
     /// directly in f64.
@@ -49,15 +52,19 @@ pub(crate) struct KernelWidths {
 }
 
 /// The widths measured on VGG-19 (docs/benchmarks.md): on layers narrower than 256 channels
-/// the bf16 conversions, and on a 2-core Zen 4 the f32 transforms, cost more than they saved.
-/// In f64, F(4x4, 3x3) (2.25 multiply-adds per output and channel pair, against 4 for
-/// F(2x2, 3x3) and 9 directly) with its bound checked beat F(2x2, 3x3) and the direct sums on
-/// every layer but the first (3 input channels; timed layer by layer at 384x384 and 800x800 on
-/// a 2-core Zen 3). Without the bound it moved the content gradient by 1.8e-2 on
-/// `scripts/make_vgg_border_ties_fixture.py`'s cases from the second layer: outputs a hair from
-/// 0 beside large ones, told apart by the rounding of their tile's other inputs.
+/// the bf16 conversions cost more than they saved. F(2x2, 3x3) in f32 beat the direct
+/// backward from 64 channels once a layer whose transformed kernel stays in cache ran its bands
+/// in parallel (timed layer by layer at 384x384 on a 2-core Zen 3: 64->64 from 127 to 81 ms,
+/// 128->128 from 100 to 70 ms). In f64, F(4x4, 3x3) (2.25 multiply-adds per output and
+/// channel pair, against 4 for F(2x2, 3x3) and 9 directly) with its bound checked beat
+/// F(2x2, 3x3) and the direct sums on every layer but the first (3 input channels; timed
+/// layer by layer at 384x384 and 800x800 on a 2-core Zen 3). Without the bound it moved the
+/// content gradient by 1.8e-2 on `scripts/make_vgg_border_ties_fixture.py`'s cases from the
+/// second layer: outputs a hair from 0 beside large ones, told apart by the rounding of their
+/// tile's other inputs.
 pub(crate) const MEASURED: KernelWidths = KernelWidths {
-    wide: 256,
+    bf16_backward: 256,
+    winograd_backward: 64,
     exact_winograd: 64,
 };
 
@@ -82,9 +89,10 @@ impl Kernel {
 }
 
 /// A 3x3 convolution, padding 1, then ReLU, on channels-last f32 CPU tensors. Its forward sums
-/// are exact (f64, rounded once) with an f32 backward, f32 (direct, or Winograd's on wide
-/// layers) with a bf16 one; its backward products (the adjoint on the gradient) f32 (direct,
-/// or Winograd's on wide layers) or, on wide layers with a bf16 backward, bf16.
+/// are exact (f64, rounded once) with an f32 backward, f32 (direct, or Winograd's where its
+/// backward is bf16) with a bf16 one; its backward products (the adjoint on the gradient) f32 (direct,
+/// or Winograd's from [`KernelWidths::winograd_backward`] channels) or, from
+/// [`KernelWidths::bf16_backward`] channels with a bf16 backward, bf16.
 #[derive(Clone, Debug)]
 pub(crate) struct ConvReluChannelsLast {
     kernel: Kernel,
@@ -101,11 +109,13 @@ pub(crate) struct ConvReluChannelsLast {
 
 impl ConvReluChannelsLast {
     /// From PyTorch weights `[cout, cin, 3, 3]` and bias `[cout]`, the algorithms chosen by
-    /// `widths` ([`MEASURED`] but in tests). On a wide layer `bf16_backward` runs the backward
-    /// products in bf16 and the forward by Winograd's F(2x2, 3x3) in f32 (2.25 times fewer
-    /// multiply-adds, errors of the order of an f32 sum's, far under the bf16 backward's); with
-    /// an f32 backward, the backward runs by Winograd's F(2x2, 3x3) in f32 (it decides
-    /// nothing). Narrower layers take the direct f32 convolution both ways. With an f32
+    /// `widths` ([`MEASURED`] but in tests). From `widths.bf16_backward` channels,
+    /// `bf16_backward` runs the backward products in bf16 and the forward by Winograd's
+    /// F(2x2, 3x3) in f32 (2.25 times fewer multiply-adds, errors of the order of an f32 sum's,
+    /// far under the bf16 backward's); narrower layers take the direct f32 convolution both
+    /// ways. An f32 backward runs by Winograd's F(2x2, 3x3) in f32 (it decides nothing, and an
+    /// input whose window of gated gradient is all 0 gets exactly 0) from
+    /// `widths.winograd_backward` channels, directly on narrower layers. With an f32
     /// backward, every forward gives the direct f64 sums rounded once: by
     /// Winograd's F(4x4, 3x3) in f64, its bound checked, from `widths.exact_winograd`
     /// channels, directly on narrower layers.
@@ -122,18 +132,21 @@ impl ConvReluChannelsLast {
     ) -> candle_core::Result<Self> {
         let (cout, cin, _, _) = weight.dims4()?;
         let w = weight.flatten_all()?.to_vec1::<f32>()?;
-        let wide = cin.min(cout) >= widths.wide;
-        let kernel = if bf16_backward && wide {
+        let width = cin.min(cout);
+        let bf16_layer = bf16_backward && width >= widths.bf16_backward;
+        let kernel = if bf16_layer {
             Kernel::Winograd(Arc::new(WinogradKernel::new(&w, cout, cin)))
         } else {
             Kernel::F32(Arc::new(PackedKernel::forward(&w, cout, cin)))
         };
-        let adjoint = match (bf16_backward, wide) {
-            (true, true) => Kernel::Bf16(Arc::new(StackedKernel::new(&PackedKernel::adjoint(
+        let adjoint = if bf16_layer {
+            Kernel::Bf16(Arc::new(StackedKernel::new(&PackedKernel::adjoint(
                 &w, cout, cin,
-            )))),
-            (false, true) => Kernel::Winograd(Arc::new(WinogradKernel::adjoint(&w, cout, cin))),
-            (_, false) => Kernel::F32(Arc::new(PackedKernel::adjoint(&w, cout, cin))),
+            ))))
+        } else if !bf16_backward && width >= widths.winograd_backward {
+            Kernel::Winograd(Arc::new(WinogradKernel::adjoint(&w, cout, cin)))
+        } else {
+            Kernel::F32(Arc::new(PackedKernel::adjoint(&w, cout, cin)))
         };
         Ok(Self {
             kernel,
@@ -353,13 +366,14 @@ mod tests {
         (out, grad)
     }
 
-    /// The exact forward of a wide layer (f64 Winograd) against the f64 direct convolution:
+    /// The exact forward of a 256-channel layer (f64 Winograd, a kernel large enough for its
+    /// bands to run one after another) against the f64 direct convolution:
     /// biases that put one pre-activation per channel within an f32 rounding of 0 (both signs)
     /// decide as the exact sums, and each output is the f64 sum rounded once: to the ulp, or
     /// within 1e-13 (f64's error on the terms, of order 1) where the sum nearly cancels.
     #[test]
     fn the_exact_forward_of_a_wide_layer_rounds_the_exact_sums() {
-        let (h, w, cin, cout) = (5, 7, MEASURED.wide, MEASURED.wide);
+        let (h, w, cin, cout) = (5, 7, 256, 256);
         let x = values(h * w * cin, 11);
         let weight: Vec<f32> = values(cout * cin * 9, 12)
             .iter()
@@ -473,12 +487,13 @@ mod tests {
         }
     }
 
-    /// Layers wide enough for Winograd's products (and, with a bf16 backward, bf16 ones), one
-    /// whose exact forward alone takes Winograd's (F(4x4, 3x3) in f64) and a narrow one, forward
-    /// and input gradient against f64, with the f32 and the bf16 backward.
+    /// Layers wide enough for bf16 products with a bf16 backward, one whose exact forward and
+    /// f32 backward take Winograd's (F(4x4, 3x3) in f64, F(2x2, 3x3) in f32) but whose bf16
+    /// backward stays f32, and a narrow one, forward and input gradient against f64, with the
+    /// f32 and the bf16 backward.
     #[test]
     fn wide_and_narrow_layers_match_f64_both_ways() {
-        let (wide, exact) = (MEASURED.wide, MEASURED.exact_winograd);
+        let (wide, exact) = (MEASURED.bf16_backward, MEASURED.exact_winograd);
         for (h, w, cin, cout) in [
             (5, 6, wide, wide),
             (4, 3, wide, 2 * wide),
