@@ -1170,7 +1170,9 @@ mod tests {
     /// inputs beyond the window (their transformed terms cancel only up to a rounding, which
     /// the exact forward's bound catches): with zero biases the ReLU then sees an exact 0 and
     /// its gradient stops there, as PyTorch's. F(2x2, 3x3)'s outputs read their own window
-    /// only; F(4x4, 3x3) without the bound does not give the bias exactly there.
+    /// only; F(4x4, 3x3) without the bound does not give the bias exactly there. So the f32
+    /// backward's F(2x2, 3x3) adjoint gives an input exactly 0 gradient where the ReLU mask
+    /// closes its whole window (F(4x4, 3x3) in f32 would not: checked to fail).
     #[test]
     fn an_output_whose_window_is_all_zero_is_exactly_the_bias() {
         let (h, w, cin, cout) = (12, 13, 24, 20);
@@ -1216,6 +1218,30 @@ mod tests {
                 );
             }
         }
+        // A backward's adjoint (`cout` channels to `cin`): the gradient non-zero everywhere,
+        // its gate closed (0 or below, as a ReLU's mask) outside those columns: exactly 0
+        // there, no bias, no ReLU.
+        let grad = values(h * w * cout, 24);
+        let gate: Vec<f32> = (0..h * w * cout)
+            .map(|k| {
+                let x = (k / cout) % w;
+                if x == 4 || x == 5 || x >= 10 {
+                    1.0
+                } else if k % 2 == 0 {
+                    0.0
+                } else {
+                    -1.0
+                }
+            })
+            .collect();
+        let adjoint = WinogradKernel::<f32, F2X2>::adjoint(&weight, cout, cin);
+        let out = conv3x3_winograd(&grad, (1, h, w), &adjoint, Some(&gate), None);
+        let closed = |y: usize, x: usize| (0..cin).all(|i| out[(y * w + x) * cin + i] == 0.0);
+        assert!((0..h).all(|y| [1, 2, 7, 8].iter().all(|&x| closed(y, x))));
+        assert!(
+            !closed(0, 4) && out.iter().any(|v| *v < 0.0),
+            "no ReLU on the adjoint"
+        );
     }
 
     /// `sum + bias` of the output at `at`, before the ReLU, summed with Neumaier's compensation
