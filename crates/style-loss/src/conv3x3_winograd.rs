@@ -16,9 +16,10 @@
 //! direct convolution's, and other ones: F(2x2, 3x3) in f32 errs by up to 1.4e-7 of the largest
 //! output in the tests (the order of an f32 sum's); F(4x4, 3x3)'s larger coefficients (up to 8
 //! in `Aᵀ`, 5 in `Bᵀ`, sixths in `G`) make it about ten times worse, so it runs only in f64,
-//! where its error stays about 1e-15 of the terms. VGG runs F(2x2, 3x3) in f32 on its wide
-//! layers (the f32 backward, which decides nothing, and the forward where the backward is bf16)
-//! and F(4x4, 3x3) in f64 for the forward whose ReLUs route an f32 backward
+//! where its error stays about 1e-15 of the terms. VGG runs F(2x2, 3x3) in f32 for the f32
+//! backward of every layer but the first (it decides nothing) and for the forward of the layers
+//! whose backward is bf16, and F(4x4, 3x3) in f64 for the forward whose ReLUs route an f32
+//! backward
 //! ([`conv3x3_winograd_exact`]): each output rounded once, and those whose error bound reaches
 //! 0 or a rounding's edge (an output a hair from 0 beside large inputs, whose tile's other
 //! inputs cancel only up to a rounding) summed again directly, so that every output is the
@@ -264,17 +265,18 @@ impl<const A: usize> ExactWinogradKernel<A> {
 
 /// How [`winograd`] spreads a convolution over the threads: by its transformed kernel's size.
 ///
-/// A kernel that stays in the last-level cache runs bands of a few block rows in parallel,
-/// each on one thread from its input transform through its products to its outputs, so that a
-/// band's transformed input and products stay in the core's caches between the three passes.
-/// A larger kernel (VGG's 256- and 512-channel layers in f64, its 512-channel ones in f32) runs
-/// the bands one after another, each product split over the threads, so that the kernel is read
-/// from memory once per band rather than once per band and thread. Timed layer by layer on a
-/// 2-core Zen 3 (docs/benchmarks.md, 2026-11-29): parallel bands took 384x384 64->64 from
-/// 175 to 98 ms in f64 F(4x4, 3x3) and from 110 to 65 ms in f32 F(2x2, 3x3), and 192x192
-/// 128->128 from 115 to 68 ms in f64; sequential bands stayed faster from 256 channels in f64
-/// (19 MB) and 512 in f32 (17 MB).
-#[derive(Clone, Copy, Debug, PartialEq)]
+/// A kernel that stays in the last-level cache runs bands of a few block rows in parallel
+/// (at least one band per thread where the image has the rows), each on one thread from its
+/// input transform through its products to its outputs, so that a band's transformed input
+/// and products (about 4 MB) stay in that thread's share of the cache between the three
+/// passes. A larger kernel (VGG's 256- and 512-channel layers in f64, its 512-channel ones in
+/// f32) runs the bands one after another, each product split over the threads, so that the
+/// kernel is read from memory once per band rather than once per band and thread. Timed layer
+/// by layer on a 2-core Zen 3 (docs/benchmarks.md, 2026-11-29): parallel bands took 384x384
+/// 64->64 from 165-215 to 97-121 ms in f64 F(4x4, 3x3) and from 94-143 to 62-76 ms in f32
+/// F(2x2, 3x3); sequential bands stayed faster from 256 channels in f64 (19 MB) and 512 in
+/// f32 (17 MB).
+#[derive(Clone, Copy, Debug)]
 enum Schedule {
     /// Bands of `rows` block rows, one thread each, in parallel.
     ParallelBands { rows: usize },
@@ -363,6 +365,7 @@ struct ImageConv<'a, T, const A: usize> {
     gate: Option<&'a [f32]>,
     /// `(h, w)` of the image.
     size: (usize, usize),
+    /// The transformed kernel.
     kernel: &'a WinogradKernel<T, A>,
     /// The bias, added before a ReLU.
     bias_relu: Option<&'a [f32]>,
@@ -503,6 +506,8 @@ fn winograd<T: WinogradReal, const A: usize>(
         // A band's outputs: its block rows' output rows (fewer at the image's last).
         let uncertain: Vec<usize> = match schedule {
             Schedule::ParallelBands { rows } => {
+                // At least one band per thread where the image has the block rows.
+                let rows = rows.min(blocks_y.div_ceil(rayon::current_num_threads()).max(1));
                 let band_values = (rows * m * w * cout).max(1);
                 dst.par_chunks_mut(band_values)
                     .enumerate()
@@ -817,10 +822,11 @@ fn transform_input_block_row<T: WinogradReal, const A: usize>(
 }
 }
 
-/// What [`conv3x3_winograd_exact`] bounds an output's error by, for the blocks of one band.
+/// What [`conv3x3_winograd_exact`] bounds an output's error by: for a whole image in
+/// [`ImageConv`], for one band's blocks in [`transform_output`].
 #[derive(Clone, Copy)]
 struct Bounds<'a> {
-    /// The largest `|input|` of each block's tile ([`tile_max_abs`]), the band's blocks.
+    /// The largest `|input|` of each block's tile ([`tile_max_abs`]), row-major.
     tile_max: &'a [f64],
     /// Per output channel, the error per unit of `tile_max` ([`ExactWinogradKernel`]).
     tolerance: &'a [f64],
@@ -1430,7 +1436,19 @@ mod tests {
                 .enumerate()
             {
                 let seed = seed as u64;
-                let input = values(2 * h * w * cin, seed + 800);
+                // After a ReLU: non-negative, a third zero, the left half flat.
+                let input: Vec<f32> = values(2 * h * w * cin, seed + 800)
+                    .iter()
+                    .enumerate()
+                    .map(|(k, v)| match ((k / cin) % w < w / 2, k % cin % 3 == 0) {
+                        (true, true) => 0.0,
+                        (true, false) => 0.25,
+                        (false, _) => (v - 0.3).max(0.0) * 4.0,
+                    })
+                    .collect();
+                let mut input = input;
+                // A NaN in the first image's last pixel: outputs its window reaches are NaN.
+                input[h * w * cin - 1] = f32::NAN;
                 let gate = values(2 * h * w * cin, seed + 810);
                 let weight: Vec<f32> = values(cout * cin * 9, seed + 820)
                     .iter()
@@ -1469,6 +1487,13 @@ mod tests {
                     }
                 };
                 let expected = run(Schedule::SequentialBands { rows: h });
+                if exact && h > outputs_per_side(A) {
+                    // The NaN in the last row is left open and summed directly: only its
+                    // window's outputs (in the last band) are NaN, not the first row's.
+                    let row = w * cout;
+                    assert!(expected[(h - 1) * row..h * row].iter().any(|v| v.is_nan()));
+                    assert!(expected[..row].iter().all(|v| !v.is_nan()), "{h}x{w}");
+                }
                 for schedule in [
                     Schedule::ParallelBands { rows: 1 },
                     Schedule::ParallelBands { rows: 2 },

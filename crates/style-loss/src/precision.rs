@@ -80,13 +80,15 @@ pub fn auto_takes_bf16(device: &Device) -> bool {
 pub enum VggPrecision {
     /// f32 products; on the CPU the forward sums (the render's and the ground truth's alike)
     /// are exact before the ReLU decides, as the f32 PyTorch network decides; the backward on
-    /// the layers of 256 channels and more by Winograd's F(2x2, 3x3) (the default).
+    /// the layers of 64 channels and more (all but the first) by Winograd's F(2x2, 3x3) (the
+    /// default).
     #[default]
     F32,
     /// On the layers of 256 channels and more, the backward's products (the adjoint
     /// convolutions on the gradient) in bf16: gradient and kernels rounded to bf16, f32 sums,
     /// each output rounded to bf16; the forward stays f32, by Winograd's F(2x2, 3x3) rather
-    /// than summed exactly. Narrower layers stay f32 both ways. The CPU only.
+    /// than summed exactly. Narrower layers stay f32 both ways (their backward as with `F32`).
+    /// The CPU only.
     Bf16,
     /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else.
     Auto,

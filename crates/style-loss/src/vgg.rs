@@ -511,9 +511,9 @@ mod tests {
             let tensors = NamedTensors::load_safetensors(&fixtures.join(file), &Device::Cpu);
             let widths = Vgg19Widths([4, 8, 16, 32, 32]);
             let kernels = KernelWidths {
-                bf16_backward: 8,
                 winograd_backward: 4,
                 exact_winograd: 4,
+                ..MEASURED
             };
             Vgg19Features::build(&tensors.unwrap(), widths, true, VggPrecision::F32, kernels)
                 .unwrap()

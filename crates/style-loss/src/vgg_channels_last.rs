@@ -39,11 +39,11 @@ enum Kernel {
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct KernelWidths {
     /// From this width on, a bf16 backward runs its products in bf16 (its forward then by
-    /// Winograd's F(2x2, 3x3) in f32); below it such a layer is f32 both ways, as with an f32
-    /// backward.
+    /// Winograd's F(2x2, 3x3) in f32); below it such a layer's forward is the direct f32
+    /// convolution and its backward as an f32 backward's.
     pub bf16_backward: usize,
-    /// From this width on, an f32 backward runs by Winograd's F(2x2, 3x3) in f32; below it,
-    /// directly in f32.
+    /// From this width on, a backward in f32 (an f32 one's, and a bf16 one's below
+    /// `bf16_backward`) runs by Winograd's F(2x2, 3x3) in f32; below it, directly in f32.
     pub winograd_backward: usize,
     /// From this width on the exact forward (f64 sums, a gradient taken through an f32
     /// backward) runs by F(4x4, 3x3) in f64 (`conv3x3_winograd_exact`); narrower layers sum it
@@ -54,8 +54,8 @@ pub(crate) struct KernelWidths {
 /// The widths measured on VGG-19 (docs/benchmarks.md): on layers narrower than 256 channels
 /// the bf16 conversions cost more than they saved. F(2x2, 3x3) in f32 beat the direct
 /// backward from 64 channels once a layer whose transformed kernel stays in cache ran its bands
-/// in parallel (timed layer by layer at 384x384 on a 2-core Zen 3: 64->64 from 127 to 81 ms,
-/// 128->128 from 100 to 70 ms). In f64, F(4x4, 3x3) (2.25 multiply-adds per output and
+/// in parallel (each convolution timed in the content term at 384x384 on a 2-core Zen 3,
+/// medians: 384x384 64->64 from 127 to 81 ms, 192x192 128->128 from 100 to 70 ms). In f64, F(4x4, 3x3) (2.25 multiply-adds per output and
 /// channel pair, against 4 for F(2x2, 3x3) and 9 directly) with its bound checked beat
 /// F(2x2, 3x3) and the direct sums on every layer but the first (3 input channels; timed
 /// layer by layer at 384x384 and 800x800 on a 2-core Zen 3). Without the bound it moved the
@@ -90,8 +90,8 @@ impl Kernel {
 
 /// A 3x3 convolution, padding 1, then ReLU, on channels-last f32 CPU tensors. Its forward sums
 /// are exact (f64, rounded once) with an f32 backward, f32 (direct, or Winograd's where its
-/// backward is bf16) with a bf16 one; its backward products (the adjoint on the gradient) f32 (direct,
-/// or Winograd's from [`KernelWidths::winograd_backward`] channels) or, from
+/// backward is bf16) with a bf16 one; its backward products (the adjoint on the gradient) f32
+/// (direct, or Winograd's from [`KernelWidths::winograd_backward`] channels) or, from
 /// [`KernelWidths::bf16_backward`] channels with a bf16 backward, bf16.
 #[derive(Clone, Debug)]
 pub(crate) struct ConvReluChannelsLast {
@@ -112,8 +112,8 @@ impl ConvReluChannelsLast {
     /// `widths` ([`MEASURED`] but in tests). From `widths.bf16_backward` channels,
     /// `bf16_backward` runs the backward products in bf16 and the forward by Winograd's
     /// F(2x2, 3x3) in f32 (2.25 times fewer multiply-adds, errors of the order of an f32 sum's,
-    /// far under the bf16 backward's); narrower layers take the direct f32 convolution both
-    /// ways. An f32 backward runs by Winograd's F(2x2, 3x3) in f32 (it decides nothing, and an
+    /// far under the bf16 backward's); narrower layers take the direct f32 forward and an f32
+    /// backward. A backward in f32 runs by Winograd's F(2x2, 3x3) (it decides nothing, and an
     /// input whose window of gated gradient is all 0 gets exactly 0) from
     /// `widths.winograd_backward` channels, directly on narrower layers. With an f32
     /// backward, every forward gives the direct f64 sums rounded once: by
@@ -143,7 +143,7 @@ impl ConvReluChannelsLast {
             Kernel::Bf16(Arc::new(StackedKernel::new(&PackedKernel::adjoint(
                 &w, cout, cin,
             ))))
-        } else if !bf16_backward && width >= widths.winograd_backward {
+        } else if width >= widths.winograd_backward {
             Kernel::Winograd(Arc::new(WinogradKernel::adjoint(&w, cout, cin)))
         } else {
             Kernel::F32(Arc::new(PackedKernel::adjoint(&w, cout, cin)))
@@ -372,7 +372,7 @@ mod tests {
     /// decide as the exact sums, and each output is the f64 sum rounded once: to the ulp, or
     /// within 1e-13 (f64's error on the terms, of order 1) where the sum nearly cancels.
     #[test]
-    fn the_exact_forward_of_a_wide_layer_rounds_the_exact_sums() {
+    fn the_exact_forward_of_a_256_channel_layer_rounds_the_exact_sums() {
         let (h, w, cin, cout) = (5, 7, 256, 256);
         let x = values(h * w * cin, 11);
         let weight: Vec<f32> = values(cout * cin * 9, 12)
