@@ -375,19 +375,21 @@ struct ImageConv<'a, T, const A: usize> {
 }
 
 impl<T: WinogradReal, const A: usize> ImageConv<'_, T, A> {
-    /// Block rows `by0..by0 + rows` into `dst` (their output rows, `[.., w, cout]`), through
-    /// the scratch buffers `transformed` and `products`; with `parallel`, the transforms and
-    /// products split over the threads. Returns the outputs the exact forward's bound leaves
-    /// open (indices into `dst`).
+    /// The band of block rows from `by0` whose output rows are `dst` (`[.., w, cout]`: `m`
+    /// per block row, fewer at the image's last), through the scratch buffers `transformed`
+    /// and `products`; with `parallel`, the transforms and products split over the threads.
+    /// Returns the outputs the exact forward's bound leaves open (indices into the image).
     fn band(
         &self,
-        (by0, rows): (usize, usize),
+        by0: usize,
         dst: &mut [f32],
         (transformed, products): (&mut Vec<T>, &mut Vec<T>),
         parallel: bool,
     ) -> Vec<usize> {
         let ((h, w), (cin, cout)) = (self.size, (self.kernel.cin, self.kernel.cout));
-        let blocks_x = w.div_ceil(outputs_per_side(A));
+        let m = outputs_per_side(A);
+        let blocks_x = w.div_ceil(m);
+        let rows = (dst.len() / (w * cout).max(1)).div_ceil(m);
         let blocks = rows * blocks_x;
         // Every value is written before it is read: no clearing between bands.
         transformed.resize(A * A * blocks * cin, T::default());
@@ -440,7 +442,8 @@ impl<T: WinogradReal, const A: usize> ImageConv<'_, T, A> {
             tile_max: &b.tile_max[by0 * blocks_x..(by0 + rows) * blocks_x],
             ..b
         });
-        transform_output::<T, A>(
+        let first = by0 * m * w * cout;
+        let open = transform_output::<T, A>(
             products,
             dst,
             (w, cout),
@@ -448,7 +451,8 @@ impl<T: WinogradReal, const A: usize> ImageConv<'_, T, A> {
             self.bias_relu,
             bounds,
             parallel,
-        )
+        );
+        open.into_iter().map(|at| first + at).collect()
     }
 }
 
@@ -508,35 +512,25 @@ fn winograd<T: WinogradReal, const A: usize>(
             Schedule::ParallelBands { rows } => {
                 // At least one band per thread where the image has the block rows.
                 let rows = rows.min(blocks_y.div_ceil(rayon::current_num_threads()).max(1));
-                let band_values = (rows * m * w * cout).max(1);
-                dst.par_chunks_mut(band_values)
+                dst.par_chunks_mut((rows * m * w * cout).max(1))
                     .enumerate()
                     .map_init(
                         || (Vec::new(), Vec::new()),
                         |(transformed, products), (k, band_dst)| {
-                            let by0 = k * rows;
-                            let band = (by0, rows.min(blocks_y - by0));
-                            conv.band(band, band_dst, (transformed, products), false)
-                                .into_iter()
-                                .map(|at| k * band_values + at)
-                                .collect::<Vec<_>>()
+                            conv.band(k * rows, band_dst, (transformed, products), false)
                         },
                     )
                     .flatten_iter()
                     .collect()
             }
-            Schedule::SequentialBands { rows } => {
-                let band_values = (rows * m * w * cout).max(1);
-                let mut uncertain = Vec::new();
-                for (k, band_dst) in dst.chunks_mut(band_values).enumerate() {
-                    let by0 = k * rows;
-                    let band = (by0, rows.min(blocks_y - by0));
+            Schedule::SequentialBands { rows } => dst
+                .chunks_mut((rows * m * w * cout).max(1))
+                .enumerate()
+                .flat_map(|(k, band_dst)| {
                     let buffers = (&mut transformed, &mut products);
-                    let open = conv.band(band, band_dst, buffers, true);
-                    uncertain.extend(open.into_iter().map(|at| k * band_values + at));
-                }
-                uncertain
-            }
+                    conv.band(k * rows, band_dst, buffers, true)
+                })
+                .collect(),
         };
         if let (Some(exact), Some(bias)) = (exact, bias_relu) {
             let sums: Vec<f32> = uncertain
@@ -1023,6 +1017,20 @@ mod tests {
             .collect()
     }
 
+    /// `input` (`[.., w, cin]`) made as after a ReLU: non-negative, a third of the channels
+    /// zero and the others 0.25 over the left half of each row (flat), the values shifted,
+    /// clamped at 0 and scaled elsewhere.
+    fn after_relu_with_a_flat_half(input: &mut [f32], w: usize, cin: usize) {
+        for (k, v) in input.iter_mut().enumerate() {
+            let (x, i) = ((k / cin) % w, k % cin);
+            *v = match (x < w / 2, i % 3 == 0) {
+                (true, true) => 0.0,
+                (true, false) => 0.25,
+                (false, _) => (*v - 0.3).max(0.0) * 4.0,
+            };
+        }
+    }
+
     /// Odd and even sides (a last partial block of either tile), one pixel, one channel, more
     /// channels than pixels, and bands of several block rows (the 40x9 image at 64 channels).
     const SHAPES: [(usize, usize, usize, usize); 7] = [
@@ -1302,19 +1310,7 @@ mod tests {
             for kind in 0..3 {
                 let mut input = values(h * w * cin, seed + 600);
                 if kind > 0 {
-                    // After a ReLU: non-negative, a third zero, the left half flat.
-                    for (k, v) in input.iter_mut().enumerate() {
-                        let (x, i) = ((k / cin) % w, k % cin);
-                        *v = if x < w / 2 {
-                            if i % 3 == 0 {
-                                0.0
-                            } else {
-                                0.25
-                            }
-                        } else {
-                            (*v - 0.3).max(0.0) * 4.0
-                        };
-                    }
+                    after_relu_with_a_flat_half(&mut input, w, cin);
                 }
                 let mut weight: Vec<f32> = values(cout * cin * 9, seed + 700)
                     .iter()
@@ -1436,17 +1432,8 @@ mod tests {
                 .enumerate()
             {
                 let seed = seed as u64;
-                // After a ReLU: non-negative, a third zero, the left half flat.
-                let input: Vec<f32> = values(2 * h * w * cin, seed + 800)
-                    .iter()
-                    .enumerate()
-                    .map(|(k, v)| match ((k / cin) % w < w / 2, k % cin % 3 == 0) {
-                        (true, true) => 0.0,
-                        (true, false) => 0.25,
-                        (false, _) => (v - 0.3).max(0.0) * 4.0,
-                    })
-                    .collect();
-                let mut input = input;
+                let mut input = values(2 * h * w * cin, seed + 800);
+                after_relu_with_a_flat_half(&mut input, w, cin);
                 // A NaN in the first image's last pixel: outputs its window reaches are NaN.
                 input[h * w * cin - 1] = f32::NAN;
                 let gate = values(2 * h * w * cin, seed + 810);
@@ -1455,9 +1442,8 @@ mod tests {
                     .map(|v| v / (3 * cin) as f32)
                     .collect();
                 let bias: Vec<f32> = values(cout, seed + 830).iter().map(|v| 0.1 * v).collect();
-                let exact_kernel = ExactWinogradKernel::<A>::from_taps(cout, cin, |o, i, y, x| {
-                    weight[((o * cin + i) * 3 + y) * 3 + x]
-                });
+                let taps = pytorch_taps(&weight, cout, cin);
+                let exact_kernel = ExactWinogradKernel::<A>::from_taps(cout, cin, taps);
                 let kernel = WinogradKernel::<T, A>::new(&weight, cout, cin);
                 let run = |schedule| {
                     if exact {

@@ -55,8 +55,9 @@ pub(crate) struct KernelWidths {
 /// the bf16 conversions cost more than they saved. F(2x2, 3x3) in f32 beat the direct
 /// backward from 64 channels once a layer whose transformed kernel stays in cache ran its bands
 /// in parallel (each convolution timed in the content term at 384x384 on a 2-core Zen 3,
-/// medians: 384x384 64->64 from 127 to 81 ms, 192x192 128->128 from 100 to 70 ms). In f64, F(4x4, 3x3) (2.25 multiply-adds per output and
-/// channel pair, against 4 for F(2x2, 3x3) and 9 directly) with its bound checked beat
+/// medians: 384x384 64->64 from 127 to 81 ms, 192x192 128->128 from 100 to 70 ms). In f64,
+/// F(4x4, 3x3) (2.25 multiply-adds per output and channel pair, against 4 for F(2x2, 3x3)
+/// and 9 directly) with its bound checked beat
 /// F(2x2, 3x3) and the direct sums on every layer but the first (3 input channels; timed
 /// layer by layer at 384x384 and 800x800 on a 2-core Zen 3). Without the bound it moved the
 /// content gradient by 1.8e-2 on `scripts/make_vgg_border_ties_fixture.py`'s cases from the
