@@ -30,7 +30,7 @@ use std::ops::{Add, Mul, Sub};
 
 use rayon::prelude::*;
 
-use crate::simd_dispatch::widest_simd;
+use gs_core::widest_simd;
 
 /// Tile size of F(2x2, 3x3): 4x4 inputs for 2x2 outputs.
 pub(crate) const F2X2: usize = 4;

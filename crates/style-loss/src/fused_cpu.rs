@@ -9,7 +9,7 @@ use candle_core::{CpuStorage, CustomOp1, CustomOp2, Layout, Shape, Tensor};
 use rayon::prelude::*;
 
 use crate::cpu_elements::{elements, same_shape_elements};
-use crate::vector_exp::{exp, sigmoid};
+use gs_core::vector_exp::{exp, sigmoid};
 
 /// Applies `row_fn` to consecutive rows of `len` elements of `inputs` (equal lengths) and the
 /// matching rows of the output, in parallel blocks of whole rows; a last partial row is passed
