@@ -25,9 +25,8 @@
 //! - [`pil_resize`] and [`wide_pictures`]: Pillow's bicubic resize of 8-bit pictures, bit for
 //!   bit, and the authors' loaders' shrinking of pictures wider than 1600 pixels.
 //! - [`device`]: the device a run asks for (`cpu|gpu|auto`).
-//! - [`vector_exp`] and [`simd`]: `exp` in arithmetic the compiler vectorizes, and kernels
-//!   compiled per instruction set ([`widest_simd!`]), for the CPU loops here and in the style
-//!   loss.
+//! - [`vector_exp`] and [`widest_simd!`]: `exp` in arithmetic the compiler vectorizes, and
+//!   kernels compiled per instruction set, for the CPU loops here and in the style loss.
 //! - [`GsError`]: this crate's error.
 //!
 //! The GPU backend, and the opening of the device a run asks for, are the gs-wgpu crate
@@ -57,7 +56,7 @@ pub mod raster;
 pub mod real;
 pub mod render_clamp;
 pub mod sh;
-pub mod simd;
+mod simd;
 pub mod splats;
 pub mod train;
 pub mod vector_exp;

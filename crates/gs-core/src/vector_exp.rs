@@ -1,6 +1,6 @@
 //! `exp` and the logistic sigmoid of f32 in straight-line arithmetic, which the compiler turns
 //! into vector code inside CPU loops (the C library's `expf` is one call per element: a tenth
-//! of CLIP's CPU time, and an eighth of the rasterizer's, went to it).
+//! of CLIP's CPU time, and an eighth of a CPU fit's, went to it).
 //!
 //! `exp(x) = 2^n e^r` with `n = round(x / ln 2)` and `r = x - n ln 2` (ln 2 in two parts, so `r`
 //! carries no rounding of `n ln 2`), `e^r` by the degree-7 polynomial of Cephes' `expf` on

@@ -13,8 +13,10 @@
 //! per-pixel loop (bit for bit forward; the backward sums a splat's gradient per column, then
 //! over the columns). A row is one loop without branches over a window of 8 or 16 columns,
 //! which the compiler vectorizes (`exp` included, [`Real::exp_in_loop`]); columns the splat
-//! does not composite take alpha 0, which leaves every update exactly as it was. The band
-//! loops are compiled per instruction set ([`crate::widest_simd!`]).
+//! does not composite take alpha 0, which leaves every update exactly as it was (in a tile
+//! whose upstream gradients are not all finite, the backward takes those columns' gradients as
+//! 0 too, so that a NaN reaches only its own pixel's splats). The band loops are compiled per
+//! instruction set ([`crate::widest_simd!`]).
 
 use rayon::prelude::*;
 
@@ -65,8 +67,8 @@ const NARROW: usize = 8;
 
 /// One splat at `L` pixel centres of a tile row, columns `x0..x0 + L`: its alpha, `exp(-sigma)`
 /// and x offset `mean2d.x - px` at each, and whether it is composited there (`hit`: inside
-/// `cols`, `sigma` in `[0, sigma_cut]` and alpha at least `ALPHA_MIN`; the `sigma_cut` test only
-/// leaves out pixels where alpha is surely below it). Every column of the window is computed,
+/// `cols`, `sigma` neither below 0 nor above `sigma_cut`, and alpha at least `ALPHA_MIN`; the
+/// `sigma_cut` test only leaves out pixels where alpha is surely below it). Every column of the window is computed,
 /// inside `cols` or not, so that the loop has no branch and the compiler vectorizes it, `exp`
 /// included ([`Real::exp_in_loop`]); the per-pixel expressions are those of a per-pixel loop.
 struct RowAlphas<T: Real, const L: usize> {
@@ -77,11 +79,11 @@ struct RowAlphas<T: Real, const L: usize> {
     hit: [bool; L],
 }
 
-/// Calls `$body` with `$lanes`, the splat's [`RowAlphas`] over the narrowest window (of
+/// Calls `$body` with `$alphas`, the splat's [`RowAlphas`] over the narrowest window (of
 /// [`NARROW`] or `TILE_SIZE` columns) that holds `$cols`. A macro, not a closure, so that the
 /// body is compiled for the two window widths inside the caller's instruction set.
 macro_rules! with_row_alphas {
-    ($s:expr, $centre_x:expr, $row:expr, $cols:expr, |$lanes:ident| $body:expr) => {{
+    ($s:expr, $centre_x:expr, $row:expr, $cols:expr, |$alphas:ident| $body:expr) => {{
         let cols: std::ops::Range<usize> = $cols;
         if cols.end <= NARROW || cols.start >= TILE_SIZE - NARROW {
             let x0 = if cols.end <= NARROW {
@@ -89,10 +91,10 @@ macro_rules! with_row_alphas {
             } else {
                 TILE_SIZE - NARROW
             };
-            let $lanes = row_alphas::<T, NARROW>($s, $centre_x, $row, x0, cols);
+            let $alphas = row_alphas::<T, NARROW>($s, $centre_x, $row, x0, cols);
             $body
         } else {
-            let $lanes = row_alphas::<T, TILE_SIZE>($s, $centre_x, $row, 0, cols);
+            let $alphas = row_alphas::<T, TILE_SIZE>($s, $centre_x, $row, 0, cols);
             $body
         }
     }};
@@ -304,8 +306,8 @@ crate::widest_simd! {
                         continue;
                     }
                     let row = SplatRow::new(s, centre_y[ly]);
-                    let stopped = with_row_alphas!(s, &centre_x, row, cols, |lanes| {
-                        composite_row(&mut st, ly, s, k as u32 + 1, &lanes, t_min)
+                    let stopped = with_row_alphas!(s, &centre_x, row, cols, |alphas| {
+                        composite_row(&mut st, ly, s, k as u32 + 1, &alphas, t_min)
                     });
                     if stopped > 0 {
                         remaining -= stopped;
@@ -357,7 +359,7 @@ fn window3<V: Copy, const L: usize>(a: &[impl AsRef<[V]>; 3], start: usize) -> [
 }
 
 /// Composites splat `s` (number `count` in its tile's list, from 1) over the unfinished pixels
-/// of tile row `ly` where `lanes` says it hits; a pixel whose transmittance it would take below
+/// of tile row `ly` where `alphas` says it hits; a pixel whose transmittance it would take below
 /// `t_min` stops there instead. Returns how many pixels stopped. The window's state is copied
 /// to arrays of its own and back: on those the compiler needs no proof that the loop's loads
 /// and stores do not overlap, and vectorizes it.
@@ -367,10 +369,10 @@ fn composite_row<T: Real, const L: usize>(
     ly: usize,
     s: &Splat<T>,
     count: u32,
-    lanes: &RowAlphas<T, L>,
+    alphas: &RowAlphas<T, L>,
     t_min: T,
 ) -> usize {
-    let q0 = ly * TILE_SIZE + lanes.x0;
+    let q0 = ly * TILE_SIZE + alphas.x0;
     let mut trans: [T; L] = window(&st.trans, q0);
     let mut color: [[T; L]; 3] = window3(&st.color, q0);
     let mut depth: [T; L] = window(&st.depth, q0);
@@ -380,14 +382,15 @@ fn composite_row<T: Real, const L: usize>(
     let (splat_color, splat_depth) = (s.color, s.depth);
     let mut stopped = 0u32;
     for i in 0..L {
-        let live = lanes.hit[i] & !done[i];
-        let next = trans[i] * (T::ONE - lanes.alpha[i]);
+        let live = alphas.hit[i] & !done[i];
+        let next = trans[i] * (T::ONE - alphas.alpha[i]);
         let stop = live & (next < t_min);
         let keep = live & !stop;
         // Where the splat is not composited, alpha 0 makes every update below exactly
-        // nothing: no select of the stored values, which the compiler would turn into masked
-        // stores (microcoded, slow, on AMD's cores).
-        let a = pick(keep, lanes.alpha[i], T::ZERO);
+        // nothing (the splat's colour and depth are finite: the projection culls the rest):
+        // no select of the stored values, which the compiler would turn into masked stores
+        // (microcoded, slow, on AMD's cores).
+        let a = pick(keep, alphas.alpha[i], T::ZERO);
         let w = a * trans[i];
         for ch in 0..3 {
             color[ch][i] += w * splat_color[ch];
@@ -461,8 +464,8 @@ struct TileBack<T: Real> {
 }
 
 /// One splat's gradient summed per column of the tile (over its rows), added up by
-/// [`LaneGrads::total`] once the splat's rows are done.
-struct LaneGrads<T: Real> {
+/// [`ColumnGrads::total`] once the splat's rows are done.
+struct ColumnGrads<T: Real> {
     mean2d: [[T; TILE_SIZE]; 2],
     conic: [[T; TILE_SIZE]; 3],
     opacity: [T; TILE_SIZE],
@@ -470,7 +473,7 @@ struct LaneGrads<T: Real> {
     depth: [T; TILE_SIZE],
 }
 
-impl<T: Real> LaneGrads<T> {
+impl<T: Real> ColumnGrads<T> {
     fn zero() -> Self {
         Self {
             mean2d: [[T::ZERO; TILE_SIZE]; 2],
@@ -550,6 +553,8 @@ crate::widest_simd! {
             // The largest count of each row: splat k reaches no pixel of a row whose largest
             // count is at most k.
             let mut row_count = [0u32; TILE_SIZE];
+            // Whether every upstream gradient of the tile is finite (see `backward_row`).
+            let mut finite = true;
             for ly in 0..rect.h {
                 for lx in 0..rect.w {
                     let q = ly * TILE_SIZE + lx;
@@ -560,6 +565,9 @@ crate::widest_simd! {
                     }
                     st.g_alpha[q] = grads.alpha.map_or(T::ZERO, |a| a[p]);
                     st.g_depth[q] = grads.depth.map_or(T::ZERO, |d| d[p]);
+                    finite &= (0..3).all(|ch| st.g_rgb[ch][q].is_finite())
+                        && st.g_alpha[q].is_finite()
+                        && st.g_depth[q].is_finite();
                     st.t_final[q] = final_t[p];
                     st.trans[q] = final_t[p];
                     st.count[q] = n_contrib[p];
@@ -571,14 +579,22 @@ crate::widest_simd! {
             for k in (0..max_count).rev() {
                 let s = &local[k];
                 let (xs, ys) = rect.clip(s);
-                let mut acc = LaneGrads::zero();
+                let mut acc = ColumnGrads::zero();
                 for ly in ys {
                     if row_count[ly] as usize <= k || xs.is_empty() {
                         continue;
                     }
                     let row = SplatRow::new(s, centre_y[ly]);
-                    with_row_alphas!(s, &centre_x, row, xs.clone(), |lanes| {
-                        backward_row::<T, EXTRAS, GEOMETRY, _>(&mut st, &mut acc, ly, s, k, row, &lanes)
+                    with_row_alphas!(s, &centre_x, row, xs.clone(), |alphas| {
+                        if finite {
+                            backward_row::<T, EXTRAS, GEOMETRY, true, _>(
+                                &mut st, &mut acc, ly, s, k, row, &alphas,
+                            )
+                        } else {
+                            backward_row::<T, EXTRAS, GEOMETRY, false, _>(
+                                &mut st, &mut acc, ly, s, k, row, &alphas,
+                            )
+                        }
                     });
                 }
                 tile_slots[k] = acc.total();
@@ -588,21 +604,27 @@ crate::widest_simd! {
     }
 }
 
-/// Walks splat `s` (entry `k` of its tile's list) back out of tile row `ly` where `lanes` says
+/// Walks splat `s` (entry `k` of its tile's list) back out of tile row `ly` where `alphas` says
 /// it hits a pixel it contributed to (`k` below the pixel's count), adding its gradient to
 /// `acc`'s columns.
 #[inline(always)]
-fn backward_row<T: Real, const EXTRAS: bool, const GEOMETRY: bool, const L: usize>(
+fn backward_row<
+    T: Real,
+    const EXTRAS: bool,
+    const GEOMETRY: bool,
+    const FINITE: bool,
+    const L: usize,
+>(
     st: &mut TileBack<T>,
-    acc: &mut LaneGrads<T>,
+    acc: &mut ColumnGrads<T>,
     ly: usize,
     s: &Splat<T>,
     k: usize,
     row: SplatRow<T>,
-    lanes: &RowAlphas<T, L>,
+    alphas: &RowAlphas<T, L>,
 ) {
     let half = T::from_f64(0.5);
-    let (q0, x0) = (ly * TILE_SIZE + lanes.x0, lanes.x0);
+    let (q0, x0) = (ly * TILE_SIZE + alphas.x0, alphas.x0);
     // The window's state and sums in arrays of their own (see `composite_row`).
     let mut trans: [T; L] = window(&st.trans, q0);
     let mut behind: [[T; L]; 3] = window3(&st.behind, q0);
@@ -622,28 +644,32 @@ fn backward_row<T: Real, const EXTRAS: bool, const GEOMETRY: bool, const L: usiz
     // The splat's fields as locals (see `row_alphas`).
     let (color, depth, opacity, conic) = (s.color, s.depth, s.opacity, s.conic);
     for i in 0..L {
-        let live = lanes.hit[i] & ((k as u32) < count[i]);
+        let live = alphas.hit[i] & ((k as u32) < count[i]);
         // Where the splat did not composite, alpha and exp(-sigma) 0 make every update below
-        // exactly nothing (see `composite_row`).
-        let a = pick(live, lanes.alpha[i], T::ZERO);
-        let falloff = pick(live, lanes.falloff[i], T::ZERO);
-        let (dx, dy) = (lanes.dx[i], row.dy);
+        // exactly nothing (see `composite_row`), as long as the upstream gradients are finite;
+        // where a tile's are not, they are taken as 0 there too, so that a pixel's non-finite
+        // gradient reaches only its own splats (selects that cost the loop its speed, so only
+        // in such a tile).
+        let upstream = |g: T| if FINITE { g } else { pick(live, g, T::ZERO) };
+        let a = pick(live, alphas.alpha[i], T::ZERO);
+        let falloff = pick(live, alphas.falloff[i], T::ZERO);
+        let (dx, dy) = (alphas.dx[i], row.dy);
         let one_minus = T::ONE - a;
         let t_before = trans[i] / one_minus;
         let w = a * t_before;
         let mut g_alpha = if EXTRAS {
-            g_a[i] * t_final[i] / one_minus
+            upstream(g_a[i]) * t_final[i] / one_minus
         } else {
             T::ZERO
         };
         for ch in 0..3 {
-            let g = g_rgb[ch][i];
+            let g = upstream(g_rgb[ch][i]);
             sum_color[ch][i] += w * g;
             g_alpha += t_before * (color[ch] - behind[ch][i]) * g;
             behind[ch][i] = a * color[ch] + one_minus * behind[ch][i];
         }
         if EXTRAS {
-            let g = g_d[i];
+            let g = upstream(g_d[i]);
             sum_depth[i] += w * g;
             g_alpha += t_before * (depth - behind_depth[i]) * g;
             behind_depth[i] = a * depth + one_minus * behind_depth[i];
@@ -729,21 +755,24 @@ mod tests {
             assert_eq!(row.dy.to_bits(), dy.to_bits());
             assert_eq!(row.b_dy.to_bits(), (s.conic[1] * dy).to_bits());
             assert_eq!(row.c_dy.to_bits(), (s.conic[2] * dy).to_bits());
-            let lanes = row_alphas::<f32, TILE_SIZE>(&s, &centres, row, 0, 0..TILE_SIZE);
+            let alphas = row_alphas::<f32, TILE_SIZE>(&s, &centres, row, 0, 0..TILE_SIZE);
             let narrow = row_alphas::<f32, TILE_SIZE>(&s, &centres, row, 0, 5..9);
             // The narrow windows are the same columns' values.
             for x0 in [0, TILE_SIZE - NARROW] {
                 let window = row_alphas::<f32, NARROW>(&s, &centres, row, x0, 0..TILE_SIZE);
                 for i in 0..NARROW {
-                    assert_eq!(window.alpha[i].to_bits(), lanes.alpha[x0 + i].to_bits());
-                    assert_eq!(window.falloff[i].to_bits(), lanes.falloff[x0 + i].to_bits());
-                    assert_eq!(window.dx[i].to_bits(), lanes.dx[x0 + i].to_bits());
-                    assert_eq!(window.hit[i], lanes.hit[x0 + i]);
+                    assert_eq!(window.alpha[i].to_bits(), alphas.alpha[x0 + i].to_bits());
+                    assert_eq!(
+                        window.falloff[i].to_bits(),
+                        alphas.falloff[x0 + i].to_bits()
+                    );
+                    assert_eq!(window.dx[i].to_bits(), alphas.dx[x0 + i].to_bits());
+                    assert_eq!(window.hit[i], alphas.hit[x0 + i]);
                 }
             }
             for (lx, &px) in centres.iter().enumerate() {
                 let dx = s.mean2d[0] - px;
-                assert_eq!(lanes.dx[lx].to_bits(), dx.to_bits());
+                assert_eq!(alphas.dx[lx].to_bits(), dx.to_bits());
                 let direct = mahalanobis(s.conic, dx, dy);
                 let hoisted = mahalanobis_in_row(s.conic, dx, dy, row.c_dy2);
                 assert_eq!(hoisted.to_bits(), direct.to_bits(), "conic {:?}", s.conic);
@@ -753,7 +782,7 @@ mod tests {
                 let expected = (!(direct < 0.0 || direct > s.sigma_cut))
                     .then(|| (s.opacity * (-direct).exp_in_loop()).min(ALPHA_MAX as f32))
                     .filter(|&alpha| alpha >= ALPHA_MIN as f32);
-                let got = lanes.hit[lx].then_some(lanes.alpha[lx]);
+                let got = alphas.hit[lx].then_some(alphas.alpha[lx]);
                 assert_eq!(got.map(f32::to_bits), expected.map(f32::to_bits));
                 // Outside the columns asked for, nothing hits.
                 assert_eq!(narrow.hit[lx], got.is_some() && (5..9).contains(&lx));
@@ -992,10 +1021,12 @@ mod tests {
         }
     }
 
-    /// The compositing loops work a tile row at a time over all sixteen columns with masks
-    /// (the form the compiler vectorizes); they must composite exactly the pixels and splats
-    /// the plain per-pixel loop does, narrow and short edge tiles, pixels that stop early and
-    /// the skipped columns of a row included. Forward bit for bit, backward to rounding.
+    /// The compositing loops work a splat's tile row at a time over a window of 8 or 16
+    /// columns, alpha 0 where it does not composite (the form the compiler vectorizes); they
+    /// must composite exactly the pixels and splats the plain per-pixel loop does, narrow and
+    /// short edge tiles (of 5, 2, 7 and 12 columns: windows past the image's edge on both
+    /// halves), pixels that stop early and the skipped columns of a row included. Forward bit
+    /// for bit, backward to rounding.
     #[test]
     fn compositing_is_the_per_pixel_loop() {
         let cases = [
@@ -1006,6 +1037,7 @@ mod tests {
             // the edge tile's columns are not pixels.
             (4, 400, (7, 40), 0.25),
             (5, 400, (21, 9), 0.3),
+            (6, 300, (44, 19), 0.4),
         ];
         for (seed, n, size, fov_x) in cases {
             let r64 = scene::<f64>(seed, n, size, fov_x);
@@ -1018,6 +1050,47 @@ mod tests {
             );
             check_backward_is_the_per_pixel_loop(&r64, seed, 1e-12);
             check_backward_is_the_per_pixel_loop(&r32, seed, 1e-5);
+        }
+    }
+
+    /// A non-finite upstream gradient at one pixel reaches only the tile-list entries
+    /// composited there, not the splats whose window merely spans its column (their columns
+    /// that do not composite must add exactly nothing).
+    #[test]
+    fn a_non_finite_gradient_reaches_only_the_splats_of_its_pixel() {
+        let r = scene::<f32>(1, 150, (37, 29), 0.9);
+        let (w, n) = (37, r.alpha.len());
+        let p = (0..n).max_by_key(|&p| r.n_contrib[p]).unwrap();
+        let (px, py) = (p % w, p / w);
+        let (start, list) = pixel_list(&r, px, py);
+        let reached: Vec<usize> = (0..r.n_contrib[p] as usize)
+            .filter(|&k| alpha_at(&list[k], centre(px), centre(py)).is_some())
+            .map(|k| start + k)
+            .collect();
+        assert!(reached.len() > 1, "{} splats at the pixel", reached.len());
+        for (bad, extras) in [(f32::NAN, false), (f32::INFINITY, true)] {
+            let mut rgb = vec![0.5f32; 3 * n];
+            rgb[3 * p + 1] = bad;
+            let mut alpha = vec![0.25f32; n];
+            alpha[p] = bad;
+            let depth = vec![-0.5f32; n];
+            let grads = OutputGrads {
+                rgb: &rgb,
+                alpha: extras.then_some(&alpha[..]),
+                depth: extras.then_some(&depth[..]),
+            };
+            let (got, _) = backward(&r, &grads, true);
+            for (i, g) in got.iter().enumerate() {
+                let values = [
+                    g.mean2d.as_slice(),
+                    &g.conic,
+                    &[g.opacity],
+                    &g.color,
+                    &[g.depth],
+                ];
+                let finite = values.concat().iter().all(|v| v.is_finite());
+                assert_eq!(finite, !reached.contains(&i), "entry {i} ({bad})");
+            }
         }
     }
 }
