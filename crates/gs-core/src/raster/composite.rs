@@ -68,9 +68,10 @@ const NARROW: usize = 8;
 /// One splat at `L` pixel centres of a tile row, columns `x0..x0 + L`: its alpha, `exp(-sigma)`
 /// and x offset `mean2d.x - px` at each, and whether it is composited there (`hit`: inside
 /// `cols`, `sigma` neither below 0 nor above `sigma_cut`, and alpha at least `ALPHA_MIN`; the
-/// `sigma_cut` test only leaves out pixels where alpha is surely below it). Every column of the window is computed,
-/// inside `cols` or not, so that the loop has no branch and the compiler vectorizes it, `exp`
-/// included ([`Real::exp_in_loop`]); the per-pixel expressions are those of a per-pixel loop.
+/// `sigma_cut` test only leaves out pixels where alpha is surely below it). Every column of the
+/// window is computed, inside `cols` or not, so that the loop has no branch and the compiler
+/// vectorizes it, `exp` included ([`Real::exp_in_loop`]); the per-pixel expressions are those
+/// of a per-pixel loop.
 struct RowAlphas<T: Real, const L: usize> {
     x0: usize,
     alpha: [T; L],
@@ -387,9 +388,10 @@ fn composite_row<T: Real, const L: usize>(
         let stop = live & (next < t_min);
         let keep = live & !stop;
         // Where the splat is not composited, alpha 0 makes every update below exactly
-        // nothing (the splat's colour and depth are finite: the projection culls the rest):
-        // no select of the stored values, which the compiler would turn into masked stores
-        // (microcoded, slow, on AMD's cores).
+        // nothing (for a finite colour: an SH colour that overflowed to infinity would give
+        // the window's other columns NaN, where it already makes its own pixels infinite or
+        // NaN): no select of the stored values, which the compiler would turn into masked
+        // stores (microcoded, slow, on AMD's cores).
         let a = pick(keep, alphas.alpha[i], T::ZERO);
         let w = a * trans[i];
         for ch in 0..3 {
