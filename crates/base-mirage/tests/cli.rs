@@ -420,6 +420,11 @@ fn stylize_on_the_gpu_ends_close_to_the_cpu_and_resumes_on_the_cpu() {
     let on_cpu = dir.path().join("cpu");
     let printed = stylize_to(&on_cpu, "cpu", 6, false);
     assert!(printed.contains("device: cpu (rayon, "), "{printed}");
+    // The models' loading is said after the device, naming the files.
+    let loading = printed.find("loading CLIP (").expect("a loading line");
+    assert!(loading > printed.find("device: cpu").unwrap(), "{printed}");
+    let clip_name = models.clip_weights.file_name().unwrap().to_string_lossy();
+    assert!(printed[loading..].contains(&*clip_name), "{printed}");
     let on_gpu = dir.path().join("gpu");
     let printed = stylize_to(&on_gpu, "gpu", 6, false);
     assert!(printed.contains("device: gpu: "), "{printed}");

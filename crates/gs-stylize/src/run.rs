@@ -171,6 +171,7 @@ pub fn prepare(
                 backend.describe(),
                 compute_device::describe(&loss_device)
             );
+            println!("{}", loading_line(&weights));
             let models = load_style_models(settings, &weights, &loss_device)?;
             for line in precision_lines(settings, &models) {
                 println!("{line}");
@@ -584,6 +585,19 @@ fn precision_line(network: &str, runs: &str, auto_chose_bf16: Option<bool>) -> S
 /// Loads the models of `settings`' loss from `files` on `device`, with the style's direction
 /// in CLIP space (from the style image's stored colours, alpha ignored, as the authors read
 /// it; the text tower is dropped once the direction is computed).
+/// The line a run prints before it loads the style models (about 1.3 GB of weights: seconds on
+/// a CPU, with nothing else to show meanwhile), naming the files.
+fn loading_line(files: &WeightFiles) -> String {
+    match &files.vgg {
+        Some(vgg) => format!(
+            "loading CLIP ({}) and VGG-19 ({})",
+            files.clip.display(),
+            vgg.display()
+        ),
+        None => format!("loading CLIP ({})", files.clip.display()),
+    }
+}
+
 fn load_style_models(
     settings: &StyleSettings,
     files: &WeightFiles,
