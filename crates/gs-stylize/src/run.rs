@@ -582,9 +582,6 @@ fn precision_line(network: &str, runs: &str, auto_chose_bf16: Option<bool>) -> S
     format!("{network} precision: {runs}{reason}")
 }
 
-/// Loads the models of `settings`' loss from `files` on `device`, with the style's direction
-/// in CLIP space (from the style image's stored colours, alpha ignored, as the authors read
-/// it; the text tower is dropped once the direction is computed).
 /// The line a run prints before it loads the style models (about 1.3 GB of weights: seconds on
 /// a CPU, with nothing else to show meanwhile), naming the files.
 fn loading_line(files: &WeightFiles) -> String {
@@ -598,6 +595,9 @@ fn loading_line(files: &WeightFiles) -> String {
     }
 }
 
+/// Loads the models of `settings`' loss from `files` on `device`, with the style's direction
+/// in CLIP space (from the style image's stored colours, alpha ignored, as the authors read
+/// it; the text tower is dropped once the direction is computed).
 fn load_style_models(
     settings: &StyleSettings,
     files: &WeightFiles,
