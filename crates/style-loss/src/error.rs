@@ -16,7 +16,7 @@ pub enum StyleLossError {
         /// The underlying error.
         source: std::io::Error,
     },
-    /// A JSON file (model config, tokenizer) could not be parsed.
+    /// A file (model config, tokenizer, weights) could not be parsed.
     #[error("cannot parse {path}: {message}")]
     Parse {
         /// The file.
