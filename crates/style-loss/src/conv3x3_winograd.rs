@@ -161,12 +161,12 @@ impl<T: WinogradReal, const A: usize> WinogradKernel<T, A> {
         cin: usize,
         tap: impl Fn(usize, usize, usize, usize) -> f32 + Sync,
     ) -> Self {
-        let mut data = vec![T::default(); A * A * cin * cout];
-        // One (output, input) channel pair per task: A² values, one in each matrix.
-        let columns: Vec<[[T; A]; A]> = (0..cout * cin)
+        // One (input, output) channel pair per task, in the order of a matrix's entries
+        // (`i * cout + o`): A² values, one in each matrix.
+        let pairs: Vec<[[T; A]; A]> = (0..cin * cout)
             .into_par_iter()
-            .map(|oi| {
-                let (o, i) = (oi / cin.max(1), oi % cin.max(1));
+            .map(|io| {
+                let (i, o) = (io / cout, io % cout);
                 let g = |r: usize, c: usize| f64::from(tap(o, i, r, c));
                 // Rows of G g (A x 3), then (G g) Gᵀ (A x A).
                 let gg: [[f64; 3]; A] = std::array::from_fn(|r| {
@@ -177,12 +177,16 @@ impl<T: WinogradReal, const A: usize> WinogradKernel<T, A> {
                 })
             })
             .collect();
-        for (oi, u) in columns.iter().enumerate() {
-            let (o, i) = (oi / cin.max(1), oi % cin.max(1));
-            for (xi, &v) in u.iter().flatten().enumerate() {
-                data[(xi * cin + i) * cout + o] = v;
-            }
-        }
+        // Each matrix filled in order by a task of its own (writing the pairs' values where
+        // they go, a stride of `cout` apart, took most of a large kernel's time).
+        let mut data = vec![T::default(); A * A * cin * cout];
+        data.par_chunks_mut((cin * cout).max(1))
+            .enumerate()
+            .for_each(|(xi, matrix)| {
+                for (v, u) in matrix.iter_mut().zip(&pairs) {
+                    *v = u[xi / A][xi % A];
+                }
+            });
         Self { data, cin, cout }
     }
 
