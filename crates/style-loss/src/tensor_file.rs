@@ -4,9 +4,8 @@
 //! A safetensors file is opened by reading and checking its header only; each tensor is read
 //! from the file when a model asks for it. A model reads a part of some checkpoints (VGG-19's
 //! 575 MB hold 61 MB of the convolutions the content loss runs; the rest is mostly its
-//! classifier),
-//! and reading the whole file first, then copying every tensor out of it, took 2-3 s of a
-//! run's start on a 2-core VM.
+//! classifier), and reading the whole file first, then copying every tensor out of it, took
+//! 2-3 s of a run's start on a 2-core VM.
 
 use std::collections::HashMap;
 use std::fs::File;
