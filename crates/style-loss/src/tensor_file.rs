@@ -279,6 +279,7 @@ mod tests {
         tensors
     }
 
+    /// The tensor's values converted to f32, as bits (so that -0.0 and NaN compare exactly).
     fn values(t: &Tensor) -> Vec<u32> {
         t.flatten_all()
             .unwrap()
