@@ -9,7 +9,8 @@
 //!
 //! Degree-0 colour only: the higher SH coefficients are dropped. Reading inverts each
 //! quantisation as splat-transform does: a rotation byte `b` is `b / 127.5 - 1`, the quaternion
-//! normalised; alpha through [`opacity_of_level`](super::opacity_of_level).
+//! normalised; an alpha level `a` becomes the opacity logit `logit(a / 255)`, kept finite at 0
+//! and 255.
 
 use super::DecodeError;
 use super::{check_finite, check_linear_scales, check_rotations, opacity_of_level, sigmoid};
