@@ -177,8 +177,8 @@ impl<T: WinogradReal, const A: usize> WinogradKernel<T, A> {
                 })
             })
             .collect();
-        // Each matrix filled in order by a task of its own (writing the pairs' values where
-        // they go, a stride of `cout` apart, took most of a large kernel's time).
+        // Each matrix filled in order by a task of its own (writing each pair's A² values where
+        // they go, one in each matrix, `cin * cout` apart, took most of a large kernel's time).
         let mut data = vec![T::default(); A * A * cin * cout];
         data.par_chunks_mut((cin * cout).max(1))
             .enumerate()

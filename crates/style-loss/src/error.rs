@@ -24,6 +24,17 @@ pub enum StyleLossError {
         /// What the parser said.
         message: String,
     },
+    /// A tensor of a weight file was read but could not be made into an f32 tensor on its
+    /// device (a format conversion, or the device's memory).
+    #[error("{path}: tensor `{tensor}`: {source}")]
+    TensorLoad {
+        /// The weight file.
+        path: PathBuf,
+        /// The tensor name in the checkpoint layout.
+        tensor: String,
+        /// What candle said.
+        source: candle_core::Error,
+    },
     /// A weight file lacks a tensor the model needs.
     #[error("{source_name}: missing tensor `{tensor}`")]
     MissingTensor {
