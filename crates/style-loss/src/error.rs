@@ -32,8 +32,8 @@ pub enum StyleLossError {
         path: PathBuf,
         /// The tensor name in the checkpoint layout.
         tensor: String,
-        /// What candle said.
-        source: candle_core::Error,
+        /// What candle said (boxed: it is large, and this variant rare).
+        source: Box<candle_core::Error>,
     },
     /// A weight file lacks a tensor the model needs.
     #[error("{source_name}: missing tensor `{tensor}`")]

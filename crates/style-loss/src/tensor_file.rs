@@ -239,7 +239,7 @@ impl SafetensorsFile {
         let converted = |source| StyleLossError::TensorLoad {
             path: self.path.clone(),
             tensor: name.to_string(),
-            source,
+            source: Box::new(source),
         };
         let mut file = self
             .file
