@@ -41,7 +41,7 @@ enum Command {
 #[derive(Subcommand)]
 enum BatchCommand {
     /// Check a manifest and write the batch folder's jobs.json (one job per input and style,
-    /// each with a stable id and its output folder <batch>/<id>/).
+    /// each with a stable id and its output folder `<batch>/<id>/`).
     Plan {
         /// The manifest (JSON: modality, config, set, inputs, styles, pairing).
         manifest: PathBuf,

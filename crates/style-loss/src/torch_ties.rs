@@ -20,7 +20,7 @@ use crate::custom_grad::attach_input_gradient;
 /// floor mode). As PyTorch's `max_pool2d`, a window holding a NaN gives NaN, and the gradient of
 /// each window goes to its first maximum in row-major order (to its last NaN where it holds
 /// one): on the cpu in one pass ([`route_to_first_maximum`]), on other devices with candle's
-/// pooling and upsampling kernels ([`route_with_tensor_ops`]).
+/// pooling and upsampling kernels (`route_with_tensor_ops`).
 pub fn max_pool_2x2(x: &Tensor) -> candle_core::Result<Tensor> {
     let input = x.detach();
     let value = pooled_with_nans(&input)?;

@@ -111,7 +111,7 @@ struct StylizeArgs {
     #[arg(long)]
     out: Option<PathBuf>,
     /// Resolution divisor of the dataset images (3DGS's -r; default 1, the images as they
-    /// are up to --max-width, or the configuration's `resolution`); images_<r>/ is read when the
+    /// are up to --max-width, or the configuration's `resolution`); `images_<r>/` is read when the
     /// dataset has it.
     #[arg(short = 'r', long)]
     resolution: Option<u32>,
@@ -168,11 +168,11 @@ struct RenderArgs {
     /// decoded (only a header where the cameras need a size) and need not all be there.
     #[arg(long, required_unless_present = "camera", conflicts_with = "camera")]
     data: Option<PathBuf>,
-    /// The split (default train): NeRF-synthetic's transforms_<split>.json, or the split lists
+    /// The split (default train): NeRF-synthetic's `transforms_<split>.json`, or the split lists
     /// of a transforms.json; COLMAP scenes have none.
     #[arg(long, value_enum, requires = "data")]
     split: Option<SplitArg>,
-    /// Resolution divisor of the dataset's cameras (3DGS's -r); images_<r>/ is read when the
+    /// Resolution divisor of the dataset's cameras (3DGS's -r); `images_<r>/` is read when the
     /// dataset has it.
     #[arg(short = 'r', long, default_value_t = 1, requires = "data")]
     resolution: u32,
