@@ -91,9 +91,15 @@ impl NamedTensors {
         }
         let mut header = vec![0u8; header_len as usize];
         file.read_exact(&mut header).map_err(io)?;
-        check_entries(&header).map_err(parse)?;
-        let metadata: Metadata =
-            serde_json::from_slice(&header).map_err(|e| parse(format!("header: {e}")))?;
+        // The crate's own checks; where they refuse the header, the entry at fault is named if
+        // there is one (the crate's messages for a size that is not its format's name none).
+        let metadata: Metadata = serde_json::from_slice(&header).map_err(|e| {
+            parse(
+                check_entries(&header)
+                    .err()
+                    .unwrap_or_else(|| format!("header: {e}")),
+            )
+        })?;
         let data_start = 8 + header_len;
         let data_len = metadata.data_len() as u64;
         if data_start.checked_add(data_len) != Some(file_len) {
@@ -175,8 +181,8 @@ impl NamedTensors {
 
 /// Checks each tensor entry of a safetensors header on its own, so that an error names the
 /// tensor: its format, shape and offsets parse, and its byte range holds exactly its values.
-/// The order of the ranges (back to back from 0) is left to the safetensors crate's own check,
-/// whose error names the tensor too.
+/// Run on a header the safetensors crate refused, to say which entry is at fault; the order of
+/// the ranges (back to back from 0) is the crate's check alone, whose error names the tensor.
 fn check_entries(header: &[u8]) -> std::result::Result<(), String> {
     let entries: BTreeMap<String, serde_json::Value> =
         serde_json::from_slice(header).map_err(|e| format!("header: {e}"))?;
