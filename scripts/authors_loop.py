@@ -55,6 +55,18 @@ def inria_camera(c2w, width, height, fov_x):
                 center=torch.from_numpy(c2w[:3, 3].copy()))
 
 
+def look_at_c2w(eye):
+    """Blender camera-to-world (the camera looks along its -z, y up) looking at the origin."""
+    eye = np.asarray(eye, dtype=np.float64)
+    forward = -eye / np.linalg.norm(eye)
+    right = np.cross(forward, [0.0, 0.0, 1.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, eye
+    return c2w
+
+
 def ground_truth(path, rule, background, mirror=False):
     """`[3, H, W]` in float64: `file_colour`, the stored colours / 255 (INRIA since August 2024);
     `composited`, RGBA over `background` in float64 cut to 8 bits by
@@ -115,8 +127,10 @@ def capped_alpha(raw):
     return raw - (raw - 0.99).clamp(min=0).detach()
 
 
-def rasterize(g, cam, background):
-    """`[3, H, W]` colour and `[H, W]` alpha of `g` (INRIA's stored parameters)."""
+def project(g, cam):
+    """INRIA's `preprocessCUDA` for every Gaussian of `g` (its stored parameters): pixel
+    position `px, py` (INRIA's pixel coordinates, centres at integers), `conic`, `radius`, tile
+    rectangle `x0, x1, y0, y1`, `visible` (not culled), `colour`, `opacity`, depth `tz`."""
     dtype = g["xyz"].dtype
     w2c, width, height = cam["w2c"].to(dtype), cam["width"], cam["height"]
     tan_x, tan_y = cam["tan_x"], cam["tan_y"]
@@ -157,13 +171,27 @@ def rasterize(g, cam, background):
         x1 = trunc((px + radius + TILE - 1) / TILE).clamp(0, grid_x)
         y0 = trunc((py - radius) / TILE).clamp(0, grid_y)
         y1 = trunc((py + radius + TILE - 1) / TILE).clamp(0, grid_y)
+        # getRect's empty rectangle is the only screen-space cull.
         visible = (tz > 0.2) & (det != 0) & ((x1 - x0) * (y1 - y0) > 0)
-    # Colour from SH at the direction from the camera centre, + 0.5, clamped at 0.
+    # Colour from SH at the direction from the camera centre, + 0.5, clamped at 0 (the gradient
+    # passes where the sum is exactly 0: INRIA's `clamped` is `result < 0`).
     direction = xyz - cam["center"].to(dtype)
     direction = direction / direction.norm(dim=1, keepdim=True)
     sh = torch.cat([g["f_dc"], g["f_rest"]], dim=1)
     colour = torch.clamp_min(eval_sh(sh, direction) + 0.5, 0.0)
     opacity = torch.sigmoid(g["opacity"][:, 0])
+    return dict(px=px, py=py, conic=conic, radius=radius, x0=x0, x1=x1, y0=y0, y1=y1,
+                visible=visible, colour=colour, opacity=opacity, tz=tz)
+
+
+def rasterize(g, cam, background):
+    """`[3, H, W]` colour and `[H, W]` alpha of `g` (INRIA's stored parameters)."""
+    dtype = g["xyz"].dtype
+    width, height = cam["width"], cam["height"]
+    proj = project(g, cam)
+    px, py, conic, tz = proj["px"], proj["py"], proj["conic"], proj["tz"]
+    x0, x1, y0, y1 = proj["x0"], proj["x1"], proj["y0"], proj["y1"]
+    visible, colour, opacity = proj["visible"], proj["colour"], proj["opacity"]
 
     order = torch.sort(tz.detach(), stable=True).indices
     order = order[visible[order]]

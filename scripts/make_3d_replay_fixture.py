@@ -10,11 +10,13 @@ How to run (from the repository root; PyTorch, transformers and torchvision from
     cargo test -p base-3dgs --test authors_replay -- --ignored write_replay_draws
     /tmp/replay-venv/bin/python scripts/make_3d_replay_fixture.py
 
-The first command writes `draws.json` (our run's view order, patch crops and warps, and text
-direction); this script writes the rest of `crates/base-3dgs/tests/fixtures/authors_replay/`:
+The first command writes each scene's `draws.json` (our run's view order, patch crops and
+warps, and text direction); this script writes the rest of each scene's folder in
+`crates/base-3dgs/tests/fixtures/` (`SCENES` below):
 
   * a tiny NeRF-synthetic scene: `scene.ply` (48 Gaussians of SH degree 3 in INRIA's layout, some
-    bright enough that renders exceed 1, some opaque enough that alpha reaches its 0.99 cap) and
+    bright enough that renders exceed 1, some opaque enough that alpha reaches its 0.99 cap; in
+    the `edges` scenes 30 more, at INRIA's rasterizer's thresholds for each camera) and
     `data/` (3 train and 2 test views, 64x48 RGBA pictures with transparent, partly transparent
     and opaque pixels);
   * `reference.safetensors`: every parameter group after 1 and after 10 updates of the loop;
@@ -48,19 +50,28 @@ from safetensors.torch import save_file
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from authors_loop import (  # noqa: E402
-    ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize, save_rgba_picture,
+    ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, look_at_c2w, rasterize,
+    save_rgba_picture,
 )
+from threshold_gaussians import placed  # noqa: E402
 
 FIXTURES = ROOT / "crates" / "base-3dgs" / "tests" / "fixtures"
 FOV_X = 0.9
 COUNT = 48
 # Each scene is a folder of its own, with its own draws.json. The second has odd sizes (partial
 # tiles), closer cameras, and two Gaussians in front of the first camera: one at depth 0.1
-# (inside INRIA's near plane 0.2: never drawn), one at depth 0.35 (drawn large).
+# (inside INRIA's near plane 0.2: never drawn), one at depth 0.35 (drawn large). The last two
+# add, for every camera, Gaussians at the rules that decide what INRIA draws
+# (`make_raster_thresholds_fixture.py`'s kinds: past the right and bottom edges yet in a kept
+# tile, near the left edge, tiny at window and tile edges, alpha just above 1/255).
 SCENES = [
-    dict(folder="authors_replay", seed=20, radius=3.2, near_camera=False),
-    dict(folder="authors_replay_odd", seed=40, radius=2.4, near_camera=True),
+    dict(folder="authors_replay", seed=20, radius=3.2, near_camera=False, edges=False),
+    dict(folder="authors_replay_odd", seed=40, radius=2.4, near_camera=True, edges=False),
+    dict(folder="authors_replay_edges", seed=60, radius=3.2, near_camera=False, edges=True),
+    dict(folder="authors_replay_edges_odd", seed=61, radius=2.8, near_camera=False, edges=True),
 ]
+# Gaussians placed per camera in the scenes with `edges`.
+EDGE_KINDS = dict(past_right_edge=1, past_bottom_edge=1, near_left_edge=1, tiny=2, alpha_above=1)
 TRAIN_VIEWS, TEST_VIEWS = 3, 2
 # CLIPGaussian 3D/arguments/__init__.py (OptimizationParams) and INRIA's training_setup.
 LAMBDAS = dict(directional=5.0, patch=90.0, content=0.8, background=1000.0)
@@ -80,18 +91,6 @@ TOLERANCE = 2e-4
 # --------------------------------------------------------------------------------------------
 # Scene
 # --------------------------------------------------------------------------------------------
-def look_at_c2w(eye):
-    """Blender camera-to-world (the camera looks along its -z, y up) looking at the origin."""
-    eye = np.asarray(eye, dtype=np.float64)
-    forward = -eye / np.linalg.norm(eye)
-    right = np.cross(forward, [0.0, 0.0, 1.0])
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, eye
-    return c2w
-
-
 def camera_eyes(radius):
     eyes = []
     for k in range(TRAIN_VIEWS + TEST_VIEWS):
@@ -115,9 +114,16 @@ def random_gaussians(gen, count):
     return g
 
 
-def scene_gaussians(scene, gen):
+def scene_gaussians(scene, gen, width, height):
     """The scene's model (f32 values, as its PLY holds them)."""
     g = random_gaussians(gen, COUNT)
+    if scene["edges"]:
+        parts = [g]
+        for eye in camera_eyes(scene["radius"]):
+            camera = inria_camera(look_at_c2w(eye), width, height, FOV_X)
+            for kind, count in EDGE_KINDS.items():
+                parts.append(placed(gen, camera, kind, count))
+        g = {k: torch.cat([p[k] for p in parts]) for k in g}
     if scene["near_camera"]:
         eye = np.array(camera_eyes(scene["radius"])[0])
         forward = torch.from_numpy(-eye / np.linalg.norm(eye))
@@ -148,11 +154,11 @@ def write_scene(scene, draws):
     """The model, the pictures (renders of another random set, with alpha) and the json files."""
     out = FIXTURES / scene["folder"]
     gen = torch.Generator().manual_seed(scene["seed"])
-    model = scene_gaussians(scene, gen)
+    width, height = draws["width"], draws["height"]
+    model = scene_gaussians(scene, gen, width, height)
     write_ply(out / "scene.ply", model)
     target = {k: v.to(torch.float32).to(torch.float64) for k, v in random_gaussians(gen, COUNT).items()}
     target["opacity"][:] = target["opacity"].clamp(max=2.0)
-    width, height = draws["width"], draws["height"]
     data = out / "data"
     splits = {"train": [], "test": []}
     for k, eye in enumerate(camera_eyes(scene["radius"])):
@@ -244,7 +250,8 @@ def main():
         out = FIXTURES / scene["folder"]
         draws = json.load(open(out / "draws.json"))
         write_scene(scene, draws)
-        start = scene_gaussians(scene, torch.Generator().manual_seed(scene["seed"]))
+        start = scene_gaussians(scene, torch.Generator().manual_seed(scene["seed"]),
+                                draws["width"], draws["height"])
         tensors, noise = {}, {}
         for variant in VARIANTS:
             exact = replay(out, variant, start, clip, vgg, draws, torch.float64)

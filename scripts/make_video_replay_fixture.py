@@ -10,13 +10,16 @@ How to run (from the repository root; PyTorch, transformers and torchvision from
     cargo test -p base-vegas --test authors_replay -- --ignored write_replay_draws
     /tmp/replay-venv/bin/python scripts/make_video_replay_fixture.py
 
-The first command writes `draws.json` (our run's view order, patch crops and warps, and text
-direction); this script writes the rest of `crates/base-vegas/tests/fixtures/authors_replay/`:
+The first command writes each scene's `draws.json` (our run's view order, patch crops and
+warps, and text direction); this script writes the rest of each scene's folder in
+`crates/base-vegas/tests/fixtures/` (`authors_replay/`, and `authors_replay_edges/` whose model
+adds 8 folded Gaussians past the frame's edges by more than their radius yet drawn by INRIA's
+rasterizer in some frame and view, placed as `threshold_gaussians.py` places them):
 
-  * `frames/0000.png` ... (3 frames of 64x48 RGBA, transparent, partly transparent and opaque
-    pixels) and `model.ply`, a VeGaS model of 40 folded Gaussians in VeGaS's layout (some bright
-    enough that renders exceed 1, some opaque enough that alpha reaches its cap, some too narrow
-    in time to be drawn in every frame);
+  * `frames/0000.png` ... (3 frames of 64x48 or 70x52 RGBA, transparent, partly transparent and
+    opaque pixels) and `model.ply`, a VeGaS model of 40 folded Gaussians in VeGaS's layout (some
+    bright enough that renders exceed 1, some opaque enough that alpha reaches its cap, some too
+    narrow in time to be drawn in every frame);
   * `reference.safetensors`: the colours (`sh_dc`) after 1 and after 10 updates;
   * `replay.json`: the test's tolerance and the float32 replay's own error.
 
@@ -46,8 +49,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from authors_loop import (  # noqa: E402
     ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, rasterize, save_rgba_picture,
 )
+from threshold_gaussians import ALPHA_MIN, MARGIN, cat, decisions_have_margin, take  # noqa: E402
 
-OUT = ROOT / "crates" / "base-vegas" / "tests" / "fixtures" / "authors_replay"
+FIXTURES = ROOT / "crates" / "base-vegas" / "tests" / "fixtures"
+# Each scene is a folder of its own with its own draws.json: the model's and the target's seeds,
+# and how many Gaussians are placed past the frame's right or bottom edge by more than their
+# radius yet inside a tile INRIA's `getRect` keeps (drawn by INRIA, in some frame and view).
+SCENES = [
+    dict(folder="authors_replay", seeds=(30, 31), edges=0),
+    dict(folder="authors_replay_edges", seeds=(50, 51), edges=8),
+]
 CAMERA_ANGLE_X = 0.6911112070083618
 DISTANCE = 1.0
 FRAMES = 3
@@ -68,15 +79,16 @@ def camera_c2w(distance):
             [0.0, 0.0, 0.0, 1.0]]
 
 
-def random_folded(gen, count, width, height):
-    """VeGaS's stored parameters (f32 values, as its PLY holds them)."""
+def random_folded(gen, count, width, height, spread=1.8):
+    """VeGaS's stored parameters (f32 values, as its PLY holds them), centred within `spread`
+    times the half frame."""
     fx = width / (2 * math.tan(CAMERA_ANGLE_X / 2))
     top = DISTANCE * height / (2 * fx)
     right = top * width / height
     r = lambda *shape: torch.rand(*shape, generator=gen, dtype=torch.float64)
     n = lambda *shape: torch.randn(*shape, generator=gen, dtype=torch.float64)
-    xyz = torch.stack([(r(count) - 0.5) * 1.8 * right, torch.zeros(count),
-                       (r(count) - 0.5) * 1.8 * top], dim=1)
+    xyz = torch.stack([(r(count) - 0.5) * spread * right, torch.zeros(count),
+                       (r(count) - 0.5) * spread * top], dim=1)
     g = dict(
         xyz=xyz,
         f_dc=n(count, 1, 3) * 0.6,
@@ -114,6 +126,13 @@ def write_ply(path, g):
 def frame_gaussians(g, frame):
     """The Gaussians of `frame` as VeGaS's `render()` builds them, in INRIA's stored form
     (log-scales, quaternions) for `rasterize`; the colours stay linked to `g["f_dc"]`."""
+    built, keep, _ = frame_all(g, frame)
+    return take(built, keep)
+
+
+def frame_all(g, frame):
+    """Every Gaussian of `frame` built as `frame_gaussians`, whether VeGaS keeps it, and how
+    far each of its culling tests is from its threshold (relative)."""
     t = torch.softmax(g["time_func"], dim=0)[:frame].sum()
     m = torch.sigmoid(g["m"][:, 0])
     u = (m - t)[:, None]
@@ -132,31 +151,85 @@ def frame_gaussians(g, frame):
     f_rest = torch.zeros(g["f_dc"].shape[0], 15, 3, dtype=g["f_dc"].dtype)
     built = dict(xyz=means, f_dc=g["f_dc"], f_rest=f_rest, opacity=g["opacity"],
                  scaling=torch.log(scales), rotation=quats)
-    return {k: v[keep] for k, v in built.items()}
+    margin = torch.minimum((delta[:, 0] / 0.01 - 1).abs(),
+                           (scales[:, [0, 2]] / 1e-4 - 1).abs().min(dim=1).values)
+    return built, keep, margin
 
 
-def write_scene(draws):
+def cameras_of(width, height):
+    """The camera of the frames and the camera of their mirror images."""
+    return [inria_camera(camera_c2w(d), width, height, CAMERA_ANGLE_X) for d in (-DISTANCE, DISTANCE)]
+
+
+def edge_folded(gen, count, width, height):
+    """`count` folded Gaussians that lie past the frame's right or bottom edge by more than
+    their radius in some frame and view, where INRIA still draws them; every decision about
+    them in every frame and view (VeGaS's culling included) keeps its margin."""
+    n = 1024
+    fx = width / (2 * math.tan(CAMERA_ANGLE_X / 2))
+    top = DISTANCE * height / (2 * fx)
+    right = top * width / height
+    found = []
+    for _ in range(60):
+        g = random_folded(gen, n, width, height)
+        # Centres up to 16 pixels past one of the four edges (each camera sees x mirrored).
+        u = lambda: torch.rand(n, generator=gen, dtype=torch.float64)
+        side = torch.randint(4, (n,), generator=gen)
+        sign = torch.where(side % 2 == 0, 1.0, -1.0).double()
+        across = u() * 16 / fx
+        x = torch.where(side < 2, sign * (right + across), (u() - 0.5) * 2 * right)
+        z = torch.where(side >= 2, sign * (top + across), (u() - 0.5) * 2 * top)
+        g["xyz"] = torch.stack([x, torch.zeros(n, dtype=torch.float64), z], dim=1)
+        g["scaling"] = torch.log(torch.stack([u(), u(), u()], dim=1) * 0.05 + 0.015)
+        g["opacity"][:] = u()[:, None] * 3 + 4
+        g = {k: v.to(torch.float32).to(torch.float64) for k, v in g.items()}
+        ok = torch.ones(n, dtype=torch.bool)
+        past_and_drawn = torch.zeros(n, dtype=torch.bool)
+        for f in range(FRAMES):
+            with torch.no_grad():
+                built, keep, margin = frame_all(g, f)
+            ok &= margin > MARGIN
+            index = torch.nonzero(keep).flatten()
+            for camera in cameras_of(width, height):
+                fine, proj, alpha = decisions_have_margin(take(built, keep), camera)
+                drawn = alpha.max(dim=1).values >= ALPHA_MIN * (1 + 3e-3)
+                past = ((proj["px"] + 0.5 - proj["radius"] >= width)
+                        | (proj["py"] + 0.5 - proj["radius"] >= height))
+                ok[index] &= fine
+                past_and_drawn[index] |= drawn & past
+        g.pop("time_func")
+        found.append(take(g, ok & past_and_drawn))
+        if sum(p["xyz"].shape[0] for p in found) >= count:
+            return take(cat(found), torch.arange(count))
+    raise RuntimeError("no folded Gaussian past the frame's edges found")
+
+
+def write_scene(scene, out, draws):
     width, height = draws["width"], draws["height"]
-    model = random_folded(torch.Generator().manual_seed(30), COUNT, width, height)
-    write_ply(OUT / "model.ply", model)
-    target = random_folded(torch.Generator().manual_seed(31), COUNT, width, height)
+    gen = torch.Generator().manual_seed(scene["seeds"][0])
+    model = random_folded(gen, COUNT, width, height)
+    if scene["edges"]:
+        edges = edge_folded(gen, scene["edges"], width, height)
+        model = {k: torch.cat([v, edges[k]]) if k in edges else v for k, v in model.items()}
+    write_ply(out / "model.ply", model)
+    target = random_folded(torch.Generator().manual_seed(scene["seeds"][1]), COUNT, width, height)
     target["opacity"][:] = target["opacity"].clamp(max=2.0)
     target["f_dc"][:] = target["f_dc"].clamp(max=1.2)
-    camera = inria_camera(camera_c2w(-DISTANCE), width, height, CAMERA_ANGLE_X)
-    (OUT / "frames").mkdir(parents=True, exist_ok=True)
+    camera = cameras_of(width, height)[0]
+    (out / "frames").mkdir(parents=True, exist_ok=True)
     for f in range(FRAMES):
         with torch.no_grad():
             rgb, alpha = rasterize(frame_gaussians(target, f), camera, torch.zeros(3, dtype=torch.float64))
-        save_rgba_picture(rgb, alpha, OUT / "frames" / f"{f:04d}.png")
+        save_rgba_picture(rgb, alpha, out / "frames" / f"{f:04d}.png")
     return model
 
 
-def replay(start, clip, vgg, draws, dtype):
+def replay(out, start, clip, vgg, draws, dtype):
     """The loop in `dtype`: the colours after update 1 and after the last."""
     width, height = draws["width"], draws["height"]
     background = torch.zeros(3, dtype=dtype)
-    cameras = [inria_camera(camera_c2w(d), width, height, CAMERA_ANGLE_X) for d in (-DISTANCE, DISTANCE)]
-    gts = [ground_truth(OUT / "frames" / f"{f:04d}.png", "composited", background.double(), mirror)
+    cameras = cameras_of(width, height)
+    gts = [ground_truth(out / "frames" / f"{f:04d}.png", "composited", background.double(), mirror)
            for f in range(FRAMES) for mirror in (False, True)]
     step = StyleStep(clip, vgg, gts, draws["style_direction"], draws["patch_size"], LAMBDAS, dtype)
     g = {k: v.to(dtype).detach().clone() for k, v in start.items()}
@@ -180,24 +253,26 @@ def replay(start, clip, vgg, draws, dtype):
 
 def main():
     torch.manual_seed(0)
-    draws = json.load(open(OUT / "draws.json"))
-    assert draws["views"] == 2 * FRAMES
-    start = write_scene(draws)
     clip, vgg = load_tiny_models()
-    exact = replay(start, clip, vgg, draws, torch.float64)
-    single = replay(start, clip, vgg, draws, torch.float32)
-    tensors, noise = {}, {}
-    for iteration, f_dc in exact.items():
-        key = f"after_{iteration}.sh_dc"
-        tensors[key] = f_dc.reshape(-1, 3).contiguous()
-        update = (f_dc - start["f_dc"]).norm().item()
-        noise[key] = (single[iteration].double() - f_dc).norm().item() / update
-    save_file(tensors, str(OUT / "reference.safetensors"))
-    with open(OUT / "replay.json", "w") as f:
-        json.dump(dict(tolerance=TOLERANCE, lambdas=LAMBDAS, feature_lr=FEATURE_LR,
-                       float32_replay_error=noise), f, indent=1)
-    total = sum(p.stat().st_size for p in OUT.rglob("*") if p.is_file())
-    print(f"wrote {OUT} ({total / 1e3:.0f} kB)")
+    for scene in SCENES:
+        out = FIXTURES / scene["folder"]
+        draws = json.load(open(out / "draws.json"))
+        assert draws["views"] == 2 * FRAMES
+        start = write_scene(scene, out, draws)
+        exact = replay(out, start, clip, vgg, draws, torch.float64)
+        single = replay(out, start, clip, vgg, draws, torch.float32)
+        tensors, noise = {}, {}
+        for iteration, f_dc in exact.items():
+            key = f"after_{iteration}.sh_dc"
+            tensors[key] = f_dc.reshape(-1, 3).contiguous()
+            update = (f_dc - start["f_dc"]).norm().item()
+            noise[key] = (single[iteration].double() - f_dc).norm().item() / update
+        save_file(tensors, str(out / "reference.safetensors"))
+        with open(out / "replay.json", "w") as f:
+            json.dump(dict(tolerance=TOLERANCE, lambdas=LAMBDAS, feature_lr=FEATURE_LR,
+                           float32_replay_error=noise), f, indent=1)
+        total = sum(p.stat().st_size for p in out.rglob("*") if p.is_file())
+        print(f"wrote {out} ({total / 1e3:.0f} kB)")
 
 
 if __name__ == "__main__":

@@ -126,19 +126,28 @@ fn project_gaussian(i: u32) -> Projection {
     let mid = 0.5 * (a + c);
     let lambda = mid + sqrt(max(mid * mid - det, 0.1));
     f.radius = ceil(3.0 * sqrt(lambda));
-    f.mean2d = vec2f(fx * p_cam.x / z + view.intrinsics.z, fy * p_cam.y / z + view.intrinsics.w);
+    let z_proj = z + PROJECTION_EPS;
+    f.mean2d = vec2f(fx * p_cam.x / z_proj + view.intrinsics.z,
+        fy * p_cam.y / z_proj + view.intrinsics.w);
     if !finite3(f.conic) || !finite(f.mean2d.x) || !finite(f.mean2d.y) || !finite(f.radius) {
         return f;
     }
-    let size = vec2f(view.size.xy);
-    let off_screen = f.mean2d.x + f.radius <= 0.0 || f.mean2d.x - f.radius >= size.x
-        || f.mean2d.y + f.radius <= 0.0 || f.mean2d.y - f.radius >= size.y;
-    if off_screen {
+    // INRIA's only screen-space cull: an empty tile rectangle (its `getRect`, as the cpu
+    // backend's `tile_rect`); a splat past the last column or row by more than its radius is
+    // still drawn when its rectangle keeps the last tile.
+    let t = f32(TILE_SIZE);
+    let tiles = vec2f(view.size.zw);
+    let p = f.mean2d - vec2f(0.5);
+    let rect_lo = clamp(floor((p - vec2f(f.radius)) / t), vec2f(0.0), tiles);
+    let rect_hi = clamp(floor((p + vec2f(f.radius + t - 1.0)) / t), vec2f(0.0), tiles);
+    if any(rect_hi <= rect_lo) {
         return f;
     }
 
     f.opacity = sigmoid(opacity_logits[i]);
-    if f.opacity > ALPHA_MIN {
+    // At opacity exactly 1/255 the splat still reaches 1/255 where sigma is 0 (INRIA's skip is
+    // `alpha < 1/255`).
+    if f.opacity >= ALPHA_MIN {
         f.sigma_cut = log(f.opacity / ALPHA_MIN) + 1e-3;
     } else {
         f.sigma_cut = -1.0;
@@ -170,7 +179,8 @@ fn project_gaussian(i: u32) -> Projection {
         for (var k = 0u; k < k_rest; k++) {
             v += basis[k + 1u] * sh_rest[3u * k_rest * i + 3u * k + ch];
         }
-        f.color_active[ch] = v > 0.0;
+        // INRIA's `clamped` is `result < 0`: at exactly 0 the gradient passes.
+        f.color_active[ch] = v >= 0.0;
         f.color[ch] = max(v, 0.0);
     }
     f.valid = true;

@@ -178,9 +178,11 @@ fn main(
         g_p.y += g_u.y / tz;
         g_p.z -= g_u.y * ty / tz2;
     }
-    g_p.x += sg_mean2d.x * fx / tz;
-    g_p.y += sg_mean2d.y * fy / tz;
-    g_p.z -= (sg_mean2d.x * fx * tx + sg_mean2d.y * fy * ty) / tz2;
+    // mean2d = f t / (tz + PROJECTION_EPS) + c.
+    let tz_proj = tz + PROJECTION_EPS;
+    g_p.x += sg_mean2d.x * fx / tz_proj;
+    g_p.y += sg_mean2d.y * fy / tz_proj;
+    g_p.z -= (sg_mean2d.x * fx * tx + sg_mean2d.y * fy * ty) / (tz_proj * tz_proj);
     g_p.z += sg_depth;
     let w = camera_rotation();
     let g_world = transpose(w) * g_p;

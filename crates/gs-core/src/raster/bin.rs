@@ -20,21 +20,23 @@ pub(crate) struct TileBins {
     pub ids: Vec<u32>,
 }
 
-/// The tile rectangle `[x0, x1) x [y0, y1)` a splat is binned into: INRIA's `getRect` of its
-/// radius, in INRIA's pixel coordinates (centres at integers, so `mean2d - 0.5`):
-/// `floor((p - r) / 16)` to `floor((p + r + 15) / 16)`. A pixel outside it gets nothing from
-/// the splat even where its alpha would pass 1/255, as in the authors' renderers.
-fn tile_rect<T: Real>(s: &Splat<T>, tiles_x: usize, tiles_y: usize) -> [usize; 4] {
+/// The tile rectangle `[x0, x1) x [y0, y1)` of a splat at `mean2d` (pixels, centres at
+/// `i + 0.5`) of square radius `radius`, in a grid of `tiles` (per row, per column): INRIA's
+/// `getRect` in its pixel coordinates (centres at integers, so `mean2d - 0.5`),
+/// `floor((p - r) / 16)` to `floor((p + r + 15) / 16)` clamped to the grid. A pixel outside it
+/// gets nothing from the splat even where its alpha would pass 1/255, and an empty rectangle
+/// culls the splat, as in the authors' renderers.
+pub(crate) fn tile_rect<T: Real>(mean2d: [T; 2], radius: T, tiles: [usize; 2]) -> [usize; 4] {
     let t = TILE_SIZE as f64;
-    let r = s.radius.to_f64();
-    let (px, py) = (s.mean2d[0].to_f64() - 0.5, s.mean2d[1].to_f64() - 0.5);
+    let r = radius.to_f64();
+    let (px, py) = (mean2d[0].to_f64() - 0.5, mean2d[1].to_f64() - 0.5);
     // `as usize` saturates: negative values give 0 and huge radii give usize::MAX.
     let tile = |v: f64, n: usize| ((v / t).floor().max(0.0) as usize).min(n);
     [
-        tile(px - r, tiles_x),
-        tile(px + r + t - 1.0, tiles_x),
-        tile(py - r, tiles_y),
-        tile(py + r + t - 1.0, tiles_y),
+        tile(px - r, tiles[0]),
+        tile(px + r + t - 1.0, tiles[0]),
+        tile(py - r, tiles[1]),
+        tile(py + r + t - 1.0, tiles[1]),
     ]
 }
 
@@ -96,7 +98,7 @@ pub(crate) fn bin<T: Real>(splats: &[Option<Splat<T>>], width: u32, height: u32)
                 let s = splats[i as usize]
                     .as_ref()
                     .expect("only visible splats are ordered");
-                let r = tile_rect(s, tiles_x, tiles_y);
+                let r = tile_rect(s.mean2d, s.radius, [tiles_x, tiles_y]);
                 for ty in r[2]..r[3] {
                     for tx in r[0]..r[1] {
                         if touches_tile(s, tx, ty) {

@@ -7,7 +7,8 @@
 //! cap are INRIA's rasterizer's, which every modality's authors use (see
 //! `docs/conventions.md`). Gaussians whose parameters are not
 //! finite, whose quaternion is zero, whose depth is at or below [`NEAR_PLANE`], whose 2D
-//! covariance is degenerate or not finite, or that lie entirely off screen are culled: they
+//! covariance is degenerate or not finite, or whose tile rectangle is empty (INRIA's only
+//! screen-space cull) are culled: they
 //! draw nothing and receive zero gradient.
 
 mod bin;
@@ -31,6 +32,10 @@ pub const EPS2D: f64 = 0.3;
 /// Gaussians at camera depth `z <= NEAR_PLANE` are culled (INRIA's `in_frustum`, which every
 /// modality's authors' renderer keeps; gsplat's default is 0.01).
 pub const NEAR_PLANE: f64 = 0.2;
+/// Added to the depth by which a centre is divided in its projection to pixels,
+/// `mean2d = f x / (z + PROJECTION_EPS) + c`: INRIA's `p_w = 1 / (p_hom.w + 0.0000001)` (its
+/// Jacobian divides by `z` alone).
+pub const PROJECTION_EPS: f64 = 1e-7;
 /// Gaussians at camera depth `z >= FAR_PLANE` are culled (gsplat's default far plane).
 pub const FAR_PLANE: f64 = 1e10;
 /// Upper clamp of a splat's alpha; the backward passes the gradient through it as INRIA's

@@ -6,7 +6,8 @@ use crate::mat::{self, M3, V3};
 use crate::real::Real;
 use crate::sh;
 
-use super::{ALPHA_MIN, EPS2D, FAR_PLANE, NEAR_PLANE};
+use super::bin::tile_rect;
+use super::{ALPHA_MIN, EPS2D, FAR_PLANE, NEAR_PLANE, PROJECTION_EPS, TILE_SIZE};
 
 /// The camera, cast once to the working precision.
 #[derive(Clone, Copy, Debug)]
@@ -31,6 +32,8 @@ pub struct CameraT<T: Real> {
     pub width: T,
     /// Image height, pixels.
     pub height: T,
+    /// Tiles per row and per column.
+    pub tiles: [usize; 2],
 }
 
 impl<T: Real> CameraT<T> {
@@ -58,6 +61,10 @@ impl<T: Real> CameraT<T> {
             lim: lim.map(c),
             width: c(cam.width as f64),
             height: c(cam.height as f64),
+            tiles: [
+                (cam.width as usize).div_ceil(TILE_SIZE),
+                (cam.height as usize).div_ceil(TILE_SIZE),
+            ],
         }
     }
 }
@@ -227,27 +234,24 @@ fn forward<T: Real>(
     // tiles a splat is drawn in.
     let lambda = mid + (mid * mid - det).max(c(0.1)).sqrt();
     let radius = (c(3.0) * lambda.sqrt()).ceil();
+    let z_proj = z + c(PROJECTION_EPS);
     let mean2d = [
-        cam.fx * p_cam[0] / z + cam.cx,
-        cam.fy * p_cam[1] / z + cam.cy,
+        cam.fx * p_cam[0] / z_proj + cam.cx,
+        cam.fy * p_cam[1] / z_proj + cam.cy,
     ];
     if !all_finite(&conic) || !all_finite(&mean2d) || !radius.is_finite() {
         return None;
     }
-    let off_screen = mean2d[0] + radius <= T::ZERO
-        || mean2d[0] - radius >= cam.width
-        || mean2d[1] + radius <= T::ZERO
-        || mean2d[1] - radius >= cam.height;
-    if off_screen {
+    // INRIA's only screen-space cull: an empty tile rectangle. A splat whose centre lies past
+    // the last column or row by more than its radius is still drawn when its rectangle keeps
+    // the last tile, which extends past the picture unless the side is a multiple of 16.
+    let [x0, x1, y0, y1] = tile_rect(mean2d, radius, cam.tiles);
+    if x0 == x1 || y0 == y1 {
         return None;
     }
 
     let opacity = g.opacity_logits[i].sigmoid();
-    let sigma_cut = if opacity > c(ALPHA_MIN) {
-        (opacity / c(ALPHA_MIN)).ln() + c(1e-3)
-    } else {
-        -T::ONE
-    };
+    let sigma_cut = sigma_cut(opacity);
     // sigma = 0.5 d^T Q d <= cut spans sqrt(2 cut (Q^-1)_xx) in x and sqrt(2 cut (Q^-1)_yy) in y.
     // Q is the stored (rounded) conic the loops evaluate, so Q^-1 is taken from it in f64; the
     // 2D covariance's diagonal bounds it too where rounding leaves Q barely positive definite.
@@ -279,7 +283,9 @@ fn forward<T: Real>(
         for k in 0..k_rest {
             v += basis[k + 1] * rest[3 * k + ch];
         }
-        color_active[ch] = v > T::ZERO;
+        // INRIA's `clamped` is `result < 0`: at exactly 0 the gradient passes (as PyTorch's
+        // `clamp_min` of the authors' precomputed colours).
+        color_active[ch] = v >= T::ZERO;
         color[ch] = v.max(T::ZERO);
     }
 
@@ -313,8 +319,20 @@ fn forward<T: Real>(
     })
 }
 
+/// [`Splat::sigma_cut`] of a splat of `opacity`: `ln(opacity / ALPHA_MIN)` and a margin, or
+/// -1 (no pixel) below `ALPHA_MIN`. At opacity exactly 1/255 it is the margin alone: the splat
+/// still reaches alpha 1/255 where sigma is 0, which INRIA's skip (`alpha < 1/255`) keeps.
+fn sigma_cut<T: Real>(opacity: T) -> T {
+    let alpha_min = T::from_f64(ALPHA_MIN);
+    if opacity >= alpha_min {
+        (opacity / alpha_min).ln() + T::from_f64(1e-3)
+    } else {
+        -T::ONE
+    }
+}
+
 /// Projects Gaussian `i`; `None` when it is culled (invalid parameters, depth at or below the
-/// near plane, degenerate covariance, or entirely off screen).
+/// near plane, degenerate covariance, or an empty tile rectangle).
 pub(crate) fn project<T: Real>(g: &GaussianSet<T>, i: usize, cam: &CameraT<T>) -> Option<Splat<T>> {
     forward(g, i, cam, false).map(|f| f.splat)
 }
@@ -450,9 +468,11 @@ pub(crate) fn project_backward<T: Real>(
             g_p[2] -= g_u[ax] * t / tz2;
         }
     }
-    g_p[0] += sg.mean2d[0] * fx / tz;
-    g_p[1] += sg.mean2d[1] * fy / tz;
-    g_p[2] -= (sg.mean2d[0] * fx * tx + sg.mean2d[1] * fy * ty) / tz2;
+    // mean2d = f t / (tz + PROJECTION_EPS) + c.
+    let tz_proj = tz + c(PROJECTION_EPS);
+    g_p[0] += sg.mean2d[0] * fx / tz_proj;
+    g_p[1] += sg.mean2d[1] * fy / tz_proj;
+    g_p[2] -= (sg.mean2d[0] * fx * tx + sg.mean2d[1] * fy * ty) / (tz_proj * tz_proj);
     g_p[2] += sg.depth;
     let g_world = mat::mul_t_vec(&cam.rotation, &g_p);
     for ax in 0..3 {
@@ -479,4 +499,29 @@ pub(crate) fn project_backward<T: Real>(
         out[6 + k] = (g_qn[k] - f.qn[k] * qdot) / f.q_norm;
     }
     out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn check_sigma_cut<T: Real>() {
+        let alpha_min = T::from_f64(ALPHA_MIN);
+        // Drawn where sigma is 0 at opacity exactly 1/255, as INRIA's `alpha < 1/255` skip.
+        assert!(sigma_cut(alpha_min) >= T::ZERO);
+        let below = T::from_f64(ALPHA_MIN * (1.0 - 1e-6));
+        assert!(below < alpha_min && sigma_cut(below) < T::ZERO);
+        // Above it, every sigma with opacity exp(-sigma) >= 1/255 is within the cut.
+        for opacity in [0.004, 0.1, 0.5, 0.99, 1.0] {
+            let o = T::from_f64(opacity);
+            let sigma = (o / alpha_min).ln();
+            assert!(sigma <= sigma_cut(o));
+        }
+    }
+
+    #[test]
+    fn the_sigma_cut_keeps_every_pixel_inria_draws() {
+        check_sigma_cut::<f32>();
+        check_sigma_cut::<f64>();
+    }
 }
