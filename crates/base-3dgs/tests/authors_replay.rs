@@ -6,8 +6,11 @@
 //! The replay takes this run's random draws (the order of the views and the patch crops and
 //! warps of every step, from `draws.json`) and its text direction; everything else (pictures,
 //! cameras, scene extent, render, clamp, losses, Adam, learning-rate schedule) is the authors'.
-//! After 1 and 10 updates every parameter group must agree to float32 noise, on two scenes (the
-//! second of odd size, with Gaussians in front of and just past the near plane).
+//! After 1 and 10 updates every parameter group must agree to float32 noise, and no Gaussian may
+//! be moved by one side and left in place by the other (a Gaussian one rasterizer draws and the
+//! other does not; named in the failure), on four scenes (the second of odd size, with Gaussians
+//! in front of and just past the near plane; the last two with Gaussians at the rasterizer's
+//! thresholds).
 
 mod common;
 
@@ -19,7 +22,8 @@ use common::TempDir;
 use gs_core::dataset::GroundTruth;
 use gs_core::GaussianSet;
 use gs_stylize::test_support::{
-    assert_replay_draws, replay_draws, replay_settings, save_replay_draws, update_error,
+    assert_replay_draws, moved_by_one_side, replay_draws, replay_settings, save_replay_draws,
+    update_error,
 };
 use serde_json::Value;
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
@@ -29,9 +33,16 @@ const SEED: u64 = 7;
 const VIEWS: usize = 5;
 const UPDATES: u64 = 10;
 
-/// The replayed scenes: fixture folder, picture width and height.
-const SCENES: [(&str, usize, usize); 2] =
-    [("authors_replay", 64, 48), ("authors_replay_odd", 61, 45)];
+/// The replayed scenes: fixture folder, picture width and height. The last two hold, for every
+/// camera, Gaussians at the rules by which INRIA's rasterizer decides what it draws (past the
+/// right and bottom edges yet in a kept tile, near the left edge, tiny at window and tile
+/// edges, alpha just above 1/255), on sides that are and are not multiples of the tile.
+const SCENES: [(&str, usize, usize); 4] = [
+    ("authors_replay", 64, 48),
+    ("authors_replay_odd", 61, 45),
+    ("authors_replay_edges", 64, 48),
+    ("authors_replay_edges_odd", 70, 52),
+];
 
 fn replay_dir(folder: &str) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR"))
@@ -82,23 +93,39 @@ fn groups(g: &GaussianSet) -> [(&'static str, &[f32]); 6] {
     ]
 }
 
-/// [`update_error`] of every group against the fixture's `{key}.{group}`.
-fn update_errors(
+/// Values per Gaussian of each group of [`groups`].
+const WIDTHS: [usize; 6] = [3, 3, 45, 1, 3, 4];
+
+/// Every group against the fixture's `{key}.{group}`: its [`update_error`], and the Gaussians
+/// one side moved and the other did not ([`moved_by_one_side`]), named.
+fn compare_groups(
     start: &GaussianSet,
     ours: &GaussianSet,
     reference: &std::collections::HashMap<String, Tensor>,
     key: &str,
-) -> Vec<(&'static str, f64)> {
+) -> Vec<(&'static str, f64, Vec<String>)> {
     groups(start)
         .into_iter()
         .zip(groups(ours))
-        .map(|((name, start), (_, ours))| {
+        .zip(WIDTHS)
+        .map(|(((name, start), (_, ours)), width)| {
             let r = reference[&format!("{key}.{name}")]
                 .flatten_all()
                 .and_then(|t| t.to_dtype(DType::F64))
                 .and_then(|t| t.to_vec1::<f64>())
                 .unwrap();
-            (name, update_error(start, ours, &r))
+            let one_sided = moved_by_one_side(start, ours, &r, width)
+                .into_iter()
+                .map(|(i, by_replay)| {
+                    let (moved, left) = if by_replay {
+                        ("the authors' loop", "ours")
+                    } else {
+                        ("ours", "the authors' loop")
+                    };
+                    format!("Gaussian {i}'s {name} moved by {moved}, left in place by {left}")
+                })
+                .collect();
+            (name, update_error(start, ours, &r), one_sided)
         })
         .collect()
 }
@@ -161,11 +188,16 @@ fn the_run_ends_where_the_authors_loop_ends() {
                 let out = dir.path().join(format!("{folder}-{name}-{updates}"));
                 let ours = our_run(&data, variant, updates, out, &tiny);
                 let key = format!("{name}.after_{updates}");
-                for (group, error) in update_errors(&start, &ours, &reference, &key) {
+                for (group, error, one_sided) in compare_groups(&start, &ours, &reference, &key) {
                     let line = format!("{folder} {name} after {updates}: {group} {error:.2e}");
                     if error >= tolerance {
                         failures.push(format!("{line} (tolerance {tolerance:.0e})"));
                     }
+                    failures.extend(
+                        one_sided
+                            .into_iter()
+                            .map(|m| format!("{folder} {name} after {updates}: {m}")),
+                    );
                     report.push(line);
                 }
             }

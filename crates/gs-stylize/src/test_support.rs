@@ -230,6 +230,34 @@ pub fn update_error(start: &[f32], ours: &[f32], reference: &[f64]) -> f64 {
     diff / update
 }
 
+/// The Gaussians (rows of `width` values) that one side moved and the other left exactly
+/// where they started, each as `(index, moved by the replay)`: a Gaussian one rasterizer draws
+/// and the other leaves out. Adam leaves a parameter whose gradients were all zero exactly in
+/// place, on both sides.
+///
+/// # Panics
+/// If the lengths differ or are not a multiple of `width`.
+pub fn moved_by_one_side(
+    start: &[f32],
+    ours: &[f32],
+    reference: &[f64],
+    width: usize,
+) -> Vec<(usize, bool)> {
+    assert!(start.len() == ours.len() && ours.len() == reference.len());
+    assert_eq!(start.len() % width, 0, "rows of {width}");
+    start
+        .chunks_exact(width)
+        .zip(ours.chunks_exact(width))
+        .zip(reference.chunks_exact(width))
+        .enumerate()
+        .filter_map(|(i, ((s, o), r))| {
+            let ours_moved = o.iter().zip(s).any(|(o, s)| o != s);
+            let replay_moved = r.iter().zip(s).any(|(&r, &s)| r != f64::from(s));
+            (ours_moved != replay_moved).then_some((i, replay_moved))
+        })
+        .collect()
+}
+
 /// One small file of each model kind the binaries open, in `dir` (headers only: enough to be
 /// recognized by [`crate::model_kind`], not to load): the binary that opens it, and its path.
 fn model_of_each_binary(dir: &Path) -> Vec<(Binary, std::path::PathBuf)> {
