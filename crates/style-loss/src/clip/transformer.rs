@@ -419,7 +419,10 @@ mod tests {
         let device = Device::Cpu;
         let (batch, tokens, hidden, heads, intermediate) = (2, 5, 12, 3, 20);
         let causal = causal_mask(tokens);
-        for dtype in [DType::F32, DType::BF16] {
+        // With bf16 weights an activation that the two paths round to f32 one unit apart can
+        // round to bf16 one bf16 unit apart (2^-8 of it), as happened in about 1 run in 40 of
+        // these random inputs (4e-4 of the largest value): a bound of a few such units.
+        for (dtype, tol) in [(DType::F32, 1e-5), (DType::BF16, 2e-3)] {
             let layer = random_layer(dtype, DType::F32, hidden, heads, intermediate);
             let x = Tensor::rand(-1f32, 1.0, (batch, tokens, hidden), &device).unwrap();
             for queries in [tokens, 1, 2] {
@@ -460,8 +463,9 @@ mod tests {
                             .unwrap()
                     });
                     for (k, name) in ["value", "gradient"].iter().enumerate() {
-                        assert_close(&two_nodes[k], &ops[k], 1e-5, &format!("{what}, {name}"));
-                        assert_close(&two_nodes[k], &whole[k], 1e-5, &format!("{what}, {name}"));
+                        let what = format!("{what}, {name}");
+                        assert_close(&two_nodes[k], &ops[k], tol, &what);
+                        assert_close(&two_nodes[k], &whole[k], tol, &what);
                     }
                 }
             }
