@@ -16,7 +16,7 @@ warps, and text direction); this script writes the rest of each scene's folder i
 
   * a tiny NeRF-synthetic scene: `scene.ply` (48 Gaussians of SH degree 3 in INRIA's layout, some
     bright enough that renders exceed 1, some opaque enough that alpha reaches its 0.99 cap; in
-    the `edges` scenes 30 more, at INRIA's rasterizer's thresholds for each camera) and
+    the `edges` scenes 39 more, at INRIA's rasterizer's thresholds for each camera) and
     `data/` (3 train and 2 test views, 64x48 RGBA pictures with transparent, partly transparent
     and opaque pixels);
   * `reference.safetensors`: every parameter group after 1 and after 10 updates of the loop;
@@ -53,7 +53,7 @@ from authors_loop import (  # noqa: E402
     ROOT, StyleStep, ground_truth, inria_camera, load_tiny_models, look_at_c2w, rasterize,
     save_rgba_picture,
 )
-from threshold_gaussians import placed  # noqa: E402
+from threshold_gaussians import placed, stacked  # noqa: E402
 
 FIXTURES = ROOT / "crates" / "base-3dgs" / "tests" / "fixtures"
 FOV_X = 0.9
@@ -63,7 +63,8 @@ COUNT = 48
 # (inside INRIA's near plane 0.2: never drawn), one at depth 0.35 (drawn large). The last two
 # add, for every camera, Gaussians at the rules that decide what INRIA draws
 # (`make_raster_thresholds_fixture.py`'s kinds: past the right and bottom edges yet in a kept
-# tile, near the left edge, tiny at window and tile edges, alpha just above 1/255).
+# tile, near the left edge, tiny at window and tile edges, alpha just above and just below
+# 1/255), and a stack in front of the first camera where pixels stop at transmittance 1e-4.
 SCENES = [
     dict(folder="authors_replay", seed=20, radius=3.2, near_camera=False, edges=False),
     dict(folder="authors_replay_odd", seed=40, radius=2.4, near_camera=True, edges=False),
@@ -71,7 +72,10 @@ SCENES = [
     dict(folder="authors_replay_edges_odd", seed=61, radius=2.8, near_camera=False, edges=True),
 ]
 # Gaussians placed per camera in the scenes with `edges`.
-EDGE_KINDS = dict(past_right_edge=1, past_bottom_edge=1, near_left_edge=1, tiny=2, alpha_above=1)
+EDGE_KINDS = dict(past_right_edge=1, past_bottom_edge=1, near_left_edge=1, tiny=2, alpha_above=1,
+                  alpha_below=1)
+# Opaque Gaussians stacked in front of the first camera, where pixels stop at transmittance 1e-4.
+STACK = 4
 TRAIN_VIEWS, TEST_VIEWS = 3, 2
 # CLIPGaussian 3D/arguments/__init__.py (OptimizationParams) and INRIA's training_setup.
 LAMBDAS = dict(directional=5.0, patch=90.0, content=0.8, background=1000.0)
@@ -123,6 +127,8 @@ def scene_gaussians(scene, gen, width, height):
             camera = inria_camera(look_at_c2w(eye), width, height, FOV_X)
             for kind, count in EDGE_KINDS.items():
                 parts.append(placed(gen, camera, kind, count))
+        first = inria_camera(look_at_c2w(camera_eyes(scene["radius"])[0]), width, height, FOV_X)
+        parts.append(stacked(gen, first, STACK))
         g = {k: torch.cat([p[k] for p in parts]) for k in g}
     if scene["near_camera"]:
         eye = np.array(camera_eyes(scene["radius"])[0])
