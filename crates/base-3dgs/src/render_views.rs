@@ -19,7 +19,7 @@ pub const CAMERA_RENDER_PNG: &str = "render.png";
 
 /// Why views could not be rendered.
 #[derive(Debug, thiserror::Error)]
-pub enum RenderError {
+pub enum RenderViewsError {
     /// The dataset.
     #[error("dataset {}: {source}", path.display())]
     Dataset {
@@ -137,8 +137,8 @@ impl CameraFile {
 
 /// The camera of the JSON file `path` (see [`CameraFile`]), its picture named
 /// [`CAMERA_RENDER_PNG`].
-pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
-    let bad = |source: Box<dyn std::error::Error + Send + Sync>| RenderError::Camera {
+pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderViewsError> {
+    let bad = |source: Box<dyn std::error::Error + Send + Sync>| RenderViewsError::Camera {
         path: path.to_path_buf(),
         source,
     };
@@ -152,7 +152,10 @@ pub fn camera_from_file(path: &Path) -> Result<NamedCamera, RenderError> {
 
 /// The render's file name of each picture of `paths` (its stem with `.png`); an error names
 /// the dataset `data` and both pictures when two share one.
-pub(crate) fn render_names(data: &Path, paths: &[PathBuf]) -> Result<Vec<String>, RenderError> {
+pub(crate) fn render_names(
+    data: &Path,
+    paths: &[PathBuf],
+) -> Result<Vec<String>, RenderViewsError> {
     let mut names = BTreeMap::new();
     paths
         .iter()
@@ -160,7 +163,7 @@ pub(crate) fn render_names(data: &Path, paths: &[PathBuf]) -> Result<Vec<String>
             let stem = path.file_stem().unwrap_or_default().to_string_lossy();
             let name = format!("{stem}.png");
             if let Some(first) = names.insert(name.clone(), path.clone()) {
-                return Err(RenderError::DuplicateName {
+                return Err(RenderViewsError::DuplicateName {
                     data: data.to_path_buf(),
                     first,
                     second: path.clone(),
@@ -180,12 +183,12 @@ pub fn dataset_cameras(
     data: &Path,
     split: Option<Split>,
     options: &LoadOptions,
-) -> Result<Vec<NamedCamera>, RenderError> {
-    let wrap = |source| RenderError::Dataset {
+) -> Result<Vec<NamedCamera>, RenderViewsError> {
+    let wrap = |source| RenderViewsError::Dataset {
         path: data.to_path_buf(),
         source: Box::new(source),
     };
-    let layout = |message: String| RenderError::Layout {
+    let layout = |message: String| RenderViewsError::Layout {
         path: data.to_path_buf(),
         message,
     };
@@ -226,9 +229,9 @@ pub fn render_to_folder(
     background: [f32; 3],
     out: &Path,
     backend: &Backend,
-) -> Result<Vec<PathBuf>, RenderError> {
+) -> Result<Vec<PathBuf>, RenderViewsError> {
     let renderer = backend.renderer(gaussians)?;
-    std::fs::create_dir_all(out).map_err(|source| RenderError::Io {
+    std::fs::create_dir_all(out).map_err(|source| RenderViewsError::Io {
         path: out.to_path_buf(),
         source,
     })?;

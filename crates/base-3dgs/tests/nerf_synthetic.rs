@@ -6,10 +6,9 @@ mod common;
 use std::path::Path;
 
 use base_3dgs::dataset::nerf_synthetic::{self, Split, TrainSplits};
-use base_3dgs::dataset::{
-    composite_8bit, scene_extent, Background, DatasetError, ImageProgress, LoadOptions,
-};
+use base_3dgs::dataset::{scene_extent, Background, DatasetError, ImageProgress, LoadOptions};
 use common::TempDir;
+use gs_core::levels::composite_8bit;
 
 const W: u32 = 8;
 const H: u32 = 6;

@@ -25,7 +25,7 @@ pub const FORMAT: &str = "clipgaussian-dmiso";
 
 /// Why a model file could not be read or written. Each names the file.
 #[derive(Debug, thiserror::Error)]
-pub enum ModelFileError {
+pub enum DmisoFileError {
     /// A file that could not be read or written.
     #[error("{}: {source}", path.display())]
     Io {
@@ -109,7 +109,7 @@ pub fn save(
     model: &Dmiso,
     path: &Path,
     background: Option<Background>,
-) -> Result<(), ModelFileError> {
+) -> Result<(), DmisoFileError> {
     let params = model.params();
     let data: Vec<(String, Vec<usize>, Vec<u8>)> =
         layout(model.cores(), model.subs_per_core(), &model.net())
@@ -148,13 +148,13 @@ pub fn save(
         }
     }
     let bytes = safetensors::serialize(tensors, Some(metadata)).map_err(|source| {
-        ModelFileError::Safetensors {
+        DmisoFileError::Safetensors {
             path: path.to_path_buf(),
             source,
         }
     })?;
     let bytes = with_sorted_header(bytes);
-    gs_core::fs::write_atomic(path, &bytes).map_err(|source| ModelFileError::Io {
+    gs_core::fs::write_atomic(path, &bytes).map_err(|source| DmisoFileError::Io {
         path: path.to_path_buf(),
         source,
     })
@@ -192,16 +192,16 @@ fn le_bytes(values: &[f32]) -> Vec<u8> {
 }
 
 /// Reads a model written by [`save`], its network on `device`.
-pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
-    let format = |message: String| ModelFileError::Format {
+pub fn load(path: &Path, device: &Device) -> Result<Dmiso, DmisoFileError> {
+    let format = |message: String| DmisoFileError::Format {
         path: path.to_path_buf(),
         message,
     };
-    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+    let bytes = std::fs::read(path).map_err(|source| DmisoFileError::Io {
         path: path.to_path_buf(),
         source,
     })?;
-    let not_safetensors = |source| ModelFileError::Safetensors {
+    let not_safetensors = |source| DmisoFileError::Safetensors {
         path: path.to_path_buf(),
         source,
     };
@@ -213,7 +213,7 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, ModelFileError> {
             meta.get("format")
         )));
     }
-    let number = |key: &str| -> Result<usize, ModelFileError> {
+    let number = |key: &str| -> Result<usize, DmisoFileError> {
         meta.get(key)
             .and_then(|v| v.parse().ok())
             .ok_or_else(|| format(format!("metadata {key} is missing or not a count")))
@@ -330,19 +330,19 @@ type NamedValues = HashMap<String, (Vec<usize>, Vec<f32>)>;
 /// values with their shape. Each tensor's type is checked before its bytes are read, and its
 /// size against the file's length (a view may declare more elements than its storage holds:
 /// the authors' files hold none), so no allocation exceeds the file.
-fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
+fn read_pth(path: &Path) -> Result<NamedValues, DmisoFileError> {
     if !path.is_file() {
-        return Err(ModelFileError::Io {
+        return Err(DmisoFileError::Io {
             path: path.to_path_buf(),
             source: std::io::Error::new(std::io::ErrorKind::NotFound, "not found"),
         });
     }
-    let checkpoint = |message: String| ModelFileError::Checkpoint {
+    let checkpoint = |message: String| DmisoFileError::Checkpoint {
         path: path.to_path_buf(),
         message,
     };
     let file_len = std::fs::metadata(path)
-        .map_err(|source| ModelFileError::Io {
+        .map_err(|source| DmisoFileError::Io {
             path: path.to_path_buf(),
             source,
         })?
@@ -352,7 +352,7 @@ fn read_pth(path: &Path) -> Result<NamedValues, ModelFileError> {
         .into_tensors()
         .into_iter()
         .map(|(name, tensor)| {
-            let bad = |message| ModelFileError::Format {
+            let bad = |message| DmisoFileError::Format {
                 path: path.to_path_buf(),
                 message,
             };
@@ -408,7 +408,7 @@ pub struct AuthorsFiles {
 impl AuthorsFiles {
     /// The files of iteration `iteration` (`best`, or a number) of the model in `dir`; `None`
     /// takes `best` when it was saved, else the highest numbered iteration.
-    pub fn find(dir: &Path, iteration: Option<&str>) -> Result<Self, ModelFileError> {
+    pub fn find(dir: &Path, iteration: Option<&str>) -> Result<Self, DmisoFileError> {
         let clouds = dir.join("point_cloud");
         let iteration = match iteration {
             Some(it) => it.to_string(),
@@ -427,7 +427,7 @@ impl AuthorsFiles {
         };
         for path in [&files.ply, &files.params, &files.deform, &files.time_net] {
             if !path.is_file() {
-                return Err(ModelFileError::Format {
+                return Err(DmisoFileError::Format {
                     path: path.clone(),
                     message: format!(
                         "not found: a D-MiSo model saves it at iteration {iteration} (is {} the \
@@ -442,8 +442,8 @@ impl AuthorsFiles {
 }
 
 /// `best` when `point_cloud/iteration_best` exists, else the highest `iteration_<n>`.
-fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
-    let entries = std::fs::read_dir(clouds).map_err(|source| ModelFileError::Io {
+fn latest_iteration(clouds: &Path) -> Result<String, DmisoFileError> {
+    let entries = std::fs::read_dir(clouds).map_err(|source| DmisoFileError::Io {
         path: clouds.to_path_buf(),
         source,
     })?;
@@ -464,7 +464,7 @@ fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
     match (best, highest) {
         (true, _) => Ok("best".into()),
         (false, Some(n)) => Ok(n.to_string()),
-        (false, None) => Err(ModelFileError::Format {
+        (false, None) => Err(DmisoFileError::Format {
             path: clouds.to_path_buf(),
             message: "holds no iteration_<n> folder".into(),
         }),
@@ -474,7 +474,7 @@ fn latest_iteration(clouds: &Path) -> Result<String, ModelFileError> {
 /// The background a model records: our file's `background` metadata (`R,G,B`), else its
 /// `white_background`, or the `white_background` of the `cfg_args` beside the authors' folder;
 /// `None` when it records none.
-pub fn recorded_background(path: &Path) -> Result<Option<Background>, ModelFileError> {
+pub fn recorded_background(path: &Path) -> Result<Option<Background>, DmisoFileError> {
     let white_or_black = |white: bool| {
         if white {
             Background::White
@@ -490,11 +490,11 @@ pub fn recorded_background(path: &Path) -> Result<Option<Background>, ModelFileE
     }
     // Only the header: an 8-byte length, then the JSON header with the metadata.
     use std::io::Read;
-    let not_ours = |what: String| ModelFileError::Format {
+    let not_ours = |what: String| DmisoFileError::Format {
         path: path.to_path_buf(),
         message: format!("not a safetensors file ({what})"),
     };
-    let mut file = std::fs::File::open(path).map_err(|source| ModelFileError::Io {
+    let mut file = std::fs::File::open(path).map_err(|source| DmisoFileError::Io {
         path: path.to_path_buf(),
         source,
     })?;
@@ -514,7 +514,7 @@ pub fn recorded_background(path: &Path) -> Result<Option<Background>, ModelFileE
     if let Some(rgb) = metadata["background"].as_str() {
         return parse_background(rgb)
             .map(|rgb| Some(Background::from_rgb(rgb)))
-            .map_err(|why| ModelFileError::Format {
+            .map_err(|why| DmisoFileError::Format {
                 path: path.to_path_buf(),
                 message: format!("metadata background: {why}"),
             });
@@ -552,7 +552,7 @@ pub fn cfg_flag(cfg_args: &str, name: &str) -> Option<bool> {
 /// Whether the authors' model folder `path` was fitted with `--eval` (its `cfg_args` says
 /// `eval=True`: D-MiSo then trained on the train split only); `None` for our model files and
 /// for a folder whose `cfg_args` does not say.
-pub fn recorded_eval(path: &Path) -> Result<Option<bool>, ModelFileError> {
+pub fn recorded_eval(path: &Path) -> Result<Option<bool>, DmisoFileError> {
     if !path.is_dir() {
         return Ok(None);
     }
@@ -560,21 +560,21 @@ pub fn recorded_eval(path: &Path) -> Result<Option<bool>, ModelFileError> {
 }
 
 /// The `cfg_args` beside the authors' model folder `dir`; `None` when there is none.
-fn cfg_args(dir: &Path) -> Result<Option<String>, ModelFileError> {
+fn cfg_args(dir: &Path) -> Result<Option<String>, DmisoFileError> {
     let cfg = dir.join("cfg_args");
     match std::fs::read_to_string(&cfg) {
         Ok(text) => Ok(Some(text)),
         Err(e) if e.kind() == std::io::ErrorKind::NotFound => Ok(None),
-        Err(source) => Err(ModelFileError::Io { path: cfg, source }),
+        Err(source) => Err(DmisoFileError::Io { path: cfg, source }),
     }
 }
 
 /// Reads the model the authors' code saved (`files`), with its sub-Gaussians, its network on
 /// `device`. The network's width is read from its tensors; every tensor must have the shape
 /// that width and the model's cores and sub-Gaussians give.
-pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, ModelFileError> {
+pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, DmisoFileError> {
     let mut params = read_pth(&files.params)?;
-    let bad = |path: &Path, message: String| ModelFileError::Format {
+    let bad = |path: &Path, message: String| DmisoFileError::Format {
         path: path.to_path_buf(),
         message,
     };
@@ -648,15 +648,15 @@ pub fn read_authors(files: &AuthorsFiles, device: &Device) -> Result<Dmiso, Mode
 }
 
 /// The vertex count of a binary PLY's header.
-fn ply_vertex_count(path: &Path) -> Result<usize, ModelFileError> {
-    let bytes = std::fs::read(path).map_err(|source| ModelFileError::Io {
+fn ply_vertex_count(path: &Path) -> Result<usize, DmisoFileError> {
+    let bytes = std::fs::read(path).map_err(|source| DmisoFileError::Io {
         path: path.to_path_buf(),
         source,
     })?;
     let head = &bytes[..bytes.len().min(8192)];
     let text = String::from_utf8_lossy(head);
     if !text.starts_with("ply\n") || !text.contains("end_header") {
-        return Err(ModelFileError::Format {
+        return Err(DmisoFileError::Format {
             path: path.to_path_buf(),
             message: "not a PLY file".into(),
         });
@@ -664,7 +664,7 @@ fn ply_vertex_count(path: &Path) -> Result<usize, ModelFileError> {
     text.lines()
         .find_map(|l| l.strip_prefix("element vertex "))
         .and_then(|n| n.trim().parse().ok())
-        .ok_or_else(|| ModelFileError::Format {
+        .ok_or_else(|| DmisoFileError::Format {
             path: path.to_path_buf(),
             message: "no vertex element".into(),
         })

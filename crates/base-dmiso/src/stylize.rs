@@ -39,7 +39,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::fit::{fit, mean_psnr, render_views, FitError, FitSettings};
 use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
-use crate::model_file::{self, read_authors, AuthorsFiles, ModelFileError};
+use crate::model_file::{self, read_authors, AuthorsFiles, DmisoFileError};
 
 /// The stylized model.
 pub const MODEL_FILE: &str = "model.safetensors";
@@ -259,7 +259,7 @@ pub enum DynamicError {
     Dataset(#[from] DatasetError),
     /// A model file.
     #[error("{0}")]
-    Model(#[from] ModelFileError),
+    Model(#[from] DmisoFileError),
     /// The fit.
     #[error("{0}")]
     Fit(#[from] FitError),
@@ -332,7 +332,7 @@ pub fn read_model(
     path: &Path,
     iteration: Option<&str>,
     device: &Device,
-) -> Result<Dmiso, ModelFileError> {
+) -> Result<Dmiso, DmisoFileError> {
     if path.is_dir() {
         read_authors(&AuthorsFiles::find(path, iteration)?, device)
     } else {
@@ -366,7 +366,7 @@ pub fn run(
 /// its test split, the background and, once the job is made, the sweep through time before
 /// stylization.
 #[derive(Debug)]
-pub struct SceneInput {
+pub struct DynamicSceneInput {
     train: Dataset,
     test: Option<Dataset>,
     labels: Vec<String>,
@@ -378,7 +378,7 @@ pub struct SceneInput {
 
 impl Modality for DynamicStylizeConfig {
     type Model = Dmiso;
-    type Inputs = SceneInput;
+    type Inputs = DynamicSceneInput;
     type Fit = Dmiso;
     type Outputs = DynamicSummary;
     type Error = DynamicError;
@@ -433,7 +433,7 @@ impl Modality for DynamicStylizeConfig {
         &self,
         run: &PreparedRun,
         model: Option<&Path>,
-    ) -> Result<SceneInput, DynamicError> {
+    ) -> Result<DynamicSceneInput, DynamicError> {
         let data = self.data.as_deref().expect("checked: the data is given");
         let recorded = model.map(model_file::recorded_background).transpose()?;
         let background = self.background(recorded.flatten());
@@ -465,7 +465,7 @@ impl Modality for DynamicStylizeConfig {
                 train.views.len()
             )));
         }
-        Ok(SceneInput {
+        Ok(DynamicSceneInput {
             train,
             test,
             labels,
@@ -479,7 +479,7 @@ impl Modality for DynamicStylizeConfig {
     /// Our `.safetensors` file or the authors' folder (at `iteration`).
     fn read_model(
         &self,
-        scene: &SceneInput,
+        scene: &DynamicSceneInput,
         path: &Path,
         own_fit: bool,
         _run: &PreparedRun,
@@ -502,7 +502,7 @@ impl Modality for DynamicStylizeConfig {
 
     fn fit(
         &self,
-        scene: &SceneInput,
+        scene: &DynamicSceneInput,
         run: &PreparedRun,
         on_step: OnStep<'_>,
     ) -> Result<Dmiso, DynamicError> {
@@ -518,7 +518,12 @@ impl Modality for DynamicStylizeConfig {
         )?)
     }
 
-    fn keep_fit(&self, scene: &SceneInput, fit: Dmiso, path: &Path) -> Result<Dmiso, DynamicError> {
+    fn keep_fit(
+        &self,
+        scene: &DynamicSceneInput,
+        fit: Dmiso,
+        path: &Path,
+    ) -> Result<Dmiso, DynamicError> {
         model_file::save(&fit, path, Some(scene.background))?;
         Ok(fit)
     }
@@ -526,7 +531,7 @@ impl Modality for DynamicStylizeConfig {
     /// The mean PSNR of the fitted scene over its training views.
     fn fit_psnr(
         &self,
-        scene: &SceneInput,
+        scene: &DynamicSceneInput,
         model: &mut Dmiso,
         run: &PreparedRun,
     ) -> Result<Option<f64>, DynamicError> {
@@ -539,7 +544,7 @@ impl Modality for DynamicStylizeConfig {
     /// before stylization first, for the preview.
     fn job(
         &self,
-        scene: &mut SceneInput,
+        scene: &mut DynamicSceneInput,
         mut model: Dmiso,
         run: &PreparedRun,
     ) -> Result<StylizeJob<Dmiso>, DynamicError> {
@@ -576,7 +581,7 @@ impl Modality for DynamicStylizeConfig {
     /// The model, the test views, the sweep, its previews and its video.
     fn write_outputs(
         &self,
-        scene: SceneInput,
+        scene: DynamicSceneInput,
         outcome: StylizeOutcome<Dmiso>,
         run: &PreparedRun,
     ) -> Result<DynamicSummary, DynamicError> {

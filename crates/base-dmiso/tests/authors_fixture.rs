@@ -9,7 +9,7 @@ use std::collections::HashMap;
 use std::path::{Path, PathBuf};
 
 use base_dmiso::model::group;
-use base_dmiso::model_file::{read_authors, AuthorsFiles, ModelFileError};
+use base_dmiso::model_file::{read_authors, AuthorsFiles, DmisoFileError};
 use base_dmiso::{Dmiso, GROUP_NAMES};
 use candle_core::Device;
 use gs_core::gaussians::GaussianSet;
@@ -174,7 +174,7 @@ fn broken_or_foreign_checkpoints_are_refused_by_name() {
     let bytes = std::fs::read(&files.deform).unwrap();
     std::fs::write(&files.deform, &bytes[..bytes.len() / 2]).unwrap();
     let e = read_authors(&files, &Device::Cpu).unwrap_err();
-    assert!(matches!(e, ModelFileError::Checkpoint { .. }), "{e}");
+    assert!(matches!(e, DmisoFileError::Checkpoint { .. }), "{e}");
     assert!(e.to_string().contains("deform.pth"), "{e}");
     // A foreign file: the time network's checkpoint in place of the deformation network's.
     std::fs::copy(&files.time_net, &files.deform).unwrap();

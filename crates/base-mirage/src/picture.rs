@@ -173,7 +173,7 @@ mod tests {
             let picture = load_picture(&path, background, 0).unwrap();
             for (x, y) in [(0, 0), (255, 16), (130, 9), (3, 31), (200, 1)] {
                 let rgb = [x as u8, 255 - x as u8, 7];
-                let want = gs_core::dataset::composite_8bit(rgb, (8 * y) as u8, background)
+                let want = gs_core::levels::composite_8bit(rgb, (8 * y) as u8, background)
                     .map(|v| f32::from(v) / 255.0);
                 assert_eq!(picture.pixel(x, y), want, "({x}, {y}) over {background:?}");
             }

@@ -43,7 +43,7 @@ pub struct VideoRecord {
 
 /// Why a model file cannot be read or written.
 #[derive(Debug, thiserror::Error)]
-pub enum ModelFileError {
+pub enum VegasFileError {
     /// The file cannot be opened, encoded or written.
     #[error("model {}: {what}: {source}", path.display())]
     Io {
@@ -97,9 +97,9 @@ pub fn write_model(
     path: &Path,
     model: &FoldedGaussians,
     video: Option<VideoRecord>,
-) -> Result<(), ModelFileError> {
+) -> Result<(), VegasFileError> {
     let io = |what: &'static str| {
-        move |source: std::io::Error| ModelFileError::Io {
+        move |source: std::io::Error| VegasFileError::Io {
             path: path.to_path_buf(),
             what,
             source,
@@ -153,13 +153,13 @@ pub fn write_model(
 }
 
 /// Reads a VeGaS model and, when the file records it, its video.
-pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>), ModelFileError> {
-    let fail = |message: String| ModelFileError::Format {
+pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>), VegasFileError> {
+    let fail = |message: String| VegasFileError::Format {
         path: path.to_path_buf(),
         message,
     };
     let io = |what: &'static str| {
-        move |source: std::io::Error| ModelFileError::Io {
+        move |source: std::io::Error| VegasFileError::Io {
             path: path.to_path_buf(),
             what,
             source,
@@ -170,7 +170,7 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
     // second property of one name, bytes past the end, another format version.
     let header = gs_core::ply::elements::parse_elements(&bytes).map_err(&fail)?;
     gs_core::ply::elements::check_body_length(&header, &bytes).map_err(&fail)?;
-    let unreadable = |source| ModelFileError::Unreadable {
+    let unreadable = |source| VegasFileError::Unreadable {
         path: path.to_path_buf(),
         source,
     };

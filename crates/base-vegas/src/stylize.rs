@@ -35,7 +35,7 @@ use crate::fit::{
     fit, mean_psnr, render_frames, training_targets, training_views, FitError, FitSettings,
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
-use crate::model_file::{read_model, write_model, ModelFileError, VideoRecord};
+use crate::model_file::{read_model, write_model, VegasFileError, VideoRecord};
 use crate::video_input::{
     frame_files, load_video_with_progress, Video, VideoInputError, DEFAULT_FOLDER_FPS,
 };
@@ -145,7 +145,7 @@ pub enum VideoError {
     Input(#[from] VideoInputError),
     /// A model file.
     #[error("{0}")]
-    Model(#[from] ModelFileError),
+    Model(#[from] VegasFileError),
     /// A model that does not fit the video.
     #[error("model {}: {reason}", path.display())]
     ModelMismatch {

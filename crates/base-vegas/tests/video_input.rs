@@ -193,7 +193,7 @@ fn transparent_frames_are_composited_and_cut_to_8_bits_as_vegas_reads_them() {
             (254, 3),
             (255, 64),
         ] {
-            let want = gs_core::dataset::composite_8bit([c as u8; 3], a as u8, background)
+            let want = gs_core::levels::composite_8bit([c as u8; 3], a as u8, background)
                 .map(|v| f32::from(v) / 255.0);
             assert_eq!(
                 frame.pixel(c, a),

@@ -67,10 +67,10 @@ impl Image<f32> {
 
     /// Reads a PNG or JPEG file as the loaders of D-MiSo, VeGaS and MiraGe read pictures: alpha
     /// composited over `background` in `f64` and the result cut to whole 8-bit levels
-    /// ([`crate::dataset::composite_8bit`]), so the values are `level / 255`.
+    /// ([`crate::levels::composite_8bit`]), so the values are `level / 255`.
     pub fn load_8bit_composite(path: &Path, background: [f32; 3]) -> Result<Self, GsError> {
         let img = open_image(path)?;
-        Ok(Self::rgb_of(&crate::dataset::composited_8bit(
+        Ok(Self::rgb_of(&crate::levels::composited_8bit(
             &img, background,
         )))
     }
@@ -79,7 +79,7 @@ impl Image<f32> {
     /// levels; the authors' style images: `ToTensor()(image)[:3]`).
     pub fn load_stored_colours(path: &Path) -> Result<Self, GsError> {
         let img = open_image(path)?;
-        Ok(Self::rgb_of(&crate::dataset::stored_levels(&img)))
+        Ok(Self::rgb_of(&crate::levels::stored_levels(&img)))
     }
 
     /// The RGB channels of `rgba`.
@@ -165,7 +165,7 @@ pub const MAX_PICTURE_PIXELS: u64 = 1 << 26;
 
 /// Why a picture could not be decoded.
 #[derive(Debug, thiserror::Error)]
-pub enum PictureError {
+pub enum PictureDecodeError {
     /// The decoder's error.
     #[error("{0}")]
     Image(#[from] image::ImageError),
@@ -189,13 +189,13 @@ pub enum PictureError {
 /// Decodes the picture at `path` after reading its size from its header: one of more than
 /// [`MAX_PICTURE_PIXELS`] is refused before any of it is decoded (a few kilobytes of PNG can
 /// claim 23000 x 23000), and the decoder may not allocate more than such a picture needs.
-pub fn decode_picture(path: &Path) -> Result<image::DynamicImage, PictureError> {
+pub fn decode_picture(path: &Path) -> Result<image::DynamicImage, PictureDecodeError> {
     let open = || -> Result<image::ImageReader<_>, image::ImageError> {
         Ok(image::ImageReader::open(path)?.with_guessed_format()?)
     };
     let (width, height) = open()?.into_dimensions()?;
     if u64::from(width) * u64::from(height) > MAX_PICTURE_PIXELS {
-        return Err(PictureError::TooLarge { width, height });
+        return Err(PictureDecodeError::TooLarge { width, height });
     }
     let mut reader = open()?;
     let mut limits = image::Limits::default();

@@ -46,6 +46,7 @@ pub mod gaussians;
 pub mod image;
 pub mod image_loss;
 pub mod interpolate;
+pub mod levels;
 pub mod mat;
 pub mod mirror_pair;
 pub mod model;

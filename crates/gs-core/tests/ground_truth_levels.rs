@@ -6,7 +6,8 @@
 mod common;
 
 use gs_core::dataset::nerf_synthetic::{self, Split};
-use gs_core::dataset::{composite_8bit, Background, GroundTruth, LoadOptions};
+use gs_core::dataset::{Background, GroundTruth, LoadOptions};
+use gs_core::levels::composite_8bit;
 
 const TABLES: &[u8] = include_bytes!("fixtures/composite_8bit.bin");
 

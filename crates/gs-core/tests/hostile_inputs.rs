@@ -5,7 +5,7 @@ use std::path::Path;
 
 use gs_core::dataset::nerf_synthetic::{self, Split};
 use gs_core::dataset::LoadOptions;
-use gs_core::image::{decode_picture, PictureError};
+use gs_core::image::{decode_picture, PictureDecodeError};
 use gs_core::{Camera, Image};
 
 /// A 2x2 PNG whose header is rewritten to claim `width x height` (its checksum fixed), the
@@ -35,7 +35,7 @@ fn a_picture_claiming_23000_squared_is_refused_before_decoding() {
     png_claiming(&bomb, 23000, 23000);
     assert!(matches!(
         decode_picture(&bomb),
-        Err(PictureError::TooLarge {
+        Err(PictureDecodeError::TooLarge {
             width: 23000,
             height: 23000
         })
@@ -50,7 +50,7 @@ fn a_picture_claiming_23000_squared_is_refused_before_decoding() {
     png_claiming(&small, 4000, 4000);
     assert!(matches!(
         decode_picture(&small),
-        Err(PictureError::Image(_))
+        Err(PictureDecodeError::Image(_))
     ));
 }
 

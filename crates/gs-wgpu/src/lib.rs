@@ -71,7 +71,7 @@ mod model;
 mod scan;
 mod shaders;
 mod sort;
-mod test_gpu;
+mod test_context;
 mod train;
 
 pub use adam::GpuAdam;
@@ -86,6 +86,6 @@ pub use model::{
     host_backward, host_forward, GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep,
 };
 pub use shaders::{Access, KernelSource};
-pub use test_gpu::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
+pub use test_context::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
 pub use train::train;
 pub use wgpu::Buffer;

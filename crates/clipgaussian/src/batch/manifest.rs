@@ -27,14 +27,14 @@ use gs_stylize::Override;
 use serde::{Deserialize, Serialize};
 use serde_json::{Map, Value};
 
-use super::modality::{Modality, PATH_FIELDS};
+use super::modality::{ModalityKind, PATH_FIELDS};
 
 /// A manifest file.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Manifest {
     /// `2d`, `video`, `3d` or `4d`.
-    pub modality: Modality,
+    pub modality: ModalityKind,
     /// A configuration file of the modality (as `--config`); none: the modality's defaults.
     #[serde(default)]
     pub config: Option<PathBuf>,

@@ -13,7 +13,7 @@ use serde_json::Value;
 
 /// The four kinds of scene a batch stylizes (one per batch).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
-pub enum Modality {
+pub enum ModalityKind {
     /// Pictures (MiraGe), as `clipgaussian-2d stylize`.
     #[serde(rename = "2d")]
     Picture,
@@ -42,7 +42,7 @@ pub const PATH_FIELDS: [&str; 9] = [
     "vgg_weights",
 ];
 
-impl Modality {
+impl ModalityKind {
     /// The manifest's name of the modality.
     pub fn name(self) -> &'static str {
         match self {
@@ -68,7 +68,7 @@ impl Modality {
         }
     }
 
-    /// Runs the stylization of `config` (as [`Modality::resolve`] gave it) in this process.
+    /// Runs the stylization of `config` (as [`ModalityKind::resolve`] gave it) in this process.
     pub fn run(self, config: &Value, options: &RunOptions) -> Result<(), Box<dyn Error>> {
         match self {
             Self::Picture => {

@@ -14,7 +14,7 @@ use serde_json::{json, Value};
 use sha2::{Digest, Sha256};
 
 use super::manifest::{self, label, EvalRequest};
-use super::modality::{Modality, PATH_FIELDS};
+use super::modality::{ModalityKind, PATH_FIELDS};
 
 /// The plan's file in the batch folder.
 pub const JOBS_JSON: &str = "jobs.json";
@@ -25,7 +25,7 @@ pub struct Plan {
     /// The manifest it was planned from.
     pub manifest: PathBuf,
     /// The modality of every job.
-    pub modality: Modality,
+    pub modality: ModalityKind,
     /// Number of inputs of the manifest.
     pub inputs: usize,
     /// Number of styles of the manifest.
@@ -174,7 +174,7 @@ fn stamp_files(path: &Path, field: &str, files: &mut Vec<Value>) -> std::io::Res
 /// The id of a job of `modality` with `config`: the first 16 hexadecimal digits of a SHA-256
 /// of both and of the path, size and modification time of every file it names (every file
 /// under a folder it names).
-fn job_id(modality: Modality, config: &Value) -> Result<String, String> {
+fn job_id(modality: ModalityKind, config: &Value) -> Result<String, String> {
     let mut files = Vec::new();
     for field in PATH_FIELDS {
         if let Some(path) = config[field].as_str() {

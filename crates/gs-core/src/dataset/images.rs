@@ -3,6 +3,7 @@
 
 use std::path::Path;
 
+use crate::levels::{as_unit_values, composited_levels, pil_levels};
 use crate::pil_resize::{pil_bicubic_resize, pil_rgba_resize};
 use crate::Image;
 use image::imageops::FilterType;
@@ -59,7 +60,7 @@ pub(crate) enum Composite {
     /// In `f32`, kept as it is (COLMAP pictures, 8-bit RGB already).
     Float,
     /// In `f64` and then cut to whole 8-bit levels, as INRIA 3DGS's and D-MiSo's
-    /// `readCamerasFromTransforms` ([`composite_8bit`]).
+    /// `readCamerasFromTransforms` ([`crate::levels::composite_8bit`]).
     EightBit,
     /// Not at all: the colour channels as stored ([`super::GroundTruth::FileColour`]).
     Stored,
@@ -75,20 +76,6 @@ impl Composite {
             (super::GroundTruth::Composited, false) => Self::Float,
         }
     }
-}
-
-/// One pixel of 8-bit levels (as PIL reads every file) composited as INRIA
-/// 3DGS's `readCamerasFromTransforms` does it: `arr = (c / 255) (a / 255) + bg (1 - a / 255)` in
-/// `f64`, then `np.array(arr * 255.0, dtype=np.byte)`, which truncates towards zero, so
-/// `floor(arr * 255)`, a whole level in `0..=255`.
-pub fn composite_8bit(rgb: [u8; 3], alpha: u8, background: [f32; 3]) -> [u8; 3] {
-    let a = f64::from(alpha) / 255.0;
-    // `arr` lies in [0, 1]; the cast saturates at the ends.
-    let level = |c: usize| {
-        let arr = (f64::from(rgb[c]) / 255.0) * a + f64::from(background[c]) * (1.0 - a);
-        (arr * 255.0).floor() as u8
-    };
-    [level(0), level(1), level(2)]
 }
 
 /// Loads `path`, checks that its size is `expected`, composites alpha over `background` as
@@ -109,7 +96,7 @@ pub(crate) fn load(
     undistortion: Option<&Undistortion>,
 ) -> Result<(Image, Option<BackgroundMask>), DatasetError> {
     let decoded = crate::image::decode_picture(path).map_err(|e| match e {
-        crate::image::PictureError::Image(e) => image_error(path, e),
+        crate::image::PictureDecodeError::Image(e) => image_error(path, e),
         too_large => DatasetError::Format {
             path: path.to_path_buf(),
             message: too_large.to_string(),
@@ -208,58 +195,4 @@ fn pil_resize_planes(levels: &image::RgbaImage, (width, height): (u32, u32)) -> 
         let p = y as usize * ow + x as usize;
         image::Rgba([0, 1, 2, 3].map(|c| resized[c * ow * oh + p]))
     })
-}
-
-/// 8-bit levels as values in `[0, 1]` (level / 255).
-fn as_unit_values(levels: &image::RgbaImage) -> image::Rgba32FImage {
-    image::Rgba32FImage::from_fn(levels.width(), levels.height(), |x, y| {
-        image::Rgba(levels.get_pixel(x, y).0.map(|v| f32::from(v) / 255.0))
-    })
-}
-
-/// The picture's 8-bit RGBA levels as PIL reads it: 8-bit files as they are; 16-bit RGB, RGBA
-/// and grey-alpha files by the high byte of each value (PIL's `RGB;16B` unpacking); 16-bit grey
-/// clipped to 255 (PIL's `I;16` converted to RGBA); other formats through the image crate.
-pub(crate) fn pil_levels(decoded: &image::DynamicImage) -> image::RgbaImage {
-    use image::DynamicImage as D;
-    let high_byte = |v: u16| (v >> 8) as u8;
-    match decoded {
-        D::ImageRgb16(_) | D::ImageRgba16(_) | D::ImageLumaA16(_) => {
-            let wide = decoded.to_rgba16();
-            image::RgbaImage::from_fn(wide.width(), wide.height(), |x, y| {
-                image::Rgba(wide.get_pixel(x, y).0.map(high_byte))
-            })
-        }
-        D::ImageLuma16(grey) => image::RgbaImage::from_fn(grey.width(), grey.height(), |x, y| {
-            let v = grey.get_pixel(x, y).0[0].min(255) as u8;
-            image::Rgba([v, v, v, 255])
-        }),
-        _ => decoded.to_rgba8(),
-    }
-}
-
-/// The stored colours and alpha of `decoded` as PIL's levels ([`pil_levels`]) / 255.
-pub(crate) fn stored_levels(decoded: &image::DynamicImage) -> image::Rgba32FImage {
-    as_unit_values(&pil_levels(decoded))
-}
-
-/// `decoded`'s levels as PIL reads them ([`pil_levels`]) composited over `background` by
-/// [`composite_8bit`], the file's alpha kept for the mask.
-fn composited_levels(decoded: &image::DynamicImage, background: [f32; 3]) -> image::RgbaImage {
-    let mut levels = pil_levels(decoded);
-    for p in levels.pixels_mut() {
-        let [r, g, b, a] = p.0;
-        let [r, g, b] = composite_8bit([r, g, b], a, background);
-        *p = image::Rgba([r, g, b, a]);
-    }
-    levels
-}
-
-/// `decoded` composited over `background` by [`composite_8bit`] from its levels as PIL reads
-/// them ([`pil_levels`]), as `f32` levels / 255 with the file's alpha kept for the mask.
-pub(crate) fn composited_8bit(
-    decoded: &image::DynamicImage,
-    background: [f32; 3],
-) -> image::Rgba32FImage {
-    as_unit_values(&composited_levels(decoded, background))
 }

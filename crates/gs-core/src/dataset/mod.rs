@@ -17,8 +17,7 @@ use crate::{Camera, GsError, Image};
 use serde::{Deserialize, Serialize};
 use undistort::Undistorted;
 
-pub use images::{composite_8bit, BackgroundMask, ALPHA_BACKGROUND_BELOW};
-pub(crate) use images::{composited_8bit, stored_levels};
+pub use images::{BackgroundMask, ALPHA_BACKGROUND_BELOW};
 
 /// The two dataset layouts a folder can have.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,7 +96,7 @@ impl Background {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GroundTruth {
-    /// Composited over the background and cut to whole 8-bit levels ([`composite_8bit`]):
+    /// Composited over the background and cut to whole 8-bit levels ([`composite_8bit`](crate::levels::composite_8bit)):
     /// `readCamerasFromTransforms` of D-MiSo, VeGaS, MiraGe and of INRIA 3DGS before its
     /// August 2024 release. COLMAP pictures (8-bit RGB) are composited in `f32` where they have
     /// alpha.

@@ -15,7 +15,7 @@
 //!
 //! Pictures with alpha are composited over the chosen background and the result cut to whole
 //! 8-bit levels, as D-MiSo and INRIA 3DGS before August 2024 read these scenes
-//! ([`composite_8bit`](super::composite_8bit)), or the stored colours are kept
+//! ([`composite_8bit`](crate::levels::composite_8bit)), or the stored colours are kept
 //! ([`GroundTruth`](super::GroundTruth)); alpha gives the background mask. With a downscale `f`,
 //! pictures come from `images_<f>/` (same file names) when the folder exists, as nerfstudio reads
 //! them.

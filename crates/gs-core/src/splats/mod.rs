@@ -1,6 +1,6 @@
 //! Splat files beyond INRIA's PLY, read and written for viewers and other pipelines:
 //! SuperSplat's compressed PLY ([`compressed_ply`]), Niantic's SPZ ([`spz`]), antimatter15's
-//! `.splat` ([`antimatter`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]).
+//! `.splat` ([`splat_format`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]).
 //!
 //! [`read_splats`] and [`write_splats`] pick the format from the file name
 //! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
@@ -9,9 +9,9 @@
 //! held (3DGS's: x right, y down, z forward) in every format but glTF, which is y-up (the scene
 //! turned half a turn about z), as splat-transform writes them.
 
-pub mod antimatter;
 pub mod compressed_ply;
 pub mod gltf;
+pub mod splat_format;
 pub mod spz;
 
 use std::path::{Path, PathBuf};
@@ -201,7 +201,7 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             }
             compressed_ply::decode(&read()?).map_err(format_error)?
         }
-        SplatFormat::Splat => antimatter::decode(&read()?).map_err(format_error)?,
+        SplatFormat::Splat => splat_format::decode(&read()?).map_err(format_error)?,
         SplatFormat::Spz | SplatFormat::SpzV2 => spz::decode(&read()?).map_err(format_error)?,
         SplatFormat::Glb => {
             return Err(SplatFileError::WriteOnly {
@@ -243,7 +243,7 @@ pub fn write_splats(
     let bytes = match format {
         SplatFormat::Ply => return Ok(write_ply(path, ply, PlyFormat::BinaryLittleEndian)?),
         SplatFormat::CompressedPly => compressed_ply::encode(&ply.gaussians),
-        SplatFormat::Splat => antimatter::encode(&ply.gaussians),
+        SplatFormat::Splat => splat_format::encode(&ply.gaussians),
         SplatFormat::Spz => spz::encode(&ply.gaussians, spz::Version::V4),
         SplatFormat::SpzV2 => spz::encode(&ply.gaussians, spz::Version::V2),
         SplatFormat::Glb => gltf::encode(&ply.gaussians),
