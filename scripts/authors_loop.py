@@ -151,6 +151,11 @@ def project(g, cam):
     limx, limy = 1.3 * tan_x, 1.3 * tan_y
     tx = (p_view[:, 0] / tz).clamp(-limx, limx) * tz
     ty = (p_view[:, 1] / tz).clamp(-limy, limy) * tz
+    # INRIA's backward (`computeCov2DCUDA`) takes a clamped t.x as independent of tz in
+    # `dL_dtz`: the Jacobian's t.x, t.y detached where clamped.
+    ux, uy = p_view[:, 0] / tz, p_view[:, 1] / tz
+    tx = torch.where((ux < -limx) | (ux > limx), tx.detach(), tx)
+    ty = torch.where((uy < -limy) | (uy > limy), ty.detach(), ty)
     zeros = torch.zeros_like(tz)
     jac = torch.stack([
         torch.stack([fx / tz, zeros, -fx * tx / tz ** 2], dim=1),
@@ -161,6 +166,9 @@ def project(g, cam):
     a, b, c = cov[:, 0, 0] + 0.3, cov[:, 0, 1], cov[:, 1, 1] + 0.3
     det = a * c - b * b
     conic = torch.stack([c / det, -b / det, a / det], dim=1)
+    # INRIA's backward of the conic has `denom2inv = 1 / (det^2 + 1e-7)` for `1 / det^2`.
+    damp = (det * det / (det * det + 1e-7)).detach()[:, None]
+    conic = conic.detach() + (conic - conic.detach()) * damp
     with torch.no_grad():
         mid = 0.5 * (a + c)
         lam = mid + torch.sqrt(torch.clamp(mid * mid - det, min=0.1))

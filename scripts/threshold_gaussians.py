@@ -122,7 +122,9 @@ def first(cam, make, accept, count, what):
     raise RuntimeError(f"no {what} Gaussian found")
 
 
-def placed(gen, cam, kind, count):
+def placed(gen, cam, kind, count, alpha_margin=3e-3):
+    """`count` Gaussians of `kind` for camera `cam`; `alpha_above` and `alpha_below` have their
+    largest alpha at 1/255 times (1 +- `alpha_margin`)."""
     width, height = cam["width"], cam["height"]
     n = 512
     drawn = lambda g, proj, alpha: alpha.max(dim=1).values >= ALPHA_MIN * (1 + 3e-3)
@@ -150,12 +152,12 @@ def placed(gen, cam, kind, count):
     elif kind == "tiny":
         def px():
             edge = torch.tensor([7.5, 15.5], dtype=torch.float64)[torch.randint(2, (n,), generator=gen)]
-            tile = torch.randint(max(width // TILE, 1), (n,), generator=gen).double()
+            tile = torch.randint((width + TILE - 1) // TILE, (n,), generator=gen).double()
             return (TILE * tile + edge + uniform(gen, n, -1.5, 1.5)).clamp(-0.4, width - 0.6)
         make = at(px, rows, lambda: uniform(gen, n, 0.05, 1.0), lambda: uniform(gen, n, -1.0, 6.0))
         accept = drawn
     elif kind in ("alpha_above", "alpha_below"):
-        target = ALPHA_MIN * (1 + 3e-3 if kind == "alpha_above" else 1 - 3e-3)
+        target = ALPHA_MIN * (1 + alpha_margin if kind == "alpha_above" else 1 - alpha_margin)
 
         def make():
             g = gaussians_at(gen, cam, cols(), rows(), uniform(gen, n, 2.0, 3.5),

@@ -5,6 +5,7 @@ const TILE_SIZE: u32 = 16u;
 const EPS2D: f32 = 0.3;
 const NEAR_PLANE: f32 = 0.2;
 const PROJECTION_EPS: f32 = 1e-7;
+const CONIC_GRAD_EPS: f32 = 1e-7;
 const FAR_PLANE: f32 = 1e10;
 const ALPHA_MAX: f32 = 0.99;
 const ALPHA_MIN: f32 = 1.0 / 255.0;

@@ -139,9 +139,13 @@ fn main(
         }
     }
 
-    // Conic -> 2D covariance: d(S^-1) = -S^-1 dS S^-1.
+    // Conic -> 2D covariance: d(S^-1) = -S^-1 dS S^-1, times INRIA's
+    // det^2 / (det^2 + CONIC_GRAD_EPS) (det of S; `1 / det` is the conic's).
     let inv = mat2x2f(vec2f(f.conic.x, f.conic.y), vec2f(f.conic.y, f.conic.z));
-    let gm = mat2x2f(vec2f(sg_conic.x, 0.5 * sg_conic.y), vec2f(0.5 * sg_conic.y, sg_conic.z));
+    let det_conic = f.conic.x * f.conic.z - f.conic.y * f.conic.y;
+    let damp = 1.0 / (1.0 + CONIC_GRAD_EPS * det_conic * det_conic);
+    let gm = mat2x2f(vec2f(sg_conic.x, 0.5 * sg_conic.y), vec2f(0.5 * sg_conic.y, sg_conic.z))
+        * damp;
     let g_cov2d = (inv * gm * inv) * -1.0;
     let g00 = g_cov2d[0][0];
     let g01 = g_cov2d[1][0];
@@ -170,13 +174,19 @@ fn main(
     g_p.z += g_jac0.x * (-fx / tz2) + g_jac1.y * (-fy / tz2) + g_jac0.z * (fx * f.u.x / tz2)
         + g_jac1.z * (fy * f.u.y / tz2);
     let g_u = vec2f(g_jac0.z * (-fx / tz), g_jac1.z * (-fy / tz));
+    // Where x/z is clamped, INRIA's `dL_dtz` takes J02 = -fx t.x / tz^2 with the clamped
+    // t.x = u tz as if t.x did not depend on tz: twice the derivative through the clamp.
     if !f.clamped.x {
         g_p.x += g_u.x / tz;
         g_p.z -= g_u.x * tx / tz2;
+    } else {
+        g_p.z -= g_u.x * f.u.x / tz;
     }
     if !f.clamped.y {
         g_p.y += g_u.y / tz;
         g_p.z -= g_u.y * ty / tz2;
+    } else {
+        g_p.z -= g_u.y * f.u.y / tz;
     }
     // mean2d = f t / (tz + PROJECTION_EPS) + c.
     let tz_proj = tz + PROJECTION_EPS;

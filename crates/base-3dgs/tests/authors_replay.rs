@@ -96,14 +96,24 @@ fn groups(g: &GaussianSet) -> [(&'static str, &[f32]); 6] {
 /// Values per Gaussian of each group of [`groups`].
 const WIDTHS: [usize; 6] = [3, 3, 45, 1, 3, 4];
 
-/// Every group against the fixture's `{key}.{group}`: its [`update_error`], and the Gaussians
-/// one side moved and the other did not ([`moved_by_one_side`]), named.
+/// One group of our run against the replay's.
+struct GroupComparison {
+    name: &'static str,
+    /// [`update_error`].
+    error: f64,
+    /// The Gaussian farthest from the replay's.
+    worst: usize,
+    /// The Gaussians one side moved and the other did not ([`moved_by_one_side`]), named.
+    one_sided: Vec<String>,
+}
+
+/// Every group against the fixture's `{key}.{group}`.
 fn compare_groups(
     start: &GaussianSet,
     ours: &GaussianSet,
     reference: &std::collections::HashMap<String, Tensor>,
     key: &str,
-) -> Vec<(&'static str, f64, Vec<String>)> {
+) -> Vec<GroupComparison> {
     groups(start)
         .into_iter()
         .zip(groups(ours))
@@ -125,7 +135,23 @@ fn compare_groups(
                     format!("Gaussian {i}'s {name} moved by {moved}, left in place by {left}")
                 })
                 .collect();
-            (name, update_error(start, ours, &r), one_sided)
+            let worst = ours
+                .chunks_exact(width)
+                .zip(r.chunks_exact(width))
+                .map(|(o, r)| {
+                    o.iter()
+                        .zip(r)
+                        .map(|(&o, r)| (f64::from(o) - r).powi(2))
+                        .sum::<f64>()
+                })
+                .enumerate()
+                .fold((0, 0.0), |m, (i, d)| if d > m.1 { (i, d) } else { m });
+            GroupComparison {
+                name,
+                error: update_error(start, ours, &r),
+                worst: worst.0,
+                one_sided,
+            }
         })
         .collect()
 }
@@ -188,13 +214,17 @@ fn the_run_ends_where_the_authors_loop_ends() {
                 let out = dir.path().join(format!("{folder}-{name}-{updates}"));
                 let ours = our_run(&data, variant, updates, out, &tiny);
                 let key = format!("{name}.after_{updates}");
-                for (group, error, one_sided) in compare_groups(&start, &ours, &reference, &key) {
-                    let line = format!("{folder} {name} after {updates}: {group} {error:.2e}");
-                    if error >= tolerance {
+                for group in compare_groups(&start, &ours, &reference, &key) {
+                    let line = format!(
+                        "{folder} {name} after {updates}: {} {:.2e} (farthest: Gaussian {})",
+                        group.name, group.error, group.worst
+                    );
+                    if group.error >= tolerance {
                         failures.push(format!("{line} (tolerance {tolerance:.0e})"));
                     }
                     failures.extend(
-                        one_sided
+                        group
+                            .one_sided
                             .into_iter()
                             .map(|m| format!("{folder} {name} after {updates}: {m}")),
                     );

@@ -5,7 +5,7 @@ mod common;
 
 use common::{front_camera, oblique_camera, random_scene, weights};
 use gs_core::gaussians::PARAM_NAMES;
-use gs_core::raster::{backward, render, GradMask, OutputGrads};
+use gs_core::raster::{backward, render, GradMask, Gradients, OutputGrads};
 use gs_core::{Camera, GaussianSet};
 
 /// The scalar loss `sum(w_rgb * rgb) + sum(w_a * alpha) + sum(w_d * depth)`.
@@ -27,6 +27,21 @@ impl Probe {
         }
     }
 
+    /// The analytic gradients of [`Probe::loss`] at `g`.
+    fn gradients(&self, g: &GaussianSet<f64>, cam: &Camera) -> Gradients<f64> {
+        backward(
+            g,
+            cam,
+            &render(g, cam, self.background),
+            &OutputGrads {
+                rgb: &self.rgb,
+                alpha: Some(&self.alpha),
+                depth: Some(&self.depth),
+            },
+            GradMask::ALL,
+        )
+    }
+
     fn loss(&self, g: &GaussianSet<f64>, cam: &Camera, background: [f64; 3]) -> f64 {
         let r = render(g, cam, background);
         let dot = |a: &[f64], b: &[f64]| a.iter().zip(b).map(|(x, y)| x * y).sum::<f64>();
@@ -43,18 +58,7 @@ fn check_gradients(
     skip: &dyn Fn(usize, usize) -> bool,
 ) {
     let probe = Probe::new(cam, seed);
-    let rendered = render(g, cam, probe.background);
-    let grads = backward(
-        g,
-        cam,
-        &rendered,
-        &OutputGrads {
-            rgb: &probe.rgb,
-            alpha: Some(&probe.alpha),
-            depth: Some(&probe.depth),
-        },
-        GradMask::ALL,
-    );
+    let grads = probe.gradients(g, cam);
     let h = 1e-6;
     let analytic = grads.gaussians.arrays().map(|a| a.to_vec());
     for (kind, name) in PARAM_NAMES.iter().enumerate() {
@@ -235,7 +239,24 @@ fn centre_outside_the_jacobian_clamp() {
     let cam = front_camera(24, 24);
     let r = render(&g, &cam, [0.0; 3]);
     assert_eq!(r.visible_count(), 2, "the clamped Gaussian must be drawn");
-    check_gradients(&g, &cam, 9, &no_skip);
+    // Its depth's gradient is INRIA's, not the derivative: INRIA's backward differentiates the
+    // Jacobian's `-fx t_x / z^2` as if the clamped `t_x = u z` did not depend on `z` (held to
+    // INRIA's rasterizer by tests/inria_thresholds.rs). This camera's depth is world z.
+    check_gradients(&g, &cam, 9, &|kind, idx| kind == 0 && idx == 2);
+    let probe = Probe::new(&cam, 9);
+    let grads = probe.gradients(&g, &cam);
+    let h = 1e-6;
+    let shifted = |d: f64| {
+        let mut s = g.clone();
+        s.means[2] += d;
+        probe.loss(&s, &cam, probe.background)
+    };
+    let fd = (shifted(h) - shifted(-h)) / (2.0 * h);
+    let analytic = grads.gaussians.means[2];
+    assert!(
+        (analytic - fd).abs() > 1e-3 * fd.abs(),
+        "the depth gradient at the clamp is INRIA's ({analytic:e}), not the derivative ({fd:e})"
+    );
 }
 
 #[test]

@@ -36,6 +36,10 @@ pub const NEAR_PLANE: f64 = 0.2;
 /// `mean2d = f x / (z + PROJECTION_EPS) + c`: INRIA's `p_w = 1 / (p_hom.w + 0.0000001)` (its
 /// Jacobian divides by `z` alone).
 pub const PROJECTION_EPS: f64 = 1e-7;
+/// In the backward of the conic `S^-1` (`S` the 2D covariance), INRIA's
+/// `denom2inv = 1 / (det(S)^2 + 0.0000001)` where the exact derivative has `1 / det(S)^2`: the
+/// gradient of `S` is the exact one times `det^2 / (det^2 + CONIC_GRAD_EPS)`.
+pub const CONIC_GRAD_EPS: f64 = 1e-7;
 /// Gaussians at camera depth `z >= FAR_PLANE` are culled (gsplat's default far plane).
 pub const FAR_PLANE: f64 = 1e10;
 /// Upper clamp of a splat's alpha; the backward passes the gradient through it as INRIA's

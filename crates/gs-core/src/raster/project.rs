@@ -7,7 +7,7 @@ use crate::real::Real;
 use crate::sh;
 
 use super::bin::tile_rect;
-use super::{ALPHA_MIN, EPS2D, FAR_PLANE, NEAR_PLANE, PROJECTION_EPS, TILE_SIZE};
+use super::{ALPHA_MIN, CONIC_GRAD_EPS, EPS2D, FAR_PLANE, NEAR_PLANE, PROJECTION_EPS, TILE_SIZE};
 
 /// The camera, cast once to the working precision.
 #[derive(Clone, Copy, Debug)]
@@ -405,11 +405,14 @@ pub(crate) fn project_backward<T: Real>(
         g_mean = mat::normalize3_backward(f.dir, f.dir_norm, g_dir);
     }
 
-    // Conic -> 2D covariance: d(S^-1) = -S^-1 dS S^-1, with G the symmetric gradient of the conic.
+    // Conic -> 2D covariance: d(S^-1) = -S^-1 dS S^-1, with G the symmetric gradient of the conic,
+    // times INRIA's det^2 / (det^2 + CONIC_GRAD_EPS) (det of S; `1 / det` is the conic's).
     let [ca, cb, cc] = f.conic;
+    let det_conic = ca * cc - cb * cb;
+    let damp = T::ONE / (T::ONE + c(CONIC_GRAD_EPS) * det_conic * det_conic);
     let gm = [
-        [sg.conic[0], c(0.5) * sg.conic[1]],
-        [c(0.5) * sg.conic[1], sg.conic[2]],
+        [damp * sg.conic[0], damp * c(0.5) * sg.conic[1]],
+        [damp * c(0.5) * sg.conic[1], damp * sg.conic[2]],
     ];
     let inv = [[ca, cb], [cb, cc]];
     let mut g_cov2d = [[T::ZERO; 2]; 2];
@@ -466,6 +469,10 @@ pub(crate) fn project_backward<T: Real>(
         if !f.clamped[ax] {
             g_p[ax] += g_u[ax] / tz;
             g_p[2] -= g_u[ax] * t / tz2;
+        } else {
+            // INRIA's `dL_dtz` takes `J[.][2] = -f t / tz^2` with the clamped `t = u tz` as if `t`
+            // did not depend on `tz`: `2 f t / tz^3`, twice the derivative through the clamp.
+            g_p[2] -= g_u[ax] * f.u[ax] / tz;
         }
     }
     // mean2d = f t / (tz + PROJECTION_EPS) + c.
