@@ -1,6 +1,7 @@
 //! The differentiable rasterizer (cpu backend, rayon): EWA projection, SH colour, 16x16 tile
 //! binning, depth-ordered front-to-back compositing over a background colour, and the backward
-//! pass to every Gaussian parameter and to the background (exact except at the alpha cap, see
+//! pass to every Gaussian parameter and to the background (exact except where INRIA's backward
+//! is not: at the alpha cap, at the Jacobian's clamp and in the conic's gradient, see
 //! [`backward`]).
 //!
 //! Layouts are gsplat's; the near plane, radius, tile rectangles and the gradient at the alpha
@@ -181,9 +182,11 @@ pub struct Gradients<T: Real = f32> {
 /// The backward pass of [`render`]: given the gradients of a loss with respect to its
 /// outputs, the gradients with respect to the parameters of `gaussians` (the same set that was
 /// rendered, through the same `camera`) and to the background. It is the exact derivative
-/// except where a splat's alpha is capped at [`ALPHA_MAX`]: there the gradient of
-/// `opacity * exp(-sigma)` passes as if uncapped, as INRIA's rasterizer (and so every
-/// modality's authors' code) computes it; the exact derivative would be zero.
+/// except in three places, where it is INRIA's rasterizer's (and so every modality's authors'
+/// code's): where a splat's alpha is capped at [`ALPHA_MAX`] the gradient of
+/// `opacity * exp(-sigma)` passes as if uncapped (the exact derivative would be zero); where
+/// the Jacobian's `x/z` or `y/z` is clamped, its depth term is twice the derivative through the
+/// clamp; and the conic's gradient is damped by [`CONIC_GRAD_EPS`] (`docs/conventions.md`).
 ///
 /// # Panics
 /// If `gaussians` or `camera` is not the one `rendered` came from (count or image size differ),
