@@ -97,19 +97,31 @@ fn sigmoid(x: f32) -> f32 {
     return e / (1.0 + e);
 }
 
-// The tiles [x0, x1) x [y0, y1) a splat is binned into: INRIA's rectangle of its radius (as
-// the cpu backend bins: floor((p - r) / 16) to floor((p + r + 15) / 16) with p = mean2d - 0.5)
-// cut to the tiles its box mean2d +- extent touches (with a one-pixel margin), outside of which
-// it reaches no pixel.
+// INRIA's `getRect` of a splat at `mean2d` of radius `r`, in tiles and not yet cut to the
+// grid (as the cpu backend's `tile_rect`): floor((p - r) / 16) to floor((p + r + 15) / 16)
+// with p = mean2d - 0.5, INRIA's pixel coordinates.
+struct TileSpan {
+    lo: vec2f,
+    hi: vec2f,
+}
+
+fn inria_rect(mean2d: vec2f, r: f32) -> TileSpan {
+    let t = f32(TILE_SIZE);
+    let p = mean2d - vec2f(0.5);
+    return TileSpan(floor((p - vec2f(r)) / t), floor((p + vec2f(r + t - 1.0)) / t));
+}
+
+// The tiles [x0, x1) x [y0, y1) a splat is binned into: INRIA's rectangle of its radius
+// (`inria_rect`) cut to the tiles its box mean2d +- extent touches (with a one-pixel
+// margin), outside of which it reaches no pixel.
 fn tile_rect(s: Splat, tiles: vec2u) -> vec4u {
     let t = f32(TILE_SIZE);
     let m = s.mean_extent.xy;
     let e = s.mean_extent.zw + vec2f(1.0);
-    let r = s.cut_radius.y;
     let n = vec2f(tiles);
-    let p = m - vec2f(0.5);
-    let lo = max(floor((p - vec2f(r)) / t), floor((m - e) / t));
-    let hi = min(floor((p + vec2f(r + t - 1.0)) / t), floor((m + e) / t) + 1.0);
+    let rect = inria_rect(m, s.cut_radius.y);
+    let lo = max(rect.lo, floor((m - e) / t));
+    let hi = min(rect.hi, floor((m + e) / t) + 1.0);
     let lo_u = vec2u(clamp(lo, vec2f(0.0), n));
     let hi_u = vec2u(clamp(hi, vec2f(0.0), n));
     return vec4u(lo_u.x, max(hi_u.x, lo_u.x), lo_u.y, max(hi_u.y, lo_u.y));

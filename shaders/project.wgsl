@@ -135,12 +135,9 @@ fn project_gaussian(i: u32) -> Projection {
     // INRIA's only screen-space cull: an empty tile rectangle (its `getRect`, as the cpu
     // backend's `tile_rect`); a splat past the last column or row by more than its radius is
     // still drawn when its rectangle keeps the last tile.
-    let t = f32(TILE_SIZE);
     let tiles = vec2f(view.size.zw);
-    let p = f.mean2d - vec2f(0.5);
-    let rect_lo = clamp(floor((p - vec2f(f.radius)) / t), vec2f(0.0), tiles);
-    let rect_hi = clamp(floor((p + vec2f(f.radius + t - 1.0)) / t), vec2f(0.0), tiles);
-    if any(rect_hi <= rect_lo) {
+    let rect = inria_rect(f.mean2d, f.radius);
+    if any(clamp(rect.hi, vec2f(0.0), tiles) <= clamp(rect.lo, vec2f(0.0), tiles)) {
         return f;
     }
 

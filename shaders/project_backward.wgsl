@@ -144,9 +144,8 @@ fn main(
     let inv = mat2x2f(vec2f(f.conic.x, f.conic.y), vec2f(f.conic.y, f.conic.z));
     let det_conic = f.conic.x * f.conic.z - f.conic.y * f.conic.y;
     let damp = 1.0 / (1.0 + CONIC_GRAD_EPS * det_conic * det_conic);
-    let gm = mat2x2f(vec2f(sg_conic.x, 0.5 * sg_conic.y), vec2f(0.5 * sg_conic.y, sg_conic.z))
-        * damp;
-    let g_cov2d = (inv * gm * inv) * -1.0;
+    let gm = mat2x2f(vec2f(sg_conic.x, 0.5 * sg_conic.y), vec2f(0.5 * sg_conic.y, sg_conic.z));
+    let g_cov2d = (inv * gm * inv) * -damp;
     let g00 = g_cov2d[0][0];
     let g01 = g_cov2d[1][0];
     let g10 = g_cov2d[0][1];

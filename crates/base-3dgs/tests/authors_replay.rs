@@ -124,17 +124,7 @@ fn compare_groups(
                 .and_then(|t| t.to_dtype(DType::F64))
                 .and_then(|t| t.to_vec1::<f64>())
                 .unwrap();
-            let one_sided = moved_by_one_side(start, ours, &r, width)
-                .into_iter()
-                .map(|(i, by_replay)| {
-                    let (moved, left) = if by_replay {
-                        ("the authors' loop", "ours")
-                    } else {
-                        ("ours", "the authors' loop")
-                    };
-                    format!("Gaussian {i}'s {name} moved by {moved}, left in place by {left}")
-                })
-                .collect();
+            let one_sided = moved_by_one_side(start, ours, &r, width, name);
             let worst = ours
                 .chunks_exact(width)
                 .zip(r.chunks_exact(width))

@@ -230,10 +230,11 @@ pub fn update_error(start: &[f32], ours: &[f32], reference: &[f64]) -> f64 {
     diff / update
 }
 
-/// The Gaussians (rows of `width` values) that one side moved and the other left exactly
-/// where they started, each as `(index, moved by the replay)`: a Gaussian one rasterizer draws
-/// and the other leaves out. Adam leaves a parameter whose gradients were all zero exactly in
-/// place, on both sides.
+/// The Gaussians (rows of `width` values of the group called `what`) that one side moved and
+/// the other left exactly where they started, each named in a line ("Gaussian 7's colour
+/// moved by the authors' loop, left in place by ours"): a Gaussian one rasterizer draws and the
+/// other leaves out. Adam leaves a parameter whose gradients were all zero exactly in place, on
+/// both sides.
 ///
 /// # Panics
 /// If the lengths differ or are not a multiple of `width`.
@@ -242,7 +243,8 @@ pub fn moved_by_one_side(
     ours: &[f32],
     reference: &[f64],
     width: usize,
-) -> Vec<(usize, bool)> {
+    what: &str,
+) -> Vec<String> {
     assert!(start.len() == ours.len() && ours.len() == reference.len());
     assert_eq!(start.len() % width, 0, "rows of {width}");
     start
@@ -253,7 +255,13 @@ pub fn moved_by_one_side(
         .filter_map(|(i, ((s, o), r))| {
             let ours_moved = o.iter().zip(s).any(|(o, s)| o != s);
             let replay_moved = r.iter().zip(s).any(|(&r, &s)| r != f64::from(s));
-            (ours_moved != replay_moved).then_some((i, replay_moved))
+            let (moved, left) = if replay_moved {
+                ("the authors' loop", "ours")
+            } else {
+                ("ours", "the authors' loop")
+            };
+            (ours_moved != replay_moved)
+                .then(|| format!("Gaussian {i}'s {what} moved by {moved}, left in place by {left}"))
         })
         .collect()
 }

@@ -411,8 +411,8 @@ pub(crate) fn project_backward<T: Real>(
     let det_conic = ca * cc - cb * cb;
     let damp = T::ONE / (T::ONE + c(CONIC_GRAD_EPS) * det_conic * det_conic);
     let gm = [
-        [damp * sg.conic[0], damp * c(0.5) * sg.conic[1]],
-        [damp * c(0.5) * sg.conic[1], damp * sg.conic[2]],
+        [sg.conic[0], c(0.5) * sg.conic[1]],
+        [c(0.5) * sg.conic[1], sg.conic[2]],
     ];
     let inv = [[ca, cb], [cb, cc]];
     let mut g_cov2d = [[T::ZERO; 2]; 2];
@@ -424,7 +424,7 @@ pub(crate) fn project_backward<T: Real>(
                     v += inv[r][k] * gm[k][l] * inv[l][s];
                 }
             }
-            g_cov2d[r][s] = -v;
+            g_cov2d[r][s] = -damp * v;
         }
     }
 
