@@ -2,14 +2,14 @@
 //! the four losses and dL/dimage, gs-core back-propagates and steps Adam. Tiny random CLIP and
 //! VGG-19 (the style-loss fixtures) keep it to seconds.
 
-use std::ops::ControlFlow;
 use std::path::PathBuf;
 
 use candle_core::{Device, Tensor};
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::model::{BaseModel, View};
 use gs_core::raster::render;
-use gs_core::train::{train, TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::CpuTrainer;
 use gs_core::{Camera, GaussianSet, Image};
 use gs_stylize::rates::gaussian_stylization;
 use rand::{Rng, SeedableRng};
@@ -129,33 +129,25 @@ fn stylizing_a_scene_lowers_the_style_loss_and_keeps_the_count() {
     let before = fixed_loss(&loss, &base, &views, &targets);
 
     let mut objective = StyleObjective::new(loss.clone(), &targets, None, 7, &Device::Cpu).unwrap();
-    let mut model = base.clone();
+    let model = base.clone();
     // The paper's 3D learning rates (extent about 3.3 here), feature_lr 0.01.
     let groups = gaussian_stylization(0.01)
         .optimizer_groups(&model.group_names(), 3.3)
         .unwrap();
-    let mut adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
-    let config = TrainConfig {
-        steps: 60,
-        background: [1.0; 3],
-    };
+    let adam = Adam::new(groups, &model.group_lens(), AdamHyper::default());
+    let mut trainer = CpuTrainer::new(model, adam).unwrap();
     let mut sampler = ViewSampler::new(views.len(), 1);
     let mut term_names = Vec::new();
-    train(
-        &mut model,
-        &views,
-        &mut objective,
-        &mut adam,
-        &mut sampler,
-        &config,
-        |r| {
-            term_names = r.value.terms.iter().map(|(n, _)| n.clone()).collect();
-            let sum: f32 = r.value.terms.iter().map(|(_, v)| v).sum();
-            assert!((sum - r.value.loss).abs() <= 1e-4 * r.value.loss.abs().max(1.0));
-            ControlFlow::Continue(())
-        },
-    )
-    .unwrap();
+    for _ in 0..60 {
+        let batch = sampler.next_batch();
+        let r = trainer
+            .step(&views, batch, [1.0; 3], &mut objective)
+            .unwrap();
+        term_names = r.value.terms.iter().map(|(n, _)| n.clone()).collect();
+        let sum: f32 = r.value.terms.iter().map(|(_, v)| v).sum();
+        assert!((sum - r.value.loss).abs() <= 1e-4 * r.value.loss.abs().max(1.0));
+    }
+    let model = trainer.into_model();
 
     assert_eq!(term_names, ["directional", "patch", "content"]);
     assert_eq!(

@@ -30,7 +30,8 @@ use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RateAt}
 pub use gs_core::image_loss::mean_psnr;
 use gs_core::image_loss::{check_fit_settings, PhotometricObjective};
 use gs_core::model::{BaseModel, View};
-use gs_core::train::{BatchOrder, StepReport, TrainConfig, ViewSampler};
+use gs_core::sampler::{BatchOrder, ViewSampler};
+use gs_core::train::{StepReport, TrainConfig};
 use gs_core::Image;
 use gs_wgpu::backend::{Backend, Trainer};
 pub use gs_wgpu::FitError;
@@ -404,8 +405,7 @@ where
             steps: end - from,
             background: self.settings.background,
         };
-        let (on_step, stopped, total) =
-            (&mut *self.on_step, &mut *self.stopped, self.settings.steps);
+        let (on_step, stopped) = (&mut *self.on_step, &mut *self.stopped);
         trainer.train(
             self.views,
             self.objective,
@@ -414,7 +414,6 @@ where
             |report| {
                 let mut overall = report.clone();
                 overall.step += from;
-                overall.steps = total;
                 let flow = on_step(&overall);
                 *stopped |= flow.is_break();
                 flow

@@ -21,7 +21,7 @@ use gs_core::adam::{GroupConfig, RateAt};
 use gs_core::dataset::nerf_synthetic::{self, load_with_times, Split, TrainSplits};
 use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOptions};
 use gs_core::model::View;
-use gs_core::train::BatchOrder;
+use gs_core::sampler::BatchOrder;
 use gs_core::Image;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
@@ -30,7 +30,7 @@ use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
-use gs_stylize::run::check_patches_fit;
+use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
     StylizeOutcome,

@@ -104,7 +104,8 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
     use gs_core::adam::AdamHyper;
     use gs_core::image_loss::PhotometricObjective;
-    use gs_core::train::{BatchOrder, TrainConfig, ViewSampler};
+    use gs_core::sampler::{BatchOrder, ViewSampler};
+    use gs_core::train::TrainConfig;
     use gs_stylize::rates::GroupRate;
     use gs_wgpu::backend::Trainer;
     use gs_wgpu::{test_context, GpuOptions};

@@ -9,7 +9,6 @@
 //!
 //! Run: `cargo run --release -p base-mirage --example benchmark_2d -- fit` (or `-- step`).
 
-use std::ops::ControlFlow;
 use std::time::Instant;
 
 use base_mirage::fit::{fit_groups, FitSettings};
@@ -22,7 +21,8 @@ use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::BaseModel;
 use gs_core::raster::render;
-use gs_core::train::{train, TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::CpuTrainer;
 use style_loss::test_models::random_full_size_loss;
 use style_loss::{ClipPrecision, PatchSettings, StyleObjective};
 
@@ -41,33 +41,26 @@ fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
     println!("| Gaussians | steps | PSNR (dB) | fit time (s) |");
     println!("|---|---|---|---|");
     for &count in counts {
-        let mut model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
+        let model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
         let mut objective = PhotometricObjective {
             targets: vec![picture.clone(), mirrored(&picture)],
             lambda: settings.lambda_dssim,
         };
-        let mut adam = Adam::new(
+        let adam = Adam::new(
             fit_groups(extent(settings.distance)),
             &model.group_lens(),
             AdamHyper::default(),
         );
+        let mut trainer = CpuTrainer::new(model, adam)?;
         let mut sampler = ViewSampler::new(2, settings.seed);
         let start = Instant::now();
         for &milestone in &MILESTONES {
-            let config = TrainConfig {
-                steps: milestone,
-                background: settings.background,
-            };
-            train(
-                &mut model,
-                &views,
-                &mut objective,
-                &mut adam,
-                &mut sampler,
-                &config,
-                |_| ControlFlow::Continue(()),
-            )?;
+            while trainer.step_count() < milestone {
+                let batch = sampler.next_batch();
+                trainer.step(&views, batch, settings.background, &mut objective)?;
+            }
             let seconds = start.elapsed().as_secs_f64();
+            let model = trainer.model();
             let shown = render(&model.renderable(), &views[0].camera, settings.background).image;
             println!(
                 "| {count} | {milestone} | {:.2} | {seconds:.1} |",
@@ -85,7 +78,7 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
     let settings = FitSettings::default();
     let views = mirror_views(w, h, settings.distance)?;
     let (hw, hh) = plane_half_size(w, h, settings.distance);
-    let mut model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
+    let model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
     let loss = random_full_size_loss(
         PatchSettings {
             num_patches: patches,
@@ -99,30 +92,16 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
         StyleObjective::new(loss, std::slice::from_ref(&picture), None, 0, &device)?;
     let cache = start.elapsed().as_secs_f64();
     let paper = MirageStylizeConfig::default();
-    let mut adam = Adam::new(
+    let adam = Adam::new(
         paper
             .learning_rates
             .optimizer_groups(&model.group_names(), extent(settings.distance))?,
         &model.group_lens(),
         AdamHyper::default(),
     );
-    let mut report = None;
-    train(
-        &mut model,
-        &views[..1],
-        &mut objective,
-        &mut adam,
-        &mut ViewSampler::new(1, 0),
-        &TrainConfig {
-            steps: 1,
-            background: settings.background,
-        },
-        |r| {
-            report = Some(r.clone());
-            ControlFlow::Continue(())
-        },
-    )?;
-    let r = report.expect("one step ran");
+    let mut trainer = CpuTrainer::new(model, adam)?;
+    let batch = ViewSampler::new(1, 0).next_batch();
+    let r = trainer.step(&views[..1], batch, settings.background, &mut objective)?;
     println!("| phase ({count} Gaussians, {w}x{h}) | seconds |");
     println!("|---|---|");
     println!("| per-view cache (once per view) | {cache:.1} |");

@@ -25,7 +25,7 @@ use gs_core::wide_pictures::{shrunk_size, AUTHORS_MAX_WIDTH};
 use gs_core::Image;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
-use gs_stylize::run::check_patches_fit;
+use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
     StylizeOutcome,

@@ -3,8 +3,6 @@
 //! backward, the model's own transform and its gradient, Adam): for plain 3D Gaussians and for
 //! MiraGe's flat ones, with a frozen group. Any change to the loop's arithmetic shows here.
 
-use std::ops::ControlFlow;
-
 use base_mirage::flat::{add_scale_grads, FlatGaussians};
 use base_mirage::init::initial_gaussians;
 use base_mirage::mirror::{mirror_views, plane_half_size};
@@ -12,7 +10,8 @@ use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
-use gs_core::train::{train, Objective, TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::{CpuTrainer, Objective};
 use gs_core::{GaussianSet, Image};
 
 const W: u32 = 36;
@@ -47,23 +46,18 @@ fn objective(views: &[View]) -> PhotometricObjective {
 }
 
 /// The model after `STEPS` steps of the loop.
-fn through_the_loop<M: BaseModel>(mut model: M, views: &[View]) -> M {
-    let mut adam = Adam::new(groups(), &model.group_lens(), AdamHyper::default());
-    let config = TrainConfig {
-        steps: STEPS,
-        background: BACKGROUND,
-    };
-    train(
-        &mut model,
-        views,
-        &mut objective(views),
-        &mut adam,
-        &mut ViewSampler::new(views.len(), 3),
-        &config,
-        |_| ControlFlow::Continue(()),
-    )
-    .unwrap();
-    model
+fn through_the_loop<M: BaseModel>(model: M, views: &[View]) -> M {
+    let adam = Adam::new(groups(), &model.group_lens(), AdamHyper::default());
+    let mut trainer = CpuTrainer::new(model, adam).unwrap();
+    let mut sampler = ViewSampler::new(views.len(), 3);
+    let mut objective = objective(views);
+    for _ in 0..STEPS {
+        let batch = sampler.next_batch();
+        trainer
+            .step(views, batch, BACKGROUND, &mut objective)
+            .unwrap();
+    }
+    trainer.into_model()
 }
 
 /// The same steps composed by hand: `rendered` builds the Gaussians from the parameters,

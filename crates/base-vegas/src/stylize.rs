@@ -24,7 +24,7 @@ use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
-use gs_stylize::run::check_patches_fit;
+use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
     StylizeOutcome,

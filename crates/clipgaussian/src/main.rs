@@ -5,7 +5,6 @@
 mod batch;
 mod demo_scene;
 
-use std::ops::ControlFlow;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
@@ -15,7 +14,7 @@ use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::{GaussianLrs, View};
 use gs_core::raster::render;
-use gs_core::train::{TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
 use gs_core::{GaussianSet, Image};
 use gs_wgpu::backend::{DeviceChoice, OpenDevice, Trainer};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -362,10 +361,6 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
         feature: 0.0025,
     };
     let mut trainer = Trainer::new(&backend, initial, lrs.groups(), AdamHyper::default())?;
-    let config = TrainConfig {
-        steps: args.steps,
-        background: bg,
-    };
     let mut sampler = ViewSampler::new(views.len(), args.seed);
     let mut objective = PhotometricObjective {
         targets: targets.clone(),
@@ -379,16 +374,16 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
     );
     let start = Instant::now();
     let mut phase_secs = [0.0f64; 3];
-    trainer.train(&views, &mut objective, &mut sampler, &config, |r| {
+    for _ in 0..args.steps {
+        let r = trainer.step(&views, sampler.next_batch(), bg, &mut objective)?;
         phase_secs[0] += r.render_time.as_secs_f64();
         phase_secs[1] += r.objective_time.as_secs_f64();
         phase_secs[2] += r.backward_time.as_secs_f64();
         bar.set_position(r.step);
-        if r.step % 10 == 0 || r.step == r.steps {
+        if r.step % 10 == 0 || r.step == args.steps {
             bar.set_message(format!("loss {:.4}", r.value.loss));
         }
-        ControlFlow::Continue(())
-    })?;
+    }
     bar.finish();
     let model = trainer.into_model();
     let psnr_after = mean_psnr(&model, &views, &targets, bg);

@@ -20,7 +20,8 @@
 //! - [`splats`]: the splat formats viewers open: SuperSplat's compressed PLY, SPZ, `.splat`
 //!   (read and written) and glTF with `KHR_gaussian_splatting` (written).
 //! - [`interpolate`]: parameter-by-parameter blends of two models with the same Gaussians.
-//! - [`model`] and [`train`]: the `BaseModel` trait and the generic training loop.
+//! - [`model`]: the `BaseModel` trait; [`sampler`]: the views of each training step;
+//!   [`train`]: one training step (render, loss, backward, Adam) and the cpu's.
 //! - [`render_clamp`]: the render as the loss sees it (as rasterized, or clamped to `[0, 1]`).
 //! - [`pil_resize`] and [`wide_pictures`]: Pillow's bicubic resize of 8-bit pictures, bit for
 //!   bit, and the authors' loaders' shrinking of pictures wider than 1600 pixels.
@@ -56,6 +57,7 @@ pub mod ply;
 pub mod raster;
 pub mod real;
 pub mod render_clamp;
+pub mod sampler;
 pub mod sh;
 mod simd;
 pub mod splats;

@@ -78,7 +78,8 @@ fn a_capped_opacity_moves_on_both_backends() {
 
     use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
     use gs_core::model::{BaseModel, View};
-    use gs_core::train::{Objective, ObjectiveValue, TrainConfig, ViewSampler};
+    use gs_core::sampler::ViewSampler;
+    use gs_core::train::{Objective, ObjectiveValue, TrainConfig};
     use gs_core::Image;
     use gs_wgpu::backend::{Backend, Trainer};
     use gs_wgpu::{test_context, GpuOptions};

@@ -2,14 +2,13 @@
 
 mod common;
 
-use std::ops::ControlFlow;
-
 use common::random_scene;
 use gs_core::adam::{Adam, AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
-use gs_core::train::{train, Objective, TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::{CpuTrainer, Objective};
 use gs_core::{Camera, GaussianSet};
 
 fn ring_views(count: usize, size: u32) -> Vec<View> {
@@ -53,7 +52,7 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
         targets,
         lambda: 0.2,
     };
-    let mut model: GaussianSet = random_scene(2, 150, 1);
+    let model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(&model, &views, &mut objective, bg);
 
     let lrs = GaussianLrs {
@@ -63,28 +62,17 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
         opacities: 0.05,
         feature: 0.05,
     };
-    let mut adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
-    let config = TrainConfig {
-        steps: 800,
-        background: bg,
-    };
+    let adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
+    let mut trainer = CpuTrainer::new(model, adam).unwrap();
     let mut sampler = ViewSampler::new(views.len(), 5);
-    let mut reports = 0;
-    train(
-        &mut model,
-        &views,
-        &mut objective,
-        &mut adam,
-        &mut sampler,
-        &config,
-        |r| {
-            reports += 1;
-            assert!(r.value.loss.is_finite());
-            ControlFlow::Continue(())
-        },
-    )
-    .unwrap();
-    assert_eq!(reports, 800);
+    for step in 1..=800 {
+        let r = trainer
+            .step(&views, sampler.next_batch(), bg, &mut objective)
+            .unwrap();
+        assert_eq!(r.step, step);
+        assert!(r.value.loss.is_finite());
+    }
+    let model = trainer.into_model();
     assert_eq!(model.len(), 150, "the count never changes");
     let after = mean_loss(&model, &views, &mut objective, bg);
     assert!(after * 10.0 < before, "loss {before} -> {after}");

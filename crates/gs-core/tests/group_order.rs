@@ -9,7 +9,8 @@ use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::View;
 use gs_core::raster::render;
-use gs_core::train::{TrainConfig, ViewSampler};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::TrainConfig;
 use gs_core::{Camera, GaussianSet};
 use gs_wgpu::backend::{Backend, DeviceError, Trainer};
 

@@ -17,7 +17,8 @@ use gs_core::model::{
     add_identity_grads, BaseModel, Forward, GaussianLrs, Group, ModelError, View,
 };
 use gs_core::raster::GradMask;
-use gs_core::train::{BatchOrder, Objective, TrainConfig, TrainError, ViewSampler};
+use gs_core::sampler::{BatchOrder, ViewSampler};
+use gs_core::train::{Objective, TrainConfig, TrainError};
 use gs_core::{Camera, GaussianSet};
 use gs_wgpu::backend::{Backend, Trainer};
 use gs_wgpu::GpuModel;

@@ -1,4 +1,4 @@
-//! Training on the GPU with [`gs_wgpu::train`]: the test of tests/fit.rs (a random set
+//! Training on the GPU with gs-wgpu's `Trainer`: the test of tests/fit.rs (a random set
 //! trained with L1 + D-SSIM towards renders of another scene) with parameters, gradients and
 //! Adam moments on the GPU; it must converge as on the cpu backend, and a non-finite gradient
 //! must stop it as on the cpu, the parameters unchanged. Needs a GPU adapter (lavapipe in CI).
@@ -10,10 +10,18 @@ use std::ops::ControlFlow;
 use common::{gpu, random_scene};
 use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, GaussianLrs, View};
-use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError, ViewSampler};
+use gs_core::model::{GaussianLrs, View};
+use gs_core::sampler::ViewSampler;
+use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError};
 use gs_core::{Camera, GaussianSet, Image};
-use gs_wgpu::{render, train, GpuAdam, GpuContext, GpuGaussians, GpuParams};
+use gs_wgpu::backend::{Backend, Trainer};
+use gs_wgpu::{render, GpuContext, GpuGaussians, GpuOptions};
+
+/// The training device: a GPU context of its own (a [`Backend`] shares its context).
+fn gpu_backend() -> Backend {
+    let ctx = common::gpu_with(GpuOptions::default()).expect("an adapter, as gpu() found");
+    Backend::Gpu(std::sync::Arc::new(ctx))
+}
 
 fn ring_views(count: usize, size: u32) -> Vec<View> {
     (0..count)
@@ -70,40 +78,26 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
         targets,
         lambda: 0.2,
     };
-    let mut model: GaussianSet = random_scene(2, 150, 1);
+    let model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(ctx, &model, &views, &mut objective);
 
-    let params = GpuParams::upload(ctx, &mut model).unwrap();
-    let mut adam = GpuAdam::new(
-        ctx,
-        lrs().groups(),
-        &model.group_lens(),
-        AdamHyper::default(),
-    )
-    .unwrap();
+    let backend = gpu_backend();
+    let mut trainer = Trainer::new(&backend, model, lrs().groups(), AdamHyper::default()).unwrap();
+    let mut sampler = ViewSampler::new(views.len(), 5);
+    let mut reports = 0;
     let config = TrainConfig {
         steps: 800,
         background: bg,
     };
-    let mut reports = 0;
-    train(
-        ctx,
-        &mut model,
-        &params,
-        &views,
-        &mut objective,
-        &mut adam,
-        &mut ViewSampler::new(views.len(), 5),
-        &config,
-        |r| {
+    trainer
+        .train(&views, &mut objective, &mut sampler, &config, |r| {
             reports += 1;
-            assert_eq!((r.step, r.steps), (reports, 800));
+            assert_eq!(r.step, reports);
             ControlFlow::Continue(())
-        },
-    )
-    .unwrap();
-    assert_eq!(adam.step_count(), 800);
-    params.download_into(ctx, &mut model);
+        })
+        .unwrap();
+    assert_eq!((trainer.step_count(), reports), (800, 800));
+    let model = trainer.into_model();
     let after = mean_loss(ctx, &model, &views, &mut objective);
     assert!(after * 10.0 < before, "loss {before} -> {after}");
 }
@@ -125,37 +119,30 @@ impl Objective for PoisonAt {
 
 #[test]
 fn a_non_finite_gradient_stops_the_run_with_the_parameters_of_the_step_before() {
-    let Some(ctx) = gpu() else { return };
+    if gpu().is_none() {
+        return;
+    }
     let views = ring_views(2, 16);
     let start: GaussianSet = random_scene(3, 20, 0);
+    let backend = gpu_backend();
     let run = |steps: u64, poison: usize| {
-        let mut model = start.clone();
-        let params = GpuParams::upload(ctx, &mut model).unwrap();
-        let mut adam = GpuAdam::new(
-            ctx,
+        let mut trainer = Trainer::new(
+            &backend,
+            start.clone(),
             lrs().groups(),
-            &model.group_lens(),
             AdamHyper::default(),
         )
         .unwrap();
-        let result = train(
-            ctx,
-            &mut model,
-            &params,
-            &views,
-            &mut PoisonAt(0, poison),
-            &mut adam,
-            &mut ViewSampler::new(2, 0),
-            &TrainConfig {
-                steps,
-                background: [0.0; 3],
-            },
-            |_| ControlFlow::Continue(()),
-        );
-        params.download_into(ctx, &mut model);
-        (model, adam.step_count(), result)
+        let mut sampler = ViewSampler::new(2, 0);
+        let mut objective = PoisonAt(0, poison);
+        let result = (0..steps).try_for_each(|_| {
+            trainer
+                .step(&views, sampler.next_batch(), [0.0; 3], &mut objective)
+                .map(drop)
+        });
+        (trainer.step_count(), trainer.into_model(), result)
     };
-    let (poisoned, taken, result) = run(10, 3);
+    let (taken, poisoned, result) = run(10, 3);
     let err = result.unwrap_err();
     assert!(
         matches!(
@@ -169,7 +156,7 @@ fn a_non_finite_gradient_stops_the_run_with_the_parameters_of_the_step_before() 
         "{err}"
     );
     assert_eq!(taken, 2);
-    let (clean, _, result) = run(2, usize::MAX);
+    let (_, clean, result) = run(2, usize::MAX);
     result.unwrap();
     assert_eq!(poisoned, clean);
     assert_ne!(clean, start, "two steps must have moved the parameters");

@@ -6,8 +6,10 @@
 //!
 //! - [`drive`]: the order of every stylization run, calling the modality through
 //!   [`drive::Modality`].
-//! - [`run`](mod@run): the stylization itself: the checks, the objective, the optimizer,
-//!   resume, training, the loss log.
+//! - [`prepare`](mod@prepare): every check before any long work, the devices opened, the
+//!   loss's models loaded.
+//! - [`stylize`]: the stylization itself: the job's checks, the objective, the optimizer,
+//!   resume, the loop of steps with its checkpoints, the loss log.
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`rates`]: the learning rates of a modality's configuration, keyed by group name.
 //! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
@@ -46,10 +48,11 @@ pub mod model_kind;
 pub mod outputs;
 pub mod picture;
 pub mod plot;
+pub mod prepare;
 pub mod progress;
 pub mod rates;
-pub mod run;
 pub mod selftest;
+pub mod stylize;
 pub mod summary;
 #[cfg(feature = "test-support")]
 pub mod test_support;
@@ -59,4 +62,5 @@ pub mod writable;
 pub use config::{resolve_config, Override, StyleSettings};
 pub use error::StylizeError;
 pub use gs_core::render_clamp::RenderClamp;
-pub use run::{open_device, prepare, Batches, PreparedRun, RunOptions, StylizeJob, StylizeOutcome};
+pub use prepare::{open_device, prepare, PreparedRun, RunOptions};
+pub use stylize::{Batches, StylizeJob, StylizeOutcome};

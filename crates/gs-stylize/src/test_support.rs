@@ -137,14 +137,18 @@ pub fn replay_draws(
     height: usize,
     width: usize,
 ) -> serde_json::Value {
-    use gs_core::train::{BatchOrder, ViewSampler};
+    use gs_core::sampler::{BatchOrder, ViewSampler};
     use serde_json::json;
     use style_loss::{
         style_rng, ClipConfig, ClipModel, ClipTokenizer, PatchSettings, StyleDirection,
     };
 
     let mut sampler = ViewSampler::batches(views, 1, BatchOrder::Shuffled, settings.seed);
-    let mut rng = style_rng(settings.seed.wrapping_add(crate::run::PATCH_SEED_OFFSET));
+    let mut rng = style_rng(
+        settings
+            .seed
+            .wrapping_add(crate::stylize::PATCH_SEED_OFFSET),
+    );
     let patches = PatchSettings {
         patch_size: settings.patch_size,
         num_patches: settings.num_patches,
@@ -152,7 +156,7 @@ pub fn replay_draws(
     };
     let steps: Vec<serde_json::Value> = (0..settings.steps)
         .map(|_| {
-            let view = sampler.next_batch()[0];
+            let view = sampler.next_batch().views[0];
             let drawn: Vec<serde_json::Value> = patches
                 .sample(&mut rng, height, width)
                 .expect("the patches fit the views")

@@ -9,9 +9,8 @@
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
-use crate::{
-    training_bytes, AdapterChoice, GpuAdam, GpuContext, GpuError, GpuGaussians, GpuModel, GpuParams,
-};
+use crate::train::GpuTrainer;
+use crate::{AdapterChoice, GpuContext, GpuError, GpuGaussians, GpuModel, GpuParams};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig};
 use gs_core::camera::Camera;
 pub use gs_core::device::DeviceChoice;
@@ -19,7 +18,8 @@ use gs_core::gaussians::GaussianSet;
 use gs_core::image::Image;
 use gs_core::model::{ModelError, View};
 use gs_core::raster::{GradMask, Gradients, OutputGrads};
-use gs_core::train::{Objective, StepReport, TrainConfig, TrainError, ViewSampler};
+use gs_core::sampler::{Batch, ViewSampler};
+use gs_core::train::{check_sampler, CpuTrainer, Objective, StepReport, TrainConfig, TrainError};
 use gs_core::GsError;
 
 /// The environment variable that lets `gpu` take a software adapter (for tests on lavapipe).
@@ -314,24 +314,18 @@ impl DifferentiableRender<'_> {
 }
 
 /// Where a trainer's parameters and optimizer live.
-enum State {
-    Cpu(Adam),
-    Gpu {
-        ctx: Arc<GpuContext>,
-        params: GpuParams,
-        adam: GpuAdam,
-    },
+enum State<M> {
+    Cpu(CpuTrainer<M>),
+    Gpu(Box<GpuTrainer<M>>),
 }
 
-/// A model and its optimizer on one device, trained by [`gs_core::train::train`] or
-/// [`gs_core::train`]. On a GPU the parameters and moments are uploaded once and read
-/// back on request (and, for a model on the provided host construction, after each step that
-/// changed them) ([`Trainer::param_groups`], [`Trainer::save_optimizer`],
-/// [`Trainer::into_model`]); optimizer state is in one format on both devices, so a run saved
-/// on one resumes on the other.
+/// A model and its optimizer on one device, trained a step at a time ([`Trainer::step`]). On a
+/// GPU the parameters and moments are uploaded once and read back on request (and, for a model
+/// on the provided host construction, after each step that changed them)
+/// ([`Trainer::param_groups`], [`Trainer::save_optimizer`], [`Trainer::into_model`]); optimizer
+/// state is in one format on both devices, so a run saved on one resumes on the other.
 pub struct Trainer<M> {
-    model: M,
-    state: State,
+    state: State<M>,
 }
 
 impl<M: GpuModel> Trainer<M> {
@@ -339,111 +333,119 @@ impl<M: GpuModel> Trainer<M> {
     /// groups by name in any order) on `backend`.
     pub fn new(
         backend: &Backend,
-        mut model: M,
+        model: M,
         groups: Vec<GroupConfig>,
         hyper: AdamHyper,
     ) -> Result<Self, DeviceError> {
         let groups = gs_core::adam::groups_in_model_order(groups, &model.group_names())
             .map_err(DeviceError::Groups)?;
-        let lens = model.group_lens();
         let state = match backend {
-            Backend::Cpu => State::Cpu(Adam::new(groups, &lens, hyper)),
-            Backend::Gpu(ctx) => {
-                let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
-                let needs = |e: GpuError| e.with_run_needs(training_bytes(&lens, &trained, 0, 0));
-                State::Gpu {
-                    params: GpuParams::upload(ctx, &mut model).map_err(needs)?,
-                    adam: GpuAdam::new(ctx, groups, &lens, hyper).map_err(needs)?,
-                    ctx: Arc::clone(ctx),
-                }
+            Backend::Cpu => {
+                let adam = Adam::new(groups, &model.group_lens(), hyper);
+                let trainer =
+                    CpuTrainer::new(model, adam).map_err(|e| DeviceError::Groups(e.to_string()))?;
+                State::Cpu(trainer)
             }
+            Backend::Gpu(ctx) => State::Gpu(Box::new(GpuTrainer::new(
+                Arc::clone(ctx),
+                model,
+                groups,
+                hyper,
+            )?)),
         };
-        Ok(Self { model, state })
+        Ok(Self { state })
     }
 
     /// Steps the optimizer has taken.
     pub fn step_count(&self) -> u64 {
         match &self.state {
-            State::Cpu(adam) => adam.step_count(),
-            State::Gpu { adam, .. } => adam.step_count(),
+            State::Cpu(cpu) => cpu.step_count(),
+            State::Gpu(gpu) => gpu.adam.step_count(),
         }
     }
 
-    /// Trains until the optimizer has taken `config.steps` steps or `on_step` breaks (see
-    /// [`gs_core::train::train`]).
+    /// One training step over the views `batch` names of `views` (a batch of
+    /// [`gs_core::sampler::ViewSampler::next_batch`]), composited over `background`: for each
+    /// view, render, `objective`'s loss and dL/dimage, backward through the rasterizer and the
+    /// model; then one Adam step on the summed gradient (divided by the batch's divisor). A
+    /// non-finite loss, dL/dimage or parameter gradient, or a failure, stops it with the
+    /// parameters as they were. The same step on either device
+    /// ([`gs_core::train::CpuTrainer::step`]).
+    pub fn step<O: Objective>(
+        &mut self,
+        views: &[View],
+        batch: Batch,
+        background: [f32; 3],
+        objective: &mut O,
+    ) -> Result<StepReport, TrainError<O::Error>> {
+        match &mut self.state {
+            State::Cpu(cpu) => cpu.step(views, batch, background, objective),
+            State::Gpu(gpu) => gpu.step(views, batch, background, objective),
+        }
+    }
+
+    /// Steps over the batches of `sampler` until the optimizer has taken `config.steps`
+    /// steps, calling `on_step` after each; it stops early when that returns
+    /// `ControlFlow::Break` (e.g. on Ctrl-C). For a fit, whose loop has nothing else to do; a
+    /// resumed run passes the restored optimizer and a sampler advanced by the steps taken.
     pub fn train<O, F>(
         &mut self,
         views: &[View],
         objective: &mut O,
         sampler: &mut ViewSampler,
         config: &TrainConfig,
-        on_step: F,
+        mut on_step: F,
     ) -> Result<(), TrainError<O::Error>>
     where
         O: Objective,
         F: FnMut(&StepReport) -> ControlFlow<()>,
     {
-        match &mut self.state {
-            State::Cpu(adam) => gs_core::train::train(
-                &mut self.model,
-                views,
-                objective,
-                adam,
-                sampler,
-                config,
-                on_step,
-            ),
-            State::Gpu { ctx, params, adam } => crate::train(
-                ctx,
-                &mut self.model,
-                params,
-                views,
-                objective,
-                adam,
-                sampler,
-                config,
-                on_step,
-            ),
+        check_sampler(sampler, views.len())?;
+        while self.step_count() < config.steps {
+            let report = self.step(views, sampler.next_batch(), config.background, objective)?;
+            if on_step(&report).is_break() {
+                break;
+            }
         }
+        Ok(())
     }
 
     /// The current values of every parameter group, in
-    /// [`gs_core::model::BaseModel::group_names`] order (read
-    /// back from a GPU).
+    /// [`gs_core::model::BaseModel::group_names`] order (read back from a GPU).
     pub fn param_groups(&mut self) -> Vec<Vec<f32>> {
-        match &self.state {
-            State::Cpu(_) => self
-                .model
-                .groups_mut()
-                .into_iter()
-                .map(|g| g.to_vec())
-                .collect(),
-            State::Gpu { ctx, params, .. } => params.download(ctx),
+        match &mut self.state {
+            State::Cpu(cpu) => cpu.param_groups(),
+            State::Gpu(gpu) => gpu.params.download(&gpu.ctx),
         }
     }
 
     /// The optimizer state as bytes ([`Adam::save_state`]'s format on every device).
     pub fn save_optimizer(&self) -> Vec<u8> {
         match &self.state {
-            State::Cpu(adam) => adam.save_state(),
-            State::Gpu { ctx, adam, .. } => adam.save_state(ctx),
+            State::Cpu(cpu) => cpu.adam().save_state(),
+            State::Gpu(gpu) => gpu.adam.save_state(&gpu.ctx),
         }
     }
 
     /// Restores optimizer state saved on any device ([`Trainer::save_optimizer`]).
     pub fn restore_optimizer(&mut self, bytes: &[u8]) -> Result<(), GsError> {
         match &mut self.state {
-            State::Cpu(adam) => adam.restore_state(bytes),
-            State::Gpu { ctx, adam, .. } => adam.restore_state(ctx, bytes),
+            State::Cpu(cpu) => cpu.adam_mut().restore_state(bytes),
+            State::Gpu(gpu) => gpu.adam.restore_state(&gpu.ctx, bytes),
         }
     }
 
     /// The trained model (its parameters read back from a GPU).
     pub fn into_model(self) -> M {
         match self.state {
-            State::Cpu(_) => self.model,
-            State::Gpu { ctx, params, .. } => {
-                let mut model = self.model;
+            State::Cpu(cpu) => cpu.into_model(),
+            State::Gpu(gpu) => {
+                let GpuTrainer {
+                    ctx,
+                    mut model,
+                    params,
+                    ..
+                } = *gpu;
                 params.download_into(&ctx, &mut model);
                 model
             }

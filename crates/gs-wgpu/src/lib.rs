@@ -5,7 +5,7 @@
 //!
 //! - [`backend`]: the device a run opens ([`backend::OpenDevice`] of gs-core's
 //!   `DeviceChoice`: the cpu, or a GPU), training on it ([`backend::Trainer`]) and rendering
-//!   on it; what an embedder calls.
+//!   on it, one step at a time; what an embedder calls.
 //! - [`GpuModel`]: the GPU twins of a [`gs_core::model::BaseModel`]'s forward and backward
 //!   (provided: built on the host and uploaded; a model overrides them with its own kernels).
 //! - [`FitError`]: why a photometric fit (MiraGe's, VeGaS's) on a backend could not run.
@@ -18,7 +18,6 @@
 //! - [`GpuParams`], [`GpuStep`], [`GpuScratch`], [`GpuForward`]: a model's parameters on the
 //!   GPU and what its per-view construction there works with ([`GpuModel`]; [`host_forward`]
 //!   and [`host_backward`] are the provided twins).
-//! - [`train`](fn@train): the training loop of [`gs_core::train`] with all of the above.
 //! - [`training_bytes`]: the GPU memory a training run needs, reported when an allocation fails.
 //! - [`test_context`]: a context for tests, skipped (or failed, with [`REQUIRE_GPU_TESTS`]) on
 //!   a machine without an adapter.
@@ -87,5 +86,4 @@ pub use model::{
 };
 pub use shaders::{Access, KernelSource};
 pub use test_context::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
-pub use train::train;
 pub use wgpu::Buffer;

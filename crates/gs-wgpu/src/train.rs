@@ -1,11 +1,13 @@
-//! The training loop on the GPU: [`gs_core::train::train`]'s loop (the same sampler, objective,
-//! reports, callback and checks) over a model built on the GPU ([`GpuModel::gpu_forward`]),
-//! with the parameters, gradients and Adam moments staying there. Per step the image is read
-//! back, dL/dimage uploaded, and two `u32`s read (the tile-list size and the finiteness flag);
-//! a model on the provided host construction also moves its parameters (when they changed),
-//! its Gaussians and their gradient. A GPU failure inside the model is the device's failure.
+//! One training step on the GPU ([`GpuTrainer::step`]): gs-core's `CpuTrainer::step` (the
+//! same render, objective, backward and Adam, the same checks and report) over a model built on
+//! the GPU ([`GpuModel::gpu_forward`]), with the parameters, gradients and Adam moments staying
+//! there. Per step the image is read back, dL/dimage uploaded, and two `u32`s read (the
+//! tile-list size and the finiteness flag); a model on the provided host construction also
+//! moves its parameters (when they changed), its Gaussians and their gradient. A GPU failure
+//! inside the model is the device's failure.
 
-use std::ops::ControlFlow;
+use std::sync::Arc;
+use std::time::Instant;
 
 use super::adam::GpuAdam;
 use super::backward::backward;
@@ -15,150 +17,196 @@ use super::forward::render;
 use super::memory::{trained_values, training_bytes};
 use super::model::{GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
-use gs_core::image::Image;
+use gs_core::adam::{AdamHyper, GroupConfig};
 use gs_core::model::{ModelError, View};
 use gs_core::raster::{GradMask, OutputGrads};
-use gs_core::train::{
-    check_groups, run_steps, Objective, StepBackend, StepEnd, StepFailure, StepReport, TrainConfig,
-    TrainError, ViewSampler,
-};
+use gs_core::sampler::Batch;
+use gs_core::train::{check_batch, checked_value, Objective, StepReport, StepTimes, TrainError};
 
-/// The wgpu backend of the training loop.
-struct GpuBackend<'a, M> {
-    ctx: &'a GpuContext,
-    model: &'a mut M,
-    params: &'a GpuParams,
+/// A model whose parameters and Adam moments live on one GPU, trained a step at a time.
+pub(crate) struct GpuTrainer<M> {
+    pub(crate) ctx: Arc<GpuContext>,
+    pub(crate) model: M,
+    pub(crate) params: GpuParams,
+    pub(crate) adam: GpuAdam,
     scratch: GpuScratch,
-    adam: &'a mut GpuAdam,
     trained: Vec<bool>,
     mask: GradMask,
-    /// The gradient of a one-view step: that view's buffers, as the model handed them.
-    single: Option<Vec<Option<wgpu::Buffer>>>,
     /// The summed gradient of a step of several views, every trained group's (`None` for
-    /// frozen ones); kept from step to step and cleared at each step's start. A model's
+    /// frozen ones); made at the first such step, cleared at each one's start. A model's
     /// gradient buffers may be its own scratch, rewritten by the next view's backward, so
     /// they are added here rather than kept.
     sum: Option<Vec<Option<wgpu::Buffer>>>,
-    /// Views in the current step.
-    views: usize,
 }
 
-impl<M: GpuModel> StepBackend for GpuBackend<'_, M> {
-    type Error = GpuError;
-
-    fn step_count(&self) -> u64 {
-        self.adam.step_count()
+impl<M: GpuModel> GpuTrainer<M> {
+    /// `model` uploaded to `ctx` with a fresh Adam over `groups`, one per parameter group in
+    /// the model's order.
+    pub(crate) fn new(
+        ctx: Arc<GpuContext>,
+        mut model: M,
+        groups: Vec<GroupConfig>,
+        hyper: AdamHyper,
+    ) -> Result<Self, GpuError> {
+        let lens = model.group_lens();
+        let trained: Vec<bool> = groups.iter().map(|g| !g.frozen).collect();
+        let needs = |e: GpuError| e.with_run_needs(training_bytes(&lens, &trained, 0, 0));
+        let params = GpuParams::upload(&ctx, &mut model).map_err(needs)?;
+        let adam = GpuAdam::new(&ctx, groups, &lens, hyper).map_err(needs)?;
+        Ok(Self {
+            mask: model.grad_mask(&trained),
+            ctx,
+            model,
+            params,
+            adam,
+            scratch: GpuScratch::default(),
+            trained,
+            sum: None,
+        })
     }
 
-    fn begin(&mut self, views: usize) -> Result<(), StepFailure<GpuError>> {
-        self.views = views;
-        self.single = None;
-        if views > 1 {
+    /// One step over the views `batch` names of `views`, composited over `background`, as
+    /// gs-core's `CpuTrainer::step`: for each view, render, the objective's value and
+    /// dL/dimage, backward (into the step's sum when there are several views); then Adam on
+    /// the gradient unless a value of it is not finite.
+    pub(crate) fn step<O: Objective>(
+        &mut self,
+        views: &[View],
+        batch: Batch,
+        background: [f32; 3],
+        objective: &mut O,
+    ) -> Result<StepReport, TrainError<O::Error>> {
+        check_batch(&batch, views.len())?;
+        let step = self.adam.step_count() + 1;
+        let ctx = Arc::clone(&self.ctx);
+        let ctx = ctx.as_ref();
+        let lens = self.params.lens().to_vec();
+        let several = batch.views.len() > 1;
+        if several {
+            self.clear_sum().map_err(|e| device_failed(step, e))?;
+        }
+        let sum_bytes = if several {
+            4 * trained_values(&lens, &self.trained)
+        } else {
+            0
+        };
+        let mut single = None;
+        let mut times = StepTimes::default();
+        let mut values = Vec::with_capacity(batch.views.len());
+        for &index in &batch.views {
+            let view = &views[index];
+            let pixels = view.camera.pixel_count() as u64;
+            // Render.
+            let t0 = Instant::now();
+            let mut gpu = GpuStep {
+                ctx,
+                params: &self.params,
+                scratch: &mut self.scratch,
+            };
+            let GpuForward { gaussians, tape } =
+                self.model.gpu_forward(&mut gpu, view).map_err(|e| {
+                    model_failed(step, e, training_bytes(&lens, &self.trained, 0, pixels))
+                })?;
+            let run_needs =
+                training_bytes(&lens, &self.trained, gaussians.len(), pixels) + sum_bytes;
+            let needs = |e: GpuError| device_failed(step, e.with_run_needs(run_needs));
+            let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
+            let image = rendered.image(ctx);
+            // The loss and its image gradient.
+            let t1 = Instant::now();
+            let result = objective.evaluate(index, &image);
+            let value = checked_value(step, index, result, batch.divisor)?;
+            // Backward, through the rasterizer and the model.
+            let t2 = Instant::now();
+            let out = OutputGrads {
+                rgb: &value.grad,
+                alpha: None,
+                depth: None,
+            };
+            let grads = backward(ctx, &gaussians, &rendered, &out, self.mask).map_err(needs)?;
+            drop(gaussians);
+            let mut gpu = GpuStep {
+                ctx,
+                params: &self.params,
+                scratch: &mut self.scratch,
+            };
+            let group_grads = self
+                .model
+                .gpu_backward(&mut gpu, view, tape, grads, &self.trained)
+                .map_err(|e| model_failed(step, e, run_needs))?;
             match &self.sum {
-                Some(sum) => {
-                    let mut encoder = self.ctx.encoder();
-                    for buffer in sum.iter().flatten() {
-                        encoder.clear_buffer(buffer, 0, None);
-                    }
-                    self.ctx.submit(encoder);
+                Some(sum) if several => add_into(ctx, &group_grads, sum, &lens).map_err(needs)?,
+                _ => single = Some(group_grads),
+            }
+            times.add_view(t0, t1, t2, Instant::now());
+            values.push(value);
+        }
+        // The optimizer, unless a gradient is not finite.
+        let t3 = Instant::now();
+        let grads = match (&single, &self.sum) {
+            (Some(single), _) => single,
+            (None, Some(sum)) => sum,
+            (None, None) => unreachable!("a step has at least one view (check_batch)"),
+        };
+        if !all_finite(ctx, grads, &lens).map_err(|e| device_failed(step, e))? {
+            return Err(TrainError::NonFinite {
+                step,
+                view: batch.views[0],
+                what: "parameter gradient",
+            });
+        }
+        let grad_refs: Vec<Option<&wgpu::Buffer>> = grads.iter().map(Option::as_ref).collect();
+        let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
+        self.adam
+            .step(ctx, &params, &grad_refs)
+            .map_err(|e| device_failed(step, e))?;
+        self.params.mark_changed();
+        times.backward += t3.elapsed();
+        Ok(StepReport::new(step, batch, &values, times))
+    }
+
+    /// Zeroes the summed gradient of a step of several views, making it at the first.
+    fn clear_sum(&mut self) -> Result<(), GpuError> {
+        match &self.sum {
+            Some(sum) => {
+                let mut encoder = self.ctx.encoder();
+                for buffer in sum.iter().flatten() {
+                    encoder.clear_buffer(buffer, 0, None);
                 }
-                None => {
-                    let sum = self
-                        .params
-                        .lens()
-                        .iter()
-                        .zip(&self.trained)
-                        .map(|(&n, &t)| {
-                            t.then(|| zeroed_f32(self.ctx, "summed gradient", n))
-                                .transpose()
-                        })
-                        .collect::<Result<_, _>>()
-                        .map_err(StepFailure::Device)?;
-                    self.sum = Some(sum);
-                }
+                self.ctx.submit(encoder);
+            }
+            None => {
+                let sum = self
+                    .params
+                    .lens()
+                    .iter()
+                    .zip(&self.trained)
+                    .map(|(&n, &t)| {
+                        t.then(|| zeroed_f32(&self.ctx, "summed gradient", n))
+                            .transpose()
+                    })
+                    .collect::<Result<_, _>>()?;
+                self.sum = Some(sum);
             }
         }
         Ok(())
     }
+}
 
-    fn accumulate<'g>(
-        &mut self,
-        view: &View,
-        background: [f32; 3],
-        evaluate: impl FnOnce(&Image) -> Option<&'g [f32]>,
-    ) -> Result<bool, StepFailure<GpuError>> {
-        let ctx = self.ctx;
-        let mut gpu = GpuStep {
-            ctx,
-            params: self.params,
-            scratch: &mut self.scratch,
-        };
-        let pixels = view.camera.pixel_count() as u64;
-        let lens = self.params.lens();
-        let GpuForward { gaussians, tape } = self
-            .model
-            .gpu_forward(&mut gpu, view)
-            .map_err(|e| device_or_model(e, training_bytes(lens, &self.trained, 0, pixels)))?;
-        let run_needs = training_bytes(self.params.lens(), &self.trained, gaussians.len(), pixels)
-            + self.sum_bytes();
-        let needs = |e: GpuError| StepFailure::Device(e.with_run_needs(run_needs));
-        let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
-        let Some(grad) = evaluate(&rendered.image(ctx)) else {
-            return Ok(false);
-        };
-        let out = OutputGrads {
-            rgb: grad,
-            alpha: None,
-            depth: None,
-        };
-        let grads = backward(ctx, &gaussians, &rendered, &out, self.mask).map_err(needs)?;
-        drop(gaussians);
-        let mut gpu = GpuStep {
-            ctx,
-            params: self.params,
-            scratch: &mut self.scratch,
-        };
-        let group_grads = self
-            .model
-            .gpu_backward(&mut gpu, view, tape, grads, &self.trained)
-            .map_err(|e| device_or_model(e, run_needs))?;
-        match (&self.sum, self.views) {
-            (Some(sum), 2..) => {
-                add_into(ctx, &group_grads, sum, self.params.lens()).map_err(needs)?
-            }
-            _ => self.single = Some(group_grads),
-        }
-        Ok(true)
-    }
-
-    fn apply(&mut self) -> Result<StepEnd, StepFailure<GpuError>> {
-        let ctx = self.ctx;
-        let single = self.single.take();
-        let sum = match (&single, &self.sum) {
-            (Some(single), _) => single,
-            (None, Some(sum)) => sum,
-            (None, None) => unreachable!("a step is applied after at least one view"),
-        };
-        if !all_finite(ctx, sum, self.params.lens()).map_err(StepFailure::Device)? {
-            return Ok(StepEnd::NonFiniteGradient);
-        }
-        let grad_refs: Vec<Option<&wgpu::Buffer>> = sum.iter().map(Option::as_ref).collect();
-        let params: Vec<&wgpu::Buffer> = self.params.buffers().iter().collect();
-        self.adam
-            .step(ctx, &params, &grad_refs)
-            .map_err(StepFailure::Device)?;
-        self.params.mark_changed();
-        Ok(StepEnd::Taken)
+/// The GPU's failure at step `step`.
+fn device_failed<E: std::error::Error>(step: u64, e: GpuError) -> TrainError<E> {
+    TrainError::Device {
+        step,
+        source: Box::new(e),
     }
 }
 
-impl<M> GpuBackend<'_, M> {
-    /// Bytes of the batch's summed gradient (none for a step of one view).
-    fn sum_bytes(&self) -> u64 {
-        if self.views < 2 {
-            return 0;
-        }
-        4 * trained_values(self.params.lens(), &self.trained)
+/// A model's failure at step `step`: the device's when it is a [`GpuError`] (an allocation
+/// that failed, with `run_needs`, what the run needs), else the model's own.
+fn model_failed<E: std::error::Error>(step: u64, e: ModelError, run_needs: u64) -> TrainError<E> {
+    match e.downcast::<GpuError>() {
+        Ok(gpu) => device_failed(step, (*gpu).with_run_needs(run_needs)),
+        Err(source) => TrainError::Model { step, source },
     }
 }
 
@@ -186,15 +234,6 @@ fn add_into(
     Ok(())
 }
 
-/// A model's failure as the device's when it is a [`GpuError`] (an allocation that failed, with
-/// what the run needs), else as the model's own.
-fn device_or_model(e: ModelError, run_needs: u64) -> StepFailure<GpuError> {
-    match e.downcast::<GpuError>() {
-        Ok(gpu) => StepFailure::Device((*gpu).with_run_needs(run_needs)),
-        Err(e) => StepFailure::Model(e),
-    }
-}
-
 /// True when every value of every gradient (`lens[i]` values of `grads[i]`) is finite.
 fn all_finite(
     ctx: &GpuContext,
@@ -217,49 +256,4 @@ fn all_finite(
     }
     ctx.submit(encoder);
     Ok(read::<u32>(ctx, &flag, 1)[0] == 0)
-}
-
-/// Trains `model`, whose parameters are `params` on the GPU of `ctx`, on `views` with
-/// `objective` and `adam` until `adam` has taken `config.steps` steps, exactly as
-/// [`gs_core::train::train`] does on the cpu (same view order, reports, callback and errors).
-/// The parameters stay on the GPU: read them with [`GpuParams::download_into`].
-#[allow(clippy::too_many_arguments)]
-pub fn train<M, O, F>(
-    ctx: &GpuContext,
-    model: &mut M,
-    params: &GpuParams,
-    views: &[View],
-    objective: &mut O,
-    adam: &mut GpuAdam,
-    sampler: &mut ViewSampler,
-    config: &TrainConfig,
-    on_step: F,
-) -> Result<(), TrainError<O::Error>>
-where
-    M: GpuModel,
-    O: Objective,
-    F: FnMut(&StepReport) -> ControlFlow<()>,
-{
-    check_groups(adam.groups().len(), &model.group_names())?;
-    if params.lens() != model.group_lens() {
-        return Err(TrainError::Mismatch(format!(
-            "the parameters on the GPU have groups of {:?} values, the model {:?}",
-            params.lens(),
-            model.group_lens()
-        )));
-    }
-    let trained: Vec<bool> = adam.groups().iter().map(|g| !g.frozen).collect();
-    let mut backend = GpuBackend {
-        ctx,
-        mask: model.grad_mask(&trained),
-        model,
-        params,
-        scratch: GpuScratch::default(),
-        trained,
-        adam,
-        single: None,
-        sum: None,
-        views: 0,
-    };
-    run_steps(&mut backend, views, objective, sampler, config, on_step)
 }

@@ -39,7 +39,7 @@ pub struct RunSummary {
 /// Runs the stylization `config` describes (see the module documentation). Bad inputs are
 /// reported before anything is written, the run's own checks before the scene is loaded; a
 /// fresh run refuses an output folder that holds the checkpoint of an unfinished run
-/// ([`gs_stylize::run::check_out_folder`]). When [`RunOptions::stop`] is set, the run ends
+/// ([`gs_stylize::prepare::check_out_folder`]). When [`RunOptions::stop`] is set, the run ends
 /// after the current step with a checkpoint of it and [`StylizeError::Interrupted`].
 pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
     gs_stylize::drive::run(config, options)
