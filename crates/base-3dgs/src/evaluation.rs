@@ -20,7 +20,7 @@ use gs_wgpu::backend::OpenDevice;
 use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Layout, LoadOptions};
 use crate::render_views::render_names;
-use crate::stylize::{StylizeConfig, StylizeError, STYLIZED_PLY};
+use crate::stylize::{SceneStylizeConfig, StylizeError, STYLIZED_PLY};
 
 /// The folder of a finished run's output where [`evaluate_run`] writes its renders of the
 /// test views (named after their pictures, with `.png`).
@@ -127,7 +127,7 @@ pub fn evaluate_folders(
 /// prompt and the CLIP of `clip`. The views are a NeRF-synthetic scene's test split, or every
 /// picture of a COLMAP scene (which has no split; the run trains on all of them).
 pub fn evaluate_run(
-    config: &StylizeConfig,
+    config: &SceneStylizeConfig,
     clip: ClipFiles,
 ) -> Result<Metrics, Box<dyn Error + Send + Sync>> {
     let scoring = Scoring::of_run(&config.style, clip);

@@ -16,7 +16,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use base_3dgs::stylize::{run, RunOptions, StyleSettings, StylizeConfig};
+use base_3dgs::stylize::{run, RunOptions, SceneStylizeConfig, StyleSettings};
 use candle_core::{DType, Device, Tensor};
 use common::TempDir;
 use gs_core::dataset::GroundTruth;
@@ -160,7 +160,7 @@ fn our_run(
         "composited" => GroundTruth::Composited,
         other => panic!("ground truth {other}"),
     };
-    let config = StylizeConfig {
+    let config = SceneStylizeConfig {
         model: Some(data.join("scene.ply")),
         data: Some(data.join("data")),
         out: Some(out),
@@ -176,7 +176,7 @@ fn our_run(
             steps: updates,
             ..settings(tiny)
         },
-        ..StylizeConfig::default()
+        ..SceneStylizeConfig::default()
     };
     run(&config, &RunOptions::default()).unwrap().gaussians
 }

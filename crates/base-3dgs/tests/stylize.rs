@@ -15,7 +15,9 @@ use base_3dgs::dataset::nerf_synthetic::{self, Split};
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, evaluate_run, ClipFiles, Style, TEST_VIEWS_DIR};
 use base_3dgs::stylize::config::BackgroundPixels;
-use base_3dgs::stylize::{run, Override, RunOptions, StyleSettings, StylizeConfig, StylizeError};
+use base_3dgs::stylize::{
+    run, Override, RunOptions, SceneStylizeConfig, StyleSettings, StylizeError,
+};
 use candle_core::{Device, Tensor};
 use common::TempDir;
 use gs_core::camera::Camera;
@@ -40,7 +42,7 @@ use style_loss::{
 /// A scene, tiny models, and a configuration that runs on them.
 struct Setup {
     dir: TempDir,
-    config: StylizeConfig,
+    config: SceneStylizeConfig,
 }
 
 impl Setup {
@@ -48,7 +50,7 @@ impl Setup {
         let dir = TempDir::new(name);
         let (ply, data) = write_scene(dir.path());
         let (clip_config, clip_weights) = write_tiny_clip(dir.path());
-        let config = StylizeConfig {
+        let config = SceneStylizeConfig {
             model: Some(ply),
             data: Some(data),
             out: Some(dir.path().join("out")),
@@ -75,12 +77,12 @@ impl Setup {
                 ..StyleSettings::paper_3d()
             },
             learning_rates: gaussian_stylization(0.05),
-            ..StylizeConfig::default()
+            ..SceneStylizeConfig::default()
         };
         Self { dir, config }
     }
 
-    fn with(&self, edit: impl FnOnce(&mut StylizeConfig)) -> StylizeConfig {
+    fn with(&self, edit: impl FnOnce(&mut SceneStylizeConfig)) -> SceneStylizeConfig {
         let mut c = self.config.clone();
         edit(&mut c);
         c
@@ -109,7 +111,7 @@ fn resume() -> RunOptions {
 
 /// The total and the (unweighted) directional loss of `config` summed over every view of its
 /// dataset with the same patches each time, so the losses before and after stylization compare.
-fn fixed_loss(config: &StylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
+fn fixed_loss(config: &SceneStylizeConfig, gaussians: &GaussianSet) -> (f64, f64) {
     let device = Device::Cpu;
     let background = Background::from_rgb(config.background);
     let options = LoadOptions {
@@ -218,7 +220,7 @@ fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
         assert_eq!((preview.width(), preview.height()), (2 * SIZE, SIZE));
     }
     assert!(!out.join("preview_view000.png").exists());
-    let written: StylizeConfig =
+    let written: SceneStylizeConfig =
         serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
     assert_eq!(written, setup.config);
     let leftovers: Vec<_> = std::fs::read_dir(&out)
@@ -331,7 +333,7 @@ fn a_run_from_a_colmap_layout_keeps_the_count_and_its_cameras_match_the_nerf_twi
 #[test]
 fn a_run_with_the_authors_3d_defaults_has_a_background_term_only_for_an_object() {
     let setup = Setup::new("stylize-defaults");
-    let defaults = StylizeConfig::default();
+    let defaults = SceneStylizeConfig::default();
     let config = |object: bool, out: &str| {
         setup.with(|c| {
             c.background = defaults.background;
@@ -462,8 +464,9 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
         Override::new("out", "out"),
         Override::parse("style_prompt=fire").unwrap(),
     ];
-    let paper = StylizeConfig::resolve(Some(&root.join("configs/3d.json")), &required).unwrap();
-    let expected = StylizeConfig {
+    let paper =
+        SceneStylizeConfig::resolve(Some(&root.join("configs/3d.json")), &required).unwrap();
+    let expected = SceneStylizeConfig {
         model: Some("scene.ply".into()),
         data: Some("data".into()),
         out: Some("out".into()),
@@ -471,7 +474,7 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
             style_prompt: Some("fire".into()),
             ..StyleSettings::paper_3d()
         },
-        ..StylizeConfig::default()
+        ..SceneStylizeConfig::default()
     };
     assert_eq!(paper, expected);
     assert_eq!(
@@ -491,10 +494,10 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
         (4999, 128, 64)
     );
     let light =
-        StylizeConfig::resolve(Some(&root.join("configs/3d-light.json")), &required).unwrap();
+        SceneStylizeConfig::resolve(Some(&root.join("configs/3d-light.json")), &required).unwrap();
     assert_eq!(
         light,
-        StylizeConfig {
+        SceneStylizeConfig {
             style: StyleSettings {
                 lambda_patch: 35.0,
                 ..expected.style.clone()
@@ -507,14 +510,14 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
     let mut edits = required.to_vec();
     edits.push(Override::parse("preview_views=[1,3]").unwrap());
     edits.push(Override::parse("steps=7").unwrap());
-    let edited = StylizeConfig::resolve(None, &edits).unwrap();
+    let edited = SceneStylizeConfig::resolve(None, &edits).unwrap();
     assert_eq!(
         (edited.preview_views.clone(), edited.style.steps),
         (vec![1, 3], 7)
     );
 
     edits.push(Override::parse("lamda_patch=3").unwrap());
-    let e = StylizeConfig::resolve(None, &edits)
+    let e = SceneStylizeConfig::resolve(None, &edits)
         .unwrap_err()
         .to_string();
     assert!(
@@ -526,7 +529,7 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
 
 /// Runs `config`, expects an error containing every one of `words`, and checks that the output
 /// folder was not created.
-fn fails_cleanly(config: &StylizeConfig, words: &[&str]) {
+fn fails_cleanly(config: &SceneStylizeConfig, words: &[&str]) {
     let e: StylizeError = run(config, &quiet()).unwrap_err();
     let message = e.to_string();
     for w in words {
@@ -699,7 +702,7 @@ fn the_binary_takes_flags_and_set_overrides() {
         "{}",
         String::from_utf8_lossy(&ok.stderr)
     );
-    let written: StylizeConfig =
+    let written: SceneStylizeConfig =
         serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
     assert_eq!((written.style.steps, written.style.num_patches), (2, 2));
     assert_eq!(

@@ -19,9 +19,9 @@ use std::ops::ControlFlow;
 use std::time::Instant;
 
 use base_dmiso::deform_net::NetShape;
-use base_dmiso::fit::{fit, mean_psnr, render_views, FitSettings};
+use base_dmiso::fit::{fit, mean_psnr, render_views, DynamicSceneFitSettings};
 use base_dmiso::init::{initial_model, with_sub_gaussians};
-use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
+use base_dmiso::stylize::{stylize_groups, DynamicSceneStylizeConfig};
 use gs_core::adam::AdamHyper;
 use gs_core::dataset::scene_extent;
 use gs_core::device::DeviceChoice;
@@ -65,7 +65,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let truths: Vec<_> = test.iter().map(|v| common::render(v, [1.0; 3])).collect();
     let extent = scene_extent(&train);
     for (points, width) in [(600, 64), (2000, 128)] {
-        let settings = FitSettings {
+        let settings = DynamicSceneFitSettings {
             points,
             steps,
             warm_up: steps / 6,
@@ -74,7 +74,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             subs_per_core: 4,
             deform_width: width,
             seed: 3,
-            ..FitSettings::default()
+            ..DynamicSceneFitSettings::default()
         };
         let start = Instant::now();
         let mut model = fit(
@@ -107,8 +107,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .iter()
         .map(|v| common::render(v, [1.0; 3]))
         .collect();
-    let defaults = FitSettings::default();
-    let settings = FitSettings {
+    let defaults = DynamicSceneFitSettings::default();
+    let settings = DynamicSceneFitSettings {
         steps: 9,
         warm_up: 3,
         subs_from: 6,
@@ -164,7 +164,7 @@ fn stylization_step(
         views.len(),
         start.elapsed().as_secs_f64()
     );
-    let config = DynamicStylizeConfig::default();
+    let config = DynamicSceneStylizeConfig::default();
     let mut trainer = Trainer::new(
         backend,
         model,

@@ -12,7 +12,7 @@ use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::evaluation::{check_names, score_images, ClipFiles, Metrics, Scoring};
 
 use crate::model_file::recorded_background;
-use crate::stylize::{DynamicStylizeConfig, MODEL_FILE};
+use crate::stylize::{DynamicSceneStylizeConfig, MODEL_FILE};
 
 /// Scores the renders in `renders` against the test split of the D-NeRF scene `data`, its
 /// pictures composited over `background` and shrunk to `max_width` when wider (0: kept), as
@@ -73,7 +73,7 @@ pub fn evaluate_test_views(
 /// its scene's test split, over the background the run used, with the run's style and source
 /// prompt and the CLIP of `clip`.
 pub fn evaluate_run(
-    config: &DynamicStylizeConfig,
+    config: &DynamicSceneStylizeConfig,
     clip: ClipFiles,
 ) -> Result<Metrics, Box<dyn Error + Send + Sync>> {
     let out = config.out.as_deref().ok_or("the run has no out folder")?;

@@ -44,7 +44,7 @@ use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 
 /// How to fit a dynamic scene. The defaults are D-MiSo's (`train.py`'s arguments).
 #[derive(Clone, Debug, PartialEq)]
-pub struct FitSettings {
+pub struct DynamicSceneFitSettings {
     /// Random starting points (cores).
     pub points: usize,
     /// Optimizer steps of the whole fit.
@@ -76,7 +76,7 @@ pub struct FitSettings {
     pub densify: Option<DensifySettings>,
 }
 
-impl Default for FitSettings {
+impl Default for DynamicSceneFitSettings {
     fn default() -> Self {
         Self {
             points: 100_000,
@@ -96,7 +96,7 @@ impl Default for FitSettings {
     }
 }
 
-impl FitSettings {
+impl DynamicSceneFitSettings {
     /// The step counts after which the fit's later stages begin: the deformation network
     /// after the warm-up, the sub-Gaussians at `subs_from` (each slower a step than the one
     /// before).
@@ -206,7 +206,7 @@ pub fn fit<F>(
     views: &[View],
     images: &[Image],
     extent: f64,
-    settings: &FitSettings,
+    settings: &DynamicSceneFitSettings,
     backend: &Backend,
     device: &Device,
     mut on_step: F,
@@ -282,7 +282,7 @@ struct Run<'a, F> {
     views: &'a [View],
     objective: &'a mut PhotometricObjective,
     sampler: &'a mut ViewSampler,
-    settings: &'a FitSettings,
+    settings: &'a DynamicSceneFitSettings,
     backend: &'a Backend,
     extent: f64,
     on_step: &'a mut F,

@@ -37,7 +37,7 @@ use gs_stylize::{
 };
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{fit, mean_psnr, render_views, FitError, FitSettings};
+use crate::fit::{fit, mean_psnr, render_views, DynamicSceneFitSettings, FitError};
 use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 use crate::model_file::{self, read_authors, AuthorsFiles, DmisoFileError};
 
@@ -54,7 +54,7 @@ pub const SWEEP_MP4: &str = "sweep.mp4";
 /// defaults are the paper's 4D settings ([`StyleSettings::paper_4d`]) and D-MiSo's.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct DynamicStylizeConfig {
+pub struct DynamicSceneStylizeConfig {
     /// The D-NeRF scene: `transforms_train.json` (and `transforms_test.json`), every frame
     /// with a `time` in `[0, 1]`.
     pub data: Option<PathBuf>,
@@ -116,9 +116,9 @@ pub struct DynamicStylizeConfig {
     pub style: StyleSettings,
 }
 
-impl Default for DynamicStylizeConfig {
+impl Default for DynamicSceneStylizeConfig {
     fn default() -> Self {
-        let fit = FitSettings::default();
+        let fit = DynamicSceneFitSettings::default();
         Self {
             data: None,
             model: None,
@@ -144,15 +144,15 @@ impl Default for DynamicStylizeConfig {
     }
 }
 
-impl DynamicStylizeConfig {
+impl DynamicSceneStylizeConfig {
     /// The background colour: the configured one, else `recorded` (the model's), else white.
     pub fn background(&self, recorded: Option<Background>) -> Background {
         background_of(self.background, recorded)
     }
 
     /// The fit this configuration asks for.
-    pub fn fit_settings(&self) -> FitSettings {
-        FitSettings {
+    pub fn fit_settings(&self) -> DynamicSceneFitSettings {
+        DynamicSceneFitSettings {
             points: self.fit_gaussians,
             steps: self.fit_steps,
             warm_up: self.fit_warm_up,
@@ -163,13 +163,13 @@ impl DynamicStylizeConfig {
             deform_width: self.deform_width,
             seed: self.style.seed,
             background: self.background(None).rgb(),
-            ..FitSettings::default()
+            ..DynamicSceneFitSettings::default()
         }
     }
 
     /// Checks the fields of this configuration that gs-stylize does not.
-    fn check_fields(&self) -> Result<(), DynamicError> {
-        let bad = |m: String| Err(DynamicError::Config(m));
+    fn check_fields(&self) -> Result<(), DynamicSceneStylizeError> {
+        let bad = |m: String| Err(DynamicSceneStylizeError::Config(m));
         if self.batch_size == 0 {
             return bad("batch_size: must be at least 1 (--batch-size)".into());
         }
@@ -250,7 +250,7 @@ fn authors_update_rules(groups: &mut [GroupConfig]) {
 
 /// Why a dynamic-scene run could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum DynamicError {
+pub enum DynamicSceneStylizeError {
     /// A configuration value out of its range.
     #[error("configuration: {0}")]
     Config(String),
@@ -273,7 +273,7 @@ pub enum DynamicError {
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
-pub struct DynamicSummary {
+pub struct DynamicSceneSummary {
     /// The stylized model.
     pub model: Dmiso,
     /// The renders of the test views (empty without a test split).
@@ -356,9 +356,9 @@ pub fn sweep_views(camera: &gs_core::Camera, frames: usize) -> Vec<View> {
 
 /// Runs the stylization `config` describes (see the module documentation).
 pub fn run(
-    config: &DynamicStylizeConfig,
+    config: &DynamicSceneStylizeConfig,
     options: &RunOptions,
-) -> Result<DynamicSummary, DynamicError> {
+) -> Result<DynamicSceneSummary, DynamicSceneStylizeError> {
     gs_stylize::drive::run(config, options)
 }
 
@@ -376,12 +376,12 @@ pub struct DynamicSceneInput {
     original: Vec<Image>,
 }
 
-impl Modality for DynamicStylizeConfig {
+impl Modality for DynamicSceneStylizeConfig {
     type Model = Dmiso;
     type Inputs = DynamicSceneInput;
     type Fit = Dmiso;
-    type Outputs = DynamicSummary;
-    type Error = DynamicError;
+    type Outputs = DynamicSceneSummary;
+    type Error = DynamicSceneStylizeError;
 
     const BASE_MODEL: &'static str = BASE_FILE;
     const FITTED: &'static str = "the scene";
@@ -390,16 +390,16 @@ impl Modality for DynamicStylizeConfig {
         &self.style
     }
 
-    fn out(&self) -> Result<&Path, DynamicError> {
-        self.out
-            .as_deref()
-            .ok_or_else(|| DynamicError::Config("out: is required (--out FOLDER)".into()))
+    fn out(&self) -> Result<&Path, DynamicSceneStylizeError> {
+        self.out.as_deref().ok_or_else(|| {
+            DynamicSceneStylizeError::Config("out: is required (--out FOLDER)".into())
+        })
     }
 
-    fn check(&self) -> Result<(), DynamicError> {
+    fn check(&self) -> Result<(), DynamicSceneStylizeError> {
         self.check_fields()?;
         if self.data.is_none() {
-            return Err(DynamicError::Config(
+            return Err(DynamicSceneStylizeError::Config(
                 "data: is required (--data FOLDER, a D-NeRF scene)".into(),
             ));
         }
@@ -413,7 +413,7 @@ impl Modality for DynamicStylizeConfig {
     /// The D-NeRF scene's sizes from its json files (and one picture header a split), the
     /// test split counted whichever splits train (it is rendered either way); none when they
     /// do not read (the loading reports them).
-    fn input_pixels(&self) -> Result<Option<InputPixels>, DynamicError> {
+    fn input_pixels(&self) -> Result<Option<InputPixels>, DynamicSceneStylizeError> {
         let data = self.data.as_deref().expect("checked: the data is given");
         let options = LoadOptions {
             max_width: self.max_width,
@@ -433,7 +433,7 @@ impl Modality for DynamicStylizeConfig {
         &self,
         run: &PreparedRun,
         model: Option<&Path>,
-    ) -> Result<DynamicSceneInput, DynamicError> {
+    ) -> Result<DynamicSceneInput, DynamicSceneStylizeError> {
         let data = self.data.as_deref().expect("checked: the data is given");
         let recorded = model.map(model_file::recorded_background).transpose()?;
         let background = self.background(recorded.flatten());
@@ -459,7 +459,7 @@ impl Modality for DynamicStylizeConfig {
             .collect();
         check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
         if self.batch_size > train.views.len() {
-            return Err(DynamicError::Config(format!(
+            return Err(DynamicSceneStylizeError::Config(format!(
                 "batch_size: {} is more than the {} training views (lower --batch-size)",
                 self.batch_size,
                 train.views.len()
@@ -483,7 +483,7 @@ impl Modality for DynamicStylizeConfig {
         path: &Path,
         own_fit: bool,
         _run: &PreparedRun,
-    ) -> Result<Dmiso, DynamicError> {
+    ) -> Result<Dmiso, DynamicSceneStylizeError> {
         if own_fit {
             Ok(model_file::load(path, &scene.device)?)
         } else {
@@ -495,7 +495,7 @@ impl Modality for DynamicStylizeConfig {
         self.fit_steps
     }
 
-    /// The deformation network's start and the sub-Gaussians' ([`FitSettings::stages`]).
+    /// The deformation network's start and the sub-Gaussians' ([`DynamicSceneFitSettings::stages`]).
     fn fit_stages(&self) -> Vec<u64> {
         self.fit_settings().stages().to_vec()
     }
@@ -505,7 +505,7 @@ impl Modality for DynamicStylizeConfig {
         scene: &DynamicSceneInput,
         run: &PreparedRun,
         on_step: OnStep<'_>,
-    ) -> Result<Dmiso, DynamicError> {
+    ) -> Result<Dmiso, DynamicSceneStylizeError> {
         let train = &scene.train;
         Ok(fit(
             &train.views,
@@ -523,7 +523,7 @@ impl Modality for DynamicStylizeConfig {
         scene: &DynamicSceneInput,
         fit: Dmiso,
         path: &Path,
-    ) -> Result<Dmiso, DynamicError> {
+    ) -> Result<Dmiso, DynamicSceneStylizeError> {
         model_file::save(&fit, path, Some(scene.background))?;
         Ok(fit)
     }
@@ -534,7 +534,7 @@ impl Modality for DynamicStylizeConfig {
         scene: &DynamicSceneInput,
         model: &mut Dmiso,
         run: &PreparedRun,
-    ) -> Result<Option<f64>, DynamicError> {
+    ) -> Result<Option<f64>, DynamicSceneStylizeError> {
         let train = &scene.train;
         let renders = render_views(model, &train.views, scene.background.rgb(), run.backend())?;
         Ok(Some(mean_psnr(&renders, &train.images)))
@@ -547,7 +547,7 @@ impl Modality for DynamicStylizeConfig {
         scene: &mut DynamicSceneInput,
         mut model: Dmiso,
         run: &PreparedRun,
-    ) -> Result<StylizeJob<Dmiso>, DynamicError> {
+    ) -> Result<StylizeJob<Dmiso>, DynamicSceneStylizeError> {
         let train = &scene.train;
         let camera = &scene.test.as_ref().unwrap_or(train).views[0].camera;
         scene.sweep = sweep_views(camera, self.sweep_frames.max(1));
@@ -584,7 +584,7 @@ impl Modality for DynamicStylizeConfig {
         scene: DynamicSceneInput,
         outcome: StylizeOutcome<Dmiso>,
         run: &PreparedRun,
-    ) -> Result<DynamicSummary, DynamicError> {
+    ) -> Result<DynamicSceneSummary, DynamicSceneStylizeError> {
         let (out, backend) = (run.out(), run.backend());
         let background = scene.background.rgb();
         let mut model = outcome.model;
@@ -610,7 +610,7 @@ impl Modality for DynamicStylizeConfig {
             self.sweep_fps,
         )?;
         let wrote_mp4 = write_mp4_or_warn(&sweep_dir, self.sweep_fps, &out.join(SWEEP_MP4));
-        Ok(DynamicSummary {
+        Ok(DynamicSceneSummary {
             model,
             test_renders,
             sweep,
@@ -625,7 +625,7 @@ mod tests {
 
     #[test]
     fn the_defaults_are_the_papers_4d_settings() {
-        let config = DynamicStylizeConfig::default();
+        let config = DynamicSceneStylizeConfig::default();
         let s = &config.style;
         assert_eq!(
             (

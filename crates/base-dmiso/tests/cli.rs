@@ -11,7 +11,7 @@ use std::process::Command;
 
 use base_dmiso::model::group;
 use base_dmiso::model_file;
-use base_dmiso::stylize::DynamicStylizeConfig;
+use base_dmiso::stylize::DynamicSceneStylizeConfig;
 use base_dmiso::Dmiso;
 use candle_core::Device;
 use gs_core::dataset::Background;
@@ -438,10 +438,10 @@ fn help_configs_and_eval() {
         assert!(text.contains(sub), "{sub} in --help");
     }
     let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
-    let paper: DynamicStylizeConfig =
+    let paper: DynamicSceneStylizeConfig =
         gs_stylize::resolve_config(Some(&root.join("configs/4d.json")), &[]).unwrap();
-    assert_eq!(paper, DynamicStylizeConfig::default());
-    let keep: DynamicStylizeConfig =
+    assert_eq!(paper, DynamicSceneStylizeConfig::default());
+    let keep: DynamicSceneStylizeConfig =
         gs_stylize::resolve_config(Some(&root.join("configs/4d-keep-background.json")), &[])
             .unwrap();
     assert_eq!(keep.style.lambda_background, 500.0);
@@ -481,15 +481,15 @@ fn help_configs_and_eval() {
     let out = dir.path().join("run");
     std::fs::create_dir(&out).unwrap();
     copy_folder(&renders, &out.join("frames"));
-    let config = base_dmiso::stylize::DynamicStylizeConfig {
+    let config = base_dmiso::stylize::DynamicSceneStylizeConfig {
         data: Some(data.clone()),
         out: Some(out),
         background: Some([1.0; 3]),
         style: gs_stylize::StyleSettings {
             style_prompt: Some("a red fire".into()),
-            ..base_dmiso::stylize::DynamicStylizeConfig::default().style
+            ..base_dmiso::stylize::DynamicSceneStylizeConfig::default().style
         },
-        ..base_dmiso::stylize::DynamicStylizeConfig::default()
+        ..base_dmiso::stylize::DynamicSceneStylizeConfig::default()
     };
     let clip = gs_stylize::evaluation::ClipFiles {
         config: Some(models.clip_config.clone()),

@@ -7,7 +7,7 @@ mod common;
 use std::ops::ControlFlow;
 
 use base_dmiso::densify::DensifySettings;
-use base_dmiso::fit::{fit, mean_psnr, render_views, FitSettings};
+use base_dmiso::fit::{fit, mean_psnr, render_views, DynamicSceneFitSettings};
 use candle_core::Device;
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
@@ -25,7 +25,7 @@ fn a_fit_reproduces_held_out_times() {
     let train = load_with_times(dir.path(), Split::Train, &options).unwrap();
     let test = load_with_times(dir.path(), Split::Test, &options).unwrap();
     assert!(test.views.iter().all(|v| v.time > 0.0 && v.time < 1.0));
-    let settings = FitSettings {
+    let settings = DynamicSceneFitSettings {
         points: 600,
         steps: 1200,
         warm_up: 200,
@@ -44,7 +44,7 @@ fn a_fit_reproduces_held_out_times() {
             opacity_reset_every: 10_000,
             ..DensifySettings::default()
         }),
-        ..FitSettings::default()
+        ..DynamicSceneFitSettings::default()
     };
     let mut losses = Vec::new();
     let mut model = fit(
@@ -101,7 +101,7 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
 
     use base_dmiso::deform_net::NetShape;
     use base_dmiso::init::{initial_model, with_sub_gaussians};
-    use base_dmiso::stylize::{stylize_groups, DynamicStylizeConfig};
+    use base_dmiso::stylize::{stylize_groups, DynamicSceneStylizeConfig};
     use gs_core::adam::AdamHyper;
     use gs_core::image_loss::PhotometricObjective;
     use gs_core::sampler::{BatchOrder, ViewSampler};
@@ -119,7 +119,7 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
     };
     let mut results = Vec::new();
     for backend in [Backend::Cpu, Backend::Gpu(Arc::new(ctx))] {
-        let mut config = DynamicStylizeConfig::default();
+        let mut config = DynamicSceneStylizeConfig::default();
         // Rates large enough for every group to move visibly in a few steps.
         let rates = &mut config.learning_rates;
         let decay = |start, times_extent| GroupRate::Decay {

@@ -11,11 +11,11 @@
 
 use std::time::Instant;
 
-use base_mirage::fit::{fit_groups, FitSettings};
+use base_mirage::fit::{fit_groups, PictureFitSettings};
 use base_mirage::init::initial_gaussians;
 use base_mirage::mirror::{extent, mirror_views, mirrored, plane_half_size};
 use base_mirage::picture::landscape;
-use base_mirage::stylize::MirageStylizeConfig;
+use base_mirage::stylize::PictureStylizeConfig;
 use candle_core::Device;
 use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::{psnr, PhotometricObjective};
@@ -35,7 +35,7 @@ const MILESTONES: [u64; 4] = [100, 250, 500, 1000];
 fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
     let picture = landscape(BENCHMARK_SIDE);
     let (w, h) = (picture.width, picture.height);
-    let settings = FitSettings::default();
+    let settings = PictureFitSettings::default();
     let views = mirror_views(w, h, settings.distance)?;
     let (hw, hh) = plane_half_size(w, h, settings.distance);
     println!("| Gaussians | steps | PSNR (dB) | fit time (s) |");
@@ -75,7 +75,7 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
     let device = Device::Cpu;
     let picture = landscape(BENCHMARK_SIDE);
     let (w, h) = (picture.width, picture.height);
-    let settings = FitSettings::default();
+    let settings = PictureFitSettings::default();
     let views = mirror_views(w, h, settings.distance)?;
     let (hw, hh) = plane_half_size(w, h, settings.distance);
     let model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
@@ -91,7 +91,7 @@ fn step_table(count: usize, patches: usize) -> Result<(), Box<dyn std::error::Er
     let mut objective =
         StyleObjective::new(loss, std::slice::from_ref(&picture), None, 0, &device)?;
     let cache = start.elapsed().as_secs_f64();
-    let paper = MirageStylizeConfig::default();
+    let paper = PictureStylizeConfig::default();
     let adam = Adam::new(
         paper
             .learning_rates

@@ -7,7 +7,7 @@ use std::path::Path;
 use gs_core::Image;
 use gs_stylize::evaluation::{score_images, ClipFiles, EvalError, Metrics, Scoring};
 
-use crate::stylize::{original_picture, MirageStylizeConfig, STYLIZED_PNG};
+use crate::stylize::{original_picture, PictureStylizeConfig, STYLIZED_PNG};
 
 /// Scores the picture `stylized` against `original` (both read with transparent pixels over
 /// `background`), as `clipgaussian-2d eval` does.
@@ -33,7 +33,7 @@ pub fn evaluate_picture(
 /// the run read it (the embedded default when it names none), with the run's style and source
 /// prompt and the CLIP of `clip`.
 pub fn evaluate_run(
-    config: &MirageStylizeConfig,
+    config: &PictureStylizeConfig,
     clip: ClipFiles,
 ) -> Result<Metrics, Box<dyn Error + Send + Sync>> {
     let scoring = Scoring::of_run(&config.style, clip);

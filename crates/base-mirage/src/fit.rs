@@ -29,7 +29,7 @@ use crate::mirror::{extent, mirror_views, mirrored, plane_camera, plane_half_siz
 
 /// How to fit a picture. The learning rates are MiraGe's (3DGS's) defaults.
 #[derive(Clone, Debug, PartialEq)]
-pub struct FitSettings {
+pub struct PictureFitSettings {
     /// Number of Gaussians (fixed for the whole fit and for stylization).
     pub gaussians: usize,
     /// Optimizer steps (one camera each).
@@ -46,7 +46,7 @@ pub struct FitSettings {
     pub background: [f32; 3],
 }
 
-impl Default for FitSettings {
+impl Default for PictureFitSettings {
     fn default() -> Self {
         Self {
             gaussians: 100_000,
@@ -79,7 +79,7 @@ pub fn fit_groups(extent: f64) -> Vec<GroupConfig> {
 }
 
 /// Checks the settings.
-fn check(settings: &FitSettings) -> Result<(), FitError> {
+fn check(settings: &PictureFitSettings) -> Result<(), FitError> {
     check_fit_settings(
         settings.gaussians,
         settings.steps,
@@ -125,7 +125,7 @@ pub struct Fitted {
 /// `ControlFlow::Break` to stop early). The picture is fitted at its own resolution.
 pub fn fit<F>(
     picture: &Image,
-    settings: &FitSettings,
+    settings: &PictureFitSettings,
     backend: &Backend,
     on_step: F,
 ) -> Result<FlatGaussians, FitError>
@@ -138,7 +138,7 @@ where
 /// [`fit`], also returning the PSNR of every step.
 pub fn fit_logged<F>(
     picture: &Image,
-    settings: &FitSettings,
+    settings: &PictureFitSettings,
     backend: &Backend,
     on_step: F,
 ) -> Result<Fitted, FitError>
@@ -273,11 +273,11 @@ mod tests {
 
     #[test]
     fn every_step_logs_the_psnr_of_its_camera_and_it_rises() {
-        let settings = FitSettings {
+        let settings = PictureFitSettings {
             gaussians: 300,
             steps: 120,
             sh_degree: 0,
-            ..FitSettings::default()
+            ..PictureFitSettings::default()
         };
         let mut views = Vec::new();
         let fitted = fit_logged(&picture(), &settings, &Backend::Cpu, |r| {

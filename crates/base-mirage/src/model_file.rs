@@ -21,7 +21,7 @@ use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 
 use crate::flat::{FlatGaussians, FLAT_SCALE};
 use crate::mirror::plane_half_size;
-use crate::stylize::MirageError;
+use crate::stylize::PictureStylizeError;
 
 /// The start of the header comment that records the picture.
 const RECORD_PREFIX: &str = "clipgaussian-2d picture";
@@ -87,8 +87,8 @@ pub struct ModelFile {
 }
 
 /// The error of a model file that is not what it must be.
-fn refused(path: &Path, reason: String) -> MirageError {
-    MirageError::ModelMismatch {
+fn refused(path: &Path, reason: String) -> PictureStylizeError {
+    PictureStylizeError::ModelMismatch {
         path: path.to_path_buf(),
         reason,
     }
@@ -96,8 +96,8 @@ fn refused(path: &Path, reason: String) -> MirageError {
 
 /// Reads a MiraGe model file, refusing one that does not hold a 2D model (see the module
 /// documentation).
-pub fn read_model(path: &Path) -> Result<ModelFile, MirageError> {
-    let ply = read_ply(path).map_err(|source| MirageError::Model {
+pub fn read_model(path: &Path) -> Result<ModelFile, PictureStylizeError> {
+    let ply = read_ply(path).map_err(|source| PictureStylizeError::Model {
         path: path.to_path_buf(),
         source,
     })?;
@@ -115,12 +115,14 @@ pub fn write_model(
     path: &Path,
     model: &FlatGaussians,
     fitted_to: &FittedTo,
-) -> Result<(), MirageError> {
+) -> Result<(), PictureStylizeError> {
     let mut ply = PlyGaussians::new(model.params().clone());
     ply.comments.push(fitted_to.comment());
-    write_ply(path, &ply, PlyFormat::BinaryLittleEndian).map_err(|source| MirageError::Model {
-        path: path.to_path_buf(),
-        source,
+    write_ply(path, &ply, PlyFormat::BinaryLittleEndian).map_err(|source| {
+        PictureStylizeError::Model {
+            path: path.to_path_buf(),
+            source,
+        }
     })
 }
 
@@ -181,7 +183,7 @@ pub fn check_fits_picture(
     height: u32,
     distance: f64,
     label: &str,
-) -> Result<Option<String>, MirageError> {
+) -> Result<Option<String>, PictureStylizeError> {
     let aspect = |w: f64, h: f64| w / h;
     let picture = aspect(f64::from(width), f64::from(height));
     let differs = |a: f64, tolerance: f64| (a / picture - 1.0).abs() > tolerance;

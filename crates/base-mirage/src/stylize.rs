@@ -33,7 +33,7 @@ use gs_stylize::{
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    fit_logged, render_picture, write_psnr_plot, FitError, FitSettings, Fitted, FIT_PSNR_PNG,
+    fit_logged, render_picture, write_psnr_plot, FitError, Fitted, PictureFitSettings, FIT_PSNR_PNG,
 };
 use crate::flat::FlatGaussians;
 use crate::mirror::{extent, mirror_views, mirrored, DEFAULT_DISTANCE};
@@ -59,7 +59,7 @@ pub const ORIGINAL_PNG: &str = "original.png";
 /// 0.0025 (`learning_rates`), 4999 steps, 64 patches of 128 x 128, styled "Starry Night by Vincent van Gogh".
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
-pub struct MirageStylizeConfig {
+pub struct PictureStylizeConfig {
     /// The picture (PNG or JPEG, any size); none: the embedded default picture.
     pub picture: Option<PathBuf>,
     /// A model of the picture fitted earlier (MiraGe PLY); none: fit one first.
@@ -90,9 +90,9 @@ pub struct MirageStylizeConfig {
     pub style: StyleSettings,
 }
 
-impl Default for MirageStylizeConfig {
+impl Default for PictureStylizeConfig {
     fn default() -> Self {
-        let fit = FitSettings::default();
+        let fit = PictureFitSettings::default();
         let mut style = StyleSettings::paper_2d();
         style.style_prompt = Some(DEFAULT_STYLE_PROMPT.to_string());
         Self {
@@ -111,31 +111,31 @@ impl Default for MirageStylizeConfig {
     }
 }
 
-impl MirageStylizeConfig {
+impl PictureStylizeConfig {
     /// The fit this configuration asks for.
-    pub fn fit_settings(&self) -> FitSettings {
-        FitSettings {
+    pub fn fit_settings(&self) -> PictureFitSettings {
+        PictureFitSettings {
             gaussians: self.fit_gaussians,
             steps: self.fit_steps,
             sh_degree: self.fit_sh_degree,
             seed: self.style.seed,
             distance: self.distance,
             background: self.background,
-            ..FitSettings::default()
+            ..PictureFitSettings::default()
         }
     }
 
     /// The required output folder.
-    fn out_path(&self) -> Result<&Path, MirageError> {
+    fn out_path(&self) -> Result<&Path, PictureStylizeError> {
         self.out
             .as_deref()
-            .ok_or_else(|| MirageError::Config("out: is required (--out FOLDER)".into()))
+            .ok_or_else(|| PictureStylizeError::Config("out: is required (--out FOLDER)".into()))
     }
 }
 
 /// Why a 2D run could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum MirageError {
+pub enum PictureStylizeError {
     /// A configuration value out of its range.
     #[error("configuration: {0}")]
     Config(String),
@@ -168,7 +168,7 @@ pub enum MirageError {
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
-pub struct MirageSummary {
+pub struct PictureSummary {
     /// The stylized model.
     pub model: FlatGaussians,
     /// The stylized picture, the size of the original.
@@ -178,7 +178,7 @@ pub struct MirageSummary {
 }
 
 /// Loads the picture the configuration names as the run reads it, or the embedded default.
-pub fn original_picture(config: &MirageStylizeConfig) -> Result<Image, MirageError> {
+pub fn original_picture(config: &PictureStylizeConfig) -> Result<Image, PictureStylizeError> {
     match &config.picture {
         Some(path) => Ok(load_picture(path, config.background, config.max_width)?),
         None => Ok(default_picture()),
@@ -186,7 +186,7 @@ pub fn original_picture(config: &MirageStylizeConfig) -> Result<Image, MirageErr
 }
 
 /// How the picture is named in errors: its file, or "the default picture".
-fn picture_label(config: &MirageStylizeConfig) -> String {
+fn picture_label(config: &PictureStylizeConfig) -> String {
     config
         .picture
         .as_ref()
@@ -197,9 +197,9 @@ fn picture_label(config: &MirageStylizeConfig) -> String {
 
 /// Runs the 2D stylization `config` describes (see the module documentation).
 pub fn run(
-    config: &MirageStylizeConfig,
+    config: &PictureStylizeConfig,
     options: &RunOptions,
-) -> Result<MirageSummary, MirageError> {
+) -> Result<PictureSummary, PictureStylizeError> {
     gs_stylize::drive::run(config, options)
 }
 
@@ -221,14 +221,14 @@ impl PictureInput {
     }
 }
 
-impl MirageStylizeConfig {
+impl PictureStylizeConfig {
     /// `model` seen by the front camera at `picture`'s size, over the run's background.
     fn front_view(
         &self,
         model: &mut FlatGaussians,
         picture: &Image,
         run: &PreparedRun,
-    ) -> Result<Image, MirageError> {
+    ) -> Result<Image, PictureStylizeError> {
         Ok(render_picture(
             model,
             picture.width,
@@ -241,12 +241,12 @@ impl MirageStylizeConfig {
     }
 }
 
-impl Modality for MirageStylizeConfig {
+impl Modality for PictureStylizeConfig {
     type Model = FlatGaussians;
     type Inputs = PictureInput;
     type Fit = Fitted;
-    type Outputs = MirageSummary;
-    type Error = MirageError;
+    type Outputs = PictureSummary;
+    type Error = PictureStylizeError;
 
     const BASE_MODEL: &'static str = BASE_PLY;
     const FITTED: &'static str = "the picture";
@@ -255,14 +255,14 @@ impl Modality for MirageStylizeConfig {
         &self.style
     }
 
-    fn out(&self) -> Result<&Path, MirageError> {
+    fn out(&self) -> Result<&Path, PictureStylizeError> {
         self.out_path()
     }
 
     /// Checks the background and the learning rates.
-    fn check(&self) -> Result<(), MirageError> {
+    fn check(&self) -> Result<(), PictureStylizeError> {
         if self.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
-            return Err(MirageError::Config(format!(
+            return Err(PictureStylizeError::Config(format!(
                 "background: {:?} must have channels in [0, 1] (--background R,G,B)",
                 self.background
             )));
@@ -277,7 +277,7 @@ impl Modality for MirageStylizeConfig {
 
     /// The picture's size from its header: two views (the picture and its mirror image) at
     /// its size once shrunk to `max_width`; none for the embedded default.
-    fn input_pixels(&self) -> Result<Option<InputPixels>, MirageError> {
+    fn input_pixels(&self) -> Result<Option<InputPixels>, PictureStylizeError> {
         let Some(path) = &self.picture else {
             return Ok(None);
         };
@@ -298,7 +298,7 @@ impl Modality for MirageStylizeConfig {
         &self,
         _run: &PreparedRun,
         _model: Option<&Path>,
-    ) -> Result<PictureInput, MirageError> {
+    ) -> Result<PictureInput, PictureStylizeError> {
         let picture = original_picture(self)?;
         let label = picture_label(self);
         check_patches_fit(
@@ -317,7 +317,7 @@ impl Modality for MirageStylizeConfig {
         path: &Path,
         _own_fit: bool,
         _run: &PreparedRun,
-    ) -> Result<FlatGaussians, MirageError> {
+    ) -> Result<FlatGaussians, PictureStylizeError> {
         let file = read_model(path)?;
         let (w, h) = (inputs.picture.width, inputs.picture.height);
         if let Some(warning) = check_fits_picture(path, &file, w, h, self.distance, &inputs.label)?
@@ -336,7 +336,7 @@ impl Modality for MirageStylizeConfig {
         inputs: &PictureInput,
         run: &PreparedRun,
         on_step: OnStep<'_>,
-    ) -> Result<Fitted, MirageError> {
+    ) -> Result<Fitted, PictureStylizeError> {
         Ok(fit_logged(
             &inputs.picture,
             &self.fit_settings(),
@@ -351,7 +351,7 @@ impl Modality for MirageStylizeConfig {
         inputs: &PictureInput,
         fit: Fitted,
         path: &Path,
-    ) -> Result<FlatGaussians, MirageError> {
+    ) -> Result<FlatGaussians, PictureStylizeError> {
         write_model(path, &fit.model, &inputs.fitted_to(self.distance))?;
         write_psnr_plot(&self.out_path()?.join(FIT_PSNR_PNG), &fit.psnr)?;
         Ok(fit.model)
@@ -363,7 +363,7 @@ impl Modality for MirageStylizeConfig {
         inputs: &PictureInput,
         model: &mut FlatGaussians,
         run: &PreparedRun,
-    ) -> Result<Option<f64>, MirageError> {
+    ) -> Result<Option<f64>, PictureStylizeError> {
         let render = self.front_view(model, &inputs.picture, run)?;
         Ok(Some(psnr(&render, &inputs.picture)))
     }
@@ -374,7 +374,7 @@ impl Modality for MirageStylizeConfig {
         inputs: &mut PictureInput,
         model: FlatGaussians,
         _run: &PreparedRun,
-    ) -> Result<StylizeJob<FlatGaussians>, MirageError> {
+    ) -> Result<StylizeJob<FlatGaussians>, PictureStylizeError> {
         let PictureInput { picture, label } = inputs;
         let views = mirror_views(picture.width, picture.height, self.distance)
             .map_err(StylizeError::from)?;
@@ -399,7 +399,7 @@ impl Modality for MirageStylizeConfig {
         inputs: PictureInput,
         outcome: StylizeOutcome<FlatGaussians>,
         run: &PreparedRun,
-    ) -> Result<MirageSummary, MirageError> {
+    ) -> Result<PictureSummary, PictureStylizeError> {
         let out = run.out();
         let fitted_to = inputs.fitted_to(self.distance);
         let picture = inputs.picture;
@@ -409,14 +409,14 @@ impl Modality for MirageStylizeConfig {
         let save = |image: &Image, name: &str| {
             image
                 .save_png(&out.join(name))
-                .map_err(|e| MirageError::from(StylizeError::from(e)))
+                .map_err(|e| PictureStylizeError::from(StylizeError::from(e)))
         };
         save(&stylized, STYLIZED_PNG)?;
         save(&Image::side_by_side(&[&picture, &stylized]), PREVIEW_PNG)?;
         if self.picture.is_none() {
             save(&picture, ORIGINAL_PNG)?;
         }
-        Ok(MirageSummary {
+        Ok(PictureSummary {
             model,
             stylized,
             losses: outcome.losses.iter().map(|l| l.total).collect(),

@@ -342,11 +342,11 @@ fn a_failed_fit_leaves_no_folder() {
 #[test]
 fn the_configuration_file_holds_the_paper_defaults() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../configs/2d.json");
-    let from_file: base_mirage::stylize::MirageStylizeConfig =
+    let from_file: base_mirage::stylize::PictureStylizeConfig =
         gs_stylize::resolve_config(Some(&path), &[]).unwrap();
     assert_eq!(
         from_file,
-        base_mirage::stylize::MirageStylizeConfig::default()
+        base_mirage::stylize::PictureStylizeConfig::default()
     );
     assert_eq!(from_file.style.lambda_background, 0.0);
     assert_eq!(
@@ -358,7 +358,7 @@ fn the_configuration_file_holds_the_paper_defaults() {
         Some("Starry Night by Vincent van Gogh")
     );
     let preview = path.with_file_name("2d-preview.json");
-    let quick: base_mirage::stylize::MirageStylizeConfig =
+    let quick: base_mirage::stylize::PictureStylizeConfig =
         gs_stylize::resolve_config(Some(&preview), &[]).unwrap();
     quick.style.validate().unwrap();
     assert!(quick.style.steps < from_file.style.steps);

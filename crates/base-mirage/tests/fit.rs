@@ -5,7 +5,7 @@
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
-use base_mirage::fit::{fit, render_picture, FitSettings};
+use base_mirage::fit::{fit, render_picture, PictureFitSettings};
 use base_mirage::mirror::mirrored;
 use gs_core::image_loss::psnr;
 use gs_core::Image;
@@ -42,11 +42,11 @@ const REQUIRED_PSNR: f64 = 35.0;
 
 #[test]
 fn fitting_a_picture_reaches_the_stated_psnr_on_both_cameras() {
-    let settings = FitSettings {
+    let settings = PictureFitSettings {
         gaussians: 2000,
         steps: 600,
         sh_degree: 1,
-        ..FitSettings::default()
+        ..PictureFitSettings::default()
     };
     let (p_front, p_back) = fit_psnr(&Backend::Cpu, &settings);
     assert!(p_front >= REQUIRED_PSNR, "front PSNR {p_front:.2} dB");
@@ -60,11 +60,11 @@ fn fitting_on_the_gpu_reaches_the_psnr_of_the_cpu() {
     let Some(ctx) = test_context(GpuOptions::default()) else {
         return;
     };
-    let settings = FitSettings {
+    let settings = PictureFitSettings {
         gaussians: 600,
         steps: 250,
         sh_degree: 1,
-        ..FitSettings::default()
+        ..PictureFitSettings::default()
     };
     let (cpu_front, cpu_back) = fit_psnr(&Backend::Cpu, &settings);
     let (gpu_front, gpu_back) = fit_psnr(&Backend::Gpu(Arc::new(ctx)), &settings);
@@ -78,7 +78,7 @@ fn fitting_on_the_gpu_reaches_the_psnr_of_the_cpu() {
 }
 
 /// Fits the picture on `backend` and returns the PSNR of the front and the mirror camera.
-fn fit_psnr(backend: &Backend, settings: &FitSettings) -> (f64, f64) {
+fn fit_psnr(backend: &Backend, settings: &PictureFitSettings) -> (f64, f64) {
     let target = picture();
     let mut first_loss = None;
     let mut last_loss = 0.0;
@@ -117,30 +117,30 @@ fn bad_fit_settings_are_named() {
     let target = picture();
     for (settings, field) in [
         (
-            FitSettings {
+            PictureFitSettings {
                 gaussians: 0,
-                ..FitSettings::default()
+                ..PictureFitSettings::default()
             },
             "gaussians",
         ),
         (
-            FitSettings {
+            PictureFitSettings {
                 steps: 0,
-                ..FitSettings::default()
+                ..PictureFitSettings::default()
             },
             "steps",
         ),
         (
-            FitSettings {
+            PictureFitSettings {
                 sh_degree: 4,
-                ..FitSettings::default()
+                ..PictureFitSettings::default()
             },
             "sh_degree",
         ),
         (
-            FitSettings {
+            PictureFitSettings {
                 distance: 0.0,
-                ..FitSettings::default()
+                ..PictureFitSettings::default()
             },
             "distance",
         ),

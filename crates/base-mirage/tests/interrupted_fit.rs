@@ -4,7 +4,7 @@
 use std::sync::atomic::AtomicBool;
 use std::sync::Arc;
 
-use base_mirage::stylize::{run, MirageError, MirageStylizeConfig};
+use base_mirage::stylize::{run, PictureStylizeConfig, PictureStylizeError};
 use gs_stylize::test_support::replay_settings;
 use gs_stylize::{RunOptions, StyleSettings, StylizeError};
 use style_loss::test_models::write_tiny_models;
@@ -14,12 +14,12 @@ fn a_fit_stopped_by_ctrl_c_is_reported_and_writes_nothing() {
     let dir = tempfile::tempdir().unwrap();
     let tiny = write_tiny_models(dir.path());
     let out = dir.path().join("out");
-    let config = MirageStylizeConfig {
+    let config = PictureStylizeConfig {
         out: Some(out.clone()),
         fit_gaussians: 64,
         fit_steps: 40,
         style: replay_settings(StyleSettings::paper_2d(), &tiny, 0, 3),
-        ..MirageStylizeConfig::default()
+        ..PictureStylizeConfig::default()
     };
     let options = RunOptions {
         resume: false,
@@ -30,7 +30,7 @@ fn a_fit_stopped_by_ctrl_c_is_reported_and_writes_nothing() {
     assert!(
         matches!(
             &err,
-            MirageError::Stylize(StylizeError::InterruptedFit { what }) if what == "the picture"
+            PictureStylizeError::Stylize(StylizeError::InterruptedFit { what }) if what == "the picture"
         ),
         "{err}"
     );

@@ -1,7 +1,7 @@
 //! A picture too large for this machine is refused from its header, before it is decoded:
 //! the stored size counts, not only the size it would be shrunk to.
 
-use base_mirage::stylize::{run, MirageStylizeConfig};
+use base_mirage::stylize::{run, PictureStylizeConfig};
 use gs_stylize::test_support::replay_settings;
 use gs_stylize::{RunOptions, StyleSettings};
 use style_loss::test_models::write_tiny_models;
@@ -60,11 +60,11 @@ fn a_picture_too_large_to_decode_is_refused_before_it_is_decoded() {
     let picture = dir.path().join("bomb.png");
     std::fs::write(&picture, png_claiming(200_000, 200_000)).unwrap();
     let out = dir.path().join("out");
-    let config = MirageStylizeConfig {
+    let config = PictureStylizeConfig {
         picture: Some(picture),
         out: Some(out.clone()),
         style: replay_settings(StyleSettings::paper_2d(), &tiny, 0, 3),
-        ..MirageStylizeConfig::default()
+        ..PictureStylizeConfig::default()
     };
     let err = run(&config, &RunOptions::default())
         .unwrap_err()

@@ -9,7 +9,7 @@ use std::ops::ControlFlow;
 use std::time::Instant;
 
 use base_vegas::fit::{
-    fit, mean_psnr, render_frames, training_targets, training_views, FitSettings,
+    fit, mean_psnr, render_frames, training_targets, training_views, VideoFitSettings,
 };
 use base_vegas::init::initial_model;
 use base_vegas::stylize::VideoStylizeConfig;
@@ -86,10 +86,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("| Gaussians | steps | fit time (s) | s / step | mean PSNR (dB) |");
     println!("|---|---|---|---|---|");
     for &count in &counts {
-        let settings = FitSettings {
+        let settings = VideoFitSettings {
             gaussians: count,
             steps,
-            ..FitSettings::default()
+            ..VideoFitSettings::default()
         };
         let start = Instant::now();
         let mut model = fit(&frames, &settings, &Backend::Cpu, |_| {

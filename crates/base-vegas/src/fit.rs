@@ -24,7 +24,7 @@ use crate::init::initial_model;
 
 /// How to fit a video. The defaults are VeGaS's.
 #[derive(Clone, Debug, PartialEq)]
-pub struct FitSettings {
+pub struct VideoFitSettings {
     /// Number of folded Gaussians (fixed for the whole fit and for stylization).
     pub gaussians: usize,
     /// Optimizer steps (one view each).
@@ -39,7 +39,7 @@ pub struct FitSettings {
     pub background: [f32; 3],
 }
 
-impl Default for FitSettings {
+impl Default for VideoFitSettings {
     fn default() -> Self {
         Self {
             gaussians: 100_000,
@@ -107,7 +107,7 @@ pub fn training_targets(frames: &[Image]) -> Vec<Image> {
 }
 
 /// Checks the settings and that there are at least two frames.
-fn check(settings: &FitSettings, frames: &[Image]) -> Result<(), FitError> {
+fn check(settings: &VideoFitSettings, frames: &[Image]) -> Result<(), FitError> {
     check_fit_settings(
         settings.gaussians,
         settings.steps,
@@ -128,7 +128,7 @@ fn check(settings: &FitSettings, frames: &[Image]) -> Result<(), FitError> {
 /// after every step (return `ControlFlow::Break` to stop early).
 pub fn fit<F>(
     frames: &[Image],
-    settings: &FitSettings,
+    settings: &VideoFitSettings,
     backend: &Backend,
     on_step: F,
 ) -> Result<FoldedGaussians, FitError>

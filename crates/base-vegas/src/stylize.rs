@@ -32,7 +32,7 @@ use gs_stylize::{
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    fit, mean_psnr, render_frames, training_targets, training_views, FitError, FitSettings,
+    fit, mean_psnr, render_frames, training_targets, training_views, FitError, VideoFitSettings,
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, VegasFileError, VideoRecord};
@@ -90,7 +90,7 @@ pub struct VideoStylizeConfig {
 
 impl Default for VideoStylizeConfig {
     fn default() -> Self {
-        let fit = FitSettings::default();
+        let fit = VideoFitSettings::default();
         Self {
             video: None,
             model: None,
@@ -109,14 +109,14 @@ impl Default for VideoStylizeConfig {
 
 impl VideoStylizeConfig {
     /// The fit this configuration asks for.
-    pub fn fit_settings(&self) -> FitSettings {
-        FitSettings {
+    pub fn fit_settings(&self) -> VideoFitSettings {
+        VideoFitSettings {
             gaussians: self.fit_gaussians,
             steps: self.fit_steps,
             seed: self.style.seed,
             distance: self.distance,
             background: self.background,
-            ..FitSettings::default()
+            ..VideoFitSettings::default()
         }
     }
 }
@@ -136,7 +136,7 @@ pub fn stylize_rates(feature_lr: f64) -> GroupRates {
 
 /// Why a video run could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum VideoError {
+pub enum VideoStylizeError {
     /// A configuration value out of its range.
     #[error("configuration: {0}")]
     Config(String),
@@ -183,9 +183,9 @@ pub fn model_of_video(
     frames: usize,
     size: (u32, u32),
     distance: f64,
-) -> Result<FoldedGaussians, VideoError> {
+) -> Result<FoldedGaussians, VideoStylizeError> {
     let (model, record) = read_model(path)?;
-    let mismatch = |reason: String| VideoError::ModelMismatch {
+    let mismatch = |reason: String| VideoStylizeError::ModelMismatch {
         path: path.to_path_buf(),
         reason,
     };
@@ -214,7 +214,10 @@ pub fn model_of_video(
 }
 
 /// Runs the video stylization `config` describes (see the module documentation).
-pub fn run(config: &VideoStylizeConfig, options: &RunOptions) -> Result<VideoSummary, VideoError> {
+pub fn run(
+    config: &VideoStylizeConfig,
+    options: &RunOptions,
+) -> Result<VideoSummary, VideoStylizeError> {
     gs_stylize::drive::run(config, options)
 }
 
@@ -236,7 +239,7 @@ impl Modality for VideoStylizeConfig {
     type Inputs = Video;
     type Fit = FoldedGaussians;
     type Outputs = VideoSummary;
-    type Error = VideoError;
+    type Error = VideoStylizeError;
 
     const BASE_MODEL: &'static str = BASE_PLY;
     const FITTED: &'static str = "the video";
@@ -245,21 +248,21 @@ impl Modality for VideoStylizeConfig {
         &self.style
     }
 
-    fn out(&self) -> Result<&Path, VideoError> {
+    fn out(&self) -> Result<&Path, VideoStylizeError> {
         self.out
             .as_deref()
-            .ok_or_else(|| VideoError::Config("out: is required (--out FOLDER)".into()))
+            .ok_or_else(|| VideoStylizeError::Config("out: is required (--out FOLDER)".into()))
     }
 
     /// Checks the video path, the frame rate and the learning rates.
-    fn check(&self) -> Result<(), VideoError> {
+    fn check(&self) -> Result<(), VideoStylizeError> {
         if self.video.is_none() {
-            return Err(VideoError::Config(
+            return Err(VideoStylizeError::Config(
                 "video: is required (--video PATH, a frames folder or a video file)".into(),
             ));
         }
         if !(self.fps.is_finite() && self.fps > 0.0) {
-            return Err(VideoError::Config(format!(
+            return Err(VideoStylizeError::Config(format!(
                 "fps: {} must be positive (--fps)",
                 self.fps
             )));
@@ -275,7 +278,7 @@ impl Modality for VideoStylizeConfig {
     /// A frames folder's sizes from its first frame's header: every frame and its mirror
     /// image at that size once shrunk to `max_width`; none for a video file (ffmpeg decodes
     /// it) or a folder whose first frame's header does not read (the loading reports it).
-    fn input_pixels(&self) -> Result<Option<InputPixels>, VideoError> {
+    fn input_pixels(&self) -> Result<Option<InputPixels>, VideoStylizeError> {
         let Some(path) = self.video.as_deref().filter(|p| p.is_dir()) else {
             return Ok(None);
         };
@@ -293,7 +296,11 @@ impl Modality for VideoStylizeConfig {
     }
 
     /// The frames, checked against the patch size.
-    fn load_inputs(&self, run: &PreparedRun, _model: Option<&Path>) -> Result<Video, VideoError> {
+    fn load_inputs(
+        &self,
+        run: &PreparedRun,
+        _model: Option<&Path>,
+    ) -> Result<Video, VideoStylizeError> {
         let path = self.video.as_deref().expect("checked: the video is given");
         let video = with_loading_progress(run.options().progress, "loading frames", |progress| {
             load_video_with_progress(
@@ -316,10 +323,10 @@ impl Modality for VideoStylizeConfig {
         path: &Path,
         own_fit: bool,
         _run: &PreparedRun,
-    ) -> Result<FoldedGaussians, VideoError> {
+    ) -> Result<FoldedGaussians, VideoStylizeError> {
         let model = model_of_video(path, video.frames.len(), video.size(), self.distance)?;
         if own_fit && model.params().len() != self.fit_gaussians {
-            return Err(VideoError::ModelMismatch {
+            return Err(VideoStylizeError::ModelMismatch {
                 path: path.to_path_buf(),
                 reason: format!(
                     "this run's fit holds {} Gaussians, but --gaussians is {}; resume with \
@@ -341,7 +348,7 @@ impl Modality for VideoStylizeConfig {
         video: &Video,
         run: &PreparedRun,
         on_step: OnStep<'_>,
-    ) -> Result<FoldedGaussians, VideoError> {
+    ) -> Result<FoldedGaussians, VideoStylizeError> {
         Ok(fit(
             &video.frames,
             &self.fit_settings(),
@@ -355,7 +362,7 @@ impl Modality for VideoStylizeConfig {
         video: &Video,
         fit: FoldedGaussians,
         path: &Path,
-    ) -> Result<FoldedGaussians, VideoError> {
+    ) -> Result<FoldedGaussians, VideoStylizeError> {
         write_model(path, &fit, Some(self.record_of(video)))?;
         Ok(fit)
     }
@@ -366,7 +373,7 @@ impl Modality for VideoStylizeConfig {
         video: &Video,
         model: &mut FoldedGaussians,
         run: &PreparedRun,
-    ) -> Result<Option<f64>, VideoError> {
+    ) -> Result<Option<f64>, VideoStylizeError> {
         let (w, h) = video.size();
         let renders = render_frames(model, w, h, self.distance, self.background, run.backend())?;
         Ok(Some(mean_psnr(&renders, &video.frames)))
@@ -378,7 +385,7 @@ impl Modality for VideoStylizeConfig {
         video: &mut Video,
         model: FoldedGaussians,
         _run: &PreparedRun,
-    ) -> Result<StylizeJob<FoldedGaussians>, VideoError> {
+    ) -> Result<StylizeJob<FoldedGaussians>, VideoStylizeError> {
         let (w, h) = video.size();
         let views =
             training_views(w, h, video.frames.len(), self.distance).map_err(StylizeError::from)?;
@@ -408,7 +415,7 @@ impl Modality for VideoStylizeConfig {
         video: Video,
         outcome: StylizeOutcome<FoldedGaussians>,
         run: &PreparedRun,
-    ) -> Result<VideoSummary, VideoError> {
+    ) -> Result<VideoSummary, VideoStylizeError> {
         let out = run.out();
         let (w, h) = video.size();
         let mut model = outcome.model;

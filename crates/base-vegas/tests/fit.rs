@@ -4,7 +4,7 @@
 use std::ops::ControlFlow;
 use std::time::Instant;
 
-use base_vegas::fit::{fit, mean_psnr, render_frames, training_views, FitSettings};
+use base_vegas::fit::{fit, mean_psnr, render_frames, training_views, VideoFitSettings};
 use base_vegas::init::initial_model;
 use gs_core::mirror_pair::plane_half_size;
 use gs_core::model::BaseModel;
@@ -48,11 +48,11 @@ fn clip(frames: usize, w: u32, h: u32) -> Vec<Image> {
 #[test]
 fn fitting_a_small_clip_reaches_the_stated_psnr() {
     let frames = clip(12, 96, 64);
-    let settings = FitSettings {
+    let settings = VideoFitSettings {
         gaussians: 3000,
         steps: 1500,
         seed: 1,
-        ..FitSettings::default()
+        ..VideoFitSettings::default()
     };
     let start = Instant::now();
     let mut model = fit(&frames, &settings, &Backend::Cpu, |_| {

@@ -15,7 +15,7 @@ use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
-use base_3dgs::stylize::{run, Override, StylizeConfig, StylizeError};
+use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Parser, Subcommand, ValueEnum};
 use gs_core::splats::read_splats;
 use gs_stylize::animation::FRAMES_DIR;
@@ -228,7 +228,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     }
     let started = std::time::Instant::now();
     let overrides = args.overrides()?;
-    let config = StylizeConfig::resolve(args.config.as_deref(), &overrides)?;
+    let config = SceneStylizeConfig::resolve(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let last = summary.losses.last().map_or(f32::NAN, |l| l.total);
     println!(

@@ -28,7 +28,7 @@ pub enum BackgroundPixels {
 /// full resolution up to 1600 pixels wide, the stored colours as ground truth, the train and
 /// test views.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
-pub struct StylizeConfig {
+pub struct SceneStylizeConfig {
     /// The trained 3DGS scene (INRIA PLY).
     pub model: Option<PathBuf>,
     /// The dataset folder: NeRF-synthetic when it has `transforms_train.json`, else COLMAP.
@@ -81,7 +81,7 @@ pub struct StylizeConfig {
     pub style: StyleSettings,
 }
 
-impl Default for StylizeConfig {
+impl Default for SceneStylizeConfig {
     fn default() -> Self {
         Self {
             model: None,
@@ -101,9 +101,9 @@ impl Default for StylizeConfig {
     }
 }
 
-impl StylizeConfig {
+impl SceneStylizeConfig {
     /// The configuration in `file` (the defaults when `None`, and for the fields it leaves out)
-    /// with `overrides` applied in order, then checked with [`StylizeConfig::validate`].
+    /// with `overrides` applied in order, then checked with [`SceneStylizeConfig::validate`].
     /// Unknown fields and values of the wrong type are errors naming the field.
     pub fn resolve(file: Option<&Path>, overrides: &[Override]) -> Result<Self, StylizeError> {
         let config: Self = resolve_config(file, overrides)?;
@@ -135,7 +135,7 @@ impl StylizeConfig {
         Ok(())
     }
 
-    /// The required `model` path ([`StylizeConfig::validate`] checked it is set).
+    /// The required `model` path ([`SceneStylizeConfig::validate`] checked it is set).
     pub fn model_path(&self) -> &Path {
         self.model.as_deref().expect("validated: model is set")
     }

@@ -9,6 +9,6 @@
 pub mod config;
 pub mod run;
 
-pub use config::StylizeConfig;
+pub use config::SceneStylizeConfig;
 pub use gs_stylize::{Override, RunOptions, StyleSettings, StylizeError};
-pub use run::{run, RunSummary, STYLIZED_PLY};
+pub use run::{run, SceneSummary, STYLIZED_PLY};

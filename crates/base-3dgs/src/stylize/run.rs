@@ -18,7 +18,7 @@ use gs_stylize::{
 };
 
 use super::config::BackgroundPixels;
-use super::StylizeConfig;
+use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
 
@@ -27,7 +27,7 @@ pub const STYLIZED_PLY: &str = "stylized.ply";
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
-pub struct RunSummary {
+pub struct SceneSummary {
     /// The stylized parameters.
     pub gaussians: GaussianSet,
     /// The losses of every step, including those before a resume.
@@ -41,7 +41,10 @@ pub struct RunSummary {
 /// fresh run refuses an output folder that holds the checkpoint of an unfinished run
 /// ([`gs_stylize::prepare::check_out_folder`]). When [`RunOptions::stop`] is set, the run ends
 /// after the current step with a checkpoint of it and [`StylizeError::Interrupted`].
-pub fn run(config: &StylizeConfig, options: &RunOptions) -> Result<RunSummary, StylizeError> {
+pub fn run(
+    config: &SceneStylizeConfig,
+    options: &RunOptions,
+) -> Result<SceneSummary, StylizeError> {
     gs_stylize::drive::run(config, options)
 }
 
@@ -54,11 +57,11 @@ pub struct SceneInput {
     dataset: Dataset,
 }
 
-impl Modality for StylizeConfig {
+impl Modality for SceneStylizeConfig {
     type Model = GaussianSet;
     type Inputs = SceneInput;
     type Fit = GaussianSet;
-    type Outputs = RunSummary;
+    type Outputs = SceneSummary;
     type Error = StylizeError;
 
     /// Unused: a 3D run starts from a trained scene, always given.
@@ -195,7 +198,7 @@ impl Modality for StylizeConfig {
         scene: SceneInput,
         outcome: StylizeOutcome<GaussianSet>,
         run: &PreparedRun,
-    ) -> Result<RunSummary, StylizeError> {
+    ) -> Result<SceneSummary, StylizeError> {
         let out = run.out();
         let SceneInput {
             ply,
@@ -220,7 +223,7 @@ impl Modality for StylizeConfig {
             dataset.background,
             run.backend(),
         )?;
-        Ok(RunSummary {
+        Ok(SceneSummary {
             gaussians: stylized.gaussians,
             losses: outcome.losses,
             stylized_ply,
@@ -235,7 +238,7 @@ fn no_fit() -> StylizeError {
 
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
 /// `sparse/` is; the progress of its pictures shown when `show`.
-fn load_dataset(config: &StylizeConfig, show: bool) -> Result<Dataset, StylizeError> {
+fn load_dataset(config: &SceneStylizeConfig, show: bool) -> Result<Dataset, StylizeError> {
     let data = config.data_path();
     with_loading_progress(show, "loading pictures", |progress| {
         let options = LoadOptions {
@@ -258,7 +261,7 @@ fn load_dataset(config: &StylizeConfig, show: bool) -> Result<Dataset, StylizeEr
 
 /// The dataset in `data` with `options`, of the layout found there.
 fn load_layout(
-    config: &StylizeConfig,
+    config: &SceneStylizeConfig,
     data: &Path,
     options: &LoadOptions,
 ) -> Result<Dataset, StylizeError> {

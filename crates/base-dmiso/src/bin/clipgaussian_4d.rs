@@ -13,10 +13,10 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use base_dmiso::evaluation::evaluate_test_views;
-use base_dmiso::fit::{self, mean_psnr, render_views, FitSettings};
+use base_dmiso::fit::{self, mean_psnr, render_views, DynamicSceneFitSettings};
 use base_dmiso::model_file;
 use base_dmiso::stylize::{
-    background_of, load_scene, read_model, run, sweep_views, DynamicStylizeConfig, MODEL_FILE,
+    background_of, load_scene, read_model, run, sweep_views, DynamicSceneStylizeConfig, MODEL_FILE,
     SWEEP_DIR, SWEEP_MP4,
 };
 use base_dmiso::{interpolate, Dmiso};
@@ -158,28 +158,28 @@ struct FitArgs {
     out: PathBuf,
     /// Random starting Gaussians (cores), as the other binaries' `--gaussians` (`--points` is
     /// the same flag).
-    #[arg(long = "gaussians", visible_alias = "points", default_value_t = FitSettings::default().points)]
+    #[arg(long = "gaussians", visible_alias = "points", default_value_t = DynamicSceneFitSettings::default().points)]
     points: usize,
     /// Optimizer steps of the whole fit.
-    #[arg(long, default_value_t = FitSettings::default().steps)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().steps)]
     steps: u64,
     /// Steps of the static warm-up.
-    #[arg(long, default_value_t = FitSettings::default().warm_up)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().warm_up)]
     warm_up: u64,
     /// The step at which the sub-Gaussians are created.
-    #[arg(long, default_value_t = FitSettings::default().subs_from)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().subs_from)]
     subs_from: u64,
     /// Cores kept with sub-Gaussians.
-    #[arg(long, default_value_t = FitSettings::default().sub_cores)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().sub_cores)]
     sub_cores: usize,
     /// Sub-Gaussians per core.
-    #[arg(long, default_value_t = FitSettings::default().subs_per_core)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().subs_per_core)]
     subs_per_core: usize,
     /// Consecutive views per step, as `stylize --batch-size` (`--batch` is the same flag).
-    #[arg(long = "batch-size", visible_alias = "batch", default_value_t = FitSettings::default().batch)]
+    #[arg(long = "batch-size", visible_alias = "batch", default_value_t = DynamicSceneFitSettings::default().batch)]
     batch: usize,
     /// Width of the deformation network.
-    #[arg(long, default_value_t = FitSettings::default().deform_width)]
+    #[arg(long, default_value_t = DynamicSceneFitSettings::default().deform_width)]
     deform_width: usize,
     /// Seed of the starting model, the cores drawn and the view order.
     #[arg(long, default_value_t = 0)]
@@ -314,7 +314,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         ("fit_gaussians", args.points.map(Into::into)),
         ("fit_steps", args.fit_steps.map(Into::into)),
     ])?;
-    let config: DynamicStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
+    let config: DynamicSceneStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
     println!(
@@ -345,7 +345,7 @@ const FIT_PREVIEW_FPS: f64 = 12.0;
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     let bg = Background::from_rgb(args.background);
-    let settings = FitSettings {
+    let settings = DynamicSceneFitSettings {
         points: args.points,
         steps: args.steps,
         warm_up: args.warm_up,
@@ -356,7 +356,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         deform_width: args.deform_width,
         seed: args.seed,
         background: bg.rgb(),
-        ..FitSettings::default()
+        ..DynamicSceneFitSettings::default()
     };
     settings.check()?;
     let device = net_device(args.device)?;

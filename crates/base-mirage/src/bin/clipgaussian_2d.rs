@@ -15,12 +15,12 @@ use std::process::ExitCode;
 
 use base_mirage::evaluation::evaluate_picture;
 use base_mirage::fit::{
-    fit_logged, render_picture, write_psnr_plot, FitSettings, Fitted, FIT_PSNR_PNG,
+    fit_logged, render_picture, write_psnr_plot, Fitted, PictureFitSettings, FIT_PSNR_PNG,
 };
 use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
-use base_mirage::stylize::{run, MirageStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
+use base_mirage::stylize::{run, PictureStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
 use clap::{Args, Parser, Subcommand};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
@@ -166,13 +166,13 @@ struct FitArgs {
     #[arg(long)]
     out: PathBuf,
     /// Number of Gaussians.
-    #[arg(long, default_value_t = FitSettings::default().gaussians)]
+    #[arg(long, default_value_t = PictureFitSettings::default().gaussians)]
     gaussians: usize,
     /// Optimizer steps.
-    #[arg(long, default_value_t = FitSettings::default().steps)]
+    #[arg(long, default_value_t = PictureFitSettings::default().steps)]
     steps: u64,
     /// SH degree of the colours (0 to 3).
-    #[arg(long, default_value_t = FitSettings::default().sh_degree)]
+    #[arg(long, default_value_t = PictureFitSettings::default().sh_degree)]
     sh_degree: usize,
     /// Seed of the initial Gaussians and the camera order.
     #[arg(long, default_value_t = 0)]
@@ -268,7 +268,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     if let Some(model) = &args.model {
         check_model(Binary::Picture, "--model", model)?;
     }
-    let config: MirageStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
+    let config: PictureStylizeConfig = resolve_config(args.config.as_deref(), &args.overrides()?)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
     println!(
@@ -289,14 +289,14 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
-    let settings = FitSettings {
+    let settings = PictureFitSettings {
         gaussians: args.gaussians,
         steps: args.steps,
         sh_degree: args.sh_degree,
         seed: args.seed,
         background: args.background,
         distance: args.distance,
-        ..FitSettings::default()
+        ..PictureFitSettings::default()
     };
     let command = FitCommand {
         out: &args.out,
@@ -336,7 +336,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 fn write_fit(
     picture: &Image,
     fitted: Fitted,
-    settings: &FitSettings,
+    settings: &PictureFitSettings,
     backend: &Backend,
     out: &Path,
 ) -> Result<f64, Box<dyn Error>> {

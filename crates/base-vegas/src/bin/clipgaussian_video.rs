@@ -12,7 +12,7 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use base_vegas::evaluation::evaluate_video;
-use base_vegas::fit::{self, mean_psnr, render_frames, FitSettings, FrameRenderer};
+use base_vegas::fit::{self, mean_psnr, render_frames, FrameRenderer, VideoFitSettings};
 use base_vegas::folded::{interpolate, view_time};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
@@ -148,10 +148,10 @@ struct FitArgs {
     #[arg(long)]
     out: PathBuf,
     /// Number of folded Gaussians.
-    #[arg(long, default_value_t = FitSettings::default().gaussians)]
+    #[arg(long, default_value_t = VideoFitSettings::default().gaussians)]
     gaussians: usize,
     /// Optimizer steps (one frame or mirror frame each).
-    #[arg(long, default_value_t = FitSettings::default().steps)]
+    #[arg(long, default_value_t = VideoFitSettings::default().steps)]
     steps: u64,
     /// Seed of the initial Gaussians and the view order.
     #[arg(long, default_value_t = 0)]
@@ -282,12 +282,12 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 
 /// Runs `fit`.
 fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
-    let settings = FitSettings {
+    let settings = VideoFitSettings {
         gaussians: args.gaussians,
         steps: args.steps,
         seed: args.seed,
         background: args.background,
-        ..FitSettings::default()
+        ..VideoFitSettings::default()
     };
     if !(args.fps.is_finite() && args.fps > 0.0) {
         return Err(format!("--fps {} must be positive", args.fps).into());

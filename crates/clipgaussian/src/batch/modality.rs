@@ -25,7 +25,7 @@ pub enum ModalityKind {
     Scene,
     /// Dynamic scenes (D-MiSo), as `clipgaussian-4d stylize`.
     #[serde(rename = "4d")]
-    Dynamic,
+    DynamicScene,
 }
 
 /// Configuration fields that name files or folders: relative paths in a manifest are taken
@@ -49,7 +49,7 @@ impl ModalityKind {
             Self::Picture => "2d",
             Self::Video => "video",
             Self::Scene => "3d",
-            Self::Dynamic => "4d",
+            Self::DynamicScene => "4d",
         }
     }
 
@@ -61,10 +61,14 @@ impl ModalityKind {
         overrides: &[Override],
     ) -> Result<Value, StylizeError> {
         match self {
-            Self::Picture => resolved::<base_mirage::stylize::MirageStylizeConfig>(file, overrides),
+            Self::Picture => {
+                resolved::<base_mirage::stylize::PictureStylizeConfig>(file, overrides)
+            }
             Self::Video => resolved::<base_vegas::stylize::VideoStylizeConfig>(file, overrides),
-            Self::Scene => resolved::<base_3dgs::stylize::StylizeConfig>(file, overrides),
-            Self::Dynamic => resolved::<base_dmiso::stylize::DynamicStylizeConfig>(file, overrides),
+            Self::Scene => resolved::<base_3dgs::stylize::SceneStylizeConfig>(file, overrides),
+            Self::DynamicScene => {
+                resolved::<base_dmiso::stylize::DynamicSceneStylizeConfig>(file, overrides)
+            }
         }
     }
 
@@ -80,7 +84,7 @@ impl ModalityKind {
             Self::Scene => {
                 base_3dgs::stylize::run(&parse(config)?, options)?;
             }
-            Self::Dynamic => {
+            Self::DynamicScene => {
                 base_dmiso::stylize::run(&parse(config)?, options)?;
             }
         }
@@ -104,7 +108,9 @@ impl ModalityKind {
             )?),
             Self::Video => json(base_vegas::evaluation::evaluate_run(&parse(config)?, clip)?),
             Self::Scene => json(base_3dgs::evaluation::evaluate_run(&parse(config)?, clip)?),
-            Self::Dynamic => json(base_dmiso::evaluation::evaluate_run(&parse(config)?, clip)?),
+            Self::DynamicScene => {
+                json(base_dmiso::evaluation::evaluate_run(&parse(config)?, clip)?)
+            }
         })
     }
 }

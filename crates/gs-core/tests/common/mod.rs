@@ -1,4 +1,5 @@
-//! Scenes and helpers shared by gs-core's integration tests.
+//! Scenes and helpers shared by gs-core's integration tests and gs-wgpu's (which include this
+//! file by path).
 #![allow(dead_code)]
 
 use gs_core::{Camera, GaussianSet, Real};

@@ -2,6 +2,8 @@
 //! and on each degenerate case of docs/conventions.md. Needs a GPU adapter (lavapipe in CI):
 //! without one these tests fail, naming what to install.
 
+/// The scenes and GPU contexts of gs-core's rasterizer tests, shared with them.
+#[path = "../../gs-core/tests/common/mod.rs"]
 mod common;
 
 use common::{

@@ -3,6 +3,8 @@
 //! native f32 atomics and with the compare-exchange fallback, and with frozen groups. Needs a
 //! GPU adapter (lavapipe in CI): without one these tests fail, naming what to install.
 
+/// The scenes and GPU contexts of gs-core's rasterizer tests, shared with them.
+#[path = "../../gs-core/tests/common/mod.rs"]
 mod common;
 
 use common::{

@@ -3,6 +3,8 @@
 //! Adam moments on the GPU; it must converge as on the cpu backend, and a non-finite gradient
 //! must stop it as on the cpu, the parameters unchanged. Needs a GPU adapter (lavapipe in CI).
 
+/// The scenes and GPU contexts of gs-core's rasterizer tests, shared with them.
+#[path = "../../gs-core/tests/common/mod.rs"]
 mod common;
 
 use std::ops::ControlFlow;

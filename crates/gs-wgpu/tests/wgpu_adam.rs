@@ -1,6 +1,8 @@
 //! The wgpu backend's Adam against gs-core's cpu Adam, step for step, with a frozen group and
 //! both schedules. Needs a GPU adapter (lavapipe in CI).
 
+/// The scenes and GPU contexts of gs-core's rasterizer tests, shared with them.
+#[path = "../../gs-core/tests/common/mod.rs"]
 mod common;
 
 use common::{gpu, gpu_with, weights};
