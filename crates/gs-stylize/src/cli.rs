@@ -1,8 +1,8 @@
 //! The command-line pieces every modality's binary shares: the `stylize` flags (flattened into
 //! its own arguments with clap) and their translation into configuration overrides (the flags
 //! first, then each `--set field=value` in order), the `interpolate` subcommand, and the exit
-//! of every subcommand ([`exit_code`]: the error line and the exit code), and the parsing of
-//! the command line ([`parse_command_line`]). Model
+//! of every subcommand ([`exit_code`]: the error line and the exit code); the binaries'
+//! skeleton is [`crate::binary`]. Model
 //! files the binaries cannot find are reported with these flags ([`crate::weights`]); outputs
 //! are checked before any work ([`crate::writable`]).
 
@@ -22,24 +22,6 @@ use crate::interrupt::{stop_on_ctrl_c, INTERRUPTED_EXIT};
 use crate::model_kind::{check_model, Binary};
 use crate::writable::check_output_file;
 use crate::{Override, RunOptions, StylizeError};
-
-/// Parses the command line into `T` as `T::parse()` does, except that a negative number after
-/// a flag is that flag's value: `--steps -1` is refused naming `--steps` (and `--time -0.5`
-/// by its own check) instead of read as an unknown flag `-1`.
-pub fn parse_command_line<T: clap::Parser>() -> T {
-    parse_from(std::env::args_os()).unwrap_or_else(|e| e.exit())
-}
-
-/// [`parse_command_line`] of `args` (the program's name first).
-pub fn parse_from<T: clap::Parser>(
-    args: impl IntoIterator<Item = impl Into<std::ffi::OsString> + Clone>,
-) -> Result<T, clap::Error> {
-    let command = T::command()
-        .allow_negative_numbers(true)
-        .mut_subcommands(|c| c.allow_negative_numbers(true));
-    let matches = command.try_get_matches_from(args)?;
-    T::from_arg_matches(&matches)
-}
 
 /// The style, the model files, the device and the run controls of `stylize`.
 #[derive(clap::Args, Debug)]
@@ -300,40 +282,5 @@ pub fn exit_code(result: Result<(), Box<dyn Error>>) -> ExitCode {
         ExitCode::from(INTERRUPTED_EXIT)
     } else {
         ExitCode::FAILURE
-    }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[derive(clap::Parser, Debug)]
-    struct Line {
-        #[command(subcommand)]
-        command: Sub,
-    }
-
-    #[derive(clap::Subcommand, Debug)]
-    enum Sub {
-        Run {
-            #[arg(long)]
-            steps: u64,
-            #[arg(long)]
-            t: f64,
-        },
-    }
-
-    #[test]
-    fn a_negative_number_is_the_value_of_the_flag_before_it() {
-        let e = parse_from::<Line>(["x", "run", "--steps", "-1", "--t", "0"]).unwrap_err();
-        assert!(
-            e.to_string().contains("invalid value '-1' for '--steps"),
-            "{e}"
-        );
-        let line = parse_from::<Line>(["x", "run", "--steps", "2", "--t", "-0.5"]).unwrap();
-        let Sub::Run { steps, t } = line.command;
-        assert_eq!((steps, t), (2, -0.5));
-        let e = parse_from::<Line>(["x", "run", "--bogus"]).unwrap_err();
-        assert!(e.to_string().contains("--bogus"), "{e}");
     }
 }

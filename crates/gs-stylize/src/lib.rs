@@ -13,6 +13,8 @@
 //! - [`config`]: the shared settings, the flat configuration files and `field=value` overrides.
 //! - [`rates`]: the learning rates of a modality's configuration, keyed by group name.
 //! - [`background`]: background colours as users write them (`white`, `black`, `R,G,B`).
+//! - [`binary`]: the one skeleton of the four binaries: their subcommands, parsing and
+//!   dispatch, over a modality's [`binary::ModalityBinary`].
 //! - [`cli`]: the `stylize` flags every binary shares, `interpolate`, the exit code.
 //! - [`animation`]: frames, GIF previews and mp4 videos of a sequence of renders.
 //! - [`summary`]: the summary a finished run prints and writes as `summary.json`.
@@ -35,6 +37,7 @@
 
 pub mod animation;
 pub mod background;
+pub mod binary;
 pub mod checkpoint;
 pub mod cli;
 pub mod config;

@@ -16,13 +16,12 @@ use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
-use clap::{Args, Parser, Subcommand, ValueEnum};
+use clap::{Args, Subcommand, ValueEnum};
 use gs_core::splats::read_splats;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{
-    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
-};
+use gs_stylize::binary::ModalityBinary;
+use gs_stylize::cli::{path_value, EvalStyleArgs, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
@@ -31,69 +30,18 @@ use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_wgpu::backend::DeviceChoice;
 
-/// Command-line arguments.
-#[derive(Parser, Debug)]
-#[command(
-    name = "clipgaussian-3d",
-    version,
-    about = "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, eval"
-)]
-struct Cli {
-    /// What to do.
-    #[command(subcommand)]
-    command: Command,
-}
-
-/// The subcommands.
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
-    ///
-    /// Writes to `--out`: stylized.ply (the stylized scene, in the input's PLY format with its
-    /// extra properties), preview.png (before | after of the first `preview_views` entry; the
-    /// others preview_viewNNN.png),
-    /// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The
-    /// configuration comes from `--config` (the paper's defaults when absent), then the flags,
-    /// then every `--set field=value` in order. The output folder is checked before the scene
-    /// is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
-    /// quits at once); run the same command with `--resume` to continue. A finished run's
-    /// checkpoint does not hold the folder: the same command runs again, and `--resume`
-    /// continues only with more `--steps`.
-    Stylize(StylizeArgs),
-    /// Render a PLY from the cameras of a dataset or from one camera file.
-    ///
-    /// Writes into `--out`'s `frames/` (the folder of rendered views in every binary) one PNG
-    /// per dataset view, named after the dataset's image, or `render.png` for a camera file.
-    /// Inputs are checked before the output folder is created.
-    Render(RenderArgs),
-    /// Interpolate two PLY files of the same Gaussians parameter by parameter.
-    ///
-    /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
-    /// normalized). The output has A's extra properties and PLY format.
-    Interpolate(InterpolateArgs),
-    /// Write a scene in a splat format viewers open.
-    ///
-    /// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ,
-    /// .splat) and writes --out in the format its name ends in (or --format): INRIA PLY (every
-    /// property kept), compressed PLY, SPZ, .splat (degree-0 colour only) or glTF (.glb, turned
-    /// y-up).
-    Export(ExportArgs),
-    /// The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of renders.
-    ///
-    /// Scores (x100) a folder of renders against a folder of ground truths and writes them as
-    /// JSON. Pictures (.png, .jpg, .jpeg) are paired by file name and taken in
-    /// file-name order: CLIP-CONS and CLIP-F compare consecutive pictures in that order.
-    Eval(EvalArgs),
-    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
-    ///
-    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
-    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
-    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
-    /// tolerance, time) and exits with an error when a part differs.
-    Selftest(SelftestArgs),
-}
-
-/// Arguments of `stylize`.
+/// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
+///
+/// Writes to `--out`: stylized.ply (the stylized scene, in the input's PLY format with its
+/// extra properties), preview.png (before | after of the first `preview_views` entry; the
+/// others preview_viewNNN.png),
+/// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The
+/// configuration comes from `--config` (the paper's defaults when absent), then the flags,
+/// then every `--set field=value` in order. The output folder is checked before the scene
+/// is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
+/// quits at once); run the same command with `--resume` to continue. A finished run's
+/// checkpoint does not hold the folder: the same command runs again, and `--resume`
+/// continues only with more `--steps`.
 #[derive(Args, Debug)]
 struct StylizeArgs {
     /// JSON configuration (configs/3d.json, configs/3d-light.json).
@@ -156,7 +104,11 @@ enum SplitArg {
     Val,
 }
 
-/// Arguments of `render`.
+/// Render a PLY from the cameras of a dataset or from one camera file.
+///
+/// Writes into `--out`'s `frames/` (the folder of rendered views in every binary) one PNG
+/// per dataset view, named after the dataset's image, or `render.png` for a camera file.
+/// Inputs are checked before the output folder is created.
 #[derive(Args, Debug)]
 struct RenderArgs {
     /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the same
@@ -199,7 +151,11 @@ struct RenderArgs {
     device: DeviceChoice,
 }
 
-/// Arguments of `eval`.
+/// The paper's CLIP metrics (CLIP-S, CLIP-SIM, CLIP-CONS, CLIP-F) of renders.
+///
+/// Scores (x100) a folder of renders against a folder of ground truths and writes them as
+/// JSON. Pictures (.png, .jpg, .jpeg) are paired by file name and taken in
+/// file-name order: CLIP-CONS and CLIP-F compare consecutive pictures in that order.
 #[derive(Args, Debug)]
 struct EvalArgs {
     /// The folder of rendered pictures.
@@ -302,18 +258,61 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// The 3D binary's own subcommands: none yet (a 3D fit is to come).
+#[derive(Subcommand, Debug)]
+enum SceneCommand {}
+
+/// Write a scene in a splat format viewers open.
+///
+/// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ,
+/// .splat) and writes --out in the format its name ends in (or --format): INRIA PLY (every
+/// property kept), compressed PLY, SPZ, .splat (degree-0 colour only) or glTF (.glb, turned
+/// y-up).
+#[derive(Args, Debug)]
+struct SceneExportArgs {
+    #[command(flatten)]
+    export: ExportArgs,
+}
+
+/// The 3D binary's part of the skeleton every binary shares.
+struct Scene;
+
+impl ModalityBinary for Scene {
+    const BINARY: Binary = Binary::Scene;
+    const ABOUT: &'static str =
+        "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, eval";
+    const INTERPOLATE_HELP: &'static str =
+        "Interpolate two PLY files of the same Gaussians parameter by parameter.\n\nWrites \
+         `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions \
+         normalized). The output has A's extra properties and PLY format.";
+
+    type Stylize = StylizeArgs;
+    type Own = SceneCommand;
+    type Render = RenderArgs;
+    type Export = SceneExportArgs;
+    type Eval = EvalArgs;
+
+    fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+        stylize(args)
+    }
+
+    fn own(command: &SceneCommand) -> Result<(), Box<dyn Error>> {
+        match *command {}
+    }
+
+    fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+        into_new_folder(&args.out, || render(args))
+    }
+
+    fn export(args: &SceneExportArgs) -> Result<(), Box<dyn Error>> {
+        export(&args.export)
+    }
+
+    fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+        eval(args)
+    }
+}
+
 fn main() -> ExitCode {
-    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
-    style_loss::memory::keep_freed_memory();
-    style_loss::cpu_threads::candle_ops_on_calling_thread();
-    let cli: Cli = gs_stylize::cli::parse_command_line();
-    let result = match &cli.command {
-        Command::Stylize(args) => stylize(args),
-        Command::Render(args) => into_new_folder(&args.out, || render(args)),
-        Command::Interpolate(args) => args.run(Binary::Scene).map(|line| println!("{line}")),
-        Command::Export(args) => export(args),
-        Command::Eval(args) => eval(args),
-        Command::Selftest(args) => args.run(Vec::new()),
-    };
-    exit_code(result)
+    gs_stylize::binary::main::<Scene>()
 }

@@ -21,88 +21,38 @@ use base_dmiso::stylize::{
 };
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Subcommand};
 use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{
-    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
-};
+use gs_stylize::binary::ModalityBinary;
+use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
+use gs_stylize::selftest::ExtraCheck;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
 use style_loss::compute_device;
 
-/// Command-line arguments.
-#[derive(Parser, Debug)]
-#[command(
-    name = "clipgaussian-4d",
-    version,
-    about = "CLIPGaussian on dynamic scenes (D-MiSo): stylize, fit, render, interpolate, eval"
-)]
-struct Cli {
-    /// What to do.
-    #[command(subcommand)]
-    command: Command,
-}
-
-/// The subcommands.
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Stylize a dynamic scene with a text or picture style.
-    ///
-    /// Fits the D-NeRF scene first unless --model gives a fitted one (our model.safetensors, or
-    /// the folder D-MiSo's train.py wrote), then stylizes it with the paper's 4D settings
-    /// (configs/4d.json; configs/4d-keep-background.json keeps the background): batches of 4
-    /// consecutive views, the sub-Gaussians, triangles, deformation network and time-rotation
-    /// layer trained together. Writes to --out: model.safetensors, base.safetensors (the fit,
-    /// when this run fitted), frames/ (the test views at their times), preview.png (the first
-    /// sweep frame, original | stylized), sweep/ with preview.gif
-    /// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), losses.json,
-    /// losses.png, config.json and checkpoint/. The configuration comes from --config (the
-    /// paper's defaults when absent), then the flags, then every --set field=value in order.
-    /// Ctrl-C stops after the current step and writes a checkpoint; run the same command with
-    /// --resume to continue.
-    Stylize(Box<StylizeArgs>),
-    /// Fit a D-NeRF scene with D-MiSo (no stylization).
-    ///
-    /// Writes to --out: model.safetensors, frames/ (the test views at their times; the
-    /// training views, when the scene has no test split), preview.png (the first of them:
-    /// picture | fit) and preview.gif (all of them, picture | fit), and prints their mean PSNR.
-    Fit(FitArgs),
-    /// Render a model at the views and times of a dataset split, and optionally through time
-    /// from the split's first camera (sweep/ and, with ffmpeg, sweep.mp4).
-    Render(RenderArgs),
-    /// Interpolate two models of the same cores parameter by parameter: `(1 - t) A + t B` of
-    /// every Gaussian parameter and every network weight, e.g. between two stylizations of one
-    /// fit.
-    Interpolate(InterpolateArgs),
-    /// Write the Gaussians at a time (or at many) in a splat format viewers open.
-    ///
-    /// The Gaussians the model renders at --time (in [0, 1]), written to --out in the format
-    /// its name ends in (or --format); with --times N, the Gaussians at N evenly spaced times
-    /// from 0 to 1, one file each, into the folder --out (00000.ply, ...; --format picks the
-    /// format, default ply).
-    Export(DynamicExportArgs),
-    /// Score rendered test views against the dataset's test pictures: CLIP-S, CLIP-SIM,
-    /// CLIP-CONS and CLIP-F over the views in time order (CLIP ViT-L/14, x100).
-    Eval(EvalArgs),
-    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
-    ///
-    /// Runs the render and its backward, Adam, each loss term and the loss gradient, and the deformation network forward and backward on
-    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
-    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
-    /// tolerance, time) and exits with an error when a part differs.
-    Selftest(SelftestArgs),
-}
-
-/// Arguments of `stylize`.
+/// Stylize a dynamic scene with a text or picture style.
+///
+/// Fits the D-NeRF scene first unless --model gives a fitted one (our model.safetensors, or
+/// the folder D-MiSo's train.py wrote), then stylizes it with the paper's 4D settings
+/// (configs/4d.json; configs/4d-keep-background.json keeps the background): batches of 4
+/// consecutive views, the sub-Gaussians, triangles, deformation network and time-rotation
+/// layer trained together. Writes to --out: model.safetensors, base.safetensors (the fit,
+/// when this run fitted), frames/ (the test views at their times), preview.png (the first
+/// sweep frame, original | stylized), sweep/ with preview.gif
+/// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), losses.json,
+/// losses.png, config.json and checkpoint/. The configuration comes from --config (the
+/// paper's defaults when absent), then the flags, then every --set field=value in order.
+/// Ctrl-C stops after the current step and writes a checkpoint; run the same command with
+/// --resume to continue.
 #[derive(Args, Debug)]
 struct StylizeArgs {
     /// JSON configuration (configs/4d.json is the paper's).
@@ -145,6 +95,17 @@ struct StylizeArgs {
     /// `<out>/base.safetensors`.
     #[command(flatten)]
     style: StyleArgs,
+}
+
+/// The 4D binary's own subcommands.
+#[derive(Subcommand, Debug)]
+enum DynamicSceneCommand {
+    /// Fit a D-NeRF scene with D-MiSo (no stylization).
+    ///
+    /// Writes to --out: model.safetensors, frames/ (the test views at their times; the
+    /// training views, when the scene has no test split), preview.png (the first of them:
+    /// picture | fit) and preview.gif (all of them, picture | fit), and prints their mean PSNR.
+    Fit(FitArgs),
 }
 
 /// Arguments of `fit`.
@@ -200,7 +161,8 @@ struct FitArgs {
     quiet: bool,
 }
 
-/// Arguments of `render`.
+/// Render a model at the views and times of a dataset split, and optionally through time
+/// from the split's first camera (sweep/ and, with ffmpeg, sweep.mp4).
 #[derive(Args, Debug)]
 struct RenderArgs {
     /// The model: a .safetensors file, or the folder D-MiSo's train.py wrote.
@@ -237,9 +199,14 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `export`.
+/// Write the Gaussians at a time (or at many) in a splat format viewers open.
+///
+/// The Gaussians the model renders at --time (in [0, 1]), written to --out in the format
+/// its name ends in (or --format); with --times N, the Gaussians at N evenly spaced times
+/// from 0 to 1, one file each, into the folder --out (00000.ply, ...; --format picks the
+/// format, default ply).
 #[derive(Args, Debug)]
-struct DynamicExportArgs {
+struct DynamicSceneExportArgs {
     #[command(flatten)]
     export: ExportArgs,
     /// The time to export, in [0, 1].
@@ -251,7 +218,8 @@ struct DynamicExportArgs {
     times: Option<usize>,
 }
 
-/// Arguments of `eval`.
+/// Score rendered test views against the dataset's test pictures: CLIP-S, CLIP-SIM,
+/// CLIP-CONS and CLIP-F over the views in time order (CLIP ViT-L/14, x100).
 #[derive(Args, Debug)]
 struct EvalArgs {
     /// The rendered test views (e.g. `<stylize out>/frames`): 00000.png ... in the order of
@@ -489,7 +457,7 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
 }
 
 /// Runs `export`.
-fn export(args: &DynamicExportArgs) -> Result<(), Box<dyn Error>> {
+fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
     let export = &args.export;
     export.check(Binary::DynamicScene, args.times.is_some())?;
     let times: Vec<f64> = match args.times {
@@ -520,19 +488,64 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// The 4D binary's part of the skeleton every binary shares.
+struct DynamicScene;
+
+impl ModalityBinary for DynamicScene {
+    const BINARY: Binary = Binary::DynamicScene;
+    const ABOUT: &'static str =
+        "CLIPGaussian on dynamic scenes (D-MiSo): stylize, fit, render, interpolate, eval";
+    const INTERPOLATE_HELP: &'static str =
+        "Interpolate two models of the same cores parameter by parameter: `(1 - t) A + t B` \
+         of every Gaussian parameter and every network weight, e.g. between two stylizations \
+         of one fit.";
+    const SELFTEST_HELP: Option<&'static str> = Some(
+        "Check the device: every part of a stylization on small seeded inputs against the \
+         cpu.\n\nRuns the render and its backward, Adam, each loss term and the loss \
+         gradient, and the deformation network forward and backward on the chosen device and \
+         compares each with the cpu f32 result (on the cpu, the loss with its generic \
+         composition, the one a GPU runs); prints a table (part, device, max error, \
+         tolerance, time) and exits with an error when a part differs.",
+    );
+
+    type Stylize = StylizeArgs;
+    type Own = DynamicSceneCommand;
+    type Render = RenderArgs;
+    type Export = DynamicSceneExportArgs;
+    type Eval = EvalArgs;
+
+    fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+        stylize(args)
+    }
+
+    fn own(command: &DynamicSceneCommand) -> Result<(), Box<dyn Error>> {
+        match command {
+            DynamicSceneCommand::Fit(args) => fit(args),
+        }
+    }
+
+    fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+        into_new_folder(&args.out, || render(args))
+    }
+
+    fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+        interpolate_models(args)
+    }
+
+    fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
+        export(args)
+    }
+
+    fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+        eval(args)
+    }
+
+    /// The deformation network's forward and backward.
+    fn self_checks() -> Vec<ExtraCheck> {
+        vec![Box::new(base_dmiso::deform_net::self_check)]
+    }
+}
+
 fn main() -> ExitCode {
-    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
-    style_loss::memory::keep_freed_memory();
-    style_loss::cpu_threads::candle_ops_on_calling_thread();
-    let cli: Cli = gs_stylize::cli::parse_command_line();
-    let result = match &cli.command {
-        Command::Stylize(args) => stylize(args),
-        Command::Fit(args) => fit(args),
-        Command::Render(args) => into_new_folder(&args.out, || render(args)),
-        Command::Interpolate(args) => interpolate_models(args),
-        Command::Export(args) => export(args),
-        Command::Eval(args) => eval(args),
-        Command::Selftest(args) => args.run(vec![Box::new(base_dmiso::deform_net::self_check)]),
-    };
-    exit_code(result)
+    gs_stylize::binary::main::<DynamicScene>()
 }

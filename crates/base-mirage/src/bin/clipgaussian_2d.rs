@@ -21,14 +21,13 @@ use base_mirage::mirror::DEFAULT_DISTANCE;
 use base_mirage::model_file::{read_model, write_model, FittedTo};
 use base_mirage::picture::load_picture;
 use base_mirage::stylize::{run, PictureStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Subcommand};
 use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{
-    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
-};
+use gs_stylize::binary::ModalityBinary;
+use gs_stylize::cli::{path_value, EvalStyleArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
@@ -38,72 +37,21 @@ use gs_stylize::writable::check_output_file;
 use gs_stylize::{open_device, resolve_config, Override, StylizeError};
 use gs_wgpu::backend::{Backend, DeviceChoice};
 
-/// Command-line arguments.
-#[derive(Parser, Debug)]
-#[command(
-    name = "clipgaussian-2d",
-    version,
-    about = "CLIPGaussian on pictures (MiraGe flat Gaussians): stylize, fit, render, interpolate, eval"
-)]
-struct Cli {
-    /// What to do.
-    #[command(subcommand)]
-    command: Command,
-}
-
-/// The subcommands.
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Stylize a picture with a text or picture style ("Starry Night by Vincent van Gogh" and
-    /// the embedded default picture when none is given).
-    ///
-    /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
-    /// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
-    /// picture), preview.png (original | stylized), model.ply (the stylized model),
-    /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
-    /// original.png (the embedded default picture,
-    /// when no --picture is given), losses.json, losses.png, config.json and checkpoint/. The
-    /// configuration comes from --config (the paper's defaults when absent), then the flags,
-    /// then every --set field=value in order. Every input is checked before the fit starts; a
-    /// --model fitted to a picture of another aspect ratio is refused. Ctrl-C stops after the
-    /// current step and writes a checkpoint (a second Ctrl-C quits at once); run the same
-    /// command with --resume to continue. A finished run's checkpoint does not hold the
-    /// folder: the same command runs again, and --resume continues only with more --steps.
-    Stylize(Box<StylizeArgs>),
-    /// Fit a picture with flat Gaussians (no stylization).
-    ///
-    /// Writes to --out: model.ply (MiraGe PLY, recording the picture's size), fitted.png (the
-    /// front camera's render, the size of the picture), preview.png (picture | fit) and
-    /// fit_psnr.png (the PSNR of each step, front and mirror camera), and prints the PSNR.
-    Fit(FitArgs),
-    /// Render a model from the front camera (or the mirror camera) to a PNG.
-    Render(RenderArgs),
-    /// Interpolate two models of the same Gaussians parameter by parameter.
-    ///
-    /// Writes `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions
-    /// normalized), e.g. between two stylizations of one fit.
-    Interpolate(InterpolateArgs),
-    /// Write a model's Gaussians in a splat format viewers open.
-    ///
-    /// The flat Gaussians as they render (in the plane z = 0 of the front camera), written in
-    /// the format --out's name ends in (or --format): INRIA PLY, SuperSplat compressed PLY, SPZ,
-    /// .splat or glTF (.glb).
-    Export(ExportArgs),
-    /// The paper's CLIP metrics (CLIP-S, CLIP-SIM) of a stylized picture against the original.
-    ///
-    /// Scores (x100) the picture `--renders` against `--gt` for the style and writes them as
-    /// JSON (CLIP-CONS and CLIP-F need several views: null here).
-    Eval(EvalArgs),
-    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
-    ///
-    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
-    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
-    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
-    /// tolerance, time) and exits with an error when a part differs.
-    Selftest(SelftestArgs),
-}
-
-/// Arguments of `stylize`.
+/// Stylize a picture with a text or picture style ("Starry Night by Vincent van Gogh" and
+/// the embedded default picture when none is given).
+///
+/// Fits the picture first unless --model gives a fitted one, then stylizes it with the
+/// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
+/// picture), preview.png (original | stylized), model.ply (the stylized model),
+/// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
+/// original.png (the embedded default picture,
+/// when no --picture is given), losses.json, losses.png, config.json and checkpoint/. The
+/// configuration comes from --config (the paper's defaults when absent), then the flags,
+/// then every --set field=value in order. Every input is checked before the fit starts; a
+/// --model fitted to a picture of another aspect ratio is refused. Ctrl-C stops after the
+/// current step and writes a checkpoint (a second Ctrl-C quits at once); run the same
+/// command with --resume to continue. A finished run's checkpoint does not hold the
+/// folder: the same command runs again, and --resume continues only with more --steps.
 #[derive(Args, Debug)]
 struct StylizeArgs {
     /// JSON configuration (configs/2d.json is the paper's; configs/2d-preview.json is quick).
@@ -156,6 +104,28 @@ impl StylizeArgs {
     }
 }
 
+/// The 2D binary's own subcommands.
+#[derive(Subcommand, Debug)]
+enum PictureCommand {
+    /// Fit a picture with flat Gaussians (no stylization).
+    ///
+    /// Writes to --out: model.ply (MiraGe PLY, recording the picture's size), fitted.png (the
+    /// front camera's render, the size of the picture), preview.png (picture | fit) and
+    /// fit_psnr.png (the PSNR of each step, front and mirror camera), and prints the PSNR.
+    Fit(FitArgs),
+}
+
+/// Write a model's Gaussians in a splat format viewers open.
+///
+/// The flat Gaussians as they render (in the plane z = 0 of the front camera), written in
+/// the format --out's name ends in (or --format): INRIA PLY, SuperSplat compressed PLY, SPZ,
+/// .splat or glTF (.glb).
+#[derive(Args, Debug)]
+struct PictureExportArgs {
+    #[command(flatten)]
+    export: ExportArgs,
+}
+
 /// Arguments of `fit`.
 #[derive(Args, Debug)]
 struct FitArgs {
@@ -195,7 +165,7 @@ struct FitArgs {
     quiet: bool,
 }
 
-/// Arguments of `render`.
+/// Render a model from the front camera (or the mirror camera) to a PNG.
 #[derive(Args, Debug)]
 struct RenderArgs {
     /// The model, MiraGe PLY.
@@ -226,7 +196,10 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `eval`.
+/// The paper's CLIP metrics (CLIP-S, CLIP-SIM) of a stylized picture against the original.
+///
+/// Scores (x100) the picture `--renders` against `--gt` for the style and writes them as
+/// JSON (CLIP-CONS and CLIP-F need several views: null here).
 #[derive(Args, Debug)]
 struct EvalArgs {
     /// The stylized picture (e.g. `<stylize out>/stylized.png`).
@@ -410,19 +383,48 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// The 2D binary's part of the skeleton every binary shares.
+struct Picture;
+
+impl ModalityBinary for Picture {
+    const BINARY: Binary = Binary::Picture;
+    const ABOUT: &'static str =
+        "CLIPGaussian on pictures (MiraGe flat Gaussians): stylize, fit, render, interpolate, \
+         eval";
+    const INTERPOLATE_HELP: &'static str =
+        "Interpolate two models of the same Gaussians parameter by parameter.\n\nWrites `(1 - t) A \
+         + t B` (opacities in logit space, scales in log space, quaternions normalized), e.g. \
+         between two stylizations of one fit.";
+
+    type Stylize = StylizeArgs;
+    type Own = PictureCommand;
+    type Render = RenderArgs;
+    type Export = PictureExportArgs;
+    type Eval = EvalArgs;
+
+    fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+        stylize(args)
+    }
+
+    fn own(command: &PictureCommand) -> Result<(), Box<dyn Error>> {
+        match command {
+            PictureCommand::Fit(args) => fit(args),
+        }
+    }
+
+    fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+        render(args)
+    }
+
+    fn export(args: &PictureExportArgs) -> Result<(), Box<dyn Error>> {
+        export(&args.export)
+    }
+
+    fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+        eval(args)
+    }
+}
+
 fn main() -> ExitCode {
-    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
-    style_loss::memory::keep_freed_memory();
-    style_loss::cpu_threads::candle_ops_on_calling_thread();
-    let cli: Cli = gs_stylize::cli::parse_command_line();
-    let result = match &cli.command {
-        Command::Stylize(args) => stylize(args),
-        Command::Fit(args) => fit(args),
-        Command::Render(args) => render(args),
-        Command::Eval(args) => eval(args),
-        Command::Interpolate(args) => args.run(Binary::Picture).map(|line| println!("{line}")),
-        Command::Export(args) => export(args),
-        Command::Selftest(args) => args.run(Vec::new()),
-    };
-    exit_code(result)
+    gs_stylize::binary::main::<Picture>()
 }

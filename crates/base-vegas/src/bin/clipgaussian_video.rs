@@ -17,7 +17,7 @@ use base_vegas::folded::{interpolate, view_time};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::video_input::{load_video_with_progress, DEFAULT_FOLDER_FPS};
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, Subcommand};
 use gs_core::mirror_pair::DEFAULT_DISTANCE;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
@@ -25,9 +25,8 @@ use gs_stylize::animation::{
     STYLIZED_MP4,
 };
 use gs_stylize::background::parse_background;
-use gs_stylize::cli::{
-    exit_code, path_value, EvalStyleArgs, InterpolateArgs, SelftestArgs, StyleArgs,
-};
+use gs_stylize::binary::ModalityBinary;
+use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -37,69 +36,18 @@ use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
 
-/// Command-line arguments.
-#[derive(Parser, Debug)]
-#[command(
-    name = "clipgaussian-video",
-    version,
-    about = "CLIPGaussian on videos (VeGaS folded Gaussians): stylize, fit, render, interpolate, eval"
-)]
-struct Cli {
-    /// What to do.
-    #[command(subcommand)]
-    command: Command,
-}
-
-/// The subcommands.
-#[derive(Subcommand, Debug)]
-enum Command {
-    /// Stylize a video with a text or picture style.
-    ///
-    /// Fits the video first unless --model gives a fitted one, then stylizes its colours with
-    /// the paper's video settings (configs/video.json; configs/video-light.json is the light
-    /// variant). Writes to --out: frames/00000.png ... (the stylized frames, the size of the
-    /// video), preview.png (the first frame, original | stylized), preview.gif (original |
-    /// stylized, animated), stylized.mp4 (when ffmpeg is
-    /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
-    /// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
-    /// --config (the paper's defaults when absent), then the flags, then every --set
-    /// field=value in order. Ctrl-C stops after the current step and writes a checkpoint; run
-    /// the same command with --resume to continue.
-    Stylize(Box<StylizeArgs>),
-    /// Fit a video with VeGaS folded Gaussians (no stylization).
-    ///
-    /// Writes to --out: model.ply (VeGaS PLY, recording the frame size and rate), frames/ (the
-    /// fitted frames), preview.png (the first frame, original | fit), preview.gif (original |
-    /// fit, animated) and prints the mean PSNR over the frames.
-    Fit(FitArgs),
-    /// Render every frame of a model to a folder (frames/ and, with ffmpeg, stylized.mp4).
-    Render(RenderArgs),
-    /// Interpolate two models of the same Gaussians and frames parameter by parameter.
-    ///
-    /// Writes `(1 - t) A + t B` of every stored value, e.g. between two stylizations of one fit.
-    Interpolate(InterpolateArgs),
-    /// Write the Gaussians of a frame (or of every frame) in a splat format viewers open.
-    ///
-    /// The Gaussians of --frame as they render, written to --out in the format its name ends
-    /// in (or --format); with --all-frames, one file per frame into the folder --out
-    /// (00000.ply, ...; --format picks the format, default ply).
-    Export(VideoExportArgs),
-    /// Score stylized frames against the original video: CLIP-S, CLIP-SIM, CLIP-CONS and
-    /// CLIP-F over consecutive frames (CLIP ViT-L/14, x100), and temporal consistency: the RMSE
-    /// between frames 1 and 7 apart (short and long range, values in [0, 1]) of the stylized
-    /// and of the original video. The paper warps frames along the optical flow before the
-    /// RMSE; these are unwarped (see docs), to be compared with the original's.
-    Eval(EvalArgs),
-    /// Check the device: every part of a stylization on small seeded inputs against the cpu.
-    ///
-    /// Runs the render and its backward, Adam, each loss term and the loss gradient on
-    /// the chosen device and compares each with the cpu f32 result (on the cpu, the loss with
-    /// its generic composition, the one a GPU runs); prints a table (part, device, max error,
-    /// tolerance, time) and exits with an error when a part differs.
-    Selftest(SelftestArgs),
-}
-
-/// Arguments of `stylize`.
+/// Stylize a video with a text or picture style.
+///
+/// Fits the video first unless --model gives a fitted one, then stylizes its colours with
+/// the paper's video settings (configs/video.json; configs/video-light.json is the light
+/// variant). Writes to --out: frames/00000.png ... (the stylized frames, the size of the
+/// video), preview.png (the first frame, original | stylized), preview.gif (original |
+/// stylized, animated), stylized.mp4 (when ffmpeg is
+/// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
+/// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
+/// --config (the paper's defaults when absent), then the flags, then every --set
+/// field=value in order. Ctrl-C stops after the current step and writes a checkpoint; run
+/// the same command with --resume to continue.
 #[derive(Args, Debug)]
 struct StylizeArgs {
     /// JSON configuration (configs/video.json is the paper's).
@@ -136,6 +84,17 @@ struct StylizeArgs {
     /// `<out>/base.ply`.
     #[command(flatten)]
     style: StyleArgs,
+}
+
+/// The video binary's own subcommands.
+#[derive(Subcommand, Debug)]
+enum VideoCommand {
+    /// Fit a video with VeGaS folded Gaussians (no stylization).
+    ///
+    /// Writes to --out: model.ply (VeGaS PLY, recording the frame size and rate), frames/ (the
+    /// fitted frames), preview.png (the first frame, original | fit), preview.gif (original |
+    /// fit, animated) and prints the mean PSNR over the frames.
+    Fit(FitArgs),
 }
 
 /// Arguments of `fit`.
@@ -175,7 +134,7 @@ struct FitArgs {
     quiet: bool,
 }
 
-/// Arguments of `render`.
+/// Render every frame of a model to a folder (frames/ and, with ffmpeg, stylized.mp4).
 #[derive(Args, Debug)]
 struct RenderArgs {
     /// The model, VeGaS PLY.
@@ -204,7 +163,11 @@ struct RenderArgs {
     out: PathBuf,
 }
 
-/// Arguments of `export`.
+/// Write the Gaussians of a frame (or of every frame) in a splat format viewers open.
+///
+/// The Gaussians of --frame as they render, written to --out in the format its name ends
+/// in (or --format); with --all-frames, one file per frame into the folder --out
+/// (00000.ply, ...; --format picks the format, default ply).
 #[derive(Args, Debug)]
 struct VideoExportArgs {
     #[command(flatten)]
@@ -217,7 +180,11 @@ struct VideoExportArgs {
     all_frames: bool,
 }
 
-/// Arguments of `eval`.
+/// Score stylized frames against the original video: CLIP-S, CLIP-SIM, CLIP-CONS and
+/// CLIP-F over consecutive frames (CLIP ViT-L/14, x100), and temporal consistency: the RMSE
+/// between frames 1 and 7 apart (short and long range, values in [0, 1]) of the stylized
+/// and of the original video. The paper warps frames along the optical flow before the
+/// RMSE; these are unwarped (see docs), to be compared with the original's.
 #[derive(Args, Debug)]
 struct EvalArgs {
     /// The stylized frames (a folder, e.g. `<stylize out>/frames`, or a video file).
@@ -472,19 +439,52 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
+/// The video binary's part of the skeleton every binary shares.
+struct Video;
+
+impl ModalityBinary for Video {
+    const BINARY: Binary = Binary::Video;
+    const ABOUT: &'static str =
+        "CLIPGaussian on videos (VeGaS folded Gaussians): stylize, fit, render, interpolate, \
+         eval";
+    const INTERPOLATE_HELP: &'static str =
+        "Interpolate two models of the same Gaussians and frames parameter by \
+         parameter.\n\nWrites `(1 - t) A + t B` of every stored value, e.g. between two \
+         stylizations of one fit.";
+
+    type Stylize = StylizeArgs;
+    type Own = VideoCommand;
+    type Render = RenderArgs;
+    type Export = VideoExportArgs;
+    type Eval = EvalArgs;
+
+    fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
+        stylize(args)
+    }
+
+    fn own(command: &VideoCommand) -> Result<(), Box<dyn Error>> {
+        match command {
+            VideoCommand::Fit(args) => fit(args),
+        }
+    }
+
+    fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
+        into_new_folder(&args.out, || render(args))
+    }
+
+    fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+        interpolate_models(args)
+    }
+
+    fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
+        export(args)
+    }
+
+    fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
+        eval(args)
+    }
+}
+
 fn main() -> ExitCode {
-    // A step frees and re-allocates gigabytes of tensors: keep them in the process.
-    style_loss::memory::keep_freed_memory();
-    style_loss::cpu_threads::candle_ops_on_calling_thread();
-    let cli: Cli = gs_stylize::cli::parse_command_line();
-    let result = match &cli.command {
-        Command::Stylize(args) => stylize(args),
-        Command::Fit(args) => fit(args),
-        Command::Render(args) => into_new_folder(&args.out, || render(args)),
-        Command::Interpolate(args) => interpolate_models(args),
-        Command::Export(args) => export(args),
-        Command::Eval(args) => eval(args),
-        Command::Selftest(args) => args.run(Vec::new()),
-    };
-    exit_code(result)
+    gs_stylize::binary::main::<Video>()
 }
