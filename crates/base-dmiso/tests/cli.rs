@@ -191,7 +191,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
 
     // Interpolation of the fit and its stylization: the Gaussians and the network's weights.
     let half = dir.path().join("half.safetensors");
-    run(bin()
+    let said = run(bin()
         .args(["interpolate", "--a"])
         .arg(fitted.join("model.safetensors"))
         .args([
@@ -203,6 +203,9 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
             s(&half),
         ]));
     let blended = load(&half);
+    let count = format!("({} Gaussians, t = 0.5)", blended.len());
+    let said = String::from_utf8_lossy(&said.stdout);
+    assert!(said.contains(&count), "{count} in {said}");
     for g in [group::DC, group::DEFORM] {
         let (a, b, m) = (
             &base.params().groups[g],
@@ -466,13 +469,17 @@ fn help_configs_and_eval() {
         im.save_png(&renders.join(format!("{i:05}.png"))).unwrap();
     }
     let metrics = dir.path().join("metrics.json");
-    run(bin()
+    let table = run(bin()
         .args(["eval", "--renders", s(&renders), "--gt", s(&data)])
         .args(["--style-prompt", "a red fire"])
         .args(["--clip-config", s(&models.clip_config)])
         .args(["--clip-weights", s(&models.clip_weights)])
         .args(["--tokenizer", s(&models.tokenizer)])
         .args(["--out", s(&metrics)]));
+    let table = String::from_utf8_lossy(&table.stdout);
+    for line in ["views:     3", "CLIP-S:    ", "CLIP-F:    100.0"] {
+        assert!(table.contains(line), "{line} in {table}");
+    }
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
     assert_eq!(m["views"], 3);

@@ -24,6 +24,23 @@ pub struct VideoMetrics {
     pub temporal: TemporalConsistency,
 }
 
+impl VideoMetrics {
+    /// The table `eval` prints: the CLIP metrics as every binary prints them, then the
+    /// temporal consistency (`n/a` where the video is too short for the range).
+    pub fn lines(&self) -> String {
+        let rmse = |v: Option<f64>| v.map_or("n/a (too few frames)".into(), |v| format!("{v:.4}"));
+        let t = &self.temporal;
+        format!(
+            "{}short-range RMSE: {} (original {})\nlong-range RMSE:  {} (original {})\n",
+            self.clip.lines(),
+            rmse(t.short_range_rmse),
+            rmse(t.original_short_range_rmse),
+            rmse(t.long_range_rmse),
+            rmse(t.original_long_range_rmse)
+        )
+    }
+}
+
 /// Scores the stylized frames `renders` (a folder of frames or a video file) against the
 /// original `video` of as many frames, read at the renders' width when wider (as the run
 /// that made them shrank them), transparent pixels over `background` in both.

@@ -167,7 +167,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     assert_ne!(stylized.params().sh_dc, base.params().sh_dc);
 
     let mix = dir.path().join("mix.ply");
-    run(bin()
+    let said = run(bin()
         .args(["interpolate", "--a", s(&fitted.join("model.ply"))])
         .args([
             "--b",
@@ -178,6 +178,9 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
             s(&mix),
         ]));
     let (mixed, _) = read_model(&mix).unwrap();
+    let count = format!("({} Gaussians, t = 0.5)", mixed.params().len());
+    let said = String::from_utf8_lossy(&said.stdout);
+    assert!(said.contains(&count), "{count} in {said}");
     let (a, b) = (base.params().sh_dc[0], stylized.params().sh_dc[0]);
     assert!((mixed.params().sh_dc[0] - 0.5 * (a + b)).abs() < 1e-6);
 
@@ -206,9 +209,11 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     assert!(inside.join("base.ply").is_file());
     let mut cmd = bin();
     stylize_args(&mut cmd, &models, 6);
-    run(cmd
+    let resumed = run(cmd
         .args(["--video", s(&clip), "--out", s(&inside), "--resume"])
         .args(["--gaussians", "200", "--fit-steps", "20"]));
+    let said = String::from_utf8_lossy(&resumed.stdout);
+    assert!(said.contains("resuming from step 3 of 6 ("), "{said}");
     let losses: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(inside.join("losses.json")).unwrap())
             .unwrap();
@@ -353,7 +358,16 @@ fn eval_scores_stylized_frames_against_the_video() {
         cmd
     };
     // The video against itself: CLIP-F is 100, and the temporal numbers are the original's.
-    run(&mut eval(&clip));
+    let table = run(&mut eval(&clip));
+    let table = String::from_utf8_lossy(&table.stdout);
+    for line in [
+        "views:     6",
+        "CLIP-F:    100.0",
+        "short-range RMSE: 0.",
+        "long-range RMSE:  ",
+    ] {
+        assert!(table.contains(line), "{line} in {table}");
+    }
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&metrics).unwrap()).unwrap();
     assert_eq!(m["views"], FRAMES);

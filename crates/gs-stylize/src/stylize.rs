@@ -194,6 +194,12 @@ impl PreparedRun {
             }
             objective.set_rng(saved.rng);
             losses = saved.losses;
+            println!(
+                "resuming from step {} of {} ({})",
+                saved.step,
+                settings.steps,
+                checkpoint::checkpoint_dir(out).display()
+            );
         }
 
         if !options.resume {

@@ -29,9 +29,10 @@ use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
 use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand};
+use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
+use gs_stylize::outputs::{create_folder, into_new_folder, write_pair, PREVIEW_PNG};
 use gs_stylize::selftest::ExtraCheck;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
@@ -452,7 +453,12 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
         &args.out,
         model_file::recorded_background(&args.a)?,
     )?;
-    println!("wrote {} (t = {})", args.out.display(), args.t);
+    println!(
+        "wrote {} ({} Gaussians, t = {})",
+        args.out.display(),
+        blended.len(),
+        args.t
+    );
     Ok(())
 }
 
@@ -482,8 +488,8 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &args.style.scoring(),
     )
     .map_err(|e| e as Box<dyn Error>)?;
-    println!("{}", serde_json::to_string_pretty(&metrics)?);
-    write_json(&args.out, &metrics)?;
+    print!("{}", metrics.lines());
+    write_metrics(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());
     Ok(())
 }

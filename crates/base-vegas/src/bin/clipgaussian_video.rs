@@ -395,7 +395,12 @@ fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
     let (b, _) = read_model(&args.b)?;
     let blended = interpolate(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
     write_model(&args.out, &blended, record)?;
-    println!("wrote {} (t = {})", args.out.display(), args.t);
+    println!(
+        "wrote {} ({} Gaussians, t = {})",
+        args.out.display(),
+        blended.params().len(),
+        args.t
+    );
     Ok(())
 }
 
@@ -433,7 +438,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
         &args.style.scoring(),
     )
     .map_err(|e| e as Box<dyn Error>)?;
-    println!("{}", serde_json::to_string_pretty(&metrics)?);
+    print!("{}", metrics.lines());
     write_json(&args.out, &metrics)?;
     println!("wrote {}", args.out.display());
     Ok(())
