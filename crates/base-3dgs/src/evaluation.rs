@@ -20,7 +20,7 @@ use gs_wgpu::backend::OpenDevice;
 use crate::dataset::nerf_synthetic::{self, Split};
 use crate::dataset::{colmap, Background, Layout, LoadOptions};
 use crate::render_views::render_names;
-use crate::stylize::{SceneStylizeConfig, StylizeError, STYLIZED_PLY};
+use crate::stylize::{SceneStylizeConfig, StylizeError, MODEL_PLY};
 
 /// The folder of a finished run's output where [`evaluate_run`] writes its renders of the
 /// test views (named after their pictures, with `.png`).
@@ -120,7 +120,7 @@ pub fn evaluate_folders(
     )
 }
 
-/// Scores the finished run of `config`: its `stylized.ply` rendered (on the run's device,
+/// Scores the finished run of `config`: its `model.ply` rendered (on the run's device,
 /// over its background) from the views a test would use, written into `out/test_views/` and
 /// scored as written (as `eval` would score that folder) against their pictures as the run
 /// loads them (its background, `resolution` and `max_width`), with the run's style and source
@@ -148,7 +148,7 @@ pub fn evaluate_run(
         Some(Layout::Colmap) => colmap::load(data, &options)?,
         None => return Err(format!("dataset {}: {}", data.display(), Layout::LOOKED_FOR).into()),
     };
-    let stylized = read_splats(&out.join(STYLIZED_PLY))?.gaussians;
+    let stylized = read_splats(&out.join(MODEL_PLY))?.gaussians;
     // A lost device is the run's kind of error (worth running again), not a bad input.
     let backend = config.style.device.open().map_err(StylizeError::Device)?;
     let renderer = backend.renderer(&stylized).map_err(StylizeError::Device)?;

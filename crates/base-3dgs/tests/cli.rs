@@ -631,7 +631,7 @@ fn eval_refuses_an_empty_prompt_and_names_the_flag_of_a_missing_model_file() {
 fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
     let help = succeeds(&["stylize", "--help"]);
     for text in [
-        "stylized.ply",
+        "model.ply",
         "preview.png",
         "losses.json",
         "losses.png",

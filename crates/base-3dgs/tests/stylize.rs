@@ -434,7 +434,7 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     );
     assert!(e.to_string().contains("--resume"), "{e}");
     assert_eq!(checkpoint::load(&out).unwrap().step, 1);
-    assert!(!out.join("stylized.ply").exists());
+    assert!(!out.join("model.ply").exists());
     let e = run(&stopped, &quiet()).unwrap_err().to_string();
     assert!(
         e.contains("unfinished run") && e.contains("--resume"),
@@ -706,7 +706,7 @@ fn the_binary_takes_flags_and_set_overrides() {
         serde_json::from_str(&std::fs::read_to_string(out.join(CONFIG_JSON)).unwrap()).unwrap();
     assert_eq!((written.style.steps, written.style.num_patches), (2, 2));
     assert_eq!(
-        read_ply(&out.join("stylized.ply")).unwrap().gaussians.len(),
+        read_ply(&out.join("model.ply")).unwrap().gaussians.len(),
         80
     );
 }

@@ -16,7 +16,7 @@ use base_dmiso::Dmiso;
 use candle_core::Device;
 use gs_core::dataset::Background;
 use gs_stylize::test_support::{
-    cpu_selftest_table, fails, path_str as s, succeeds as run, tiny_style_flags,
+    cpu_selftest_table, fails, fit_json_psnr, path_str as s, succeeds as run, tiny_style_flags,
 };
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 
@@ -89,6 +89,7 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         text.contains("mean PSNR") && text.contains("50 cores of 3 sub-Gaussians"),
         "{text}"
     );
+    fit_json_psnr(&fitted, 40);
     assert_eq!(count_pngs(&fitted.join("frames")), 3);
     for preview in ["preview.png", "preview.gif"] {
         assert!(fitted.join(preview).is_file(), "the fit writes {preview}");

@@ -10,7 +10,7 @@ use base_mirage::model_file::FittedTo;
 use gs_core::ply::read_ply;
 use gs_core::GaussianSet;
 use gs_stylize::test_support::{
-    cpu_selftest_table, fails, path_str as s, succeeds as run, tiny_style_flags,
+    cpu_selftest_table, fails, fit_json_psnr, path_str as s, succeeds as run, tiny_style_flags,
 };
 use gs_wgpu::backend::ALLOW_SOFTWARE_GPU;
 use gs_wgpu::{AdapterChoice, GpuContext};
@@ -75,7 +75,8 @@ fn fit_then_stylize_from_file_to_file() {
         .args(["--gaussians", "400", "--steps", "60", "--sh-degree", "1"])
         .args(["--background", "white"]));
     let text = String::from_utf8_lossy(&out.stdout);
-    assert!(text.contains("PSNR"), "{text}");
+    let psnr = fit_json_psnr(&fit_dir, 60);
+    assert!(text.contains(&format!("PSNR {psnr:.2} dB")), "{text}");
     let base = read_ply(&fit_dir.join("model.ply")).unwrap();
     assert_eq!((base.gaussians.len(), base.gaussians.sh_degree()), (400, 1));
     assert_eq!(png_size(&fit_dir.join("fitted.png")), (W, H));

@@ -8,7 +8,7 @@ use std::process::{Command, Output};
 
 use base_vegas::model_file::read_model;
 use gs_stylize::test_support::{
-    cpu_selftest_table, fails, path_str as s, succeeds as run, tiny_style_flags,
+    cpu_selftest_table, fails, fit_json_psnr, path_str as s, succeeds as run, tiny_style_flags,
 };
 use style_loss::test_models::{write_tiny_models, TinyModelFiles};
 
@@ -85,8 +85,9 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
     let fitted = dir.path().join("fitted");
     let out = fit_video(&clip, &fitted, 300, 60);
     let text = String::from_utf8_lossy(&out.stdout);
+    let psnr = fit_json_psnr(&fitted, 60);
     assert!(
-        text.contains("mean PSNR") && text.contains("6 frames of 40x32"),
+        text.contains(&format!("mean PSNR {psnr:.2} dB")) && text.contains("6 frames of 40x32"),
         "{text}"
     );
     assert_eq!(frame_sizes(&fitted.join("frames")), vec![(W, H); FRAMES]);

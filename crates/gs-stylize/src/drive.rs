@@ -261,16 +261,27 @@ pub struct FitCommand<'a> {
     pub stages: Vec<u64>,
 }
 
+/// What a `fit` subcommand's outputs say: the line it prints, and the fitted model's mean PSNR
+/// over the training views (dB), for its `fit.json`.
+#[derive(Clone, Debug)]
+pub struct FitWritten {
+    /// The line printed once the outputs are written.
+    pub line: String,
+    /// The mean PSNR of the fit over the training views, dB.
+    pub psnr_db: f64,
+}
+
 /// Runs a `fit` subcommand in the order of the module documentation: `load` reads the inputs
 /// (reporting each picture to the progress it is given), `fit` fits them on the opened
 /// device calling its per-step callback, and `write` writes the outputs into `command.out`
-/// (made by then) from the inputs, the fit, the device and the fit's wall time in seconds,
-/// returning the line to print.
+/// (made by then) from the inputs, the fit, the device and the fit's wall time in seconds;
+/// then `fit.json` ([`FitReport`], as a `stylize` that fits writes it) is written and the
+/// line printed.
 pub fn run_fit<I, F>(
     command: &FitCommand<'_>,
     load: impl FnOnce(&ImageProgress) -> Result<I, Box<dyn Error>>,
     fit: impl FnOnce(&I, &Backend, OnStep<'_>) -> Result<F, Box<dyn Error>>,
-    write: impl FnOnce(&I, F, &Backend, f64) -> Result<String, Box<dyn Error>>,
+    write: impl FnOnce(&I, F, &Backend, f64) -> Result<FitWritten, Box<dyn Error>>,
 ) -> Result<(), Box<dyn Error>> {
     let out = command.out;
     check_output_folder(out)?;
@@ -290,10 +301,17 @@ pub fn run_fit<I, F>(
         |on_step| fit(&inputs, &backend, on_step),
     )?;
     let seconds = started.elapsed().as_secs_f64();
-    let line = into_new_folder(out, || {
+    let written = into_new_folder(out, || {
         create_folder(out)?;
-        write(&inputs, fitted, &backend, seconds)
+        let written = write(&inputs, fitted, &backend, seconds)?;
+        let report = FitReport {
+            steps: command.steps,
+            seconds,
+            psnr_db: Some(written.psnr_db),
+        };
+        write_json(&out.join(FIT_JSON), &report)?;
+        Ok::<_, Box<dyn Error>>(written)
     })?;
-    println!("{line}");
+    println!("{}", written.line);
     Ok(())
 }

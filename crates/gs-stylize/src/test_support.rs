@@ -38,6 +38,21 @@ pub fn fails(cmd: &mut Command) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// The `fit.json` a `fit` into `out` wrote, checked: `steps` steps, a positive time and a
+/// finite PSNR; returns the PSNR, dB.
+///
+/// # Panics
+/// If the file is missing, does not parse, or fails a check.
+pub fn fit_json_psnr(out: &Path, steps: u64) -> f64 {
+    let text = std::fs::read_to_string(out.join(crate::outputs::FIT_JSON)).expect("fit.json");
+    let report: crate::outputs::FitReport = serde_json::from_str(&text).expect("a fit report");
+    assert_eq!(report.steps, steps, "{text}");
+    assert!(report.seconds > 0.0, "{text}");
+    let psnr = report.psnr_db.expect("the fit's PSNR");
+    assert!(psnr.is_finite(), "{text}");
+    psnr
+}
+
 /// Copies the folder `from` (recursively) to `to`.
 ///
 /// # Panics

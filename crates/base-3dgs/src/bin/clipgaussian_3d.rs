@@ -32,7 +32,7 @@ use gs_wgpu::backend::DeviceChoice;
 
 /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
 ///
-/// Writes to `--out`: stylized.ply (the stylized scene, in the input's PLY format with its
+/// Writes to `--out`: model.ply (the stylized scene, in the input's PLY format with its
 /// extra properties), preview.png (before | after of the first `preview_views` entry; the
 /// others preview_viewNNN.png),
 /// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The

@@ -22,8 +22,8 @@ use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
 
-/// The stylized PLY in the output folder.
-pub const STYLIZED_PLY: &str = "stylized.ply";
+/// The stylized PLY in the output folder (`model.ply`, as the 2D and video runs name theirs).
+pub const MODEL_PLY: &str = "model.ply";
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
@@ -205,7 +205,7 @@ impl Modality for SceneStylizeConfig {
             format,
             dataset,
         } = scene;
-        let stylized_ply = out.join(STYLIZED_PLY);
+        let stylized_ply = out.join(MODEL_PLY);
         let mut stylized = PlyGaussians {
             gaussians: outcome.model,
             extras: ply.extras,

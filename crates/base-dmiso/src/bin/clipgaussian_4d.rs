@@ -28,7 +28,7 @@ use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_D
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
 use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
-use gs_stylize::drive::{run_fit, FitCommand};
+use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -105,7 +105,8 @@ enum DynamicSceneCommand {
     ///
     /// Writes to --out: model.safetensors, frames/ (the test views at their times; the
     /// training views, when the scene has no test split), preview.png (the first of them:
-    /// picture | fit) and preview.gif (all of them, picture | fit), and prints their mean PSNR.
+    /// picture | fit), preview.gif (all of them, picture | fit) and fit.json (steps, time and
+    /// the training views' mean PSNR), and prints the mean PSNR of the views it wrote.
     Fit(FitArgs),
 }
 
@@ -373,16 +374,25 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 &renders,
                 FIT_PREVIEW_FPS,
             )?;
-            Ok(format!(
+            let shown_psnr = mean_psnr(&renders, images);
+            // fit.json holds the training views' PSNR, as a stylize that fits writes it.
+            let psnr_db = match test {
+                Some(_) => {
+                    let train_renders = render_views(&mut model, &train.views, bg.rgb(), backend)?;
+                    mean_psnr(&train_renders, &train.images)
+                }
+                None => shown_psnr,
+            };
+            let line = format!(
                 "fitted {} ({} training views) in {seconds:.1} s: {} cores of {} sub-Gaussians, \
-                 mean PSNR {:.2} dB over the {which} views; wrote {}",
+                 mean PSNR {shown_psnr:.2} dB over the {which} views; wrote {}",
                 args.data.display(),
                 train.views.len(),
                 model.cores(),
                 model.subs_per_core(),
-                mean_psnr(&renders, images),
                 args.out.display()
-            ))
+            );
+            Ok(FitWritten { line, psnr_db })
         },
     )
 }

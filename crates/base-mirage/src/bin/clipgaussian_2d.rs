@@ -28,7 +28,7 @@ use gs_core::Image;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
 use gs_stylize::cli::{path_value, EvalStyleArgs, StyleArgs};
-use gs_stylize::drive::{run_fit, FitCommand};
+use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -110,8 +110,9 @@ enum PictureCommand {
     /// Fit a picture with flat Gaussians (no stylization).
     ///
     /// Writes to --out: model.ply (MiraGe PLY, recording the picture's size), fitted.png (the
-    /// front camera's render, the size of the picture), preview.png (picture | fit) and
-    /// fit_psnr.png (the PSNR of each step, front and mirror camera), and prints the PSNR.
+    /// front camera's render, the size of the picture), preview.png (picture | fit),
+    /// fit_psnr.png (the PSNR of each step, front and mirror camera) and fit.json (steps, time
+    /// and PSNR), and prints the PSNR.
     Fit(FitArgs),
 }
 
@@ -291,7 +292,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         |picture, backend, on_step| Ok(fit_logged(picture, &settings, backend, on_step)?),
         |picture, fitted, backend, seconds| {
             let psnr_db = write_fit(picture, fitted, &settings, backend, &args.out)?;
-            Ok(format!(
+            let line = format!(
                 "fitted {} ({}x{}) with {} Gaussians in {seconds:.1} s: PSNR {psnr_db:.2} dB; \
                  wrote {}",
                 args.picture.display(),
@@ -299,7 +300,8 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 picture.height,
                 settings.gaussians,
                 args.out.display()
-            ))
+            );
+            Ok(FitWritten { line, psnr_db })
         },
     )
 }

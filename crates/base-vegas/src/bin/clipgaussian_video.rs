@@ -27,7 +27,7 @@ use gs_stylize::animation::{
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
 use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
-use gs_stylize::drive::{run_fit, FitCommand};
+use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
@@ -93,7 +93,8 @@ enum VideoCommand {
     ///
     /// Writes to --out: model.ply (VeGaS PLY, recording the frame size and rate), frames/ (the
     /// fitted frames), preview.png (the first frame, original | fit), preview.gif (original |
-    /// fit, animated) and prints the mean PSNR over the frames.
+    /// fit, animated) and fit.json (steps, time and mean PSNR), and prints the mean PSNR over
+    /// the frames.
     Fit(FitArgs),
 }
 
@@ -304,15 +305,16 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 &fitted,
                 video.fps,
             )?;
-            Ok(format!(
+            let psnr_db = mean_psnr(&fitted, &video.frames);
+            let line = format!(
                 "fitted {} ({} frames of {w}x{h}) with {} Gaussians in {seconds:.1} s: mean PSNR \
-                 {:.2} dB; wrote {}",
+                 {psnr_db:.2} dB; wrote {}",
                 args.video.display(),
                 video.frames.len(),
                 settings.gaussians,
-                mean_psnr(&fitted, &video.frames),
                 args.out.display()
-            ))
+            );
+            Ok(FitWritten { line, psnr_db })
         },
     )
 }
