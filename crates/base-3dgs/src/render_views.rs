@@ -177,7 +177,8 @@ pub(crate) fn render_names(
 
 /// The cameras of the dataset in `data` (NeRF-synthetic when it has `transforms_*.json`, COLMAP
 /// when it has `sparse/`), each named after its image with the extension `.png`. `split`
-/// chooses the NeRF-synthetic transforms file (train when `None`); COLMAP scenes have no split
+/// chooses the NeRF-synthetic transforms file (when `None`, the test split where the scene has
+/// one, else train: `nerf_synthetic::default_render_split`); COLMAP scenes have no split
 /// and refuse one.
 pub fn dataset_cameras(
     data: &Path,
@@ -196,7 +197,11 @@ pub fn dataset_cameras(
     // header read only where its size is needed), and need not all have their pictures.
     let views = match Layout::detect(data) {
         Some(Layout::NerfSynthetic) => {
-            nerf_synthetic::views(data, split.unwrap_or(Split::Train), options).map_err(wrap)?
+            let split = match split {
+                Some(split) => split,
+                None => nerf_synthetic::default_render_split(data).map_err(wrap)?,
+            };
+            nerf_synthetic::views(data, split, options).map_err(wrap)?
         }
         Some(Layout::Colmap) => {
             if split.is_some() {

@@ -10,6 +10,7 @@ use std::error::Error;
 use std::path::PathBuf;
 use std::process::ExitCode;
 
+use gs_core::dataset::nerf_synthetic::Split;
 use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
@@ -122,6 +123,28 @@ impl StyleArgs {
             overrides.push(Override::parse(s)?);
         }
         Ok(overrides)
+    }
+}
+
+/// The `--split` of `render`: which views of a NeRF-synthetic (or D-NeRF, or nerfstudio
+/// `transforms.json`) scene to render.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum SplitArg {
+    /// transforms_train.json.
+    Train,
+    /// transforms_test.json.
+    Test,
+    /// transforms_val.json.
+    Val,
+}
+
+impl From<SplitArg> for Split {
+    fn from(split: SplitArg) -> Self {
+        match split {
+            SplitArg::Train => Split::Train,
+            SplitArg::Test => Split::Test,
+            SplitArg::Val => Split::Val,
+        }
     }
 }
 

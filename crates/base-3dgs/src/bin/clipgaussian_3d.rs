@@ -16,12 +16,12 @@ use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
-use clap::{Args, Subcommand, ValueEnum};
+use clap::{Args, Subcommand};
 use gs_core::splats::read_splats;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, StyleArgs};
+use gs_stylize::cli::{path_value, EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
@@ -93,17 +93,6 @@ impl StylizeArgs {
     }
 }
 
-/// Which NeRF-synthetic transforms file to render.
-#[derive(Clone, Copy, Debug, ValueEnum)]
-enum SplitArg {
-    /// transforms_train.json.
-    Train,
-    /// transforms_test.json.
-    Test,
-    /// transforms_val.json.
-    Val,
-}
-
 /// Render a PLY from the cameras of a dataset or from one camera file.
 ///
 /// Writes into `--out`'s `frames/` (the folder of rendered views in every binary) one PNG
@@ -120,8 +109,9 @@ struct RenderArgs {
     /// decoded (only a header where the cameras need a size) and need not all be there.
     #[arg(long, required_unless_present = "camera", conflicts_with = "camera")]
     data: Option<PathBuf>,
-    /// The split (default train): NeRF-synthetic's `transforms_<split>.json`, or the split lists
-    /// of a transforms.json; COLMAP scenes have none.
+    /// The split: NeRF-synthetic's `transforms_<split>.json`, or the split lists of a
+    /// transforms.json (default: test where the scene has one, else train); COLMAP scenes have
+    /// none.
     #[arg(long, value_enum, requires = "data")]
     split: Option<SplitArg>,
     /// Resolution divisor of the dataset's cameras (3DGS's -r); `images_<r>/` is read when the
@@ -210,11 +200,7 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     let ply = read_splats(&args.ply)?;
     let cameras = match (&args.data, &args.camera) {
         (Some(data), _) => {
-            let split = args.split.map(|s| match s {
-                SplitArg::Train => Split::Train,
-                SplitArg::Test => Split::Test,
-                SplitArg::Val => Split::Val,
-            });
+            let split = args.split.map(Split::from);
             let options = LoadOptions {
                 background: Background::from_rgb(args.background),
                 downscale: args.resolution,

@@ -22,12 +22,12 @@ use base_dmiso::stylize::{
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
 use clap::{Args, Subcommand};
-use gs_core::dataset::nerf_synthetic::{load_with_times, Split};
+use gs_core::dataset::nerf_synthetic::{default_render_split, load_with_times};
 use gs_core::dataset::{Background, LoadOptions};
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
+use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, SplitArg, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
@@ -176,9 +176,9 @@ struct RenderArgs {
     /// The D-NeRF scene whose cameras and times to render.
     #[arg(long)]
     data: PathBuf,
-    /// The split: test, train or val.
-    #[arg(long, default_value = "test", value_parser = parse_split)]
-    split: Split,
+    /// The split (default: test where the scene has one, else train).
+    #[arg(long, value_enum)]
+    split: Option<SplitArg>,
     /// Frames of a sweep through time from the split's first camera (0: none).
     #[arg(long, default_value_t = 0)]
     sweep: usize,
@@ -250,15 +250,6 @@ struct EvalArgs {
 }
 
 /// `test`, `train` or `val`.
-fn parse_split(text: &str) -> Result<Split, String> {
-    match text {
-        "test" => Ok(Split::Test),
-        "train" => Ok(Split::Train),
-        "val" => Ok(Split::Val),
-        other => Err(format!("{other:?} is not one of test, train, val")),
-    }
-}
-
 /// The candle device of the deformation network for `choice` (the style loss's).
 fn net_device(choice: DeviceChoice) -> Result<Device, Box<dyn Error>> {
     Ok(compute_device::open_for(choice)?.0)
@@ -414,7 +405,11 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         max_width: args.max_width,
         ..LoadOptions::default()
     };
-    let split = load_with_times(&args.data, args.split, &options)?;
+    let split = match args.split {
+        Some(split) => split.into(),
+        None => default_render_split(&args.data)?,
+    };
+    let split = load_with_times(&args.data, split, &options)?;
     let backend = open_device(args.device)?;
     let mut model = read_model(
         &args.model,

@@ -285,6 +285,16 @@ pub fn has_split(root: &Path, split: Split) -> Result<bool, DatasetError> {
     Ok(split_frames(&path, transforms, split)?.is_some())
 }
 
+/// The split a render of the scene in `root` takes when none is asked for: the test split
+/// where the scene has one (the views `eval` scores), else the training split.
+pub fn default_render_split(root: &Path) -> Result<Split, DatasetError> {
+    Ok(if has_split(root, Split::Test)? {
+        Split::Test
+    } else {
+        Split::Train
+    })
+}
+
 /// Loads one split of the scene in `root`. Every picture must have the size its frame gives
 /// (`w`/`h` of the frame or of the file), else the size of the first frame's picture. Pictures
 /// load in parallel. The extent is that of this split's cameras (3DGS uses the training
