@@ -428,7 +428,11 @@ fn a_single_transforms_json_gives_its_splits() {
     );
     assert!(!nerf_synthetic::has_split(dir.path(), Split::Test).unwrap());
     let render_split = nerf_synthetic::default_render_split(dir.path()).unwrap();
-    assert_eq!(render_split, Split::Train, "no test split: render renders the frames");
+    assert_eq!(
+        render_split,
+        Split::Train,
+        "no test split: render renders the frames"
+    );
     let both = nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options);
     assert_eq!(both.unwrap().views.len(), 4);
     let e = nerf_synthetic::load(dir.path(), Split::Test, &options).unwrap_err();
@@ -449,7 +453,11 @@ fn a_single_transforms_json_gives_its_splits() {
     assert!(nerf_synthetic::has_split(dir.path(), Split::Test).unwrap());
     assert!(!nerf_synthetic::has_split(dir.path(), Split::Val).unwrap());
     let render_split = nerf_synthetic::default_render_split(dir.path()).unwrap();
-    assert_eq!(render_split, Split::Test, "render renders the views eval scores");
+    assert_eq!(
+        render_split,
+        Split::Test,
+        "render renders the views eval scores"
+    );
     let training =
         nerf_synthetic::load_training(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
     assert_eq!(training.views.len(), 3);

@@ -16,7 +16,7 @@ use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, evaluate_run, ClipFiles, Style, TEST_VIEWS_DIR};
 use base_3dgs::stylize::config::BackgroundPixels;
 use base_3dgs::stylize::{
-    run, Override, RunOptions, SceneStylizeConfig, StyleSettings, StylizeError,
+    run, Override, RunOptions, SceneStylizeConfig, SceneStylizeError, StyleSettings, StylizeError,
 };
 use candle_core::{Device, Tensor};
 use common::TempDir;
@@ -429,7 +429,10 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     let out = stopped.out.clone().unwrap();
     let e = run(&stopped, &stopping).unwrap_err();
     assert!(
-        matches!(e, StylizeError::Interrupted { step: 1, .. }),
+        matches!(
+            e,
+            SceneStylizeError::Stylize(StylizeError::Interrupted { step: 1, .. })
+        ),
         "{e}"
     );
     assert!(e.to_string().contains("--resume"), "{e}");
@@ -530,7 +533,7 @@ fn the_config_files_are_the_paper_defaults_and_unknown_fields_are_named() {
 /// Runs `config`, expects an error containing every one of `words`, and checks that the output
 /// folder was not created.
 fn fails_cleanly(config: &SceneStylizeConfig, words: &[&str]) {
-    let e: StylizeError = run(config, &quiet()).unwrap_err();
+    let e: SceneStylizeError = run(config, &quiet()).unwrap_err();
     let message = e.to_string();
     for w in words {
         assert!(message.contains(w), "{w:?} not in {message:?}");

@@ -24,7 +24,7 @@ use gs_core::model::View;
 use gs_core::sampler::BatchOrder;
 use gs_core::Image;
 use gs_stylize::animation::{
-    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
+    write_frames, write_mp4_or_warn, write_preview_gif, FRAMES_DIR, PREVIEW_GIF,
 };
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
@@ -32,12 +32,12 @@ use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
-    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
-    StylizeOutcome,
+    Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
+    StylizeJob, StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
-use crate::fit::{fit, mean_psnr, render_views, DynamicSceneFitSettings, FitError};
+use crate::fit::{fit, mean_psnr, render_views, DynamicSceneFitSettings};
 use crate::model::{group, Dmiso, GROUP_NAMES, TORCH_ADAM_EPS};
 use crate::model_file::{self, read_authors, AuthorsFiles, DmisoFileError};
 
@@ -248,27 +248,22 @@ fn authors_update_rules(groups: &mut [GroupConfig]) {
     groups[group::TIME_NET].eps = Some(TORCH_ADAM_EPS);
 }
 
-/// Why a dynamic-scene run could not run; each names the file or field at fault.
+/// Why a 4D run could not run: the failures every modality shares, and the 4D run's own
+/// ([`DynamicSceneFailure`]).
+pub type DynamicSceneStylizeError = RunError<DynamicSceneFailure>;
+
+/// What fails in a 4D run only; each names the file at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum DynamicSceneStylizeError {
-    /// A configuration value out of its range.
-    #[error("configuration: {0}")]
-    Config(String),
-    /// The dataset.
-    #[error("{0}")]
-    Dataset(#[from] DatasetError),
+pub enum DynamicSceneFailure {
     /// A model file.
     #[error("{0}")]
     Model(#[from] DmisoFileError),
-    /// The fit.
-    #[error("{0}")]
-    Fit(#[from] FitError),
-    /// The stylization.
-    #[error("{0}")]
-    Stylize(#[from] StylizeError),
-    /// An output file.
-    #[error("{0}")]
-    Output(#[from] AnimationError),
+}
+
+impl From<DmisoFileError> for DynamicSceneStylizeError {
+    fn from(e: DmisoFileError) -> Self {
+        Self::Own(e.into())
+    }
 }
 
 /// What a finished run produced.

@@ -21,7 +21,7 @@ use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 
 use crate::flat::{FlatGaussians, FLAT_SCALE};
 use crate::mirror::plane_half_size;
-use crate::stylize::PictureStylizeError;
+use crate::stylize::{PictureFailure, PictureStylizeError};
 
 /// The start of the header comment that records the picture.
 const RECORD_PREFIX: &str = "clipgaussian-2d picture";
@@ -97,9 +97,11 @@ fn refused(path: &Path, reason: String) -> PictureStylizeError {
 /// Reads a MiraGe model file, refusing one that does not hold a 2D model (see the module
 /// documentation).
 pub fn read_model(path: &Path) -> Result<ModelFile, PictureStylizeError> {
-    let ply = read_ply(path).map_err(|source| PictureStylizeError::Model {
-        path: path.to_path_buf(),
-        source,
+    let ply = read_ply(path).map_err(|source| {
+        PictureStylizeError::Own(PictureFailure::Model {
+            path: path.to_path_buf(),
+            source,
+        })
     })?;
     check_flat(&ply).map_err(|reason| refused(path, reason))?;
     let fitted_to = ply.comments.iter().find_map(|c| FittedTo::parse(c));
@@ -119,10 +121,10 @@ pub fn write_model(
     let mut ply = PlyGaussians::new(model.params().clone());
     ply.comments.push(fitted_to.comment());
     write_ply(path, &ply, PlyFormat::BinaryLittleEndian).map_err(|source| {
-        PictureStylizeError::Model {
+        PictureStylizeError::Own(PictureFailure::Model {
             path: path.to_path_buf(),
             source,
-        }
+        })
     })
 }
 

@@ -27,13 +27,13 @@ use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
-    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
-    StylizeOutcome,
+    Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
+    StylizeJob, StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    fit_logged, render_picture, write_psnr_plot, FitError, Fitted, PictureFitSettings, FIT_PSNR_PNG,
+    fit_logged, render_picture, write_psnr_plot, Fitted, PictureFitSettings, FIT_PSNR_PNG,
 };
 use crate::flat::FlatGaussians;
 use crate::mirror::{extent, mirror_views, mirrored, DEFAULT_DISTANCE};
@@ -133,12 +133,13 @@ impl PictureStylizeConfig {
     }
 }
 
-/// Why a 2D run could not run; each names the file or field at fault.
+/// Why a 2D run could not run: the failures every modality shares, and the 2D run's own
+/// ([`PictureFailure`]).
+pub type PictureStylizeError = RunError<PictureFailure>;
+
+/// What fails in a 2D run only; each names the file at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum PictureStylizeError {
-    /// A configuration value out of its range.
-    #[error("configuration: {0}")]
-    Config(String),
+pub enum PictureFailure {
     /// The picture.
     #[error("{0}")]
     Picture(#[from] PictureError),
@@ -150,20 +151,12 @@ pub enum PictureStylizeError {
         /// What is wrong with it.
         source: gs_core::ply::PlyError,
     },
-    /// A model file that is not a 2D model, or not one of the run's picture.
-    #[error("model {}: {reason}", path.display())]
-    ModelMismatch {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        reason: String,
-    },
-    /// The fit.
-    #[error("{0}")]
-    Fit(#[from] FitError),
-    /// The stylization.
-    #[error("{0}")]
-    Stylize(#[from] StylizeError),
+}
+
+impl From<PictureError> for PictureStylizeError {
+    fn from(e: PictureError) -> Self {
+        Self::Own(e.into())
+    }
 }
 
 /// What a finished run produced.

@@ -26,13 +26,13 @@ use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
 use gs_stylize::{
-    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
-    StylizeOutcome,
+    Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
+    StylizeJob, StylizeOutcome,
 };
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    fit, mean_psnr, render_frames, training_targets, training_views, FitError, VideoFitSettings,
+    fit, mean_psnr, render_frames, training_targets, training_views, VideoFitSettings,
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, VegasFileError, VideoRecord};
@@ -42,8 +42,7 @@ use crate::video_input::{
 use gs_core::image::picture_size;
 use gs_core::wide_pictures::{shrunk_size, AUTHORS_MAX_WIDTH};
 use gs_stylize::animation::{
-    write_frames, write_mp4_or_warn, write_preview_gif, AnimationError, FRAMES_DIR, PREVIEW_GIF,
-    STYLIZED_MP4,
+    write_frames, write_mp4_or_warn, write_preview_gif, FRAMES_DIR, PREVIEW_GIF, STYLIZED_MP4,
 };
 
 /// The stylized model.
@@ -134,35 +133,31 @@ pub fn stylize_rates(feature_lr: f64) -> GroupRates {
     }))
 }
 
-/// Why a video run could not run; each names the file or field at fault.
+/// Why a video run could not run: the failures every modality shares, and the video run's
+/// own ([`VideoFailure`]).
+pub type VideoStylizeError = RunError<VideoFailure>;
+
+/// What fails in a video run only; each names the file at fault.
 #[derive(Debug, thiserror::Error)]
-pub enum VideoStylizeError {
-    /// A configuration value out of its range.
-    #[error("configuration: {0}")]
-    Config(String),
+pub enum VideoFailure {
     /// The video.
     #[error("{0}")]
     Input(#[from] VideoInputError),
     /// A model file.
     #[error("{0}")]
     Model(#[from] VegasFileError),
-    /// A model that does not fit the video.
-    #[error("model {}: {reason}", path.display())]
-    ModelMismatch {
-        /// The file.
-        path: PathBuf,
-        /// What is wrong.
-        reason: String,
-    },
-    /// The fit.
-    #[error("{0}")]
-    Fit(#[from] FitError),
-    /// The stylization.
-    #[error("{0}")]
-    Stylize(#[from] StylizeError),
-    /// An output file.
-    #[error("{0}")]
-    Output(#[from] AnimationError),
+}
+
+impl From<VideoInputError> for VideoStylizeError {
+    fn from(e: VideoInputError) -> Self {
+        Self::Own(e.into())
+    }
+}
+
+impl From<VegasFileError> for VideoStylizeError {
+    fn from(e: VegasFileError) -> Self {
+        Self::Own(e.into())
+    }
 }
 
 /// What a finished run produced.

@@ -1,9 +1,42 @@
 //! [`StylizeError`]: why a stylization could not run, each variant naming the file, field or
-//! flag at fault and keeping the error behind it as its source.
+//! flag at fault and keeping the error behind it as its source; [`RunError`]: a modality's run,
+//! the failures every modality shares and the modality's own.
 
 use std::path::PathBuf;
 
 use crate::{checkpoint, weights, writable};
+
+/// Why a modality's run failed: the failures every modality shares, and the modality's own
+/// (`E`: its input's, its model file's, its outputs'), shown as they are.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError<E: std::error::Error + 'static> {
+    /// A configuration value out of its range.
+    #[error("configuration: {0}")]
+    Config(String),
+    /// A model file that does not fit the run's inputs.
+    #[error("model {}: {reason}", path.display())]
+    ModelMismatch {
+        /// The file.
+        path: PathBuf,
+        /// What is wrong.
+        reason: String,
+    },
+    /// The fit of the base model.
+    #[error("{0}")]
+    Fit(#[from] gs_wgpu::FitError),
+    /// The stylization.
+    #[error("{0}")]
+    Stylize(#[from] StylizeError),
+    /// A sequence of renders written as frames, a GIF or a video.
+    #[error("{0}")]
+    Output(#[from] crate::animation::AnimationError),
+    /// A dataset of posed pictures.
+    #[error("{0}")]
+    Dataset(#[from] gs_core::dataset::DatasetError),
+    /// The modality's own failure.
+    #[error(transparent)]
+    Own(E),
+}
 
 /// Why a stylization could not run; each names the file or field at fault.
 #[derive(Debug, thiserror::Error)]

@@ -63,7 +63,7 @@ pub mod weights;
 pub mod writable;
 
 pub use config::{resolve_config, Override, StyleSettings};
-pub use error::StylizeError;
+pub use error::{RunError, StylizeError};
 pub use gs_core::render_clamp::RenderClamp;
 pub use prepare::{open_device, prepare, PreparedRun, RunOptions};
 pub use stylize::{Batches, StylizeJob, StylizeOutcome};

@@ -11,4 +11,4 @@ pub mod run;
 
 pub use config::SceneStylizeConfig;
 pub use gs_stylize::{Override, RunOptions, StyleSettings, StylizeError};
-pub use run::{run, SceneSummary, MODEL_PLY};
+pub use run::{run, SceneStylizeError, SceneSummary, MODEL_PLY};

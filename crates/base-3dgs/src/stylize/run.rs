@@ -13,8 +13,8 @@ use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::{
-    Batches, PreparedRun, RenderClamp, RunOptions, StyleSettings, StylizeError, StylizeJob,
-    StylizeOutcome,
+    Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
+    StylizeJob, StylizeOutcome,
 };
 
 use super::config::BackgroundPixels;
@@ -24,6 +24,10 @@ use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOpti
 
 /// The stylized PLY in the output folder (`model.ply`, as the 2D and video runs name theirs).
 pub const MODEL_PLY: &str = "model.ply";
+
+/// Why a 3D run could not run: the failures every modality shares (a 3D run has none of its
+/// own yet).
+pub type SceneStylizeError = RunError<std::convert::Infallible>;
 
 /// What a finished run produced.
 #[derive(Clone, Debug)]
@@ -44,7 +48,7 @@ pub struct SceneSummary {
 pub fn run(
     config: &SceneStylizeConfig,
     options: &RunOptions,
-) -> Result<SceneSummary, StylizeError> {
+) -> Result<SceneSummary, SceneStylizeError> {
     gs_stylize::drive::run(config, options)
 }
 
@@ -62,7 +66,7 @@ impl Modality for SceneStylizeConfig {
     type Inputs = SceneInput;
     type Fit = GaussianSet;
     type Outputs = SceneSummary;
-    type Error = StylizeError;
+    type Error = SceneStylizeError;
 
     /// Unused: a 3D run starts from a trained scene, always given.
     const BASE_MODEL: &'static str = "base.ply";
@@ -72,12 +76,12 @@ impl Modality for SceneStylizeConfig {
         &self.style
     }
 
-    fn out(&self) -> Result<&Path, StylizeError> {
+    fn out(&self) -> Result<&Path, SceneStylizeError> {
         Ok(self.out_path())
     }
 
-    fn check(&self) -> Result<(), StylizeError> {
-        self.validate()
+    fn check(&self) -> Result<(), SceneStylizeError> {
+        Ok(self.validate()?)
     }
 
     fn given_model(&self) -> Option<&Path> {
@@ -86,7 +90,7 @@ impl Modality for SceneStylizeConfig {
 
     /// A NeRF-synthetic scene's sizes from its json files (and one picture header a split);
     /// none for a COLMAP scene or one whose files do not read (the loading reports them).
-    fn input_pixels(&self) -> Result<Option<InputPixels>, StylizeError> {
+    fn input_pixels(&self) -> Result<Option<InputPixels>, SceneStylizeError> {
         let data = self.data_path();
         if !matches!(Layout::detect(data), Some(Layout::NerfSynthetic)) {
             return Ok(None);
@@ -108,15 +112,17 @@ impl Modality for SceneStylizeConfig {
         &self,
         run: &PreparedRun,
         _model: Option<&Path>,
-    ) -> Result<SceneInput, StylizeError> {
-        let (ply, format) = read_splats_with_format(self.model_path())?;
+    ) -> Result<SceneInput, SceneStylizeError> {
+        let (ply, format) =
+            read_splats_with_format(self.model_path()).map_err(StylizeError::from)?;
         let dataset = load_dataset(self, run.options().progress)?;
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
             return Err(StylizeError::Input(format!(
                 "preview_views: view {v} does not exist (the dataset has {count}; set them \
                  with --set preview_views=[0])"
-            )));
+            ))
+            .into());
         }
         Ok(SceneInput {
             ply,
@@ -132,7 +138,7 @@ impl Modality for SceneStylizeConfig {
         _path: &Path,
         _own_fit: bool,
         _run: &PreparedRun,
-    ) -> Result<GaussianSet, StylizeError> {
+    ) -> Result<GaussianSet, SceneStylizeError> {
         Ok(scene.ply.gaussians.clone())
     }
 
@@ -146,8 +152,8 @@ impl Modality for SceneStylizeConfig {
         _scene: &SceneInput,
         _run: &PreparedRun,
         _on_step: OnStep<'_>,
-    ) -> Result<GaussianSet, StylizeError> {
-        Err(no_fit())
+    ) -> Result<GaussianSet, SceneStylizeError> {
+        Err(no_fit().into())
     }
 
     /// A 3D run does not fit its base model.
@@ -156,8 +162,8 @@ impl Modality for SceneStylizeConfig {
         _scene: &SceneInput,
         _fit: GaussianSet,
         _path: &Path,
-    ) -> Result<GaussianSet, StylizeError> {
-        Err(no_fit())
+    ) -> Result<GaussianSet, SceneStylizeError> {
+        Err(no_fit().into())
     }
 
     /// Every view of the dataset, one per step, the loss seeing the render clamped to [0, 1];
@@ -167,7 +173,7 @@ impl Modality for SceneStylizeConfig {
         scene: &mut SceneInput,
         model: GaussianSet,
         _run: &PreparedRun,
-    ) -> Result<StylizeJob<GaussianSet>, StylizeError> {
+    ) -> Result<StylizeJob<GaussianSet>, SceneStylizeError> {
         let dataset = &scene.dataset;
         let masks = self
             .object
@@ -198,7 +204,7 @@ impl Modality for SceneStylizeConfig {
         scene: SceneInput,
         outcome: StylizeOutcome<GaussianSet>,
         run: &PreparedRun,
-    ) -> Result<SceneSummary, StylizeError> {
+    ) -> Result<SceneSummary, SceneStylizeError> {
         let out = run.out();
         let SceneInput {
             ply,
@@ -212,7 +218,7 @@ impl Modality for SceneStylizeConfig {
             comments: ply.comments,
             normals: ply.normals,
         };
-        write_ply(&stylized_ply, &stylized, format)?;
+        write_ply(&stylized_ply, &stylized, format).map_err(StylizeError::from)?;
         let mut base = ply.gaussians;
         write_previews(
             out,
