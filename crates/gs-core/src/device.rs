@@ -38,3 +38,19 @@ impl fmt::Display for DeviceChoice {
         })
     }
 }
+
+/// Its name (`"cpu"`, `"gpu"`, `"auto"`), as configuration files and flags write it.
+impl serde::Serialize for DeviceChoice {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_str(self)
+    }
+}
+
+/// From its name; another name is refused listing the three.
+impl<'de> serde::Deserialize<'de> for DeviceChoice {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        <String as serde::Deserialize>::deserialize(d)?
+            .parse()
+            .map_err(serde::de::Error::custom)
+    }
+}

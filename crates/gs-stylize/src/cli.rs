@@ -15,6 +15,7 @@ use gs_core::interpolate::interpolate_ply;
 use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 use gs_wgpu::backend::DeviceChoice;
+use serde::Serialize;
 use serde_json::Value;
 
 use crate::error::causes;
@@ -27,39 +28,9 @@ use crate::{Override, RunOptions, StylizeError};
 /// The style, the model files, the device and the run controls of `stylize`.
 #[derive(clap::Args, Debug)]
 pub struct StyleArgs {
-    /// The style as text.
-    #[arg(long, conflicts_with = "style_image")]
-    pub style_prompt: Option<String>,
-    /// The style as a picture (PNG or JPEG; it replaces a prompt the configuration gives).
-    #[arg(long)]
-    pub style_image: Option<PathBuf>,
-    /// The source prompt the style direction starts from (default "a Photo").
-    #[arg(long)]
-    pub source_prompt: Option<String>,
-    /// Stylization steps: optimizer updates (default 4999, the updates of the authors' 5000
-    /// iterations).
-    #[arg(long)]
-    pub steps: Option<u64>,
-    /// CLIP config.json (default: ViT-B/32).
-    #[arg(long)]
-    pub clip_config: Option<PathBuf>,
-    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, else the Hugging
-    /// Face cache, else downloaded from the Hugging Face Hub into that cache on first use).
-    #[arg(long)]
-    pub clip_weights: Option<PathBuf>,
-    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face cache,
-    /// else downloaded on first use).
-    #[arg(long)]
-    pub tokenizer: Option<PathBuf>,
-    /// VGG-19 weights, safetensors in torchvision's layout (default:
-    /// $CLIPGAUSSIAN_VGG19_WEIGHTS, else the Hugging Face cache, else downloaded on first use).
-    #[arg(long)]
-    pub vgg_weights: Option<PathBuf>,
-    /// Where the run computes: cpu, gpu, or auto (a real GPU when there is one, else the cpu;
-    /// the default). The Gaussians render and train there through wgpu; CLIP and VGG run on
-    /// candle's CUDA or Metal device in builds with that feature, else on the cpu.
-    #[arg(long)]
-    pub device: Option<DeviceChoice>,
+    /// The flags that set a field of the shared settings.
+    #[command(flatten)]
+    pub settings: StyleFlags,
     /// Any configuration field, e.g. `--set num_patches=16`; `FIELD.KEY=VALUE` sets one key of
     /// an object field, e.g. one parameter group's learning rate: `--set
     /// learning_rates.GROUP=0.005` (or `=frozen`; the groups are listed in the configuration's
@@ -77,9 +48,52 @@ pub struct StyleArgs {
     pub quiet: bool,
 }
 
-/// A path flag as a JSON string.
-pub fn path_value(path: &Option<PathBuf>) -> Option<Value> {
-    path.as_ref().map(|p| Value::from(p.display().to_string()))
+/// The `stylize` flags that set a field of [`crate::StyleSettings`], each named as its field
+/// (the field a given flag sets is its serialized name; an absent flag sets nothing).
+#[derive(clap::Args, Debug, Serialize)]
+pub struct StyleFlags {
+    /// The style as text.
+    #[arg(long, conflicts_with = "style_image")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub style_prompt: Option<String>,
+    /// The style as a picture (PNG or JPEG; it replaces a prompt the configuration gives).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub style_image: Option<PathBuf>,
+    /// The source prompt the style direction starts from (default "a Photo").
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub source_prompt: Option<String>,
+    /// Stylization steps: optimizer updates (default 4999, the updates of the authors' 5000
+    /// iterations).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub steps: Option<u64>,
+    /// CLIP config.json (default: ViT-B/32).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clip_config: Option<PathBuf>,
+    /// CLIP weights, safetensors (default: $CLIPGAUSSIAN_CLIP_B32_WEIGHTS, else the Hugging
+    /// Face cache, else downloaded from the Hugging Face Hub into that cache on first use).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub clip_weights: Option<PathBuf>,
+    /// CLIP tokenizer.json (default: $CLIPGAUSSIAN_CLIP_TOKENIZER, else the Hugging Face cache,
+    /// else downloaded on first use).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub tokenizer: Option<PathBuf>,
+    /// VGG-19 weights, safetensors in torchvision's layout (default:
+    /// $CLIPGAUSSIAN_VGG19_WEIGHTS, else the Hugging Face cache, else downloaded on first use).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub vgg_weights: Option<PathBuf>,
+    /// Where the run computes: cpu, gpu, or auto (a real GPU when there is one, else the cpu;
+    /// the default). The Gaussians render and train there through wgpu; CLIP and VGG run on
+    /// candle's CUDA or Metal device in builds with that feature, else on the cpu.
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub device: Option<DeviceChoice>,
 }
 
 impl StyleArgs {
@@ -93,36 +107,33 @@ impl StyleArgs {
         })
     }
 
-    /// The overrides of the modality's own flags (`(field, value)`, `None` when the flag is
-    /// absent), then of these flags, then of every `--set`. A style image clears the prompt
-    /// a configuration may give, so that exactly one style remains.
-    pub fn overrides(
-        &self,
-        modality: Vec<(&str, Option<Value>)>,
-    ) -> Result<Vec<Override>, StylizeError> {
-        let mut flags = modality;
-        flags.extend([
-            ("style_prompt", self.style_prompt.clone().map(Value::from)),
-            ("style_image", path_value(&self.style_image)),
-            ("source_prompt", self.source_prompt.clone().map(Value::from)),
-            ("steps", self.steps.map(Value::from)),
-            ("clip_config", path_value(&self.clip_config)),
-            ("clip_weights", path_value(&self.clip_weights)),
-            ("tokenizer", path_value(&self.tokenizer)),
-            ("vgg_weights", path_value(&self.vgg_weights)),
-            ("device", self.device.map(|d| Value::from(d.to_string()))),
-        ]);
-        if self.style_image.is_some() {
-            flags.push(("style_prompt", Some(Value::Null)));
+    /// The overrides of the modality's own flags (`modality`: a flags type whose serialized
+    /// fields are configuration fields, absent flags left out), then of these flags, then of
+    /// every `--set`. A style image clears the prompt a configuration may give, so that
+    /// exactly one style remains.
+    pub fn overrides(&self, modality: &impl Serialize) -> Result<Vec<Override>, StylizeError> {
+        let mut overrides = Vec::new();
+        for flags in [flag_fields(modality)?, flag_fields(&self.settings)?] {
+            overrides.extend(flags.into_iter().map(|(field, v)| Override::new(&field, v)));
         }
-        let mut overrides: Vec<Override> = flags
-            .into_iter()
-            .filter_map(|(field, value)| value.map(|v| Override::new(field, v)))
-            .collect();
+        if self.settings.style_image.is_some() {
+            overrides.push(Override::new("style_prompt", Value::Null));
+        }
         for s in &self.set {
             overrides.push(Override::parse(s)?);
         }
         Ok(overrides)
+    }
+}
+
+/// The configuration fields `flags` sets: its serialized fields, by name.
+fn flag_fields(flags: &impl Serialize) -> Result<serde_json::Map<String, Value>, StylizeError> {
+    match serde_json::to_value(flags) {
+        Ok(Value::Object(fields)) => Ok(fields),
+        Ok(other) => Err(StylizeError::Config(format!(
+            "flags serialize as {other}, not as configuration fields"
+        ))),
+        Err(e) => Err(StylizeError::Config(format!("a flag's value: {e}"))),
     }
 }
 

@@ -44,7 +44,6 @@ pub struct StyleSettings {
     /// the cpu). The rasterizer and Adam run on wgpu's GPU, the style loss on candle's CUDA or
     /// Metal device when the build has that feature (else on the cpu, and the run says so). A
     /// run may resume on another device.
-    #[serde(with = "device_name")]
     pub device: DeviceChoice,
     /// Weight of the directional CLIP loss.
     pub lambda_directional: f64,
@@ -230,22 +229,6 @@ pub fn check_prompt(what: &str, prompt: &str) -> Result<(), String> {
         Err(format!("the {what} is empty"))
     } else {
         Ok(())
-    }
-}
-
-/// [`DeviceChoice`] as its name (`"cpu"`, `"gpu"`, `"auto"`) in configuration files.
-mod device_name {
-    use gs_wgpu::backend::DeviceChoice;
-    use serde::{Deserialize, Deserializer, Serializer};
-
-    pub fn serialize<S: Serializer>(device: &DeviceChoice, s: S) -> Result<S::Ok, S::Error> {
-        s.collect_str(device)
-    }
-
-    pub fn deserialize<'de, D: Deserializer<'de>>(d: D) -> Result<DeviceChoice, D::Error> {
-        String::deserialize(d)?
-            .parse()
-            .map_err(serde::de::Error::custom)
     }
 }
 

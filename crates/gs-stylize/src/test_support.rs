@@ -38,6 +38,22 @@ pub fn fails(cmd: &mut Command) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
+/// Checks that `overrides` (a binary's `stylize` flags) make a configuration `C` in which each
+/// field of `fields` has its value: every flag sets the field it is named for.
+///
+/// # Panics
+/// If the configuration does not resolve or a field differs.
+pub fn assert_flags_set<C>(overrides: &[crate::Override], fields: &[(&str, serde_json::Value)])
+where
+    C: serde::Serialize + serde::de::DeserializeOwned + Default,
+{
+    let config: C = crate::resolve_config(None, overrides).expect("the flags make a configuration");
+    let json = serde_json::to_value(&config).expect("configs serialize");
+    for (field, want) in fields {
+        assert_eq!(&json[*field], want, "{field}");
+    }
+}
+
 /// The `fit.json` a `fit` into `out` wrote, checked: `steps` steps, a positive time and a
 /// finite PSNR; returns the PSNR, dB.
 ///

@@ -21,7 +21,7 @@ use gs_core::splats::read_splats;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, SplitArg, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::open_device;
@@ -29,6 +29,7 @@ use gs_stylize::outputs::into_new_folder;
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_wgpu::backend::DeviceChoice;
+use serde::Serialize;
 
 /// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
 ///
@@ -42,54 +43,52 @@ use gs_wgpu::backend::DeviceChoice;
 /// quits at once); run the same command with `--resume` to continue. A finished run's
 /// checkpoint does not hold the folder: the same command runs again, and `--resume`
 /// continues only with more `--steps`.
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Serialize)]
 struct StylizeArgs {
     /// JSON configuration (configs/3d.json, configs/3d-light.json).
     #[arg(long)]
+    #[serde(skip)]
     config: Option<PathBuf>,
     /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the
     /// same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
+    #[serde(rename = "model", skip_serializing_if = "Option::is_none")]
     ply: Option<PathBuf>,
     /// The dataset folder: NeRF-synthetic, nerfstudio / instant-ngp (transforms.json) or
     /// COLMAP (sparse/, or dense/ from image_undistorter); distorted cameras are undistorted.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
     /// The output folder (created when absent).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     out: Option<PathBuf>,
     /// Resolution divisor of the dataset images (3DGS's -r; default 1, the images as they
     /// are up to --max-width, or the configuration's `resolution`); `images_<r>/` is read when the
     /// dataset has it.
     #[arg(short = 'r', long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     resolution: Option<u32>,
     /// With resolution 1, a picture wider than this is shrunk to it, pixels (Pillow's bicubic,
     /// as INRIA's loader at its default -r -1; default 1600); 0 keeps every picture at its size.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     max_width: Option<u32>,
     /// The colour renders are composited over: white, black or R,G,B in [0, 1] (default
     /// black, as the authors' commands, or the configuration's `background`).
     #[arg(long, value_parser = parse_background)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     background: Option<[f32; 3]>,
     /// The style, model files, device and run controls.
     #[command(flatten)]
+    #[serde(skip)]
     style: StyleArgs,
 }
 
 impl StylizeArgs {
     /// The flags as overrides, then the `--set` ones.
     fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
-        self.style.overrides(vec![
-            ("model", path_value(&self.ply)),
-            ("data", path_value(&self.data)),
-            ("out", path_value(&self.out)),
-            ("resolution", self.resolution.map(Into::into)),
-            ("max_width", self.max_width.map(Into::into)),
-            (
-                "background",
-                self.background.map(|b| serde_json::Value::from(b.to_vec())),
-            ),
-        ])
+        self.style.overrides(self)
     }
 }
 
@@ -301,4 +300,75 @@ impl ModalityBinary for Scene {
 
 fn main() -> ExitCode {
     gs_stylize::binary::main::<Scene>()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+    use serde_json::json;
+
+    /// `stylize`'s flags alone.
+    #[derive(Parser)]
+    struct Line {
+        #[command(flatten)]
+        args: StylizeArgs,
+    }
+
+    #[test]
+    fn every_stylize_flag_sets_its_configuration_field() {
+        let line = Line::parse_from([
+            "stylize",
+            "--model",
+            "m.ply",
+            "--data",
+            "d",
+            "--out",
+            "o",
+            "-r",
+            "2",
+            "--max-width",
+            "3",
+            "--background",
+            "white",
+            "--style-image",
+            "s.png",
+            "--source-prompt",
+            "a cat",
+            "--steps",
+            "5",
+            "--clip-config",
+            "c.json",
+            "--clip-weights",
+            "c.safetensors",
+            "--tokenizer",
+            "t.json",
+            "--vgg-weights",
+            "v.safetensors",
+            "--device",
+            "cpu",
+        ]);
+        let args = &line.args;
+        let overrides = args.overrides().unwrap();
+        gs_stylize::test_support::assert_flags_set::<SceneStylizeConfig>(
+            &overrides,
+            &[
+                ("model", json!("m.ply")),
+                ("data", json!("d")),
+                ("out", json!("o")),
+                ("resolution", json!(2)),
+                ("max_width", json!(3)),
+                ("background", json!([1.0, 1.0, 1.0])),
+                ("style_image", json!("s.png")),
+                ("style_prompt", json!(null)),
+                ("source_prompt", json!("a cat")),
+                ("steps", json!(5)),
+                ("clip_config", json!("c.json")),
+                ("clip_weights", json!("c.safetensors")),
+                ("tokenizer", json!("t.json")),
+                ("vgg_weights", json!("v.safetensors")),
+                ("device", json!("cpu")),
+            ],
+        );
+    }
 }

@@ -27,7 +27,7 @@ use gs_core::dataset::{Background, LoadOptions};
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, SplitArg, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, InterpolateArgs, SplitArg, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
@@ -38,6 +38,7 @@ use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
+use serde::Serialize;
 use style_loss::compute_device;
 
 /// Stylize a dynamic scene with a text or picture style.
@@ -54,47 +55,58 @@ use style_loss::compute_device;
 /// paper's defaults when absent), then the flags, then every --set field=value in order.
 /// Ctrl-C stops after the current step and writes a checkpoint; run the same command with
 /// --resume to continue.
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Serialize)]
 struct StylizeArgs {
     /// JSON configuration (configs/4d.json is the paper's).
     #[arg(long)]
+    #[serde(skip)]
     config: Option<PathBuf>,
     /// The D-NeRF scene folder (transforms_train.json and transforms_test.json with a time per
     /// frame, RGBA pictures).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
     /// A fitted model: a .safetensors file from `fit`/`stylize`, or the folder D-MiSo's train.py
     /// wrote (-m); default: fit first.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     model: Option<PathBuf>,
     /// The iteration of an authors' model folder to read (best, or a number); default: best,
     /// else the highest.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     iteration: Option<String>,
     /// The output folder (created when absent).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     out: Option<PathBuf>,
     /// Consecutive views per step, their losses summed and divided by it (the paper: 4).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     batch_size: Option<usize>,
     /// The colour the pictures are composited over and the scene renders over: white, black or
     /// R,G,B in [0, 1] (default: the background the model records, else white).
     #[arg(long, value_parser = parse_background)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     background: Option<[f32; 3]>,
     /// A picture wider than this is shrunk to it, pixels (Pillow's bicubic, as D-MiSo's loader
     /// at its default -r -1; default 1600); 0 keeps every picture at its size.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     max_width: Option<u32>,
     /// Random starting Gaussians (cores) of the fit, as the other binaries' `--gaussians`
     /// (`--points` is the same flag).
     #[arg(long = "gaussians", visible_alias = "points")]
+    #[serde(rename = "fit_gaussians", skip_serializing_if = "Option::is_none")]
     points: Option<usize>,
     /// Steps of the fit.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     fit_steps: Option<u64>,
     /// The style, model files, device and run controls; `--resume` also reuses
     /// `<out>/base.safetensors`.
     #[command(flatten)]
+    #[serde(skip)]
     style: StyleArgs,
 }
 
@@ -261,20 +273,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     if let Some(model) = &args.model {
         check_model(Binary::DynamicScene, "--model", model)?;
     }
-    let overrides: Vec<Override> = args.style.overrides(vec![
-        ("data", path_value(&args.data)),
-        ("model", path_value(&args.model)),
-        ("iteration", args.iteration.clone().map(Into::into)),
-        ("out", path_value(&args.out)),
-        ("batch_size", args.batch_size.map(Into::into)),
-        ("max_width", args.max_width.map(Into::into)),
-        (
-            "background",
-            args.background.map(|b| serde_json::Value::from(b.to_vec())),
-        ),
-        ("fit_gaussians", args.points.map(Into::into)),
-        ("fit_steps", args.fit_steps.map(Into::into)),
-    ])?;
+    let overrides: Vec<Override> = args.style.overrides(args)?;
     let config: DynamicSceneStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
@@ -559,4 +558,84 @@ impl ModalityBinary for DynamicScene {
 
 fn main() -> ExitCode {
     gs_stylize::binary::main::<DynamicScene>()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+    use serde_json::json;
+
+    /// `stylize`'s flags alone.
+    #[derive(Parser)]
+    struct Line {
+        #[command(flatten)]
+        args: StylizeArgs,
+    }
+
+    #[test]
+    fn every_stylize_flag_sets_its_configuration_field() {
+        let line = Line::parse_from([
+            "stylize",
+            "--data",
+            "d",
+            "--model",
+            "m",
+            "--iteration",
+            "best",
+            "--out",
+            "o",
+            "--batch-size",
+            "2",
+            "--background",
+            "white",
+            "--max-width",
+            "3",
+            "--gaussians",
+            "7",
+            "--fit-steps",
+            "9",
+            "--style-image",
+            "s.png",
+            "--source-prompt",
+            "a cat",
+            "--steps",
+            "5",
+            "--clip-config",
+            "c.json",
+            "--clip-weights",
+            "c.safetensors",
+            "--tokenizer",
+            "t.json",
+            "--vgg-weights",
+            "v.safetensors",
+            "--device",
+            "cpu",
+        ]);
+        let args = &line.args;
+        let overrides = args.style.overrides(args).unwrap();
+        gs_stylize::test_support::assert_flags_set::<DynamicSceneStylizeConfig>(
+            &overrides,
+            &[
+                ("data", json!("d")),
+                ("model", json!("m")),
+                ("iteration", json!("best")),
+                ("out", json!("o")),
+                ("batch_size", json!(2)),
+                ("background", json!([1.0, 1.0, 1.0])),
+                ("max_width", json!(3)),
+                ("fit_gaussians", json!(7)),
+                ("fit_steps", json!(9)),
+                ("style_image", json!("s.png")),
+                ("style_prompt", json!(null)),
+                ("source_prompt", json!("a cat")),
+                ("steps", json!(5)),
+                ("clip_config", json!("c.json")),
+                ("clip_weights", json!("c.safetensors")),
+                ("tokenizer", json!("t.json")),
+                ("vgg_weights", json!("v.safetensors")),
+                ("device", json!("cpu")),
+            ],
+        );
+    }
 }

@@ -27,7 +27,7 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
@@ -36,6 +36,7 @@ use gs_stylize::summary::write_summary;
 use gs_stylize::writable::check_output_file;
 use gs_stylize::{open_device, resolve_config, Override, StylizeError};
 use gs_wgpu::backend::{Backend, DeviceChoice};
+use serde::Serialize;
 
 /// Stylize a picture with a text or picture style ("Starry Night by Vincent van Gogh" and
 /// the embedded default picture when none is given).
@@ -52,55 +53,53 @@ use gs_wgpu::backend::{Backend, DeviceChoice};
 /// current step and writes a checkpoint (a second Ctrl-C quits at once); run the same
 /// command with --resume to continue. A finished run's checkpoint does not hold the
 /// folder: the same command runs again, and --resume continues only with more --steps.
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Serialize)]
 struct StylizeArgs {
     /// JSON configuration (configs/2d.json is the paper's; configs/2d-preview.json is quick).
     #[arg(long)]
+    #[serde(skip)]
     config: Option<PathBuf>,
     /// The picture, PNG or JPEG of any size (default: the embedded picture).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     picture: Option<PathBuf>,
     /// A model of the picture fitted earlier (MiraGe PLY from `fit`); default: fit first.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     model: Option<PathBuf>,
     /// The output folder (created when absent).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     out: Option<PathBuf>,
     /// Gaussians of the fit.
     #[arg(long)]
+    #[serde(rename = "fit_gaussians", skip_serializing_if = "Option::is_none")]
     gaussians: Option<usize>,
     /// Steps of the fit.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     fit_steps: Option<u64>,
     /// Colour behind transparent pixels and behind the Gaussians: white, black or R,G,B
     /// (default black, as MiraGe).
     #[arg(long, value_parser = parse_background)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     background: Option<[f32; 3]>,
     /// A picture wider than this is shrunk to it, pixels (PIL's bicubic, as MiraGe; default
     /// 1600); 0 keeps every picture at its size.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     max_width: Option<u32>,
     /// The style (default "Starry Night by Vincent van Gogh"), model files, device and run
     /// controls; `--resume` also reuses `<out>/base.ply`.
     #[command(flatten)]
+    #[serde(skip)]
     style: StyleArgs,
 }
 
 impl StylizeArgs {
     /// The flags as overrides, then the `--set` ones.
     fn overrides(&self) -> Result<Vec<Override>, StylizeError> {
-        self.style.overrides(vec![
-            ("picture", path_value(&self.picture)),
-            ("model", path_value(&self.model)),
-            ("out", path_value(&self.out)),
-            ("fit_gaussians", self.gaussians.map(Into::into)),
-            ("fit_steps", self.fit_steps.map(Into::into)),
-            (
-                "background",
-                self.background.map(|b| serde_json::Value::from(b.to_vec())),
-            ),
-            ("max_width", self.max_width.map(Into::into)),
-        ])
+        self.style.overrides(self)
     }
 }
 
@@ -429,4 +428,78 @@ impl ModalityBinary for Picture {
 
 fn main() -> ExitCode {
     gs_stylize::binary::main::<Picture>()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+    use serde_json::json;
+
+    /// `stylize`'s flags alone.
+    #[derive(Parser)]
+    struct Line {
+        #[command(flatten)]
+        args: StylizeArgs,
+    }
+
+    #[test]
+    fn every_stylize_flag_sets_its_configuration_field() {
+        let line = Line::parse_from([
+            "stylize",
+            "--picture",
+            "p.png",
+            "--model",
+            "m.ply",
+            "--out",
+            "o",
+            "--gaussians",
+            "7",
+            "--fit-steps",
+            "9",
+            "--background",
+            "white",
+            "--max-width",
+            "3",
+            "--style-image",
+            "s.png",
+            "--source-prompt",
+            "a cat",
+            "--steps",
+            "5",
+            "--clip-config",
+            "c.json",
+            "--clip-weights",
+            "c.safetensors",
+            "--tokenizer",
+            "t.json",
+            "--vgg-weights",
+            "v.safetensors",
+            "--device",
+            "cpu",
+        ]);
+        let args = &line.args;
+        let overrides = args.overrides().unwrap();
+        gs_stylize::test_support::assert_flags_set::<PictureStylizeConfig>(
+            &overrides,
+            &[
+                ("picture", json!("p.png")),
+                ("model", json!("m.ply")),
+                ("out", json!("o")),
+                ("fit_gaussians", json!(7)),
+                ("fit_steps", json!(9)),
+                ("background", json!([1.0, 1.0, 1.0])),
+                ("max_width", json!(3)),
+                ("style_image", json!("s.png")),
+                ("style_prompt", json!(null)),
+                ("source_prompt", json!("a cat")),
+                ("steps", json!(5)),
+                ("clip_config", json!("c.json")),
+                ("clip_weights", json!("c.safetensors")),
+                ("tokenizer", json!("t.json")),
+                ("vgg_weights", json!("v.safetensors")),
+                ("device", json!("cpu")),
+            ],
+        );
+    }
 }

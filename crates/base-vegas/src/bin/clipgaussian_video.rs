@@ -26,7 +26,7 @@ use gs_stylize::animation::{
 };
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{path_value, EvalStyleArgs, InterpolateArgs, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, InterpolateArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -35,6 +35,7 @@ use gs_stylize::summary::write_summary;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
+use serde::Serialize;
 
 /// Stylize a video with a text or picture style.
 ///
@@ -48,41 +49,51 @@ use gs_wgpu::backend::DeviceChoice;
 /// --config (the paper's defaults when absent), then the flags, then every --set
 /// field=value in order. Ctrl-C stops after the current step and writes a checkpoint; run
 /// the same command with --resume to continue.
-#[derive(Args, Debug)]
+#[derive(Args, Debug, Serialize)]
 struct StylizeArgs {
     /// JSON configuration (configs/video.json is the paper's).
     #[arg(long)]
+    #[serde(skip)]
     config: Option<PathBuf>,
     /// The video: a folder of numbered PNG or JPEG frames (sorted naturally), or an mp4, webm,
     /// mov, mkv or avi file (read through ffmpeg).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     video: Option<PathBuf>,
     /// A model of the video fitted earlier (VeGaS PLY from `fit`); default: fit first.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     model: Option<PathBuf>,
     /// The output folder (created when absent).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     out: Option<PathBuf>,
     /// Frame rate of a frames folder, frames per second (a video file has its own).
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     fps: Option<f64>,
     /// Frames wider than this are shrunk to it, pixels (PIL's bicubic, as VeGaS; default 1600);
     /// 0 keeps every frame at its size.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     max_width: Option<u32>,
     /// Folded Gaussians of the fit.
     #[arg(long)]
+    #[serde(rename = "fit_gaussians", skip_serializing_if = "Option::is_none")]
     gaussians: Option<usize>,
     /// Steps of the fit.
     #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     fit_steps: Option<u64>,
     /// The colour behind transparent pixels of the frames and behind the Gaussians: white,
     /// black or R,G,B (default black, as VeGaS).
     #[arg(long, value_parser = parse_background)]
+    #[serde(skip_serializing_if = "Option::is_none")]
     background: Option<[f32; 3]>,
     /// The style, model files, device and run controls; `--resume` also reuses
     /// `<out>/base.ply`.
     #[command(flatten)]
+    #[serde(skip)]
     style: StyleArgs,
 }
 
@@ -214,16 +225,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
     if let Some(model) = &args.model {
         check_model(Binary::Video, "--model", model)?;
     }
-    let overrides: Vec<Override> = args.style.overrides(vec![
-        ("video", path_value(&args.video)),
-        ("model", path_value(&args.model)),
-        ("out", path_value(&args.out)),
-        ("fps", args.fps.map(Into::into)),
-        ("max_width", args.max_width.map(Into::into)),
-        ("fit_gaussians", args.gaussians.map(Into::into)),
-        ("fit_steps", args.fit_steps.map(Into::into)),
-        ("background", args.background.map(|c| c.to_vec().into())),
-    ])?;
+    let overrides: Vec<Override> = args.style.overrides(args)?;
     let config: VideoStylizeConfig = resolve_config(args.config.as_deref(), &overrides)?;
     let summary = run(&config, &args.style.run_options()?)?;
     let out = config.out.as_deref().expect("run checked out");
@@ -494,4 +496,81 @@ impl ModalityBinary for Video {
 
 fn main() -> ExitCode {
     gs_stylize::binary::main::<Video>()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::Parser;
+    use serde_json::json;
+
+    /// `stylize`'s flags alone.
+    #[derive(Parser)]
+    struct Line {
+        #[command(flatten)]
+        args: StylizeArgs,
+    }
+
+    #[test]
+    fn every_stylize_flag_sets_its_configuration_field() {
+        let line = Line::parse_from([
+            "stylize",
+            "--video",
+            "v",
+            "--model",
+            "m.ply",
+            "--out",
+            "o",
+            "--fps",
+            "12.5",
+            "--max-width",
+            "3",
+            "--gaussians",
+            "7",
+            "--fit-steps",
+            "9",
+            "--background",
+            "white",
+            "--style-image",
+            "s.png",
+            "--source-prompt",
+            "a cat",
+            "--steps",
+            "5",
+            "--clip-config",
+            "c.json",
+            "--clip-weights",
+            "c.safetensors",
+            "--tokenizer",
+            "t.json",
+            "--vgg-weights",
+            "v.safetensors",
+            "--device",
+            "cpu",
+        ]);
+        let args = &line.args;
+        let overrides = args.style.overrides(args).unwrap();
+        gs_stylize::test_support::assert_flags_set::<VideoStylizeConfig>(
+            &overrides,
+            &[
+                ("video", json!("v")),
+                ("model", json!("m.ply")),
+                ("out", json!("o")),
+                ("fps", json!(12.5)),
+                ("max_width", json!(3)),
+                ("fit_gaussians", json!(7)),
+                ("fit_steps", json!(9)),
+                ("background", json!([1.0, 1.0, 1.0])),
+                ("style_image", json!("s.png")),
+                ("style_prompt", json!(null)),
+                ("source_prompt", json!("a cat")),
+                ("steps", json!(5)),
+                ("clip_config", json!("c.json")),
+                ("clip_weights", json!("c.safetensors")),
+                ("tokenizer", json!("t.json")),
+                ("vgg_weights", json!("v.safetensors")),
+                ("device", json!("cpu")),
+            ],
+        );
+    }
 }
