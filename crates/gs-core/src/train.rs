@@ -231,7 +231,7 @@ pub fn checked_value<E: std::error::Error>(
 }
 
 /// Checks that an optimizer of `optimizer_groups` groups fits a model with `names`.
-pub fn check_groups(optimizer_groups: usize, names: &[String]) -> Result<(), GsError> {
+fn check_groups(optimizer_groups: usize, names: &[String]) -> Result<(), GsError> {
     if optimizer_groups != names.len() {
         return Err(GsError::OptimizerState(format!(
             "the optimizer has {} parameter groups, the model {} ({})",

@@ -38,18 +38,60 @@ pub fn fails(cmd: &mut Command) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-/// Checks that `overrides` (a binary's `stylize` flags) make a configuration `C` in which each
-/// field of `fields` has its value: every flag sets the field it is named for.
+/// Checks that every `stylize` flag of a binary sets the configuration field it is named for:
+/// `overrides_of` turns a command line (`stylize`, then the flags) into the binary's overrides;
+/// the line is `own_flags` (the modality's flags with a value each), then every shared flag
+/// with a value; the configuration `C` they make must hold `own_fields` and the shared flags'
+/// values.
 ///
 /// # Panics
 /// If the configuration does not resolve or a field differs.
-pub fn assert_flags_set<C>(overrides: &[crate::Override], fields: &[(&str, serde_json::Value)])
-where
+pub fn assert_flags_set<C>(
+    own_flags: &[&str],
+    own_fields: &[(&str, serde_json::Value)],
+    overrides_of: impl FnOnce(Vec<&str>) -> Vec<crate::Override>,
+) where
     C: serde::Serialize + serde::de::DeserializeOwned + Default,
 {
-    let config: C = crate::resolve_config(None, overrides).expect("the flags make a configuration");
+    use serde_json::json;
+    let shared_flags = [
+        "--style-image",
+        "s.png",
+        "--source-prompt",
+        "a cat",
+        "--steps",
+        "5",
+        "--clip-config",
+        "c.json",
+        "--clip-weights",
+        "c.safetensors",
+        "--tokenizer",
+        "t.json",
+        "--vgg-weights",
+        "v.safetensors",
+        "--device",
+        "cpu",
+    ];
+    let shared_fields = [
+        ("style_image", json!("s.png")),
+        ("style_prompt", json!(null)),
+        ("source_prompt", json!("a cat")),
+        ("steps", json!(5)),
+        ("clip_config", json!("c.json")),
+        ("clip_weights", json!("c.safetensors")),
+        ("tokenizer", json!("t.json")),
+        ("vgg_weights", json!("v.safetensors")),
+        ("device", json!("cpu")),
+    ];
+    let line: Vec<&str> = std::iter::once("stylize")
+        .chain(own_flags.iter().copied())
+        .chain(shared_flags)
+        .collect();
+    let overrides = overrides_of(line);
+    let config: C =
+        crate::resolve_config(None, &overrides).expect("the flags make a configuration");
     let json = serde_json::to_value(&config).expect("configs serialize");
-    for (field, want) in fields {
+    for (field, want) in own_fields.iter().chain(&shared_fields) {
         assert_eq!(&json[*field], want, "{field}");
     }
 }
