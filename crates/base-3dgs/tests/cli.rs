@@ -329,6 +329,40 @@ fn interpolate_at_zero_is_a_and_mismatched_counts_are_named() {
     );
 }
 
+/// `interpolate` reads every splat format the scene readers know and writes the one its
+/// `--out` ends in: two SPZ files blended at t = 1 give B again, as an SPZ file.
+#[test]
+fn interpolate_reads_and_writes_splat_formats() {
+    use gs_core::splats::{read_splats, write_splats, SplatFormat};
+    let dir = TempDir::new("cli-interpolate-spz");
+    let mut other = random_set();
+    other.means.iter_mut().for_each(|v| *v += 0.25);
+    let (a, b) = (dir.path().join("a.spz"), dir.path().join("b.spz"));
+    write_splats(&a, &PlyGaussians::new(random_set()), SplatFormat::Spz).unwrap();
+    write_splats(&b, &PlyGaussians::new(other), SplatFormat::Spz).unwrap();
+    let out = dir.path().join("mix.spz");
+    let said = succeeds(&[
+        "interpolate",
+        "--a",
+        s(&a),
+        "--b",
+        s(&b),
+        "--t",
+        "1",
+        "--out",
+        s(&out),
+    ]);
+    assert!(said.contains("80 Gaussians, t = 1"), "{said}");
+    let bytes = std::fs::read(&out).unwrap();
+    assert!(!bytes.starts_with(b"ply"), "an SPZ file, not a PLY");
+    let (mixed, expected) = (read_splats(&out).unwrap(), read_splats(&b).unwrap());
+    assert_eq!(mixed.gaussians.len(), expected.gaussians.len());
+    for (x, y) in mixed.gaussians.means.iter().zip(&expected.gaussians.means) {
+        // SPZ's positions are fixed point at 1/4096 of a unit (12 fraction bits).
+        assert!((x - y).abs() <= 1.0 / 4096.0, "{x} vs {y}");
+    }
+}
+
 /// The `eval` arguments for `renders` against `gt` with the tiny CLIP in `dir`, writing `out`.
 fn eval_args(clip: &(PathBuf, PathBuf), renders: &Path, gt: &Path, out: &Path) -> Vec<String> {
     let tokenizer = fixture("tokenizer/tokenizer.json");

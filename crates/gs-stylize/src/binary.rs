@@ -7,9 +7,12 @@
 
 use std::error::Error;
 use std::ffi::OsString;
+use std::path::Path;
 use std::process::ExitCode;
 
 use clap::{Args, CommandFactory, FromArgMatches, Parser, Subcommand};
+use gs_core::interpolate::interpolate_ply;
+use gs_core::ply::{read_ply_with_format, write_ply, PlyFormat, PlyGaussians};
 
 use crate::cli::{exit_code, InterpolateArgs, SelftestArgs};
 use crate::model_kind::Binary;
@@ -39,6 +42,20 @@ pub trait ModalityBinary {
     type Export: Args;
     /// The flags of `eval`.
     type Eval: Args;
+    /// A model file as `interpolate` reads it (`--a`, `--b`), and `render` and `export`
+    /// where they need nothing more: its Gaussians and what the file records beside them,
+    /// which a blend keeps from the first.
+    type Model;
+
+    /// Reads a model file (or a model folder where the modality's format is one).
+    fn read_model(path: &Path) -> Result<Self::Model, Box<dyn Error>>;
+    /// Writes `model` where [`ModalityBinary::read_model`] reads it back.
+    fn write_model(path: &Path, model: &Self::Model) -> Result<(), Box<dyn Error>>;
+    /// `(1 - t) a + t b` parameter by parameter (opacities in logit space, scales in log
+    /// space, quaternions normalized), with `a`'s record; or why the two do not blend.
+    fn blend(a: &Self::Model, b: &Self::Model, t: f32) -> Result<Self::Model, String>;
+    /// How many Gaussians `model` has.
+    fn gaussian_count(model: &Self::Model) -> usize;
 
     /// Runs `stylize`.
     fn stylize(args: &Self::Stylize) -> Result<(), Box<dyn Error>>;
@@ -46,11 +63,6 @@ pub trait ModalityBinary {
     fn own(command: &Self::Own) -> Result<(), Box<dyn Error>>;
     /// Runs `render`.
     fn render(args: &Self::Render) -> Result<(), Box<dyn Error>>;
-    /// Runs `interpolate`: by default the blend of two PLY files of the same Gaussians
-    /// ([`InterpolateArgs::run`]), the line it returns printed.
-    fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-        args.run(Self::BINARY).map(|line| println!("{line}"))
-    }
     /// Runs `export`.
     fn export(args: &Self::Export) -> Result<(), Box<dyn Error>>;
     /// Runs `eval`.
@@ -102,6 +114,55 @@ fn help_of(text: &'static str) -> (&'static str, Option<&'static str>) {
     }
 }
 
+/// Runs `interpolate`: checks its files before any work ([`InterpolateArgs::check`]), reads
+/// the two models, writes their blend and says so.
+fn interpolate<M: ModalityBinary>(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
+    args.check(M::BINARY)?;
+    let a = M::read_model(&args.a)?;
+    let b = M::read_model(&args.b)?;
+    let blended = M::blend(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
+    M::write_model(&args.out, &blended)?;
+    println!(
+        "wrote {} ({} Gaussians, t = {})",
+        args.out.display(),
+        M::gaussian_count(&blended),
+        args.t
+    );
+    Ok(())
+}
+
+/// The model file of the binaries whose model is one INRIA PLY file (2D, 3D): its Gaussians
+/// with their extra properties and comments, and its PLY format, which a blend keeps.
+#[derive(Debug)]
+pub struct PlyModel {
+    /// The Gaussians, extra properties and comments.
+    pub ply: PlyGaussians,
+    /// ascii or binary, and the byte order.
+    pub format: PlyFormat,
+}
+
+impl PlyModel {
+    /// Reads an INRIA PLY file.
+    pub fn read(path: &Path) -> Result<Self, Box<dyn Error>> {
+        let (ply, format) = read_ply_with_format(path)?;
+        Ok(Self { ply, format })
+    }
+
+    /// Writes the PLY file in its format.
+    pub fn write(&self, path: &Path) -> Result<(), Box<dyn Error>> {
+        Ok(write_ply(path, &self.ply, self.format)?)
+    }
+
+    /// The blend of two PLY models ([`interpolate_ply`]) with `a`'s extra properties and format.
+    pub fn blend(a: &Self, b: &Self, t: f32) -> Result<Self, String> {
+        let ply = interpolate_ply(&a.ply, &b.ply, t).map_err(|e| e.to_string())?;
+        Ok(Self {
+            ply,
+            format: a.format,
+        })
+    }
+}
+
 /// The clap command of `M`'s binary: named after it, its subcommands' help as
 /// [`ModalityBinary`] gives it, and a negative number after a flag taken as that flag's value
 /// (`--steps -1` is refused naming `--steps`, `--time -0.5` by its own check, instead of read
@@ -141,7 +202,7 @@ pub fn main<M: ModalityBinary>() -> ExitCode {
         Command::Stylize(args) => M::stylize(args),
         Command::Own(command) => M::own(command),
         Command::Render(args) => M::render(args),
-        Command::Interpolate(args) => M::interpolate(args),
+        Command::Interpolate(args) => interpolate::<M>(args),
         Command::Export(args) => M::export(args),
         Command::Eval(args) => M::eval(args),
         Command::Selftest(args) => args.run(M::self_checks()),
@@ -180,6 +241,19 @@ mod tests {
         type Render = NoFlags;
         type Export = NoFlags;
         type Eval = NoFlags;
+        type Model = PlyModel;
+        fn read_model(path: &Path) -> Result<PlyModel, Box<dyn Error>> {
+            PlyModel::read(path)
+        }
+        fn write_model(path: &Path, model: &PlyModel) -> Result<(), Box<dyn Error>> {
+            model.write(path)
+        }
+        fn blend(a: &PlyModel, b: &PlyModel, t: f32) -> Result<PlyModel, String> {
+            PlyModel::blend(a, b, t)
+        }
+        fn gaussian_count(model: &PlyModel) -> usize {
+            model.ply.gaussians.len()
+        }
         fn stylize(_: &NoFlags) -> Result<(), Box<dyn Error>> {
             Ok(())
         }

@@ -11,8 +11,6 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use gs_core::dataset::nerf_synthetic::Split;
-use gs_core::interpolate::interpolate_ply;
-use gs_core::ply::{read_ply, read_ply_with_format, write_ply};
 
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
@@ -250,22 +248,6 @@ impl InterpolateArgs {
             b: self.b.clone(),
             source: source.into(),
         }
-    }
-
-    /// Blends two INRIA PLY models (2D and 3D): writes `(1 - t) A + t B` to `out`, checked
-    /// first ([`InterpolateArgs::check`]), and returns a line saying what was written.
-    pub fn run(&self, binary: Binary) -> Result<String, Box<dyn Error>> {
-        self.check(binary)?;
-        let (a, format) = read_ply_with_format(&self.a)?;
-        let b = read_ply(&self.b)?;
-        let blended = interpolate_ply(&a, &b, self.t).map_err(|e| self.mismatch(e))?;
-        write_ply(&self.out, &blended, format)?;
-        Ok(format!(
-            "wrote {} ({} Gaussians, t = {})",
-            self.out.display(),
-            blended.gaussians.len(),
-            self.t
-        ))
     }
 }
 

@@ -8,7 +8,7 @@
 
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use std::error::Error;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
@@ -17,10 +17,10 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
-use gs_core::splats::read_splats;
+use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
-use gs_stylize::binary::ModalityBinary;
+use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -196,7 +196,7 @@ fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     check_model(Binary::Scene, "--model", &args.ply)?;
     check_output_folder(&args.out)?;
-    let ply = read_splats(&args.ply)?;
+    let ply = Scene::read_model(&args.ply)?.ply;
     let cameras = match (&args.data, &args.camera) {
         (Some(data), _) => {
             let split = args.split.map(Split::from);
@@ -238,7 +238,7 @@ fn eval(args: &EvalArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `export`.
 fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     args.check(Binary::Scene, false)?;
-    let scene = read_splats(&args.model)?;
+    let scene = Scene::read_model(&args.model)?.ply;
     println!("{}", args.write_file(&scene)?);
     Ok(())
 }
@@ -267,15 +267,40 @@ impl ModalityBinary for Scene {
     const ABOUT: &'static str =
         "CLIPGaussian on 3D Gaussian splatting scenes: stylize, render, interpolate, eval";
     const INTERPOLATE_HELP: &'static str =
-        "Interpolate two PLY files of the same Gaussians parameter by parameter.\n\nWrites \
+        "Interpolate two scenes of the same Gaussians parameter by parameter.\n\nWrites \
          `(1 - t) A + t B` (opacities in logit space, scales in log space, quaternions \
-         normalized). The output has A's extra properties and PLY format.";
+         normalized). A and B may be in any splat format the scene readers know; --out is \
+         written in the format its name ends in, INRIA PLY with A's extra properties and PLY \
+         format otherwise.";
 
     type Stylize = StylizeArgs;
     type Own = SceneCommand;
     type Render = RenderArgs;
     type Export = SceneExportArgs;
     type Eval = EvalArgs;
+    type Model = PlyModel;
+
+    /// Any splat format the scene readers know; PLY's format kept.
+    fn read_model(path: &Path) -> Result<PlyModel, Box<dyn Error>> {
+        let (ply, format) = read_splats_with_format(path)?;
+        Ok(PlyModel { ply, format })
+    }
+
+    /// In the format the name ends in; INRIA PLY (in the model's PLY format) otherwise.
+    fn write_model(path: &Path, model: &PlyModel) -> Result<(), Box<dyn Error>> {
+        match SplatFormat::from_path(path) {
+            Some(SplatFormat::Ply) | None => model.write(path),
+            Some(format) => Ok(write_splats(path, &model.ply, format)?),
+        }
+    }
+
+    fn blend(a: &PlyModel, b: &PlyModel, t: f32) -> Result<PlyModel, String> {
+        PlyModel::blend(a, b, t)
+    }
+
+    fn gaussian_count(model: &PlyModel) -> usize {
+        model.ply.gaussians.len()
+    }
 
     fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         stylize(args)

@@ -27,7 +27,7 @@ use gs_core::dataset::{Background, LoadOptions};
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{EvalStyleArgs, InterpolateArgs, SplitArg, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
@@ -445,27 +445,6 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Runs `interpolate`.
-fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    args.check(Binary::DynamicScene)?;
-    let read =
-        |p: &Path| -> Result<Dmiso, Box<dyn Error>> { Ok(read_model(p, None, &Device::Cpu)?) };
-    let (a, b) = (read(&args.a)?, read(&args.b)?);
-    let blended = interpolate(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
-    model_file::save(
-        &blended,
-        &args.out,
-        model_file::recorded_background(&args.a)?,
-    )?;
-    println!(
-        "wrote {} ({} Gaussians, t = {})",
-        args.out.display(),
-        blended.len(),
-        args.t
-    );
-    Ok(())
-}
-
 /// Runs `export`.
 fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
     let export = &args.export;
@@ -476,7 +455,7 @@ fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
         None if (0.0..=1.0).contains(&args.time) => vec![args.time],
         None => return Err(format!("--time {}: times lie in [0, 1]", args.time).into()),
     };
-    let model = read_model(&export.model, None, &Device::Cpu)?;
+    let (model, _) = DynamicScene::read_model(&export.model)?;
     println!("{}", export.write_at(&model, &times, args.times.is_some())?);
     Ok(())
 }
@@ -523,6 +502,30 @@ impl ModalityBinary for DynamicScene {
     type Render = RenderArgs;
     type Export = DynamicSceneExportArgs;
     type Eval = EvalArgs;
+    type Model = (Dmiso, Option<Background>);
+
+    /// The model (on the cpu, a folder's last iteration) and the background it records.
+    fn read_model(path: &Path) -> Result<Self::Model, Box<dyn Error>> {
+        let model = read_model(path, None, &Device::Cpu)?;
+        Ok((model, model_file::recorded_background(path)?))
+    }
+
+    /// As our `model.safetensors`.
+    fn write_model(path: &Path, (model, background): &Self::Model) -> Result<(), Box<dyn Error>> {
+        Ok(model_file::save(model, path, *background)?)
+    }
+
+    fn blend(
+        (a, background): &Self::Model,
+        (b, _): &Self::Model,
+        t: f32,
+    ) -> Result<Self::Model, String> {
+        Ok((interpolate(a, b, t)?, *background))
+    }
+
+    fn gaussian_count((model, _): &Self::Model) -> usize {
+        model.len()
+    }
 
     fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         stylize(args)
@@ -536,10 +539,6 @@ impl ModalityBinary for DynamicScene {
 
     fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         into_new_folder(&args.out, || render(args))
-    }
-
-    fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-        interpolate_models(args)
     }
 
     fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {

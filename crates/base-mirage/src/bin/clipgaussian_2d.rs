@@ -26,7 +26,7 @@ use gs_core::image_loss::psnr;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::background::parse_background;
-use gs_stylize::binary::ModalityBinary;
+use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
@@ -402,6 +402,24 @@ impl ModalityBinary for Picture {
     type Render = RenderArgs;
     type Export = PictureExportArgs;
     type Eval = EvalArgs;
+    type Model = PlyModel;
+
+    /// The PLY as it is (`render` and `export` check more: [`read_model`]).
+    fn read_model(path: &Path) -> Result<PlyModel, Box<dyn Error>> {
+        PlyModel::read(path)
+    }
+
+    fn write_model(path: &Path, model: &PlyModel) -> Result<(), Box<dyn Error>> {
+        model.write(path)
+    }
+
+    fn blend(a: &PlyModel, b: &PlyModel, t: f32) -> Result<PlyModel, String> {
+        PlyModel::blend(a, b, t)
+    }
+
+    fn gaussian_count(model: &PlyModel) -> usize {
+        model.ply.gaussians.len()
+    }
 
     fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         stylize(args)

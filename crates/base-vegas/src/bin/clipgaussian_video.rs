@@ -8,12 +8,12 @@
 //! - `eval`: the paper's CLIP metrics and temporal consistency of stylized frames.
 
 use std::error::Error;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use base_vegas::evaluation::evaluate_video;
 use base_vegas::fit::{self, mean_psnr, render_frames, FrameRenderer, VideoFitSettings};
-use base_vegas::folded::{interpolate, view_time};
+use base_vegas::folded::{interpolate, view_time, FoldedGaussians};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::video_input::{load_video_with_progress, DEFAULT_FOLDER_FPS};
@@ -26,7 +26,7 @@ use gs_stylize::animation::{
 };
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
-use gs_stylize::cli::{EvalStyleArgs, InterpolateArgs, StyleArgs};
+use gs_stylize::cli::{EvalStyleArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
@@ -325,7 +325,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
 fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     check_model(Binary::Video, "--model", &args.model)?;
     check_output_folder(&args.out)?;
-    let (mut model, record) = read_model(&args.model)?;
+    let (mut model, record) = Video::read_model(&args.model)?;
     let size = match (args.width, args.height, record) {
         (Some(w), Some(h), Some(r))
             if u64::from(w) * u64::from(r.height) != u64::from(h) * u64::from(r.width) =>
@@ -392,27 +392,11 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// Runs `interpolate`.
-fn interpolate_models(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-    args.check(Binary::Video)?;
-    let (a, record) = read_model(&args.a)?;
-    let (b, _) = read_model(&args.b)?;
-    let blended = interpolate(&a, &b, args.t).map_err(|e| args.mismatch(e))?;
-    write_model(&args.out, &blended, record)?;
-    println!(
-        "wrote {} ({} Gaussians, t = {})",
-        args.out.display(),
-        blended.params().len(),
-        args.t
-    );
-    Ok(())
-}
-
 /// Runs `export`.
 fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
     let export = &args.export;
     export.check(Binary::Video, args.all_frames)?;
-    let (model, _) = read_model(&export.model)?;
+    let (model, _) = Video::read_model(&export.model)?;
     let frames = model.frames();
     let chosen: Vec<usize> = if args.all_frames {
         (0..frames).collect()
@@ -466,6 +450,28 @@ impl ModalityBinary for Video {
     type Render = RenderArgs;
     type Export = VideoExportArgs;
     type Eval = EvalArgs;
+    type Model = (FoldedGaussians, Option<VideoRecord>);
+
+    /// The model and the video it records.
+    fn read_model(path: &Path) -> Result<Self::Model, Box<dyn Error>> {
+        Ok(read_model(path)?)
+    }
+
+    fn write_model(path: &Path, (model, video): &Self::Model) -> Result<(), Box<dyn Error>> {
+        Ok(write_model(path, model, *video)?)
+    }
+
+    fn blend(
+        (a, video): &Self::Model,
+        (b, _): &Self::Model,
+        t: f32,
+    ) -> Result<Self::Model, String> {
+        Ok((interpolate(a, b, t)?, *video))
+    }
+
+    fn gaussian_count((model, _): &Self::Model) -> usize {
+        model.params().len()
+    }
 
     fn stylize(args: &StylizeArgs) -> Result<(), Box<dyn Error>> {
         stylize(args)
@@ -479,10 +485,6 @@ impl ModalityBinary for Video {
 
     fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
         into_new_folder(&args.out, || render(args))
-    }
-
-    fn interpolate(args: &InterpolateArgs) -> Result<(), Box<dyn Error>> {
-        interpolate_models(args)
     }
 
     fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
