@@ -5,9 +5,16 @@
 # How to run (from anywhere; needs node >= 20 with npm, and python3 with only its standard
 # library; no GPU):
 #
-#   ST_DIR=$(mktemp -d)
+#   ST_DIR=$(mktemp -d) SPZ_ST_DIR=$(mktemp -d)
 #   (cd "$ST_DIR" && npm init -y >/dev/null && npm install @playcanvas/splat-transform@3.7.0)
-#   ST_DIR="$ST_DIR" bash scripts/make_splat_fixtures.sh
+#   (cd "$SPZ_ST_DIR" && npm init -y >/dev/null &&
+#    npm install --ignore-scripts @playcanvas/splat-transform@2.7.1)
+#   ST_DIR="$ST_DIR" SPZ_ST_DIR="$SPZ_ST_DIR" bash scripts/make_splat_fixtures.sh
+#
+# SPZ comes from splat-transform 2.7.1: it writes and reads SPZ through Niantic's library
+# converting between the PLY frame (x right, y down, z forward) and the frame SPZ defines for
+# its contents (x right, y up, z back), as Niantic's ply_to_spz does. splat-transform 3
+# (3.4.2 to 3.7.0) stores the PLY frame unconverted, so its SPZ files are not used here.
 #
 # (splat-transform 3.7.0 declares node >= 22; it runs on node 20 with an EBADENGINE warning.
 # It brings @adobe/spz 0.2.3, the official Niantic/Adobe SPZ encoder compiled to WebAssembly,
@@ -31,13 +38,13 @@
 #                                non-unit quaternions the rotation bytes saturate (clamped to 0/255)
 #   unit.splat                   .splat of unit.ply (unit quaternions): the meaningful .splat fixture
 #   source.v2.spz                SPZ version 2 (gzip, 16-byte header, 3-byte xyz rotations), written
-#                                by @adobe/spz's saveSpzToBuffer directly (splat-transform's CLI
-#                                writes only versions 3 and 4), with the same options and data
-#                                layout splat-transform uses
+#                                by splat-transform 2.7.1's @adobe/spz (saveSpzToBuffer) directly
+#                                (the CLI writes only versions 3 and 4), with the options and
+#                                data layout splat-transform 2.7.1 uses (from RDF)
 #   source.v3.spz                SPZ version 3 (gzip, smallest-three rotations): splat-transform
-#                                --spz-version 3
+#                                2.7.1 --spz-version 3
 #   source.v4.spz                SPZ version 4 (NGSP plaintext 32-byte header + TOC + ZSTD
-#                                streams): splat-transform --spz-version 4 (its default)
+#                                streams): splat-transform 2.7.1 --spz-version 4 (its default)
 #   source.sog                   PlayCanvas SOG bundle (zip of meta.json + lossless WebP images),
 #                                written with --gpu cpu --max-workers 0; splat-transform's CPU
 #                                k-means draws on Math.random and its zip writer stamps the current
@@ -55,17 +62,21 @@
 #                                (no nx/ny/nz; .splat has no f_rest). Rows are in the order of
 #                                <name> itself (for compressed PLY and SOG that is Morton order).
 #
-# All formats except .glb are read and written by splat-transform in one frame, the PLY frame:
-# no axis flip between .ply, .compressed.ply, .splat, .spz and .sog (SPZ included: it is written
-# with CoordinateSystem UNSPECIFIED, i.e. no conversion to the SPZ spec's RUB).
+# .ply, .compressed.ply, .splat and .sog are read and written by splat-transform in one frame,
+# the PLY frame. The .spz files hold SPZ's own frame (y and z negated, quaternions and SH
+# turned with them); their .decoded.ply, splat-transform 2.7.1's reading, is in the PLY frame.
 set -euo pipefail
 
 : "${ST_DIR:?set ST_DIR to the folder where @playcanvas/splat-transform@3.7.0 is npm-installed}"
+: "${SPZ_ST_DIR:?set SPZ_ST_DIR to the folder where @playcanvas/splat-transform@2.7.1 is npm-installed}"
 ST="$ST_DIR/node_modules/.bin/splat-transform"
-SPZ_JS="$ST_DIR/node_modules/@adobe/spz/dist/spz.js"
+ST2="$SPZ_ST_DIR/node_modules/.bin/splat-transform"
+SPZ_JS="$SPZ_ST_DIR/node_modules/@adobe/spz/dist/spz.js"
 [ -x "$ST" ] || { echo "no splat-transform at $ST" >&2; exit 1; }
+[ -x "$ST2" ] || { echo "no splat-transform at $ST2" >&2; exit 1; }
 [ -f "$SPZ_JS" ] || { echo "no @adobe/spz at $SPZ_JS" >&2; exit 1; }
 "$ST" --version 2>&1 | grep -q '3\.7\.0' || { echo "expected splat-transform 3.7.0" >&2; exit 1; }
+"$ST2" --version 2>&1 | grep -q '2\.7\.1' || { echo "expected splat-transform 2.7.1" >&2; exit 1; }
 
 ROOT=$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)
 OUT="$ROOT/crates/gs-core/tests/fixtures/splats"
@@ -152,11 +163,12 @@ PY
 
 # --- b. every format splat-transform writes -----------------------------------------------
 st() { "$ST" -q -w "$@"; }
+st2() { "$ST2" -q -w "$@" 2>/dev/null; }
 st source.ply source.compressed.ply
 st source.ply source.splat
 st unit.ply unit.splat
-st --spz-version 3 source.ply source.v3.spz
-st --spz-version 4 source.ply source.v4.spz
+st2 --spz-version 3 source.ply source.v3.spz
+st2 --spz-version 4 source.ply source.v4.spz
 PRELOAD=$(mktemp --suffix=.mjs)
 trap 'rm -f "$PRELOAD"' EXIT
 cat >"$PRELOAD" <<'JS'
@@ -175,8 +187,8 @@ JS
 NODE_OPTIONS="--import=$PRELOAD" st --gpu cpu --max-workers 0 source.ply source.sog
 st source.ply source.glb
 
-# SPZ version 2 through @adobe/spz directly, with splat-transform's GaussianCloud layout
-# (quaternion xyzw, SH channel-inner) and pack options (from UNSPECIFIED, sh1Bits 5, shRestBits 4).
+# SPZ version 2 through @adobe/spz directly, with splat-transform 2.7.1's GaussianCloud layout
+# (quaternion xyzw, SH channel-inner) and pack options (from RDF, sh1Bits 5, shRestBits 4).
 node --input-type=module - "$SPZ_JS" <<'JS'
 import { readFileSync, writeFileSync } from 'node:fs';
 import { pathToFileURL } from 'node:url';
@@ -217,15 +229,18 @@ for (let i = 0; i < n; i++) {
     }
 }
 const bytes = spz.saveSpzToBuffer(cloud, {
-    version: 2, from: spz.CoordinateSystem.UNSPECIFIED, sh1Bits: 5, shRestBits: 4
+    version: 2, from: spz.CoordinateSystem.RDF, sh1Bits: 5, shRestBits: 4
 });
 if (!(bytes[0] === 0x1f && bytes[1] === 0x8b)) throw new Error('expected a gzip stream for SPZ v2');
 writeFileSync('source.v2.spz', bytes);
 JS
 
 # --- c. splat-transform's reading of each, as a plain PLY ---------------------------------
-for f in source.compressed.ply source.splat unit.splat source.v2.spz source.v3.spz source.v4.spz source.sog; do
+for f in source.compressed.ply source.splat unit.splat source.sog; do
     st "$f" "$f.decoded.ply"
+done
+for f in source.v2.spz source.v3.spz source.v4.spz; do
+    st2 "$f" "$f.decoded.ply"
 done
 
 ls -l "$OUT"

@@ -84,12 +84,14 @@ fn every_file_reads_as_splat_transform_reads_it() {
         let ours = read_splats(&fixture(name)).unwrap();
         let theirs = read_ply(&fixture(&format!("{name}.decoded.ply"))).unwrap();
         assert!(!ours.normals && ours.extras.is_empty(), "{name}");
-        // The same formulas in f64 on both sides, stored in f32.
+        // The same formulas in f64 on both sides, stored in f32; SPZ 2's derived w,
+        // `sqrt(1 - x² - y² - z²)`, is computed in f32 by Niantic's library (a few ulp where
+        // w is small).
         assert_close(
             name,
             &ours.gaussians,
             &theirs.gaussians,
-            [1e-6, 1e-6, 1e-6, 1e-5, 1e-6, 1e-6],
+            [1e-6, 1e-6, 2e-6, 1e-5, 1e-6, 1e-6],
         );
     }
 }

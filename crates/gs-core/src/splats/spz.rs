@@ -17,9 +17,15 @@
 //! - SH above degree 0, coefficient by coefficient with the channel innermost:
 //!   `round(v 128) + 128` to a bucket of 8 (the three degree-1 coefficients) or 16 (the rest).
 //!
-//! Coordinates are stored as held here (x right, y down, z forward), as splat-transform and
-//! Niantic's converter at its default options store a 3DGS PLY's; the format does not record
-//! the frame. The antialiasing flag is written clear and ignored on reading.
+//! Axes: SPZ stores its Gaussians in its own frame, x right, y up, z back (OpenGL's, "RUB"),
+//! and Niantic's library converts from and to the caller's. Gaussians are held here in 3DGS's
+//! PLY frame (x right, y down, z forward, "RDF"), so the writer turns them a half turn about x
+//! into SPZ's frame and the reader turns them back, as Niantic's `ply_to_spz` / `spz_to_ply`
+//! and `@playcanvas/splat-transform` 2 do: positions' y and z negated, the quaternions' y and
+//! z, and each SH coefficient by its parity in y and z ([`turn_about_x`]).
+//! (`@playcanvas/splat-transform` 3 writes and reads the PLY frame unconverted, against the
+//! format's definition: its files come out upside down and mirrored here, and ours there.) The
+//! antialiasing flag is written clear and ignored on reading.
 
 use std::io::{Read, Write};
 
@@ -51,6 +57,37 @@ impl Version {
             Self::V2 => 2,
             Self::V3 => 3,
             Self::V4 => 4,
+        }
+    }
+}
+
+/// The sign of each SH coefficient above degree 0 (degrees 1 to 4, in the order 3DGS stores
+/// them) under a half turn about x, `(x, y, z) -> (x, -y, -z)`: the coefficient of a real SH
+/// basis function odd in y and z together keeps its sign, odd in one of them flips.
+const SH_SIGNS_ABOUT_X: [f32; 24] = [
+    -1.0, -1.0, 1.0, // degree 1: y, z, x
+    -1.0, 1.0, 1.0, -1.0, 1.0, // degree 2: xy, yz, 3z²-1, xz, x²-y²
+    -1.0, 1.0, -1.0, -1.0, 1.0, -1.0, 1.0, // degree 3
+    -1.0, 1.0, -1.0, 1.0, 1.0, -1.0, 1.0, -1.0, -1.0, // degree 4
+];
+
+/// Turns `set` a half turn about x, between 3DGS's PLY frame and SPZ's (its own inverse):
+/// positions and the quaternions' vector parts get y and z negated, SH coefficients their
+/// signs under the turn ([`SH_SIGNS_ABOUT_X`]).
+fn turn_about_x(set: &mut GaussianSet) {
+    for p in set.means.chunks_exact_mut(3) {
+        p[1] = -p[1];
+        p[2] = -p[2];
+    }
+    // (w, x, y, z): the rotation R becomes T R T with T = diag(1, -1, -1).
+    for q in set.quats.chunks_exact_mut(4) {
+        q[2] = -q[2];
+        q[3] = -q[3];
+    }
+    let rest = rest_coefficients(set.sh_degree());
+    if rest > 0 {
+        for (k, v) in set.sh_rest.iter_mut().enumerate() {
+            *v *= SH_SIGNS_ABOUT_X[(k / 3) % rest];
         }
     }
 }
@@ -149,7 +186,9 @@ pub fn encode(set: &GaussianSet, version: Version) -> Result<Vec<u8>, String> {
     check_rotations(set)?;
     let n = u32::try_from(set.len()).map_err(|_| "more Gaussians than SPZ counts (2^32)")?;
     let bits = fractional_bits(&set.means)?;
-    let streams = attributes(set, version, bits);
+    let mut turned = set.clone();
+    turn_about_x(&mut turned);
+    let streams = attributes(&turned, version, bits);
     let degree = set.sh_degree() as u8;
     match version {
         Version::V2 | Version::V3 => {
@@ -372,5 +411,123 @@ fn assemble(
             set.sh_rest[k] = ((f64::from(v) - 128.0) / 128.0) as f32;
         }
     }
+    turn_about_x(&mut set);
     Ok(set)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::raster::render;
+    use crate::Camera;
+
+    /// Gaussians of SH degree 3 in front of a camera at the origin looking down +z, from a
+    /// fixed sequence (no two alike, every coefficient non-zero).
+    fn scene(seed: f32) -> GaussianSet {
+        let mut set = GaussianSet::zeros(40, 3);
+        let value = |i: usize, scale: f32| (i as f32 * 0.731 + seed).sin() * scale;
+        for (i, v) in set.means.iter_mut().enumerate() {
+            *v = if i % 3 == 2 {
+                4.0 + value(i, 1.0)
+            } else {
+                value(i, 1.2)
+            };
+        }
+        for (i, v) in set.log_scales.iter_mut().enumerate() {
+            *v = -2.0 + value(i + 7, 0.6);
+        }
+        for (i, v) in set.quats.iter_mut().enumerate() {
+            *v = value(i + 3, 1.0);
+        }
+        for (i, v) in set.opacity_logits.iter_mut().enumerate() {
+            *v = value(i + 11, 2.0);
+        }
+        for (i, v) in set.sh_dc.iter_mut().enumerate() {
+            *v = value(i + 5, 1.0);
+        }
+        for (i, v) in set.sh_rest.iter_mut().enumerate() {
+            *v = value(i + 13, 0.4);
+        }
+        set
+    }
+
+    /// The half turn is a rotation of the whole scene: the turned Gaussians seen by the turned
+    /// camera are the picture the Gaussians give (positions, orientations and the colour of
+    /// every view direction, each SH degree included), and two turns are none.
+    #[test]
+    fn the_half_turn_about_x_turns_the_scene_and_undoes_itself() {
+        for seed in [0.0, 1.3, 2.9] {
+            let set = scene(seed);
+            let mut turned = set.clone();
+            turn_about_x(&mut turned);
+            for (eye, target) in [
+                ([0.0, 0.0, 0.0], [0.0, 0.0, 4.0]),
+                ([2.0, -1.0, 1.0], [0.0, 0.0, 4.0]),
+            ] {
+                let camera = Camera::look_at(eye, target, [0.0, -1.0, 0.0], 1.2, 48, 40).unwrap();
+                let flip = [1.0, -1.0, -1.0];
+                let mut rotation = camera.rotation;
+                for row in &mut rotation {
+                    for (r, f) in row.iter_mut().zip(flip) {
+                        *r *= f;
+                    }
+                }
+                let turned_camera = Camera::new(
+                    rotation,
+                    camera.translation,
+                    [camera.fx, camera.fy, camera.cx, camera.cy],
+                    camera.width,
+                    camera.height,
+                )
+                .unwrap();
+                let a = render(&set, &camera, [0.0; 3]).image.data;
+                let b = render(&turned, &turned_camera, [0.0; 3]).image.data;
+                let lit = a.iter().filter(|v| **v > 0.05).count();
+                assert!(lit > a.len() / 10, "the Gaussians are in view ({lit} lit)");
+                let worst = a
+                    .iter()
+                    .zip(&b)
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0, f32::max);
+                assert!(
+                    worst < 1e-4,
+                    "seed {seed}, eye {eye:?}: pictures differ by {worst}"
+                );
+            }
+            turn_about_x(&mut turned);
+            assert_eq!(turned, set);
+        }
+    }
+
+    /// A sign of the turn taken away (each SH coefficient, a quaternion or position part) is
+    /// seen: the check above would fail without it.
+    #[test]
+    fn each_sh_sign_matters() {
+        let set = scene(0.4);
+        let camera = Camera::look_at(
+            [1.0, 0.5, 0.0],
+            [0.0, 0.0, 4.0],
+            [0.0, -1.0, 0.0],
+            1.2,
+            32,
+            32,
+        )
+        .unwrap();
+        let base = render(&set, &camera, [0.0; 3]).image.data;
+        for coefficient in 0..15 {
+            let mut changed = set.clone();
+            for g in 0..changed.len() {
+                for c in 0..3 {
+                    changed.sh_rest[(g * 15 + coefficient) * 3 + c] *= -1.0;
+                }
+            }
+            let other = render(&changed, &camera, [0.0; 3]).image.data;
+            let worst = base
+                .iter()
+                .zip(&other)
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0, f32::max);
+            assert!(worst > 1e-3, "coefficient {coefficient} has no effect here");
+        }
+    }
 }
