@@ -9,6 +9,8 @@
 //!   written over.
 //! - [`dataset`]: posed ground-truth images: NeRF-synthetic (and D-NeRF, with a time per frame)
 //!   and COLMAP scenes, with background masks and the scene extent.
+//! - [`orbit`]: cameras made from a Gaussian set alone (where it is, and views around or from
+//!   within it), for models that come without their cameras.
 //! - [`mirror_pair`]: the two cameras of Gaussians on a plane (MiraGe pictures, VeGaS frames).
 //! - [`plane_neighbours`]: nearest-neighbour distances of points on a plane (initial scales).
 //! - [`raster`]: the differentiable tile rasterizer (cpu backend) with its exact backward.
@@ -51,6 +53,7 @@ pub mod levels;
 pub mod mat;
 pub mod mirror_pair;
 pub mod model;
+pub mod orbit;
 pub mod pil_resize;
 pub mod plane_neighbours;
 pub mod ply;

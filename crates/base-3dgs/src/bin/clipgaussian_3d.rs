@@ -17,6 +17,7 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
+use gs_core::orbit::OrbitKind;
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
@@ -31,7 +32,8 @@ use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
 
-/// Stylize a trained 3DGS scene (INRIA PLY + its dataset) with a text or picture style.
+/// Stylize a trained 3DGS scene (a splat file, with or without its dataset) with a text or
+/// picture style.
 ///
 /// Writes to `--out`: model.ply (the stylized scene, in the input's PLY format with its
 /// extra properties), preview.png (before | after of the first `preview_views` entry; the
@@ -56,9 +58,37 @@ struct StylizeArgs {
     ply: Option<PathBuf>,
     /// The dataset folder: NeRF-synthetic, nerfstudio / instant-ngp (transforms.json) or
     /// COLMAP (sparse/, or dense/ from image_undistorter); distorted cameras are undistorted.
+    /// Without it the model alone is stylized: the views come from --cameras, else from the
+    /// INRIA cameras.json beside the model, else from an orbit made from the model, and each
+    /// view's ground truth is the model's own render.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
+    /// Without --data, the cameras to train from: an INRIA cameras.json, a NeRF or nerfstudio
+    /// transforms file (or its folder), or a COLMAP folder (or its sparse/); their pictures
+    /// are not needed.
+    #[arg(long, conflicts_with = "data")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cameras: Option<PathBuf>,
+    /// Without --data or --cameras, cameras made from the model: object (around it, looking
+    /// in) or inside (from its centre, looking out: a room or garden captured from within).
+    /// Default: a cameras.json beside the model when there is one, else inside where the
+    /// model's centre is hollow and object otherwise.
+    #[arg(long, value_parser = orbit_parser(), conflicts_with_all = ["data", "cameras"])]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    orbit: Option<OrbitKind>,
+    /// The number of views of the orbit (default 64).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    orbit_views: Option<usize>,
+    /// The width of the orbit's pictures, pixels (default 800).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    width: Option<u32>,
+    /// The height of the orbit's pictures, pixels (default 800).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    height: Option<u32>,
     /// The output folder (created when absent).
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -83,6 +113,13 @@ struct StylizeArgs {
     #[command(flatten)]
     #[serde(skip)]
     style: StyleArgs,
+}
+
+/// `--orbit`'s values, by their names.
+fn orbit_parser() -> impl clap::builder::TypedValueParser<Value = OrbitKind> {
+    use clap::builder::TypedValueParser;
+    clap::builder::PossibleValuesParser::new(OrbitKind::ALL.map(OrbitKind::name))
+        .map(|name| OrbitKind::from_name(&name).expect("a name of OrbitKind::ALL"))
 }
 
 impl StylizeArgs {
@@ -355,10 +392,19 @@ mod tests {
             "3",
             "--background",
             "white",
+            "--orbit-views",
+            "7",
+            "--width",
+            "30",
+            "--height",
+            "20",
         ];
         let own_fields = [
             ("model", json!("m.ply")),
             ("data", json!("d")),
+            ("orbit_views", json!(7)),
+            ("width", json!(30)),
+            ("height", json!(20)),
             ("out", json!("o")),
             ("resolution", json!(2)),
             ("max_width", json!(3)),
@@ -372,5 +418,23 @@ mod tests {
                 line.args.overrides().unwrap()
             },
         );
+        // The camera flags of a run without data, one at a time (they exclude each other).
+        for (flag, value, field) in [
+            ("--cameras", "c.json", "cameras"),
+            ("--orbit", "inside", "orbit"),
+        ] {
+            gs_stylize::test_support::assert_flags_set::<SceneStylizeConfig>(
+                &["--model", "m.spz", "--out", "o", flag, value],
+                &[
+                    ("model", json!("m.spz")),
+                    ("out", json!("o")),
+                    (field, json!(value)),
+                ],
+                |line| {
+                    let line = Line::parse_from(line);
+                    line.args.overrides().unwrap()
+                },
+            );
+        }
     }
 }

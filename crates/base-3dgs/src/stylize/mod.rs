@@ -5,8 +5,10 @@
 //!
 //! - [`config`]: the 3D run configuration and its paper defaults.
 //! - [`run`](mod@run): loading the PLY and the dataset, stylizing, writing the PLY and previews.
+//! - `model_views`: the views and ground truths of a run given only the model.
 
 pub mod config;
+mod model_views;
 pub mod run;
 
 pub use config::SceneStylizeConfig;

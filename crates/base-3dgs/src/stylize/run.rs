@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 
 use gs_core::model::BaseModel;
 use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
-use gs_core::splats::read_splats_with_format;
+use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_core::GaussianSet;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
@@ -18,6 +18,7 @@ use gs_stylize::{
 };
 
 use super::config::BackgroundPixels;
+use super::model_views::model_dataset;
 use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
@@ -89,9 +90,12 @@ impl Modality for SceneStylizeConfig {
     }
 
     /// A NeRF-synthetic scene's sizes from its json files (and one picture header a split);
-    /// none for a COLMAP scene or one whose files do not read (the loading reports them).
+    /// none for a COLMAP scene, one whose files do not read (the loading reports them) or a run
+    /// without data.
     fn input_pixels(&self) -> Result<Option<InputPixels>, SceneStylizeError> {
-        let data = self.data_path();
+        let Some(data) = self.data.as_deref() else {
+            return Ok(None);
+        };
         if !matches!(Layout::detect(data), Some(Layout::NerfSynthetic)) {
             return Ok(None);
         }
@@ -107,7 +111,8 @@ impl Modality for SceneStylizeConfig {
         )
     }
 
-    /// The PLY and the dataset, with the preview views checked against it.
+    /// The PLY and the dataset (or, without data, the model's views and renders:
+    /// [`model_dataset`]), with the preview views checked against it.
     fn load_inputs(
         &self,
         run: &PreparedRun,
@@ -115,11 +120,14 @@ impl Modality for SceneStylizeConfig {
     ) -> Result<SceneInput, SceneStylizeError> {
         let (ply, format) =
             read_splats_with_format(self.model_path()).map_err(StylizeError::from)?;
-        let dataset = load_dataset(self, run.options().progress)?;
+        let dataset = match self.data.as_deref() {
+            Some(data) => load_dataset(self, data, run.options().progress)?,
+            None => model_dataset(self, &ply.gaussians, run)?,
+        };
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
             return Err(StylizeError::Input(format!(
-                "preview_views: view {v} does not exist (the dataset has {count}; set them \
+                "preview_views: view {v} does not exist (the run has {count}; set them \
                  with --set preview_views=[0])"
             ))
             .into());
@@ -198,7 +206,8 @@ impl Modality for SceneStylizeConfig {
         })
     }
 
-    /// The stylized PLY, in the input's format with its extra properties, and the previews.
+    /// The stylized PLY, in the input's format with its extra properties (and, for a scene
+    /// read from another splat format, the scene in that format as well), and the previews.
     fn write_outputs(
         &self,
         scene: SceneInput,
@@ -219,6 +228,13 @@ impl Modality for SceneStylizeConfig {
             normals: ply.normals,
         };
         write_ply(&stylized_ply, &stylized, format).map_err(StylizeError::from)?;
+        // A scene read from another splat format is written in it too (`model.spz`, ...).
+        if let Some(input) = SplatFormat::from_path(self.model_path()) {
+            if input != SplatFormat::Ply {
+                let path = out.join(format!("model{}", input.extension()));
+                write_splats(&path, &stylized, input).map_err(StylizeError::from)?;
+            }
+        }
         let mut base = ply.gaussians;
         write_previews(
             out,
@@ -244,8 +260,11 @@ fn no_fit() -> StylizeError {
 
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
 /// `sparse/` is; the progress of its pictures shown when `show`.
-fn load_dataset(config: &SceneStylizeConfig, show: bool) -> Result<Dataset, StylizeError> {
-    let data = config.data_path();
+fn load_dataset(
+    config: &SceneStylizeConfig,
+    data: &Path,
+    show: bool,
+) -> Result<Dataset, StylizeError> {
     with_loading_progress(show, "loading pictures", |progress| {
         let options = LoadOptions {
             background: Background::from_rgb(config.background),

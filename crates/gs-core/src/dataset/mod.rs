@@ -1,10 +1,11 @@
 //! Datasets of posed ground-truth images: NeRF-synthetic, D-NeRF, nerfstudio and instant-ngp
 //! `transforms` files ([`nerf_synthetic`]) and COLMAP ([`colmap`]), loaded into gs-core views
 //! and images with the options 3DGS users know; distorted cameras undistorted at load
-//! ([`undistort`]).
+//! ([`undistort`]); and INRIA's `cameras.json`, cameras without pictures ([`inria_cameras`]).
 
 pub mod colmap;
 mod images;
+pub mod inria_cameras;
 pub mod nerf_synthetic;
 pub mod undistort;
 mod view_picture;
