@@ -247,6 +247,16 @@ pub fn check_fits_picture(
     }
 }
 
+impl ModelFile {
+    /// The size of the picture the model records, when it records one of no more pixels than
+    /// a picture read may have ([`gs_core::image::MAX_PICTURE_PIXELS`]).
+    pub fn picture_size(&self) -> Option<(u32, u32)> {
+        let f = self.fitted_to?;
+        (u64::from(f.width) * u64::from(f.height) <= gs_core::image::MAX_PICTURE_PIXELS)
+            .then_some((f.width, f.height))
+    }
+}
+
 /// The aspect ratio (x extent / z extent) of the rectangle the means `[N, 3]` cover, from
 /// their 0.5 % and 99.5 % quantiles; `None` for too few Gaussians or a degenerate extent.
 fn covered_aspect(means: &[f32]) -> Option<f64> {

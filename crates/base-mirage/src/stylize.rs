@@ -11,7 +11,8 @@
 //! - `preview.png`: the original and the stylized picture, left and right;
 //! - `model.ply`: the stylized model (MiraGe PLY), to stylize again or interpolate;
 //! - `base.ply`: the fitted model when this run fitted it (a resumed run reuses it);
-//! - `original.png`: the picture when it is the embedded default;
+//! - `original.png`: the picture when it is not a file (the embedded default, or the render of a
+//!   model given alone);
 //! - `config.json`, `losses.json`, `losses.png` and `checkpoint/` (see gs-stylize; marked
 //!   finished once the rest is written).
 
@@ -60,7 +61,9 @@ pub const ORIGINAL_PNG: &str = "original.png";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct PictureStylizeConfig {
-    /// The picture (PNG or JPEG, any size); none: the embedded default picture.
+    /// The picture (PNG or JPEG, any size); none: the model's own render when a model is
+    /// given (the content target is then what the model shows), else the embedded default
+    /// picture.
     pub picture: Option<PathBuf>,
     /// A model of the picture fitted earlier (MiraGe PLY); none: fit one first.
     pub model: Option<PathBuf>,
@@ -234,6 +237,39 @@ impl PictureStylizeConfig {
     }
 }
 
+impl PictureStylizeConfig {
+    /// The picture of a model given without one: its render by the front camera at the size
+    /// it records, and how errors name it.
+    fn model_picture(
+        &self,
+        path: &Path,
+        run: &PreparedRun,
+    ) -> Result<(Image, String), PictureStylizeError> {
+        let mut file = read_model(path)?;
+        let Some((width, height)) = file.picture_size() else {
+            return Err(PictureStylizeError::ModelMismatch {
+                path: path.to_path_buf(),
+                reason: "it records no picture size (MiraGe's own files do not), or one larger \
+                         than a picture may be: give the picture with --picture"
+                    .into(),
+            });
+        };
+        let picture = render_picture(
+            &mut file.model,
+            width,
+            height,
+            self.distance,
+            false,
+            self.background,
+            run.backend(),
+        )?;
+        if run.options().progress {
+            eprintln!("picture: the model's own render, {width}x{height} (no --picture given)");
+        }
+        Ok((picture, format!("{} (its own render)", path.display())))
+    }
+}
+
 impl Modality for PictureStylizeConfig {
     type Model = FlatGaussians;
     type Inputs = PictureInput;
@@ -286,14 +322,16 @@ impl Modality for PictureStylizeConfig {
         }))
     }
 
-    /// The picture, checked against the patch size.
+    /// The picture (a model given alone: its own render), checked against the patch size.
     fn load_inputs(
         &self,
-        _run: &PreparedRun,
+        run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<PictureInput, PictureStylizeError> {
-        let picture = original_picture(self)?;
-        let label = picture_label(self);
+        let (picture, label) = match (&self.picture, &self.model) {
+            (None, Some(model)) => self.model_picture(model, run)?,
+            _ => (original_picture(self)?, picture_label(self)),
+        };
         check_patches_fit(
             &self.style,
             std::slice::from_ref(&picture),

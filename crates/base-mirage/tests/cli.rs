@@ -1030,3 +1030,63 @@ fn precision_auto_says_what_it_chose_and_falls_back_to_f32_by_the_switch() {
         assert_eq!(auto_losses, f32_losses);
     }
 }
+
+/// A model given without a picture is stylized alone: its picture is its own render at the
+/// size it records (written as original.png), so the content term starts at 0; a model that
+/// records no size is refused naming --picture, before any output.
+#[test]
+fn a_model_alone_is_stylized_against_its_own_render() {
+    let dir = TempDir::new().unwrap();
+    let models = write_tiny_models(dir.path());
+    let picture = write_picture(dir.path());
+    let fit_dir = dir.path().join("fit");
+    run(bin()
+        .args([
+            "fit",
+            "--quiet",
+            "--picture",
+            s(&picture),
+            "--out",
+            s(&fit_dir),
+        ])
+        .args(["--gaussians", "200", "--steps", "20", "--device", "cpu"]));
+    let model = fit_dir.join("model.ply");
+    let sty = dir.path().join("alone");
+    let mut cmd = bin();
+    shown_stylize_args(&mut cmd, &models, 3);
+    let out = run(cmd.args(["--model", s(&model), "--out", s(&sty), "--device", "cpu"]));
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains(&format!("picture: the model's own render, {W}x{H}")),
+        "{said}"
+    );
+    assert_eq!(png_size(&sty.join("original.png")), (W, H));
+    assert_eq!(png_size(&sty.join("stylized.png")), (W, H));
+    let fitted = image::open(fit_dir.join("fitted.png")).unwrap().to_rgb8();
+    let original = image::open(sty.join("original.png")).unwrap().to_rgb8();
+    assert_eq!(fitted, original, "the picture is the model's render");
+    let losses: Vec<gs_stylize::outputs::StepLosses> =
+        serde_json::from_str(&std::fs::read_to_string(sty.join("losses.json")).unwrap()).unwrap();
+    assert_eq!(losses[0].terms["content"], 0.0);
+
+    let mut plain = read_ply(&model).unwrap();
+    plain.comments.clear();
+    let unrecorded = dir.path().join("mirage.ply");
+    gs_core::ply::write_ply(
+        &unrecorded,
+        &plain,
+        gs_core::ply::PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    let refused_out = dir.path().join("refused");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let err = fails(cmd.args(["--model", s(&unrecorded), "--out", s(&refused_out)]));
+    assert!(
+        err.contains("mirage.ply")
+            && err.contains("records no picture size")
+            && err.contains("--picture"),
+        "{err}"
+    );
+    assert!(!refused_out.exists());
+}

@@ -1,7 +1,7 @@
 //! `clipgaussian-2d`: CLIPGaussian on pictures, held as MiraGe flat Gaussians.
 //!
 //! - `stylize`: fits a picture (or takes a fitted model) and stylizes it with a text or
-//!   picture style; with no picture, the embedded default one. Ctrl-C stops after the current
+//!   picture style; a model alone, its own render; with neither, the embedded default picture. Ctrl-C stops after the current
 //!   step and writes a checkpoint to resume from.
 //! - `fit`: fits a picture and writes its model.
 //! - `render`: renders a model at the size it records (or a chosen one), from the front or
@@ -39,14 +39,15 @@ use gs_wgpu::backend::{Backend, DeviceChoice};
 use serde::Serialize;
 
 /// Stylize a picture with a text or picture style ("Starry Night by Vincent van Gogh" and
-/// the embedded default picture when none is given).
+/// the embedded default picture when neither a picture nor a model is given).
 ///
 /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
-/// paper's 2D settings (configs/2d.json). Writes to --out: stylized.png (the size of the
+/// paper's 2D settings (configs/2d.json). A --model given without --picture is stylized
+/// alone: the picture is its own render, at the size it records. Writes to --out: stylized.png (the size of the
 /// picture), preview.png (original | stylized), model.ply (the stylized model),
 /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
-/// original.png (the embedded default picture,
-/// when no --picture is given), losses.json, losses.png, config.json and checkpoint/. The
+/// original.png (the embedded default picture or the model's own render, when no --picture
+/// is given), losses.json, losses.png, config.json and checkpoint/. The
 /// configuration comes from --config (the paper's defaults when absent), then the flags,
 /// then every --set field=value in order. Every input is checked before the fit starts; a
 /// --model fitted to a picture of another aspect ratio is refused. Ctrl-C stops after the
@@ -59,7 +60,8 @@ struct StylizeArgs {
     #[arg(long)]
     #[serde(skip)]
     config: Option<PathBuf>,
-    /// The picture, PNG or JPEG of any size (default: the embedded picture).
+    /// The picture, PNG or JPEG of any size (default: the render of --model when it is given,
+    /// else the embedded picture).
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     picture: Option<PathBuf>,
