@@ -32,7 +32,8 @@ use gs_stylize::{
 use serde::{Deserialize, Serialize};
 
 use crate::fit::{
-    fit, mean_psnr, render_frames, training_targets, training_views, VideoFitSettings,
+    fit, mean_psnr, render_frames, training_targets, training_views, FrameRenderer,
+    VideoFitSettings,
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
 use crate::model_file::{read_model, write_model, VegasFileError, VideoRecord};
@@ -56,7 +57,9 @@ pub const BASE_PLY: &str = "base.ply";
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct VideoStylizeConfig {
-    /// The video: a folder of numbered PNG or JPEG frames, or a video file (through ffmpeg).
+    /// The video: a folder of numbered PNG or JPEG frames, or a video file (through ffmpeg);
+    /// none with a `model`: the model's own frames, rendered at the size and rate it records
+    /// (the content target is then what the model shows).
     pub video: Option<PathBuf>,
     /// A model of the video fitted earlier (VeGaS PLY); none: fit one first.
     pub model: Option<PathBuf>,
@@ -229,6 +232,69 @@ impl VideoStylizeConfig {
     }
 }
 
+impl VideoStylizeConfig {
+    /// The video of a model given without one: its own frames, rendered at the size and
+    /// frame rate it records; a model that records none, or frames larger than a picture may
+    /// be, is refused naming --video.
+    fn model_video(&self, path: &Path, run: &PreparedRun) -> Result<Video, VideoStylizeError> {
+        let (mut model, record) = read_model(path)?;
+        let refused = |what: &str| VideoStylizeError::ModelMismatch {
+            path: path.to_path_buf(),
+            reason: format!("{what}: give the video with --video"),
+        };
+        let Some(record) = record else {
+            return Err(refused(
+                "it records no frame size (VeGaS's own files do not)",
+            ));
+        };
+        let (w, h) = (record.width, record.height);
+        if u64::from(w) * u64::from(h) > gs_core::image::MAX_PICTURE_PIXELS {
+            return Err(refused(&format!(
+                "it records {w}x{h} frames, more pixels than a picture may have"
+            )));
+        }
+        let show = run.options().progress;
+        if show {
+            eprintln!(
+                "video: the model's own {} frames, {w}x{h} at {} fps (no --video given)",
+                model.frames(),
+                record.fps
+            );
+        }
+        let frames = with_loading_progress(show, "rendering the model's frames", |progress| {
+            let mut renderer = FrameRenderer::new(
+                &mut model,
+                w,
+                h,
+                self.distance,
+                self.background,
+                run.backend(),
+            )?;
+            let count = renderer.frames();
+            (0..count)
+                .map(|f| {
+                    let frame = renderer.render(f);
+                    progress.report(f + 1, count);
+                    frame
+                })
+                .collect::<Result<Vec<Image>, _>>()
+        })?;
+        let labels = (0..frames.len())
+            .map(|k| format!("{} frame {k} (its own render)", path.display()))
+            .collect();
+        check_patches_fit(
+            &self.style,
+            &frames[..1],
+            &[format!("{} frame 0", path.display())],
+        )?;
+        Ok(Video {
+            frames,
+            labels,
+            fps: record.fps,
+        })
+    }
+}
+
 impl Modality for VideoStylizeConfig {
     type Model = FoldedGaussians;
     type Inputs = Video;
@@ -251,9 +317,11 @@ impl Modality for VideoStylizeConfig {
 
     /// Checks the video path, the frame rate and the learning rates.
     fn check(&self) -> Result<(), VideoStylizeError> {
-        if self.video.is_none() {
+        if self.video.is_none() && self.model.is_none() {
             return Err(VideoStylizeError::Config(
-                "video: is required (--video PATH, a frames folder or a video file)".into(),
+                "video: is required (--video PATH, a frames folder or a video file), unless a \
+                 model is given alone (--model, whose own frames are then the video)"
+                    .into(),
             ));
         }
         if !(self.fps.is_finite() && self.fps > 0.0) {
@@ -274,6 +342,17 @@ impl Modality for VideoStylizeConfig {
     /// image at that size once shrunk to `max_width`; none for a video file (ffmpeg decodes
     /// it) or a folder whose first frame's header does not read (the loading reports it).
     fn input_pixels(&self) -> Result<Option<InputPixels>, VideoStylizeError> {
+        if let (None, Some(model)) = (&self.video, &self.model) {
+            // A model alone: the frames it records (one that does not is refused at loading).
+            let Ok((folded, Some(record))) = read_model(model) else {
+                return Ok(None);
+            };
+            let pixels = u64::from(record.width) * u64::from(record.height);
+            return Ok(Some(InputPixels {
+                views: vec![pixels; 2 * folded.frames()],
+                largest_stored: pixels,
+            }));
+        }
         let Some(path) = self.video.as_deref().filter(|p| p.is_dir()) else {
             return Ok(None);
         };
@@ -296,7 +375,13 @@ impl Modality for VideoStylizeConfig {
         run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<Video, VideoStylizeError> {
-        let path = self.video.as_deref().expect("checked: the video is given");
+        let Some(path) = self.video.as_deref() else {
+            let model = self
+                .model
+                .as_deref()
+                .expect("checked: a video or a model is given");
+            return self.model_video(model, run);
+        };
         let video = with_loading_progress(run.options().progress, "loading frames", |progress| {
             load_video_with_progress(
                 path,

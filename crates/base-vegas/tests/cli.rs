@@ -519,3 +519,53 @@ fn the_shared_flags_have_the_same_names_in_every_subcommand() {
         true,
     );
 }
+
+/// A model given without a video is stylized alone: its frames are its own renders at the
+/// size and rate it records, so the content term starts at 0; one that records no frame size
+/// is refused naming --video, before any output.
+#[test]
+fn a_model_alone_is_stylized_against_its_own_frames() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let clip = write_clip(dir.path());
+    let fitted = dir.path().join("fitted");
+    fit_video(&clip, &fitted, 200, 10);
+    let model = fitted.join("model.ply");
+    let styled = dir.path().join("alone");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 3);
+    let out = run(cmd.args(["--model", s(&model), "--out", s(&styled)]));
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("wrote 6 frames (40x32)"), "{stdout}");
+    assert_eq!(frame_sizes(&styled.join("frames")), vec![(W, H); FRAMES]);
+    let losses: Vec<gs_stylize::outputs::StepLosses> =
+        serde_json::from_str(&std::fs::read_to_string(styled.join("losses.json")).unwrap())
+            .unwrap();
+    assert_eq!(losses[0].terms["content"], 0.0);
+    let (stylized, record) = read_model(&styled.join("model.ply")).unwrap();
+    assert_eq!(stylized.frames(), FRAMES);
+    assert_eq!(record.map(|r| (r.width, r.height)), Some((W, H)));
+
+    // VeGaS's own file records no frame size: the same file without the record's comment
+    // (renamed to another comment of the same length, so the header keeps its size).
+    let bytes = std::fs::read(&model).unwrap();
+    let at = bytes
+        .windows(b"comment clipgaussian-video".len())
+        .position(|w| w == b"comment clipgaussian-video")
+        .unwrap();
+    let mut plain = bytes.clone();
+    plain[at + 8..at + 26].copy_from_slice(b"made-by-hand-video");
+    let unrecorded = dir.path().join("vegas.ply");
+    std::fs::write(&unrecorded, plain).unwrap();
+    let refused_out = dir.path().join("refused");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let err = fails(cmd.args(["--model", s(&unrecorded), "--out", s(&refused_out)]));
+    assert!(
+        err.contains("vegas.ply")
+            && err.contains("records no frame size")
+            && err.contains("--video"),
+        "{err}"
+    );
+    assert!(!refused_out.exists());
+}

@@ -41,7 +41,8 @@ use serde::Serialize;
 ///
 /// Fits the video first unless --model gives a fitted one, then stylizes its colours with
 /// the paper's video settings (configs/video.json; configs/video-light.json is the light
-/// variant). Writes to --out: frames/00000.png ... (the stylized frames, the size of the
+/// variant). A --model given without --video is stylized alone: the video is its own frames,
+/// rendered at the size and frame rate it records. Writes to --out: frames/00000.png ... (the stylized frames, the size of the
 /// video), preview.png (the first frame, original | stylized), preview.gif (original |
 /// stylized, animated), stylized.mp4 (when ffmpeg is
 /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
@@ -56,7 +57,8 @@ struct StylizeArgs {
     #[serde(skip)]
     config: Option<PathBuf>,
     /// The video: a folder of numbered PNG or JPEG frames (sorted naturally), or an mp4, webm,
-    /// mov, mkv or avi file (read through ffmpeg).
+    /// mov, mkv or avi file (read through ffmpeg); default with --model: the model's own
+    /// frames.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     video: Option<PathBuf>,
