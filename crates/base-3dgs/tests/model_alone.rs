@@ -18,6 +18,7 @@ use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::raster::render;
 use gs_core::splats::{read_splats, write_splats, SplatFormat};
 use gs_core::Camera;
+use gs_stylize::model_views::ModelViews;
 use gs_stylize::rates::gaussian_stylization;
 use gs_wgpu::backend::DeviceChoice;
 use scene::{c2w, fixture, random_set, write_tiny_clip, FOV_X, SIZE, VIEWS};
@@ -28,9 +29,12 @@ fn config(dir: &Path, model: PathBuf) -> SceneStylizeConfig {
     SceneStylizeConfig {
         model: Some(model),
         out: Some(dir.join("out")),
-        orbit_views: 5,
-        width: SIZE,
-        height: 40,
+        views: ModelViews {
+            orbit_views: 5,
+            width: SIZE,
+            height: 40,
+            ..ModelViews::default()
+        },
         style: StyleSettings {
             style_prompt: Some("fire".into()),
             steps: 6,
@@ -165,11 +169,9 @@ fn an_spz_file_alone_is_stylized_from_an_orbit() {
     let preview = image::open(out.join("preview.png")).unwrap();
     assert_eq!((preview.width(), preview.height()), (2 * SIZE, 40));
     // The inside orbit runs as well.
-    let inside = SceneStylizeConfig {
-        orbit: Some(OrbitKind::Inside),
-        out: Some(dir.path().join("inside")),
-        ..config
-    };
+    let mut inside = config;
+    inside.views.orbit = Some(OrbitKind::Inside);
+    inside.out = Some(dir.path().join("inside"));
     let summary = run(&inside, &RunOptions::default()).unwrap();
     assert_eq!(summary.gaussians.len(), input.len());
 }
@@ -204,11 +206,13 @@ fn a_model_or_cameras_that_show_nothing_are_refused_naming_them() {
     }
     let away_path = dir.path().join("away.json");
     std::fs::write(&away_path, serde_json::to_string(&away).unwrap()).unwrap();
+    let with_cameras = |path: PathBuf| {
+        let mut c = base.clone();
+        c.views.cameras = Some(path);
+        c
+    };
     fails_cleanly(
-        &SceneStylizeConfig {
-            cameras: Some(away_path.clone()),
-            ..base.clone()
-        },
+        &with_cameras(away_path.clone()),
         &[
             "scene.ply",
             "none of the 4 view(s)",
@@ -234,46 +238,26 @@ fn a_model_or_cameras_that_show_nothing_are_refused_naming_them() {
 
     // Cameras that are not there, or not cameras.
     fails_cleanly(
-        &SceneStylizeConfig {
-            cameras: Some(dir.path().join("missing.json")),
-            ..base.clone()
-        },
+        &with_cameras(dir.path().join("missing.json")),
         &["missing.json", "not found"],
     );
     let text = dir.path().join("notes.txt");
     std::fs::write(&text, "hello").unwrap();
-    fails_cleanly(
-        &SceneStylizeConfig {
-            cameras: Some(text),
-            ..base.clone()
-        },
-        &["notes.txt", "INRIA cameras.json"],
-    );
+    fails_cleanly(&with_cameras(text), &["notes.txt", "INRIA cameras.json"]);
     // A camera of the file that is no camera is named by its entry.
     let skewed = inria_cameras_json().replacen("\"fx\": ", "\"fx\": -", 1);
     let skewed_path = dir.path().join(inria_cameras::FILE_NAME);
     std::fs::write(&skewed_path, skewed).unwrap();
     fails_cleanly(
-        &SceneStylizeConfig {
-            cameras: Some(skewed_path),
-            ..base.clone()
-        },
+        &with_cameras(skewed_path),
         &["cameras.json", "camera 0 (img_name \"r_0\")"],
     );
 
     // Data and cameras, or data and an orbit, together.
-    for edit in [
-        SceneStylizeConfig {
-            data: Some(dir.path().to_path_buf()),
-            cameras: Some(away_path.clone()),
-            ..base.clone()
-        },
-        SceneStylizeConfig {
-            data: Some(dir.path().to_path_buf()),
-            orbit: Some(OrbitKind::Object),
-            ..base.clone()
-        },
-    ] {
+    let mut with_orbit = base.clone();
+    with_orbit.views.orbit = Some(OrbitKind::Object);
+    for mut edit in [with_cameras(away_path.clone()), with_orbit] {
+        edit.data = Some(dir.path().to_path_buf());
         fails_cleanly(&edit, &["--data"]);
     }
 }

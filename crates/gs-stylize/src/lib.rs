@@ -48,6 +48,7 @@ pub mod export;
 pub mod interrupt;
 pub mod memory_estimate;
 pub mod model_kind;
+pub mod model_views;
 pub mod outputs;
 pub mod picture;
 pub mod plot;

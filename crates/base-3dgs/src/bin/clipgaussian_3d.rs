@@ -17,7 +17,6 @@ use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
-use gs_core::orbit::OrbitKind;
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
@@ -25,6 +24,7 @@ use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::open_device;
 use gs_stylize::outputs::into_new_folder;
 use gs_stylize::summary::write_summary;
@@ -64,31 +64,10 @@ struct StylizeArgs {
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
-    /// Without --data, the cameras to train from: an INRIA cameras.json, a NeRF or nerfstudio
-    /// transforms file (or its folder), or a COLMAP folder (or its sparse/); their pictures
-    /// are not needed.
-    #[arg(long, conflicts_with = "data")]
-    #[serde(skip_serializing_if = "Option::is_none")]
-    cameras: Option<PathBuf>,
-    /// Without --data or --cameras, cameras made from the model: object (around it, looking
-    /// in) or inside (from its centre, looking out: a room or garden captured from within).
-    /// Default: a cameras.json beside the model when there is one, else inside where the
-    /// model's centre is hollow and object otherwise.
-    #[arg(long, value_parser = orbit_parser(), conflicts_with_all = ["data", "cameras"])]
-    #[serde(skip_serializing_if = "Option::is_none")]
-    orbit: Option<OrbitKind>,
-    /// The number of views of the orbit (default 64).
-    #[arg(long)]
-    #[serde(skip_serializing_if = "Option::is_none")]
-    orbit_views: Option<usize>,
-    /// The width of the orbit's pictures, pixels (default 800).
-    #[arg(long)]
-    #[serde(skip_serializing_if = "Option::is_none")]
-    width: Option<u32>,
-    /// The height of the orbit's pictures, pixels (default 800).
-    #[arg(long)]
-    #[serde(skip_serializing_if = "Option::is_none")]
-    height: Option<u32>,
+    /// Without --data: the cameras, or the orbit made from the model.
+    #[command(flatten)]
+    #[serde(flatten)]
+    views: ModelViewFlags,
     /// The output folder (created when absent).
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -113,13 +92,6 @@ struct StylizeArgs {
     #[command(flatten)]
     #[serde(skip)]
     style: StyleArgs,
-}
-
-/// `--orbit`'s values, by their names.
-fn orbit_parser() -> impl clap::builder::TypedValueParser<Value = OrbitKind> {
-    use clap::builder::TypedValueParser;
-    clap::builder::PossibleValuesParser::new(OrbitKind::ALL.map(OrbitKind::name))
-        .map(|name| OrbitKind::from_name(&name).expect("a name of OrbitKind::ALL"))
 }
 
 impl StylizeArgs {

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use gs_core::dataset::nerf_synthetic::TrainSplits;
 use gs_core::dataset::GroundTruth;
 use gs_core::gaussians::PARAM_NAMES;
-use gs_core::orbit::OrbitKind;
+use gs_stylize::model_views::ModelViews;
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::{resolve_config, Override, StyleSettings, StylizeError};
 use serde::{Deserialize, Serialize};
@@ -24,11 +24,6 @@ pub enum BackgroundPixels {
     Alpha,
 }
 
-/// The views of an orbit unless set.
-pub const DEFAULT_ORBIT_VIEWS: usize = 64;
-/// The width and height of an orbit's pictures unless set, pixels.
-pub const DEFAULT_ORBIT_SIZE: u32 = 800;
-
 /// Everything a 3D stylization run needs. The defaults are the paper's
 /// ([`StyleSettings::paper_3d`]) and those of the authors' 3D code: rendering over black at
 /// full resolution up to 1600 pixels wide, the stored colours as ground truth, the train and
@@ -42,26 +37,10 @@ pub struct SceneStylizeConfig {
     /// from the INRIA `cameras.json` beside the model, else an orbit made from the model
     /// (`orbit`), and each view's ground truth is the model's own render.
     pub data: Option<PathBuf>,
-    /// Without `data`, the cameras to train from: an INRIA `cameras.json`, a NeRF or
-    /// nerfstudio transforms file or folder, or a COLMAP folder (or its `sparse/`); their
-    /// pictures are not read.
-    pub cameras: Option<PathBuf>,
-    /// Without `data` or `cameras`, cameras made from the model: `object` (around it, looking
-    /// in) or `inside` (from its centre, looking out: a room or garden captured from within).
-    /// When unset, a `cameras.json` beside the model is taken if there is one, else the orbit
-    /// is `inside` where the model's centre is hollow (under 0.5 % of its opacity within a
-    /// quarter of its radius) and `object` otherwise.
-    pub orbit: Option<OrbitKind>,
-    /// How many views the orbit has.
-    pub orbit_views: usize,
-    /// The orbit's picture width, pixels.
-    pub width: u32,
-    /// The orbit's picture height, pixels.
-    pub height: u32,
-    /// The world direction that is up in the orbit's pictures: `[0, -1, 0]` by default, as
-    /// in 3DGS's frame (y down, as COLMAP scenes have it); `[0, 0, 1]` for a scene trained from
-    /// Blender (NeRF-synthetic) cameras.
-    pub up: [f64; 3],
+    /// Without `data`: where the views come from (`cameras`, `orbit`, `orbit_views`,
+    /// `width`, `height`, `up`; see [`ModelViews`]).
+    #[serde(flatten)]
+    pub views: ModelViews,
     /// The output folder.
     pub out: Option<PathBuf>,
     /// Resolution divisor of the dataset images (3DGS's `-r`): 1 keeps them (but see
@@ -115,12 +94,7 @@ impl Default for SceneStylizeConfig {
         Self {
             model: None,
             data: None,
-            cameras: None,
-            orbit: None,
-            orbit_views: DEFAULT_ORBIT_VIEWS,
-            width: DEFAULT_ORBIT_SIZE,
-            height: DEFAULT_ORBIT_SIZE,
-            up: [0.0, -1.0, 0.0],
+            views: ModelViews::default(),
             out: None,
             resolution: 1,
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
@@ -159,43 +133,7 @@ impl SceneStylizeConfig {
                 return bad(field, &format!("is required ({flag})"));
             }
         }
-        if self.data.is_some() {
-            for (field, set) in [
-                ("cameras", self.cameras.is_some()),
-                ("orbit", self.orbit.is_some()),
-            ] {
-                if set {
-                    return bad(
-                        field,
-                        &format!(
-                            "a run with data (--data) trains on the dataset's own cameras and \
-                             pictures; leave out --{field} or --data"
-                        ),
-                    );
-                }
-            }
-        }
-        if self.cameras.is_some() && self.orbit.is_some() {
-            return bad(
-                "orbit",
-                "the cameras (--cameras) are given; an orbit is made only without them: leave \
-                 out --orbit or --cameras",
-            );
-        }
-        if self.orbit_views == 0 {
-            return bad("orbit_views", "must be at least 1 (--orbit-views)");
-        }
-        for (field, value) in [("width", self.width), ("height", self.height)] {
-            if value == 0 {
-                return bad(field, &format!("must be at least 1 pixel (--{field})"));
-            }
-        }
-        if !(self.up.iter().all(|v| v.is_finite()) && self.up.iter().any(|v| *v != 0.0)) {
-            return bad(
-                "up",
-                &format!("{:?} is no direction (e.g. --set up=[0,-1,0])", self.up),
-            );
-        }
+        self.views.validate(self.data.is_some())?;
         self.style.validate()?;
         self.learning_rates.check(&PARAM_NAMES)?;
         if self.resolution == 0 {
