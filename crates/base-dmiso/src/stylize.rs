@@ -19,14 +19,19 @@ use std::path::{Path, PathBuf};
 use candle_core::Device;
 use gs_core::adam::{GroupConfig, RateAt};
 use gs_core::dataset::nerf_synthetic::{self, load_with_times, Split, TrainSplits};
-use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOptions};
+use gs_core::dataset::{
+    scene_extent, Background, Dataset, DatasetError, ImageProgress, LoadOptions,
+};
 use gs_core::model::View;
+use gs_core::orbit::RobustBounds;
 use gs_core::sampler::BatchOrder;
 use gs_core::Image;
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, FRAMES_DIR, PREVIEW_GIF,
 };
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
+use gs_stylize::export::gaussians_at;
+use gs_stylize::model_views::{all_empty, model_picture, nothing_seen, ModelViews};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
@@ -56,7 +61,8 @@ pub const SWEEP_MP4: &str = "sweep.mp4";
 #[serde(default)]
 pub struct DynamicSceneStylizeConfig {
     /// The D-NeRF scene: `transforms_train.json` (and `transforms_test.json`), every frame
-    /// with a `time` in `[0, 1]`.
+    /// with a `time` in `[0, 1]`. Without it a given model is stylized alone: views from
+    /// `views`, each view's ground truth the model's own render.
     pub data: Option<PathBuf>,
     /// A fitted model: our `.safetensors` file, or the folder D-MiSo's `train.py` wrote; none:
     /// fit one first.
@@ -65,6 +71,12 @@ pub struct DynamicSceneStylizeConfig {
     /// the highest.
     #[serde(deserialize_with = "iteration_name")]
     pub iteration: Option<String>,
+    /// Without `data`: where the views come from (`cameras`, `orbit`, `orbit_views`,
+    /// `width`, `height`, `up`; see [`ModelViews`]; `up` is `[0, 0, 1]` here, D-NeRF's
+    /// Blender frame). View `i` of `n` is at time `i / (n - 1)` (a camera file records no
+    /// times), its ground truth the model's render at that time.
+    #[serde(flatten)]
+    pub views: ModelViews,
     /// The output folder.
     pub out: Option<PathBuf>,
     /// The colour the pictures are composited over and the scene renders over: `white`
@@ -123,6 +135,10 @@ impl Default for DynamicSceneStylizeConfig {
             data: None,
             model: None,
             iteration: None,
+            views: ModelViews {
+                up: [0.0, 0.0, 1.0],
+                ..ModelViews::default()
+            },
             out: None,
             background: None,
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
@@ -174,6 +190,7 @@ impl DynamicSceneStylizeConfig {
             return bad("batch_size: must be at least 1 (--batch-size)".into());
         }
         self.learning_rates.check(&GROUP_NAMES)?;
+        self.views.validate(self.data.is_some())?;
         if !(self.sweep_fps.is_finite() && self.sweep_fps > 0.0) {
             return bad(format!(
                 "sweep_fps: {} must be positive (--set sweep_fps=24)",
@@ -371,6 +388,111 @@ pub struct DynamicSceneInput {
     original: Vec<Image>,
 }
 
+impl DynamicSceneStylizeConfig {
+    /// The inputs of a run: its training views (`labels` naming their pictures), checked
+    /// against the patch size and the batch size.
+    fn scene_input(
+        &self,
+        train: Dataset,
+        test: Option<Dataset>,
+        labels: Vec<String>,
+        background: Background,
+        run: &PreparedRun,
+    ) -> Result<DynamicSceneInput, DynamicSceneStylizeError> {
+        check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
+        if self.batch_size > train.views.len() {
+            return Err(DynamicSceneStylizeError::Config(format!(
+                "batch_size: {} is more than the {} training views (lower --batch-size)",
+                self.batch_size,
+                train.views.len()
+            )));
+        }
+        Ok(DynamicSceneInput {
+            train,
+            test,
+            labels,
+            background,
+            device: run.loss_device().clone(),
+            sweep: Vec::new(),
+            original: Vec::new(),
+        })
+    }
+
+    /// The training views of the model at `path` given without data: the views
+    /// [`ModelViews::views`] chooses around its Gaussians at time 0, view `i` of `n` at time
+    /// `i / (n - 1)`, each with the model's render at that time over `background` (clamped to
+    /// `[0, 1]`) as its picture; the extent INRIA's rule gives their cameras, or the model's
+    /// robust radius where they stand at one point. Prints where the cameras came from when
+    /// the run shows progress.
+    fn model_scene(
+        &self,
+        path: &Path,
+        background: Background,
+        run: &PreparedRun,
+    ) -> Result<Dataset, DynamicSceneStylizeError> {
+        let mut model = read_model(path, self.iteration.as_deref(), run.loss_device())?;
+        let at_start = gaussians_at(&model, 0.0)
+            .map_err(|e| StylizeError::Input(format!("model {}: {e}", path.display())))?;
+        let bounds = RobustBounds::of(&at_start)
+            .map_err(|e| StylizeError::Input(format!("model {}: {e}", path.display())))?;
+        let options = LoadOptions {
+            max_width: self.max_width,
+            ..LoadOptions::default()
+        };
+        let splits = self.train_splits.unwrap_or_default();
+        let (found, from) = self.views.views(path, &bounds, splits, &options)?;
+        let n = found.len();
+        let views: Vec<View> = found
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| View {
+                camera: v.view.camera,
+                time: if n > 1 {
+                    i as f64 / (n - 1) as f64
+                } else {
+                    0.0
+                },
+            })
+            .collect();
+        let show = run.options().progress;
+        if show {
+            eprintln!(
+                "cameras: {n} view(s) {from}, at times evenly from 0 to 1; the ground truth is \
+                 the model's own render"
+            );
+        }
+        let rgb = background.rgb();
+        let images: Vec<Image> =
+            with_loading_progress(show, "rendering the model's views", |progress| {
+                let rendered = render_views(&mut model, &views, rgb, run.backend());
+                progress.report(n, n);
+                rendered
+            })?
+            .into_iter()
+            .map(model_picture)
+            .collect();
+        if all_empty(&images, rgb) {
+            return Err(nothing_seen(path, n, &from).into());
+        }
+        let extent = match scene_extent(&views) {
+            e if e > 1e-9 * bounds.radius => e,
+            _ => bounds.radius,
+        };
+        Ok(Dataset {
+            image_paths: (0..n)
+                .map(|i| PathBuf::from(format!("view {i:03}")))
+                .collect(),
+            views,
+            images,
+            masks: vec![None; n],
+            background: rgb,
+            extent,
+            points: None,
+            undistorted: vec![None; n],
+        })
+    }
+}
+
 impl Modality for DynamicSceneStylizeConfig {
     type Model = Dmiso;
     type Inputs = DynamicSceneInput;
@@ -393,9 +515,11 @@ impl Modality for DynamicSceneStylizeConfig {
 
     fn check(&self) -> Result<(), DynamicSceneStylizeError> {
         self.check_fields()?;
-        if self.data.is_none() {
+        if self.data.is_none() && self.model.is_none() {
             return Err(DynamicSceneStylizeError::Config(
-                "data: is required (--data FOLDER, a D-NeRF scene)".into(),
+                "data: is required (--data FOLDER, a D-NeRF scene), unless a model is given \
+                 alone (--model, whose own renders are then the pictures)"
+                    .into(),
             ));
         }
         Ok(())
@@ -409,7 +533,9 @@ impl Modality for DynamicSceneStylizeConfig {
     /// test split counted whichever splits train (it is rendered either way); none when they
     /// do not read (the loading reports them).
     fn input_pixels(&self) -> Result<Option<InputPixels>, DynamicSceneStylizeError> {
-        let data = self.data.as_deref().expect("checked: the data is given");
+        let Some(data) = self.data.as_deref() else {
+            return Ok(None);
+        };
         let options = LoadOptions {
             max_width: self.max_width,
             ..LoadOptions::default()
@@ -429,9 +555,21 @@ impl Modality for DynamicSceneStylizeConfig {
         run: &PreparedRun,
         model: Option<&Path>,
     ) -> Result<DynamicSceneInput, DynamicSceneStylizeError> {
-        let data = self.data.as_deref().expect("checked: the data is given");
         let recorded = model.map(model_file::recorded_background).transpose()?;
         let background = self.background(recorded.flatten());
+        let Some(data) = self.data.as_deref() else {
+            let path = self
+                .model
+                .as_deref()
+                .expect("checked: data or a model is given");
+            let train = self.model_scene(path, background, run)?;
+            let labels = train
+                .image_paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect();
+            return self.scene_input(train, None, labels, background, run);
+        };
         let recorded_eval = match &self.model {
             Some(path) => model_file::recorded_eval(path)?,
             None => None,
@@ -452,23 +590,7 @@ impl Modality for DynamicSceneStylizeConfig {
             .iter()
             .map(|p| p.display().to_string())
             .collect();
-        check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
-        if self.batch_size > train.views.len() {
-            return Err(DynamicSceneStylizeError::Config(format!(
-                "batch_size: {} is more than the {} training views (lower --batch-size)",
-                self.batch_size,
-                train.views.len()
-            )));
-        }
-        Ok(DynamicSceneInput {
-            train,
-            test,
-            labels,
-            background,
-            device: run.loss_device().clone(),
-            sweep: Vec::new(),
-            original: Vec::new(),
-        })
+        self.scene_input(train, test, labels, background, run)
     }
 
     /// Our `.safetensors` file or the authors' folder (at `iteration`).

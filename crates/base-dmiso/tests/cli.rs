@@ -601,3 +601,53 @@ fn fit_errors_name_their_flags() {
     }
     assert!(!out.exists());
 }
+
+/// A model given without data is stylized alone: an orbit made from it at times evenly from 0
+/// to 1 (the run says so), the model's own renders as the pictures, so the content term starts
+/// at 0; the cores, sub-Gaussians and network keep their shapes. With neither data nor a model
+/// the run is refused naming both.
+#[test]
+fn a_model_alone_is_stylized_against_its_own_renders() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = write_tiny_models(dir.path());
+    let data = scene(dir.path());
+    let fitted = dir.path().join("fitted");
+    run(bin()
+        .args(["fit", "--quiet", "--device", "cpu", "--data", s(&data)])
+        .args(["--out", s(&fitted)])
+        .args(FIT));
+    let model = fitted.join("model.safetensors");
+    let styled = dir.path().join("alone");
+    let mut cmd = bin();
+    cmd.args(["stylize", "--steps", "3"]);
+    tiny_style_flags(&mut cmd, &models);
+    let out = run(cmd
+        .args(["--set", "sweep_frames=3", "--device", "cpu"])
+        .args(["--model", s(&model), "--out", s(&styled)])
+        .args(["--orbit", "object", "--orbit-views", "4"])
+        .args(["--width", &SIZE.to_string(), "--height", &SIZE.to_string()]));
+    let said = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        said.contains("cameras: 4 view(s) of an object orbit")
+            && said.contains("at times evenly from 0 to 1"),
+        "{said}"
+    );
+    let losses: Vec<gs_stylize::outputs::StepLosses> =
+        serde_json::from_str(&std::fs::read_to_string(styled.join("losses.json")).unwrap())
+            .unwrap();
+    assert_eq!(losses[0].terms["content"], 0.0);
+    let (base, stylized) = (load(&model), load(&styled.join("model.safetensors")));
+    let shape = |m: &Dmiso| (m.cores(), m.subs_per_core(), m.net().width);
+    assert_eq!(shape(&stylized), shape(&base));
+    assert!(styled.join("preview.gif").is_file());
+
+    let nothing = dir.path().join("nothing");
+    let mut cmd = bin();
+    stylize_args(&mut cmd, &models, 2);
+    let e = fails(cmd.args(["--out", s(&nothing)]));
+    assert!(
+        e.contains("data: is required") && e.contains("--model"),
+        "{e}"
+    );
+    assert!(!nothing.exists());
+}

@@ -32,6 +32,7 @@ use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
+use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::outputs::{create_folder, into_new_folder, write_pair, PREVIEW_PNG};
 use gs_stylize::selftest::ExtraCheck;
 use gs_stylize::summary::write_summary;
@@ -62,7 +63,10 @@ struct StylizeArgs {
     #[serde(skip)]
     config: Option<PathBuf>,
     /// The D-NeRF scene folder (transforms_train.json and transforms_test.json with a time per
-    /// frame, RGBA pictures).
+    /// frame, RGBA pictures). Without it a --model is stylized alone: the views come from
+    /// --cameras, else from the cameras.json in the model's folder (or beside its file), else
+    /// from an orbit made from the model, at times evenly from 0 to 1, and each view's ground
+    /// truth is the model's own render.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
@@ -71,6 +75,10 @@ struct StylizeArgs {
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     model: Option<PathBuf>,
+    /// Without --data: the cameras, or the orbit made from the model (up is +z, D-NeRF's).
+    #[command(flatten)]
+    #[serde(flatten)]
+    views: ModelViewFlags,
     /// The iteration of an authors' model folder to read (best, or a number); default: best,
     /// else the highest.
     #[arg(long)]
@@ -613,5 +621,39 @@ mod tests {
                 line.args.style.overrides(&line.args).unwrap()
             },
         );
+        // The view flags of a run without data (--cameras and --orbit exclude each other).
+        for (flag, value, field, set) in [
+            ("--cameras", "c.json", "cameras", json!("c.json")),
+            ("--orbit", "object", "orbit", json!("object")),
+        ] {
+            gs_stylize::test_support::assert_flags_set::<DynamicSceneStylizeConfig>(
+                &[
+                    "--model",
+                    "m",
+                    "--out",
+                    "o",
+                    flag,
+                    value,
+                    "--orbit-views",
+                    "5",
+                    "--width",
+                    "6",
+                    "--height",
+                    "7",
+                ],
+                &[
+                    ("model", json!("m")),
+                    ("out", json!("o")),
+                    (field, set),
+                    ("orbit_views", json!(5)),
+                    ("width", json!(6)),
+                    ("height", json!(7)),
+                ],
+                |line| {
+                    let line = Line::parse_from(line);
+                    line.args.style.overrides(&line.args).unwrap()
+                },
+            );
+        }
     }
 }

@@ -112,10 +112,13 @@ pub fn read(path: &Path, options: &LoadOptions) -> Result<Vec<DatasetView>, Data
         .collect()
 }
 
-/// The `cameras.json` of the INRIA output folder a model file is in, when there is one: beside
-/// the file, or two folders up (`<run>/point_cloud/iteration_N/point_cloud.ply` with
-/// `<run>/cameras.json`).
+/// The `cameras.json` of the INRIA output folder a model is in, when there is one: in the
+/// model's folder when the model is one (D-MiSo's output), else beside the file, or two
+/// folders up (`<run>/point_cloud/iteration_N/point_cloud.ply` with `<run>/cameras.json`).
 pub fn beside(model: &Path) -> Option<PathBuf> {
+    if model.is_dir() {
+        return Some(model.join(FILE_NAME)).filter(|p| p.is_file());
+    }
     let folder = model.parent()?;
     [Some(folder), folder.parent().and_then(Path::parent)]
         .into_iter()
@@ -215,5 +218,8 @@ mod tests {
         assert_eq!(beside(&model), Some(cameras));
         let flat = dir.path().join("scene.ply");
         assert_eq!(beside(&flat), Some(dir.path().join(FILE_NAME)));
+        // A model folder (D-MiSo's output) holds its own.
+        assert_eq!(beside(dir.path()), Some(dir.path().join(FILE_NAME)));
+        assert_eq!(beside(&iteration), None);
     }
 }
