@@ -225,6 +225,21 @@ fn round_trips_stay_within_each_formats_quantisation() {
     assert!(worst(&back.log_scales, &unit.log_scales) < 1e-6);
 }
 
+/// splat-transform's `.glb` reads back as its source PLY (in the PLY frame: the half turn
+/// undone), and ours round-trips within `f32` arithmetic (the colour is its float attribute,
+/// the opacity its logit of the stored sigmoid).
+#[test]
+fn glb_reads_back_as_the_ply_it_was_written_from() {
+    let source = read_ply(&fixture("source.ply")).unwrap().gaussians;
+    let theirs = read_splats(&fixture("source.glb")).unwrap().gaussians;
+    let (_, ours) = round_trip(SplatFormat::Glb, "source.ply");
+    for (name, back) in [("theirs", &theirs), ("ours", &ours)] {
+        assert_eq!(back.len(), source.len(), "{name}");
+        assert_eq!(back.sh_degree(), source.sh_degree(), "{name}");
+        assert_close(name, back, &source, [1e-6, 1e-5, 1e-5, 1e-4, 1e-6, 1e-6]);
+    }
+}
+
 /// The glTF accessors of `.glb` bytes: name to (component type, bytes).
 fn glb_attributes(bytes: &[u8]) -> Vec<(String, u64, Vec<u8>)> {
     assert_eq!(&bytes[..4], b"glTF");
@@ -314,11 +329,21 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
         e.contains("model.sog") && e.contains("not a splat file this reader knows"),
         "{e}"
     );
+    // A .glb that is not a splat file, or is cut short, is named.
     let glb = dir.path().join("model.glb");
-    assert!(matches!(
-        read_splats(&glb),
-        Err(SplatFileError::WriteOnly { .. })
-    ));
+    for (bytes, said) in [
+        (&b"glTF\x02\0\0\0"[..], "header"),
+        (&b"PK\x03\x04"[..], "not a glTF binary"),
+    ] {
+        std::fs::write(&glb, bytes).unwrap();
+        let e = read_splats(&glb).unwrap_err().to_string();
+        assert!(e.contains("model.glb") && e.contains(said), "{e}");
+    }
+    let mut theirs = std::fs::read(fixture("source.glb")).unwrap();
+    theirs.truncate(theirs.len() - 100);
+    std::fs::write(&glb, &theirs).unwrap();
+    let e = read_splats(&glb).unwrap_err().to_string();
+    assert!(e.contains("model.glb") && e.contains("past the end"), "{e}");
     // A NaN is refused by every quantising writer, naming the array and index.
     let mut ply = PlyGaussians::new(read_ply(&fixture("source.ply")).unwrap().gaussians);
     ply.gaussians.sh_dc[7] = f32::NAN;

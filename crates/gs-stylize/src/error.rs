@@ -113,7 +113,7 @@ pub enum StylizeError {
     /// A model file (INRIA PLY) that cannot be read or written; the error names the file.
     #[error("{0}")]
     Ply(#[from] gs_core::ply::PlyError),
-    /// A splat file of another format (compressed PLY, SPZ, .splat) that cannot be read or
+    /// A splat file of another format (compressed PLY, SPZ, .splat, .glb) that cannot be read or
     /// written; the error names the file.
     #[error("{0}")]
     Splats(#[from] gs_core::splats::SplatFileError),

@@ -51,7 +51,7 @@ struct StylizeArgs {
     #[arg(long)]
     #[serde(skip)]
     config: Option<PathBuf>,
-    /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the
+    /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat or glTF .glb (`--ply` is the
     /// same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     #[serde(rename = "model", skip_serializing_if = "Option::is_none")]
@@ -108,7 +108,7 @@ impl StylizeArgs {
 /// Inputs are checked before the output folder is created.
 #[derive(Args, Debug)]
 struct RenderArgs {
-    /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ or .splat (`--ply` is the same
+    /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat or glTF .glb (`--ply` is the same
     /// flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: PathBuf,
@@ -259,7 +259,7 @@ enum SceneCommand {}
 /// Write a scene in a splat format viewers open.
 ///
 /// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ,
-/// .splat) and writes --out in the format its name ends in (or --format): INRIA PLY (every
+/// .splat, glTF .glb) and writes --out in the format its name ends in (or --format): INRIA PLY (every
 /// property kept), compressed PLY, SPZ, .splat (degree-0 colour only) or glTF (.glb, turned
 /// y-up).
 #[derive(Args, Debug)]

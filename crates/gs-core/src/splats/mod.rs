@@ -1,13 +1,15 @@
 //! Splat files beyond INRIA's PLY, read and written for viewers and other pipelines:
 //! SuperSplat's compressed PLY ([`compressed_ply`]), Niantic's SPZ ([`spz`]), antimatter15's
-//! `.splat` ([`splat_format`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]).
+//! `.splat` ([`splat_format`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]), every
+//! one both ways.
 //!
 //! [`read_splats`] and [`write_splats`] pick the format from the file name
 //! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
 //! element. Every format but INRIA's PLY quantises: what each keeps is stated in its module and
 //! checked against `@playcanvas/splat-transform`'s files. Coordinates are written as they are
-//! held (3DGS's: x right, y down, z forward) in every format but glTF, which is y-up (the scene
-//! turned half a turn about z), as splat-transform writes them.
+//! held (3DGS's: x right, y down, z forward) in PLY, compressed PLY and `.splat`; SPZ is turned
+//! into its own frame (y up, z back) as Niantic's library does, and glTF is y-up (the scene
+//! turned half a turn about z) as splat-transform writes it; both are turned back on reading.
 
 pub mod compressed_ply;
 pub mod gltf;
@@ -122,14 +124,6 @@ pub enum SplatFileError {
         /// What could not be reserved.
         source: crate::fallible::OutOfMemory,
     },
-    /// A format this crate writes but does not read.
-    #[error("{}: {format} files are written here but not read", path.display())]
-    WriteOnly {
-        /// The file.
-        path: PathBuf,
-        /// The format's name.
-        format: &'static str,
-    },
 }
 
 /// Why a splat file's bytes did not decode: content the format does not allow, or arrays this
@@ -173,8 +167,9 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             return Err(SplatFileError::Format {
                 path: path.to_path_buf(),
                 message: "not a splat file this reader knows: the name ends in none of .ply, \
-                          .compressed.ply, .splat, .spz, and the file does not start as a PLY"
-                    .into(),
+                          .compressed.ply, .splat, .spz, .glb, and the file does not start as a \
+                          PLY"
+                .into(),
             })
         }
     };
@@ -203,12 +198,7 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
         }
         SplatFormat::Splat => splat_format::decode(&read()?).map_err(format_error)?,
         SplatFormat::Spz | SplatFormat::SpzV2 => spz::decode(&read()?).map_err(format_error)?,
-        SplatFormat::Glb => {
-            return Err(SplatFileError::WriteOnly {
-                path: path.to_path_buf(),
-                format: "glb",
-            })
-        }
+        SplatFormat::Glb => gltf::decode(&read()?).map_err(format_error)?,
     };
     Ok((
         PlyGaussians::without_normals(gaussians),
