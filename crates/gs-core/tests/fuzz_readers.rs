@@ -35,6 +35,7 @@ fn splat_readers_survive_mutated_files() {
         ("source.v3.spz", 5),
         ("source.v4.spz", 6),
         ("source.glb", 7),
+        ("source.sog", 8),
     ] {
         let valid = std::fs::read(fixture(&format!("splats/{name}"))).unwrap();
         let refused = fuzz(name, &valid, seed, splats_reader);

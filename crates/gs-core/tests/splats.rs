@@ -69,13 +69,14 @@ fn assert_close(what: &str, got: &GaussianSet, want: &GaussianSet, tolerance: [f
 }
 
 /// The files of every format splat-transform reads and we read, with its reading beside.
-const READ_BY_BOTH: [&str; 6] = [
+const READ_BY_BOTH: [&str; 7] = [
     "source.compressed.ply",
     "source.splat",
     "unit.splat",
     "source.v2.spz",
     "source.v3.spz",
     "source.v4.spz",
+    "source.sog",
 ];
 
 #[test]
@@ -240,6 +241,51 @@ fn glb_reads_back_as_the_ply_it_was_written_from() {
     }
 }
 
+/// A SOG folder (`meta.json` and its pictures beside it) reads as the bundle does; a version 1
+/// meta, a missing picture, a picture name that leaves the folder, and a bundle without its
+/// meta.json are refused naming the file.
+#[test]
+fn sog_reads_from_a_folder_as_from_its_bundle() {
+    let dir = tempfile::tempdir().unwrap();
+    let bundle = std::fs::read(fixture("source.sog")).unwrap();
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(&bundle)).unwrap();
+    for i in 0..zip.len() {
+        let mut entry = zip.by_index(i).unwrap();
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut entry, &mut bytes).unwrap();
+        std::fs::write(dir.path().join(entry.name()), bytes).unwrap();
+    }
+    let meta = dir.path().join("meta.json");
+    let from_folder = read_splats(&meta).unwrap().gaussians;
+    let from_bundle = read_splats(&fixture("source.sog")).unwrap().gaussians;
+    assert_eq!(from_folder, from_bundle);
+    assert_eq!((from_bundle.len(), from_bundle.sh_degree()), (50, 3));
+
+    let text = std::fs::read_to_string(&meta).unwrap();
+    let refused = |edited: String, said: &str| {
+        std::fs::write(&meta, edited).unwrap();
+        let e = read_splats(&meta).unwrap_err().to_string();
+        assert!(
+            e.contains("meta.json") && e.contains(said),
+            "{said:?} not in {e}"
+        );
+    };
+    refused(text.replace("\"version\":2,", ""), "version 1");
+    refused(text.replace("quats.webp", "missing.webp"), "missing.webp");
+    refused(
+        text.replace("quats.webp", "../quats.webp"),
+        "not a file beside it",
+    );
+    refused(
+        text.replace("\"count\":50", "\"count\":5000000"),
+        "texels for 5000000",
+    );
+    let bad = dir.path().join("bad.sog");
+    std::fs::write(&bad, b"PK\x05\x06").unwrap();
+    let e = read_splats(&bad).unwrap_err().to_string();
+    assert!(e.contains("bad.sog") && e.contains("zip"), "{e}");
+}
+
 /// The glTF accessors of `.glb` bytes: name to (component type, bytes).
 fn glb_attributes(bytes: &[u8]) -> Vec<(String, u64, Vec<u8>)> {
     assert_eq!(&bytes[..4], b"glTF");
@@ -326,7 +372,7 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
     std::fs::write(&sog, b"PK\x03\x04 a zip of pictures").unwrap();
     let e = read_splats(&sog).unwrap_err().to_string();
     assert!(
-        e.contains("model.sog") && e.contains("not a splat file this reader knows"),
+        e.contains("model.sog") && e.contains("not a SOG bundle (a zip file)"),
         "{e}"
     );
     // A .glb that is not a splat file, or is cut short, is named.

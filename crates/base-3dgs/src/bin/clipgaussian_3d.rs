@@ -51,8 +51,8 @@ struct StylizeArgs {
     #[arg(long)]
     #[serde(skip)]
     config: Option<PathBuf>,
-    /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat or glTF .glb (`--ply` is the
-    /// same flag).
+    /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat, glTF .glb or
+    /// SOG (`--ply` is the same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     #[serde(rename = "model", skip_serializing_if = "Option::is_none")]
     ply: Option<PathBuf>,
@@ -108,8 +108,8 @@ impl StylizeArgs {
 /// Inputs are checked before the output folder is created.
 #[derive(Args, Debug)]
 struct RenderArgs {
-    /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat or glTF .glb (`--ply` is the same
-    /// flag).
+    /// The scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat, glTF .glb or SOG
+    /// (`--ply` is the same flag).
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     ply: PathBuf,
     /// A dataset folder (NeRF-synthetic or COLMAP) whose cameras to render from; each picture
@@ -258,10 +258,10 @@ enum SceneCommand {}
 
 /// Write a scene in a splat format viewers open.
 ///
-/// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ,
-/// .splat, glTF .glb) and writes --out in the format its name ends in (or --format): INRIA PLY (every
-/// property kept), compressed PLY, SPZ, .splat (degree-0 colour only) or glTF (.glb, turned
-/// y-up).
+/// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ, .splat,
+/// glTF .glb, SOG .sog or meta.json) and writes --out in the format its name ends in (or
+/// --format): INRIA PLY (every property kept), compressed PLY, SPZ, .splat (degree-0 colour
+/// only) or glTF (.glb, turned y-up).
 #[derive(Args, Debug)]
 struct SceneExportArgs {
     #[command(flatten)]

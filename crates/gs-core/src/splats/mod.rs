@@ -1,7 +1,8 @@
 //! Splat files beyond INRIA's PLY, read and written for viewers and other pipelines:
 //! SuperSplat's compressed PLY ([`compressed_ply`]), Niantic's SPZ ([`spz`]), antimatter15's
 //! `.splat` ([`splat_format`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]), every
-//! one both ways.
+//! one both ways; and PlayCanvas's SOG ([`sog`]: a `.sog` bundle or a folder's `meta.json`),
+//! read only.
 //!
 //! [`read_splats`] and [`write_splats`] pick the format from the file name
 //! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
@@ -13,6 +14,7 @@
 
 pub mod compressed_ply;
 pub mod gltf;
+pub mod sog;
 pub mod splat_format;
 pub mod spz;
 
@@ -151,7 +153,8 @@ impl From<&str> for DecodeError {
 }
 
 /// Reads the splat file `path` in the format its name says (a `.ply` with a `chunk` element as
-/// compressed; a name of no known ending as INRIA PLY when it starts as a PLY, else refused).
+/// compressed; a `.sog` or a `meta.json` as SOG; a name of no known ending as INRIA PLY when it
+/// starts as a PLY, else refused).
 /// Formats other than INRIA's PLY give Gaussians without extras or normals.
 pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
     read_splats_with_format(path).map(|(ply, _)| ply)
@@ -160,6 +163,14 @@ pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
 /// [`read_splats`], with the body format of an INRIA PLY (binary little-endian for every other
 /// format), so a modified copy can be written as the input was.
 pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat), SplatFileError> {
+    if let Some(sog) = read_sog(path) {
+        return sog.map(|set| {
+            (
+                PlyGaussians::without_normals(set),
+                PlyFormat::BinaryLittleEndian,
+            )
+        });
+    }
     let format = match SplatFormat::from_path(path) {
         Some(format) => format,
         None if head(path)?.starts_with(b"ply") => SplatFormat::Ply,
@@ -167,9 +178,9 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             return Err(SplatFileError::Format {
                 path: path.to_path_buf(),
                 message: "not a splat file this reader knows: the name ends in none of .ply, \
-                          .compressed.ply, .splat, .spz, .glb, and the file does not start as a \
-                          PLY"
-                .into(),
+                          .compressed.ply, .splat, .spz, .glb, .sog (nor is it a SOG folder's \
+                          meta.json), and the file does not start as a PLY"
+                    .into(),
             })
         }
     };
@@ -179,16 +190,7 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
             source,
         })
     };
-    let format_error = |e: DecodeError| match e {
-        DecodeError::Format(message) => SplatFileError::Format {
-            path: path.to_path_buf(),
-            message,
-        },
-        DecodeError::OutOfMemory(source) => SplatFileError::OutOfMemory {
-            path: path.to_path_buf(),
-            source,
-        },
-    };
+    let format_error = |e: DecodeError| decode_error(path, e);
     let gaussians = match format {
         SplatFormat::Ply | SplatFormat::CompressedPly => {
             if !compressed_ply::is_compressed(&head(path)?) {
@@ -204,6 +206,43 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
         PlyGaussians::without_normals(gaussians),
         PlyFormat::BinaryLittleEndian,
     ))
+}
+
+/// The Gaussians of the SOG at `path` when it names one (a `.sog` bundle, or a folder's
+/// `meta.json`), `None` otherwise.
+fn read_sog(path: &Path) -> Option<Result<GaussianSet, SplatFileError>> {
+    let named = |name: &str| path.file_name().is_some_and(|n| n == name);
+    let bundle = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("sog"));
+    if !bundle && !named(sog::META_JSON) {
+        return None;
+    }
+    let decoded = if bundle {
+        std::fs::read(path)
+            .map_err(|source| SplatFileError::Io {
+                path: path.to_path_buf(),
+                source,
+            })
+            .and_then(|bytes| sog::decode_bundle(&bytes).map_err(|e| decode_error(path, e)))
+    } else {
+        sog::decode_folder(path).map_err(|e| decode_error(path, e))
+    };
+    Some(decoded)
+}
+
+/// A decoder's error as the file's.
+fn decode_error(path: &Path, e: DecodeError) -> SplatFileError {
+    match e {
+        DecodeError::Format(message) => SplatFileError::Format {
+            path: path.to_path_buf(),
+            message,
+        },
+        DecodeError::OutOfMemory(source) => SplatFileError::OutOfMemory {
+            path: path.to_path_buf(),
+            source,
+        },
+    }
 }
 
 /// The first 4 KiB of `path` (a PLY header fits), to tell a compressed PLY from an INRIA one
