@@ -19,9 +19,7 @@ use std::path::{Path, PathBuf};
 use candle_core::Device;
 use gs_core::adam::{GroupConfig, RateAt};
 use gs_core::dataset::nerf_synthetic::{self, load_with_times, Split, TrainSplits};
-use gs_core::dataset::{
-    scene_extent, Background, Dataset, DatasetError, ImageProgress, LoadOptions,
-};
+use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOptions};
 use gs_core::model::View;
 use gs_core::orbit::RobustBounds;
 use gs_core::sampler::BatchOrder;
@@ -31,7 +29,7 @@ use gs_stylize::animation::{
 };
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::export::gaussians_at;
-use gs_stylize::model_views::{all_empty, model_picture, nothing_seen, ModelViews};
+use gs_stylize::model_views::{all_empty, model_dataset, model_picture, nothing_seen, ModelViews};
 use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
@@ -474,22 +472,7 @@ impl DynamicSceneStylizeConfig {
         if all_empty(&images, rgb) {
             return Err(nothing_seen(path, n, &from).into());
         }
-        let extent = match scene_extent(&views) {
-            e if e > 1e-9 * bounds.radius => e,
-            _ => bounds.radius,
-        };
-        Ok(Dataset {
-            image_paths: (0..n)
-                .map(|i| PathBuf::from(format!("view {i:03}")))
-                .collect(),
-            views,
-            images,
-            masks: vec![None; n],
-            background: rgb,
-            extent,
-            points: None,
-            undistorted: vec![None; n],
-        })
+        Ok(model_dataset(views, images, rgb, &bounds))
     }
 }
 

@@ -8,7 +8,9 @@ use std::path::{Path, PathBuf};
 
 use gs_core::dataset::inria_cameras;
 use gs_core::dataset::nerf_synthetic::{self, Split, TrainSplits};
-use gs_core::dataset::{colmap, DatasetError, DatasetView, Layout, LoadOptions};
+use gs_core::dataset::{
+    colmap, scene_extent, Dataset, DatasetError, DatasetView, Layout, LoadOptions,
+};
 use gs_core::model::View;
 use gs_core::orbit::{orbit, OrbitKind, RobustBounds};
 use gs_core::Image;
@@ -205,6 +207,35 @@ fn orbit_parser() -> impl clap::builder::TypedValueParser<Value = OrbitKind> {
         .map(|name| OrbitKind::from_name(&name).expect("a name of OrbitKind::ALL"))
 }
 
+/// The dataset of a run without data: `views` with the model's renders `images` as their
+/// pictures (named `view 000`, ...), no masks, over `background`; the extent INRIA's rule
+/// gives the cameras, or the model's robust radius (`bounds`) where they all stand at one
+/// point (the inside orbit).
+pub fn model_dataset(
+    views: Vec<View>,
+    images: Vec<Image>,
+    background: [f32; 3],
+    bounds: &RobustBounds,
+) -> Dataset {
+    let n = views.len();
+    let extent = match scene_extent(&views) {
+        e if e > 1e-9 * bounds.radius => e,
+        _ => bounds.radius,
+    };
+    Dataset {
+        image_paths: (0..n)
+            .map(|i| PathBuf::from(format!("view {i:03}")))
+            .collect(),
+        views,
+        images,
+        masks: vec![None; n],
+        background,
+        extent,
+        points: None,
+        undistorted: vec![None; n],
+    }
+}
+
 /// A render as a view's ground truth: clamped to `[0, 1]` as a picture holds it (not rounded
 /// to 8 bits).
 pub fn model_picture(mut render: Image) -> Image {
@@ -382,6 +413,38 @@ mod tests {
         for (views, has_data, said) in cases {
             let e = views.validate(has_data).unwrap_err().to_string();
             assert!(e.contains(said), "{said:?} not in {e:?}");
+        }
+    }
+
+    /// The extent is INRIA's rule on spread cameras and the model's robust radius for
+    /// cameras at one point (where INRIA's rule gives 0 and would freeze the means).
+    #[test]
+    fn the_extent_falls_back_to_the_radius_for_cameras_at_one_point() {
+        let mut set = gs_core::GaussianSet::zeros(64, 0);
+        for (i, v) in set.means.iter_mut().enumerate() {
+            *v = ((i * 37 % 64) as f32 / 32.0) - 1.0;
+        }
+        set.opacity_logits.fill(2.0);
+        let bounds = RobustBounds::of(&set).unwrap();
+        for kind in [OrbitKind::Object, OrbitKind::Inside] {
+            let cameras = orbit(&bounds, kind, 6, (8, 8), [0.0, -1.0, 0.0]).unwrap();
+            let views: Vec<View> = cameras.into_iter().map(View::still).collect();
+            let expected = match kind {
+                OrbitKind::Object => scene_extent(&views),
+                OrbitKind::Inside => bounds.radius,
+            };
+            let images = vec![
+                Image {
+                    width: 8,
+                    height: 8,
+                    data: vec![0.0; 192]
+                };
+                6
+            ];
+            let dataset = model_dataset(views, images, [0.0; 3], &bounds);
+            assert!(expected > 0.0);
+            assert_eq!(dataset.extent, expected, "{kind:?}");
+            assert_eq!(dataset.image_paths[5], PathBuf::from("view 005"));
         }
     }
 

@@ -4,23 +4,20 @@
 //! holds the stylized scene to what the base model shows, which is what the dataset's pictures
 //! stand for in a run with data.
 
-use std::path::PathBuf;
-
-use gs_core::dataset::{scene_extent, Dataset, LoadOptions};
+use gs_core::dataset::{Dataset, LoadOptions};
 use gs_core::model::View;
 use gs_core::orbit::RobustBounds;
 use gs_core::GaussianSet;
-use gs_stylize::model_views::{all_empty, model_picture, nothing_seen};
+use gs_stylize::model_views::{all_empty, model_dataset, model_picture, nothing_seen};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::{PreparedRun, StylizeError};
 
 use super::SceneStylizeConfig;
 
-/// The dataset of a run without `data`: the views, the model's renders as their pictures, the
-/// extent INRIA's rule gives their cameras (the model's robust radius where they all stand at
-/// one point, as the inside orbit's). Prints where the cameras came from when the run shows
+/// The dataset of a run without `data`: the views, the model's renders as their pictures
+/// ([`model_dataset`]). Prints where the cameras came from when the run shows
 /// progress.
-pub(crate) fn model_dataset(
+pub(crate) fn model_scene(
     config: &SceneStylizeConfig,
     model: &GaussianSet,
     run: &PreparedRun,
@@ -57,22 +54,6 @@ pub(crate) fn model_dataset(
     if all_empty(&images, config.background) {
         return Err(nothing_seen(model_path, views.len(), &from));
     }
-    let n = views.len();
     let views: Vec<View> = views.into_iter().map(|v| v.view).collect();
-    let extent = match scene_extent(&views) {
-        e if e > 1e-9 * bounds.radius => e,
-        _ => bounds.radius,
-    };
-    Ok(Dataset {
-        image_paths: (0..n)
-            .map(|i| PathBuf::from(format!("view {i:03}")))
-            .collect(),
-        views,
-        images,
-        masks: vec![None; n],
-        background: config.background,
-        extent,
-        points: None,
-        undistorted: vec![None; n],
-    })
+    Ok(model_dataset(views, images, config.background, &bounds))
 }

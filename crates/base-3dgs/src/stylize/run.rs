@@ -18,7 +18,7 @@ use gs_stylize::{
 };
 
 use super::config::BackgroundPixels;
-use super::model_views::model_dataset;
+use super::model_views::model_scene;
 use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
@@ -112,7 +112,7 @@ impl Modality for SceneStylizeConfig {
     }
 
     /// The PLY and the dataset (or, without data, the model's views and renders:
-    /// [`model_dataset`]), with the preview views checked against it.
+    /// [`model_scene`]), with the preview views checked against it.
     fn load_inputs(
         &self,
         run: &PreparedRun,
@@ -122,7 +122,7 @@ impl Modality for SceneStylizeConfig {
             read_splats_with_format(self.model_path()).map_err(StylizeError::from)?;
         let dataset = match self.data.as_deref() {
             Some(data) => load_dataset(self, data, run.options().progress)?,
-            None => model_dataset(self, &ply.gaussians, run)?,
+            None => model_scene(self, &ply.gaussians, run)?,
         };
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
