@@ -35,13 +35,16 @@ use serde::Serialize;
 /// Stylize a trained 3DGS scene (a splat file, with or without its dataset) with a text or
 /// picture style.
 ///
+/// Without --data the run trains on views of the model itself (see --data) and says where
+/// its cameras came from.
+///
 /// Writes to `--out`: model.ply (the stylized scene, in the input's PLY format with its
-/// extra properties), preview.png (before | after of the first `preview_views` entry; the
-/// others preview_viewNNN.png),
-/// losses.json, losses.png, config.json (the resolved configuration) and checkpoint/. The
-/// configuration comes from `--config` (the paper's defaults when absent), then the flags,
-/// then every `--set field=value` in order. The output folder is checked before the scene
-/// is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
+/// extra properties; also model.spz, model.splat, model.compressed.ply or model.glb when the
+/// input was one), preview.png (before | after of the first `preview_views` entry; the
+/// others preview_viewNNN.png), losses.json, losses.png, config.json (the resolved
+/// configuration) and checkpoint/. The configuration comes from `--config` (the paper's
+/// defaults when absent), then the flags, then every `--set field=value` in order. The
+/// output folder is checked before the scene is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
 /// quits at once); run the same command with `--resume` to continue. A finished run's
 /// checkpoint does not hold the folder: the same command runs again, and `--resume`
 /// continues only with more `--steps`.
