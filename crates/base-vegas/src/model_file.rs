@@ -256,6 +256,49 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
     Ok((model, record))
 }
 
+/// The frame count and the recorded video of the VeGaS model at `path`, from its header
+/// alone (the frames are the `time` element's properties plus one): what a run checks before
+/// it reads the whole model. A header that does not parse is an error; [`read_model`] checks
+/// the rest.
+pub fn read_header(path: &Path) -> Result<(usize, Option<VideoRecord>), VegasFileError> {
+    use std::io::BufRead;
+    let fail = |message: String| VegasFileError::Format {
+        path: path.to_path_buf(),
+        message,
+    };
+    let file = std::fs::File::open(path).map_err(|source| VegasFileError::Io {
+        path: path.to_path_buf(),
+        what: "cannot open",
+        source,
+    })?;
+    let mut header = Vec::new();
+    // A header of 20,000 frames' time properties is under 1 MB; 16 MB bounds a hostile one.
+    let mut lines = std::io::Read::take(std::io::BufReader::new(file), 1 << 24);
+    while !header.ends_with(b"end_header\n") {
+        let read = lines
+            .read_until(b'\n', &mut header)
+            .map_err(|source| VegasFileError::Io {
+                path: path.to_path_buf(),
+                what: "cannot open",
+                source,
+            })?;
+        if read == 0 {
+            return Err(fail("no end_header line".into()));
+        }
+    }
+    let elements = gs_core::ply::elements::parse_elements(&header).map_err(&fail)?;
+    let time = elements
+        .elements
+        .iter()
+        .find(|e| e.name == "time")
+        .ok_or_else(|| fail("no `time` element (VeGaS saves the time logits there)".into()))?;
+    let record = String::from_utf8_lossy(&header)
+        .lines()
+        .filter_map(|l| l.strip_prefix("comment "))
+        .find_map(parse_record);
+    Ok((time.properties.len() + 1, record))
+}
+
 /// The video of a `clipgaussian-video frames WxH fps R distance D` comment; none when the
 /// comment is another or holds a size, rate or distance that is not positive.
 fn parse_record(comment: &str) -> Option<VideoRecord> {

@@ -279,14 +279,10 @@ impl VideoStylizeConfig {
                 })
                 .collect::<Result<Vec<Image>, _>>()
         })?;
-        let labels = (0..frames.len())
+        let labels: Vec<String> = (0..frames.len())
             .map(|k| format!("{} frame {k} (its own render)", path.display()))
             .collect();
-        check_patches_fit(
-            &self.style,
-            &frames[..1],
-            &[format!("{} frame 0", path.display())],
-        )?;
+        check_patches_fit(&self.style, &frames[..1], &labels[..1])?;
         Ok(Video {
             frames,
             labels,
@@ -343,13 +339,14 @@ impl Modality for VideoStylizeConfig {
     /// it) or a folder whose first frame's header does not read (the loading reports it).
     fn input_pixels(&self) -> Result<Option<InputPixels>, VideoStylizeError> {
         if let (None, Some(model)) = (&self.video, &self.model) {
-            // A model alone: the frames it records (one that does not is refused at loading).
-            let Ok((folded, Some(record))) = read_model(model) else {
+            // A model alone: the frames its header records (one that does not, or does not
+            // read, is refused at loading).
+            let Ok((frames, Some(record))) = read_header(model) else {
                 return Ok(None);
             };
             let pixels = u64::from(record.width) * u64::from(record.height);
             return Ok(Some(InputPixels {
-                views: vec![pixels; 2 * folded.frames()],
+                views: vec![pixels; 2 * frames],
                 largest_stored: pixels,
             }));
         }

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 use base_vegas::init::initial_model;
-use base_vegas::model_file::{read_model, write_model, VideoRecord};
+use base_vegas::model_file::{read_header, read_model, write_model, VideoRecord};
 use gs_core::model::BaseModel;
 
 fn fixture(name: &str) -> PathBuf {
@@ -36,6 +36,11 @@ fn a_model_in_the_authors_layout_loads_with_every_value_in_place() {
     assert_eq!(p.len(), 7);
     assert_eq!(model.frames(), 5);
     assert_eq!(record, None, "VeGaS writes no record");
+    assert_eq!(
+        read_header(&fixture("vegas_model.ply")).unwrap(),
+        (5, None),
+        "the header alone says as much"
+    );
     assert_eq!(p.xyz, floats(&expected["xyz"]));
     assert_eq!(p.sh_dc, floats(&expected["f_dc"]));
     assert_eq!(p.opacity_logits, floats(&expected["opacity"]));
@@ -70,6 +75,15 @@ fn our_model_files_read_back_exactly() {
     let (back, back_record) = read_model(&path).unwrap();
     assert_eq!(back, model);
     assert_eq!(back_record, Some(record));
+    assert_eq!(read_header(&path).unwrap(), (9, Some(record)));
+    // A header cut before its end is refused.
+    let cut = dir.path().join("cut.ply");
+    let bytes = std::fs::read(&path).unwrap();
+    let end = bytes.windows(10).position(|w| w == b"end_header").unwrap();
+    std::fs::write(&cut, &bytes[..end]).unwrap();
+    let e = read_header(&cut).unwrap_err().to_string();
+    assert!(e.contains("cut.ply") && e.contains("end_header"), "{e}");
+    std::fs::remove_file(&cut).unwrap();
     let leftovers: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert_eq!(leftovers.len(), 1, "no temporary file left");
 }
