@@ -387,16 +387,20 @@ pub struct DynamicSceneInput {
 }
 
 impl DynamicSceneStylizeConfig {
-    /// The inputs of a run: its training views (`labels` naming their pictures), checked
-    /// against the patch size and the batch size.
+    /// The inputs of a run: its training views, each named by its picture, checked against
+    /// the patch size and the batch size.
     fn scene_input(
         &self,
         train: Dataset,
         test: Option<Dataset>,
-        labels: Vec<String>,
         background: Background,
         run: &PreparedRun,
     ) -> Result<DynamicSceneInput, DynamicSceneStylizeError> {
+        let labels: Vec<String> = train
+            .image_paths
+            .iter()
+            .map(|p| p.display().to_string())
+            .collect();
         check_patches_fit(&self.style, &train.images[..1], &labels[..1])?;
         if self.batch_size > train.views.len() {
             return Err(DynamicSceneStylizeError::Config(format!(
@@ -546,12 +550,7 @@ impl Modality for DynamicSceneStylizeConfig {
                 .as_deref()
                 .expect("checked: data or a model is given");
             let train = self.model_scene(path, background, run)?;
-            let labels = train
-                .image_paths
-                .iter()
-                .map(|p| p.display().to_string())
-                .collect();
-            return self.scene_input(train, None, labels, background, run);
+            return self.scene_input(train, None, background, run);
         };
         let recorded_eval = match &self.model {
             Some(path) => model_file::recorded_eval(path)?,
@@ -568,12 +567,7 @@ impl Modality for DynamicSceneStylizeConfig {
         if let (TrainSplits::TrainAndTest, Some(test)) = (train_splits, &test) {
             train.append(test.clone());
         }
-        let labels: Vec<String> = train
-            .image_paths
-            .iter()
-            .map(|p| p.display().to_string())
-            .collect();
-        self.scene_input(train, test, labels, background, run)
+        self.scene_input(train, test, background, run)
     }
 
     /// Our `.safetensors` file or the authors' folder (at `iteration`).

@@ -36,7 +36,7 @@ use crate::fit::{
     VideoFitSettings,
 };
 use crate::folded::{FoldedGaussians, GROUP_NAMES};
-use crate::model_file::{read_model, write_model, VegasFileError, VideoRecord};
+use crate::model_file::{read_header, read_model, write_model, VegasFileError, VideoRecord};
 use crate::video_input::{
     frame_files, load_video_with_progress, Video, VideoInputError, DEFAULT_FOLDER_FPS,
 };

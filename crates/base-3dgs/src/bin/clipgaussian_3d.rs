@@ -44,8 +44,8 @@ use serde::Serialize;
 /// others preview_viewNNN.png), losses.json, losses.png, config.json (the resolved
 /// configuration) and checkpoint/. The configuration comes from `--config` (the paper's
 /// defaults when absent), then the flags, then every `--set field=value` in order. The
-/// output folder is checked before the scene is loaded. Ctrl-C stops after the current step and writes a checkpoint (a second Ctrl-C
-/// quits at once); run the same command with `--resume` to continue. A finished run's
+/// output folder is checked before the scene is loaded. Ctrl-C stops after the current
+/// step and writes a checkpoint (a second Ctrl-C quits at once); run the same command with `--resume` to continue. A finished run's
 /// checkpoint does not hold the folder: the same command runs again, and `--resume`
 /// continues only with more `--steps`.
 #[derive(Args, Debug, Serialize)]

@@ -1,8 +1,8 @@
 //! `clipgaussian-2d`: CLIPGaussian on pictures, held as MiraGe flat Gaussians.
 //!
 //! - `stylize`: fits a picture (or takes a fitted model) and stylizes it with a text or
-//!   picture style; a model alone, its own render; with neither, the embedded default picture. Ctrl-C stops after the current
-//!   step and writes a checkpoint to resume from.
+//!   picture style; a model alone, its own render; with neither, the embedded default
+//!   picture. Ctrl-C stops after the current step and writes a checkpoint to resume from.
 //! - `fit`: fits a picture and writes its model.
 //! - `render`: renders a model at the size it records (or a chosen one), from the front or
 //!   the mirror camera.
@@ -43,8 +43,9 @@ use serde::Serialize;
 ///
 /// Fits the picture first unless --model gives a fitted one, then stylizes it with the
 /// paper's 2D settings (configs/2d.json). A --model given without --picture is stylized
-/// alone: the picture is its own render, at the size it records. Writes to --out: stylized.png (the size of the
-/// picture), preview.png (original | stylized), model.ply (the stylized model),
+/// alone: the picture is its own render, at the size it records. Writes to --out:
+/// stylized.png (the size of the picture), preview.png (original | stylized), model.ply (the
+/// stylized model),
 /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
 /// original.png (the embedded default picture or the model's own render, when no --picture
 /// is given), losses.json, losses.png, config.json and checkpoint/. The

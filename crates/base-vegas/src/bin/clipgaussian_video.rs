@@ -42,8 +42,8 @@ use serde::Serialize;
 /// Fits the video first unless --model gives a fitted one, then stylizes its colours with
 /// the paper's video settings (configs/video.json; configs/video-light.json is the light
 /// variant). A --model given without --video is stylized alone: the video is its own frames,
-/// rendered at the size and frame rate it records. Writes to --out: frames/00000.png ... (the stylized frames, the size of the
-/// video), preview.png (the first frame, original | stylized), preview.gif (original |
+/// rendered at the size and frame rate it records. Writes to --out: frames/00000.png ...
+/// (the stylized frames, the size of the video), preview.png (the first frame, original | stylized), preview.gif (original |
 /// stylized, animated), stylized.mp4 (when ffmpeg is
 /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
 /// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
