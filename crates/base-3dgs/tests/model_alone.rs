@@ -130,6 +130,12 @@ fn a_model_in_inria_layout_trains_on_the_cameras_beside_it() {
     assert_eq!(summary.gaussians.len(), random_set().len());
     let out = config.out.clone().unwrap();
     assert_eq!(first_content(&out), 0.0);
+    assert_first_view_is_r_0(&out);
+}
+
+/// The "before" half of the run's preview in `out` is the model seen by the scene's first NeRF
+/// camera, `r_0`: the run trained on those cameras.
+fn assert_first_view_is_r_0(out: &Path) {
     let preview = image::open(out.join("preview.png")).unwrap().to_rgb8();
     assert_eq!((preview.width(), preview.height()), (2 * SIZE, SIZE));
     let nerf = Camera::from_nerf(c2w(0), FOV_X, SIZE, SIZE).unwrap();
@@ -148,6 +154,32 @@ fn a_model_in_inria_layout_trains_on_the_cameras_beside_it() {
         worst <= 1.0 / 255.0,
         "the 'before' half is camera r_0's view: {worst}"
     );
+}
+
+/// `--cameras` naming a NeRF-synthetic folder (or its transforms file) takes its cameras,
+/// the run training on them; the pictures are not decoded, but where the json gives no size a
+/// picture's header is needed, and a missing one is named before any output.
+#[test]
+fn cameras_from_a_nerf_folder_are_taken_naming_a_missing_picture() {
+    let dir = TempDir::new("alone-nerf-cameras");
+    let (model, data) = scene::write_scene(dir.path());
+    let with = |cameras: PathBuf, out: &str| {
+        let mut c = config(dir.path(), model.clone());
+        c.views.cameras = Some(cameras);
+        c.out = Some(dir.path().join(out));
+        c
+    };
+    for (out, cameras) in [
+        ("folder", data.clone()),
+        ("file", data.join("transforms_train.json")),
+    ] {
+        let config = with(cameras, out);
+        let summary = run(&config, &RunOptions::default()).unwrap();
+        assert_eq!(summary.gaussians.len(), random_set().len());
+        assert_first_view_is_r_0(config.out.as_ref().unwrap());
+    }
+    std::fs::remove_file(data.join("train/r_0.png")).unwrap();
+    fails_cleanly(&with(data.clone(), "missing"), &["r_0.png", "not found"]);
 }
 
 /// An SPZ file alone: an orbit made from it, the stylized scene written as PLY and as SPZ.

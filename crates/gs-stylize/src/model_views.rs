@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 
 use gs_core::dataset::inria_cameras;
-use gs_core::dataset::nerf_synthetic::{self, Split, TrainSplits};
+use gs_core::dataset::nerf_synthetic::{self, TrainSplits};
 use gs_core::dataset::{
     colmap, scene_extent, Dataset, DatasetError, DatasetView, Layout, LoadOptions,
 };
@@ -33,7 +33,7 @@ const EMPTY: f32 = 0.5 / 255.0;
 pub struct ModelViews {
     /// Without `data`, the cameras to train from: an INRIA `cameras.json`, a NeRF or
     /// nerfstudio transforms file or folder, or a COLMAP folder (or its `sparse/`); their
-    /// pictures are not read.
+    /// pictures are not decoded (a picture's header is read where the file gives no size).
     pub cameras: Option<PathBuf>,
     /// Without `data` or `cameras`, cameras made from the model: `object` (around it, looking
     /// in) or `inside` (from its centre, looking out: a room or garden captured from within).
@@ -175,7 +175,7 @@ impl ModelViews {
 pub struct ModelViewFlags {
     /// Without --data, the cameras to train from: an INRIA cameras.json, a NeRF or nerfstudio
     /// transforms file (or its folder), or a COLMAP folder (or its sparse/); their pictures
-    /// are not needed.
+    /// are not decoded (where the file gives no size, a picture's header is read).
     #[arg(long, conflicts_with = "data")]
     #[serde(skip_serializing_if = "Option::is_none")]
     cameras: Option<PathBuf>,
@@ -295,14 +295,7 @@ fn camera_file(
         .find_map(|folder| Layout::detect(folder).map(|layout| (folder, layout)));
     match found {
         Some((folder, Layout::NerfSynthetic)) => {
-            let wrap = |e| dataset(folder, e);
-            let mut views = nerf_synthetic::views(folder, Split::Train, options).map_err(wrap)?;
-            if splits == TrainSplits::TrainAndTest
-                && nerf_synthetic::has_split(folder, Split::Test).map_err(wrap)?
-            {
-                views.extend(nerf_synthetic::views(folder, Split::Test, options).map_err(wrap)?);
-            }
-            Ok(views)
+            nerf_synthetic::training_views(folder, splits, options).map_err(|e| dataset(folder, e))
         }
         Some((folder, Layout::Colmap)) => {
             colmap::views(folder, options).map_err(|e| dataset(folder, e))

@@ -272,6 +272,20 @@ pub fn load_training(
     Ok(dataset)
 }
 
+/// The views [`load_training`] would train on, as [`views`] reads them (no picture decoded):
+/// the train split's, then the test split's when `splits` takes it and the scene has one.
+pub fn training_views(
+    root: &Path,
+    splits: TrainSplits,
+    options: &LoadOptions,
+) -> Result<Vec<DatasetView>, DatasetError> {
+    let mut found = views(root, Split::Train, options)?;
+    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
+        found.extend(views(root, Split::Test, options)?);
+    }
+    Ok(found)
+}
+
 /// Whether the scene in `root` has `split`: its `transforms_<split>.json`, or a
 /// `transforms.json` whose frames make the split (see the module's documentation).
 pub fn has_split(root: &Path, split: Split) -> Result<bool, DatasetError> {
