@@ -1,5 +1,6 @@
 //! Files written whole or not at all: the content goes to `<name>.tmp` beside the target, is
-//! flushed to disk and renamed over the target, so a reader (or a crash) never sees half a file.
+//! flushed to disk and renamed over the target, so a reader (or a crash) never sees half a file;
+//! and a file's first bytes read alone ([`read_head`]), to recognize its format.
 
 use std::fs::File;
 use std::io::{BufWriter, Write};
@@ -36,6 +37,17 @@ where
 /// Writes `bytes` to `path` as [`write_atomic_with`] does.
 pub fn write_atomic(path: &Path, bytes: &[u8]) -> std::io::Result<()> {
     write_atomic_with(path, |w| w.write_all(bytes))
+}
+
+/// The first `max` bytes of the file at `path` (all of it when shorter): enough to recognize
+/// a format by its header without reading the whole file.
+pub fn read_head(path: &Path, max: u64) -> std::io::Result<Vec<u8>> {
+    use std::io::Read;
+    let mut head = Vec::new();
+    std::fs::File::open(path)?
+        .take(max)
+        .read_to_end(&mut head)?;
+    Ok(head)
 }
 
 #[cfg(test)]

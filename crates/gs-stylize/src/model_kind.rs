@@ -9,7 +9,6 @@
 //!   `clipgaussian-video frames ...`);
 //! - `clipgaussian-4d`: a safetensors file whose metadata `format` is `clipgaussian-dmiso`.
 
-use std::io::Read;
 use std::path::Path;
 
 /// What a model file is, as far as its first bytes tell.
@@ -59,13 +58,9 @@ const SNIFF_BYTES: u64 = 1 << 16;
 /// Recognizes `path` from its first bytes (a folder, a missing file or anything else is
 /// [`ModelKind::Unknown`]).
 pub fn recognize(path: &Path) -> ModelKind {
-    let Ok(file) = std::fs::File::open(path) else {
+    let Ok(head) = gs_core::fs::read_head(path, SNIFF_BYTES) else {
         return ModelKind::Unknown;
     };
-    let mut head = Vec::new();
-    if file.take(SNIFF_BYTES).read_to_end(&mut head).is_err() {
-        return ModelKind::Unknown;
-    }
     if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
         return ply_kind(&head);
     }

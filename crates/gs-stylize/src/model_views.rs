@@ -314,17 +314,10 @@ fn camera_file(
 
 /// Whether the file at `path` starts, after white space, with `[`.
 fn starts_as_array(path: &Path) -> Result<bool, DatasetError> {
-    use std::io::Read;
-    let io = |source| DatasetError::Io {
+    let head = gs_core::fs::read_head(path, 4096).map_err(|source| DatasetError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let mut head = Vec::new();
-    std::fs::File::open(path)
-        .map_err(io)?
-        .take(4096)
-        .read_to_end(&mut head)
-        .map_err(io)?;
+    })?;
     Ok(head.iter().find(|b| !b.is_ascii_whitespace()) == Some(&b'['))
 }
 

@@ -248,18 +248,10 @@ fn decode_error(path: &Path, e: DecodeError) -> SplatFileError {
 /// The first 4 KiB of `path` (a PLY header fits), to tell a compressed PLY from an INRIA one
 /// without reading the whole file.
 fn head(path: &Path) -> Result<Vec<u8>, SplatFileError> {
-    use std::io::Read;
-    let io = |source| SplatFileError::Io {
+    crate::fs::read_head(path, 4096).map_err(|source| SplatFileError::Io {
         path: path.to_path_buf(),
         source,
-    };
-    let mut head = Vec::new();
-    std::fs::File::open(path)
-        .map_err(io)?
-        .take(4096)
-        .read_to_end(&mut head)
-        .map_err(io)?;
-    Ok(head)
+    })
 }
 
 /// Writes `ply` to `path` in `format` (through a temporary name, renamed when complete).
