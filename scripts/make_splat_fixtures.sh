@@ -2,8 +2,8 @@
 # Splat-format fixtures written by an outside implementation, PlayCanvas's
 # `@playcanvas/splat-transform` (npm), for our readers and writers of splat formats.
 #
-# How to run (from anywhere; needs node >= 20 with npm, and python3 with only its standard
-# library; no GPU):
+# How to run (from anywhere; needs node >= 20 with npm, python3 with only its standard library,
+# and cargo to build our exporter; no GPU):
 #
 #   ST_DIR=$(mktemp -d) SPZ_ST_DIR=$(mktemp -d)
 #   (cd "$ST_DIR" && npm init -y >/dev/null && npm install @playcanvas/splat-transform@3.7.0)
@@ -51,6 +51,9 @@
 #                                time, so for reproducible bytes node preloads a module that seeds
 #                                Math.random (mulberry32) and pins `new Date()` to 2000-01-01;
 #                                REORDERED (Morton), very lossy (SH palette), for reading only
+#   ours.sog                     OUR SOG writer's file of source.ply (clipgaussian-3d export, built
+#                                here with cargo): its .decoded.ply is splat-transform's reading
+#                                of what we write; Gaussians in source.ply's order
 #   source.glb                   glTF 2.0 binary with KHR_gaussian_splatting; note: written in
 #                                PlayCanvas engine space, i.e. rotated 180 degrees about Z relative
 #                                to the PLY (x -> -x, y -> -y, quaternion and SH rotated too);
@@ -235,8 +238,12 @@ if (!(bytes[0] === 0x1f && bytes[1] === 0x8b)) throw new Error('expected a gzip 
 writeFileSync('source.v2.spz', bytes);
 JS
 
-# --- c. splat-transform's reading of each, as a plain PLY ---------------------------------
-for f in source.compressed.ply source.splat unit.splat source.sog; do
+# --- c. our SOG, written by our exporter, for splat-transform to read ----------------------
+cargo run -q --manifest-path "$ROOT/Cargo.toml" -p base-3dgs --bin clipgaussian-3d -- \
+    export --model source.ply --out ours.sog >/dev/null
+
+# --- d. splat-transform's reading of each, as a plain PLY ---------------------------------
+for f in source.compressed.ply source.splat unit.splat source.sog ours.sog; do
     st "$f" "$f.decoded.ply"
 done
 for f in source.v2.spz source.v3.spz source.v4.spz; do

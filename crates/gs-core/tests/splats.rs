@@ -218,6 +218,35 @@ fn round_trips_stay_within_each_formats_quantisation() {
             format.name()
         );
     }
+    // SOG: positions 16 bits of the span of sign(x) ln(|x| + 1), truncated (here a span of
+    // 2.2, so 3.4e-5 before the exp, times e^1.1 at most after it); rotation bytes truncated
+    // (2 / (255 sqrt 2) a component, more on the derived largest); log-scales and colours by
+    // their 256-entry codebooks (here within 0.02); the SH palette (32 entries for 50
+    // Gaussians of random values, which do not cluster) no further from the source than
+    // splat-transform's.
+    let (_, back) = round_trip(SplatFormat::Sog, "source.ply");
+    assert_close(
+        "sog",
+        &back,
+        &source,
+        [1.1e-4, 0.02, 0.012, f32::INFINITY, 0.02, f32::INFINITY],
+    );
+    let rms = |a: &[f32], b: &[f32]| {
+        let sum: f32 = a.iter().zip(b).map(|(x, y)| (x - y) * (x - y)).sum();
+        (sum / a.len() as f32).sqrt()
+    };
+    let theirs = read_ply(&fixture("source.sog.decoded.ply"))
+        .unwrap()
+        .gaussians;
+    let (ours, theirs) = (
+        rms(&back.sh_rest, &source.sh_rest),
+        rms(&theirs.sh_rest, &matched(&source, &theirs).sh_rest),
+    );
+    eprintln!("SH rms ours {ours} theirs {theirs}");
+    assert!(
+        ours <= 1.1 * theirs,
+        "SH palette: rms {ours}, splat-transform's {theirs}"
+    );
     // .splat: degree 0; colour and alpha truncated to 1/255 of the sigmoid and of 0.5 + C0 f_dc.
     let (_, back) = round_trip(SplatFormat::Splat, "unit.ply");
     assert_eq!(back.means, unit.means);
@@ -284,6 +313,197 @@ fn sog_reads_from_a_folder_as_from_its_bundle() {
     std::fs::write(&bad, b"PK\x05\x06").unwrap();
     let e = read_splats(&bad).unwrap_err().to_string();
     assert!(e.contains("bad.sog") && e.contains("zip"), "{e}");
+}
+
+/// The `meta.json` of a `.sog` bundle's bytes.
+fn sog_meta(bundle: &[u8]) -> serde_json::Value {
+    let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bundle)).unwrap();
+    let mut text = String::new();
+    std::io::Read::read_to_string(&mut zip.by_name("meta.json").unwrap(), &mut text).unwrap();
+    serde_json::from_str(&text).unwrap()
+}
+
+/// `set`'s Gaussians in the order of `order`'s, matched by position (each of `order`'s to
+/// the nearest of `set`'s).
+fn matched(set: &GaussianSet, order: &GaussianSet) -> GaussianSet {
+    fn at(s: &GaussianSet, i: usize) -> &[f32] {
+        &s.means[3 * i..3 * i + 3]
+    }
+    let pick: Vec<usize> = (0..order.len())
+        .map(|j| {
+            let distance = |i: usize| -> f32 {
+                at(set, i)
+                    .iter()
+                    .zip(at(order, j))
+                    .map(|(a, b)| (a - b) * (a - b))
+                    .sum()
+            };
+            (0..set.len())
+                .min_by(|&a, &b| distance(a).total_cmp(&distance(b)))
+                .unwrap()
+        })
+        .collect();
+    gathered(set, &pick)
+}
+
+/// The Gaussians `pick` of `set`, in that order.
+fn gathered(set: &GaussianSet, pick: &[usize]) -> GaussianSet {
+    let rest = set.sh_rest.len() / set.len().max(1);
+    let gather = |values: &[f32], width: usize| -> Vec<f32> {
+        pick.iter()
+            .flat_map(|&i| values[width * i..width * (i + 1)].iter().copied())
+            .collect()
+    };
+    let mut out = GaussianSet::zeros(pick.len(), set.sh_degree());
+    out.means = gather(&set.means, 3);
+    out.log_scales = gather(&set.log_scales, 3);
+    out.quats = gather(&set.quats, 4);
+    out.opacity_logits = gather(&set.opacity_logits, 1);
+    out.sh_dc = gather(&set.sh_dc, 3);
+    out.sh_rest = gather(&set.sh_rest, rest);
+    out
+}
+
+/// Our SOG of `source.ply` quantises as splat-transform's `source.sog`: the same position
+/// ranges and scale and colour codebooks, so every Gaussian reads back with splat-transform's
+/// values but for the SH palette (a k-means that splat-transform seeds at random); the order
+/// is ours (splat-transform's is Morton order).
+#[test]
+fn sog_is_written_as_splat_transform_writes_it() {
+    let (bytes, ours) = round_trip(SplatFormat::Sog, "source.ply");
+    let meta = sog_meta(&bytes);
+    let theirs_meta = sog_meta(&std::fs::read(fixture("source.sog")).unwrap());
+    for key in [
+        "/means/mins",
+        "/means/maxs",
+        "/scales/codebook",
+        "/sh0/codebook",
+    ] {
+        let values = |m: &serde_json::Value| -> Vec<f64> {
+            m.pointer(key)
+                .unwrap()
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect()
+        };
+        let (a, b) = (values(&meta), values(&theirs_meta));
+        assert_eq!(a.len(), b.len(), "{key}");
+        for (x, y) in a.iter().zip(&b) {
+            assert!(
+                (x - y).abs() <= 1e-6 * y.abs().max(1.0),
+                "{key}: {x} against {y}"
+            );
+        }
+    }
+    assert_eq!(meta["count"], 50);
+    assert_eq!(meta["shN"]["bands"], 3);
+    assert_eq!(meta["shN"]["count"], theirs_meta["shN"]["count"]);
+    let theirs = read_ply(&fixture("source.sog.decoded.ply"))
+        .unwrap()
+        .gaussians;
+    let mut ours = matched(&ours, &theirs);
+    // The SH palette is compared by the round trip's bound instead.
+    ours.sh_rest.clone_from(&theirs.sh_rest);
+    assert_close("sog", &ours, &theirs, [1e-6, 1e-6, 2e-6, 1e-5, 1e-6, 0.0]);
+}
+
+/// splat-transform reads the SOG our writer writes (`ours.sog`, written by `clipgaussian-3d
+/// export` in the fixture script) as we read it, and our writer still writes those bytes.
+#[test]
+fn splat_transform_reads_our_sog_as_we_do() {
+    let ours = read_splats(&fixture("ours.sog")).unwrap().gaussians;
+    let theirs = read_ply(&fixture("ours.sog.decoded.ply"))
+        .unwrap()
+        .gaussians;
+    assert_close(
+        "ours.sog",
+        &ours,
+        &theirs,
+        [1e-6, 1e-6, 2e-6, 1e-5, 1e-6, 1e-6],
+    );
+    let (bytes, _) = round_trip(SplatFormat::Sog, "source.ply");
+    assert!(
+        bytes == std::fs::read(fixture("ours.sog")).unwrap(),
+        "the writer changed: rerun scripts/make_splat_fixtures.sh"
+    );
+}
+
+/// A SOG written as a folder (`meta.json` named) reads as its bundle; a model of one Gaussian
+/// and one of none (refused, nothing written); a transparent Gaussian keeps its colour (the
+/// WebP keeps every byte under a zero alpha).
+#[test]
+fn sog_writes_folders_single_gaussians_and_transparent_ones() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut ply = read_ply(&fixture("source.ply")).unwrap();
+    ply.gaussians.opacity_logits[5] = -40.0;
+    let bundle = dir.path().join("a.sog");
+    write_splats(&bundle, &ply, SplatFormat::Sog).unwrap();
+    let folder = dir.path().join("folder");
+    std::fs::create_dir(&folder).unwrap();
+    let meta = folder.join("meta.json");
+    assert_eq!(SplatFormat::from_path(&meta), Some(SplatFormat::Sog));
+    write_splats(&meta, &ply, SplatFormat::Sog).unwrap();
+    let mut names: Vec<String> = std::fs::read_dir(&folder)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().into_string().unwrap())
+        .collect();
+    names.sort();
+    assert_eq!(
+        names,
+        [
+            "means_l.webp",
+            "means_u.webp",
+            "meta.json",
+            "quats.webp",
+            "scales.webp",
+            "sh0.webp",
+            "shN_centroids.webp",
+            "shN_labels.webp"
+        ]
+    );
+    let (a, b) = (
+        read_splats(&bundle).unwrap().gaussians,
+        read_splats(&meta).unwrap().gaussians,
+    );
+    assert_eq!(a, b);
+    let bound = 0.05;
+    let dc = worst(&a.sh_dc[15..18], &ply.gaussians.sh_dc[15..18]);
+    assert!(
+        dc < bound,
+        "the transparent Gaussian's colour moved by {dc}"
+    );
+    assert!(a.opacity_logits[5] < -13.0);
+
+    let one = PlyGaussians::new(gathered(&ply.gaussians, &[3]));
+    let path = dir.path().join("one.sog");
+    write_splats(&path, &one, SplatFormat::Sog).unwrap();
+    let back = read_splats(&path).unwrap().gaussians;
+    // One Gaussian: its span is zero, so its position is exact; its three log-scales and
+    // three colours each take a codebook of three bins, where two values may share one (the
+    // bins are placed half by rank: splat-transform's codebook, kept); its SH its own palette
+    // entry, the entry's 45 values in a codebook of as many bins; its alpha is truncated to 8
+    // bits.
+    assert_close(
+        "one",
+        &back,
+        &one.gaussians,
+        [1e-6, 1.5, 0.012, f32::INFINITY, 1.5, 0.01],
+    );
+    let alpha = |x: f32| 1.0 / (1.0 + (-x).exp());
+    let error = alpha(one.gaussians.opacity_logits[0]) - alpha(back.opacity_logits[0]);
+    assert!((0.0..=1.0 / 255.0 + 1e-6).contains(&error), "alpha {error}");
+    let none = PlyGaussians::new(gathered(&ply.gaussians, &[]));
+    let path = dir.path().join("none.sog");
+    let e = write_splats(&path, &none, SplatFormat::Sog)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("none.sog") && e.contains("at least one Gaussian"),
+        "{e}"
+    );
+    assert!(!path.exists());
 }
 
 /// The glTF accessors of `.glb` bytes: name to (component type, bytes).
@@ -398,6 +618,7 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
         SplatFormat::Splat,
         SplatFormat::Spz,
         SplatFormat::Glb,
+        SplatFormat::Sog,
     ] {
         let path = dir.path().join(format!("nan{}", format.extension()));
         let e = write_splats(&path, &ply, format).unwrap_err().to_string();
@@ -412,6 +633,7 @@ fn broken_and_unknown_files_are_refused_naming_the_file() {
         SplatFormat::Splat,
         SplatFormat::Spz,
         SplatFormat::SpzV2,
+        SplatFormat::Sog,
     ] {
         let path = dir.path().join(format!("zero{}", format.extension()));
         let e = write_splats(&path, &zero, format).unwrap_err().to_string();

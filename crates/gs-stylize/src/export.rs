@@ -21,14 +21,16 @@ pub struct ExportArgs {
     /// The model to export (the file the binary's other commands take as --model).
     #[arg(long)]
     pub model: PathBuf,
-    /// Where to write: a file whose name ends in .ply, .compressed.ply, .splat, .spz or .glb
-    /// (the ending picks the format unless --format is given); a folder when several frames or
-    /// times are exported, one file each (00000.ply, 00001.ply, ...).
+    /// Where to write: a file whose name ends in .ply, .compressed.ply, .splat, .spz, .glb or
+    /// .sog, or a SOG folder's meta.json (its pictures written beside it) (the ending picks the
+    /// format unless --format is given); a folder when several frames or times are exported,
+    /// one file each (00000.ply, 00001.ply, ...).
     #[arg(long)]
     pub out: PathBuf,
     /// The format: ply (INRIA, exact), compressed-ply (SuperSplat), splat (antimatter15,
-    /// degree-0 colour only), spz (Niantic, version 4), spz-v2 (for older SPZ readers) or glb
-    /// (glTF with KHR_gaussian_splatting). Default: from the ending of --out; ply for a folder.
+    /// degree-0 colour only), spz (Niantic, version 4), spz-v2 (for older SPZ readers), glb
+    /// (glTF with KHR_gaussian_splatting) or sog (PlayCanvas SOG). Default: from the ending of
+    /// --out; ply for a folder.
     #[arg(long, value_parser = format_parser())]
     pub format: Option<SplatFormat>,
 }
@@ -42,7 +44,7 @@ impl ExportArgs {
             None => SplatFormat::from_path(&self.out).ok_or_else(|| {
                 format!(
                     "--out {}: the name ends in no splat format (.ply, .compressed.ply, .splat, \
-                     .spz, .glb); give --format",
+                     .spz, .glb, .sog, meta.json); give --format",
                     self.out.display()
                 )
                 .into()

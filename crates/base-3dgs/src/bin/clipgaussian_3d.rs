@@ -264,7 +264,7 @@ enum SceneCommand {}
 /// Reads --model in any format it knows (INRIA PLY, SuperSplat compressed PLY, SPZ, .splat,
 /// glTF .glb, SOG .sog or meta.json) and writes --out in the format its name ends in (or
 /// --format): INRIA PLY (every property kept), compressed PLY, SPZ, .splat (degree-0 colour
-/// only) or glTF (.glb, turned y-up).
+/// only), glTF (.glb, turned y-up) or SOG (.sog, or a folder's meta.json).
 #[derive(Args, Debug)]
 struct SceneExportArgs {
     #[command(flatten)]

@@ -1,8 +1,7 @@
 //! Splat files beyond INRIA's PLY, read and written for viewers and other pipelines:
 //! SuperSplat's compressed PLY ([`compressed_ply`]), Niantic's SPZ ([`spz`]), antimatter15's
-//! `.splat` ([`splat_format`]) and glTF binary with `KHR_gaussian_splatting` ([`gltf`]), every
-//! one both ways; and PlayCanvas's SOG ([`sog`]: a `.sog` bundle or a folder's `meta.json`),
-//! read only.
+//! `.splat` ([`splat_format`]), glTF binary with `KHR_gaussian_splatting` ([`gltf`]) and
+//! PlayCanvas's SOG ([`sog`]: a `.sog` bundle or a folder's `meta.json`), every one both ways.
 //!
 //! [`read_splats`] and [`write_splats`] pick the format from the file name
 //! ([`SplatFormat::from_path`]); a `.ply` is read as compressed when its header has a `chunk`
@@ -12,6 +11,7 @@
 //! into its own frame (y up, z back) as Niantic's library does, and glTF is y-up (the scene
 //! turned half a turn about z) as splat-transform writes it; both are turned back on reading.
 
+pub mod codebook;
 pub mod compressed_ply;
 pub mod gltf;
 pub mod sog;
@@ -39,17 +39,20 @@ pub enum SplatFormat {
     SpzV2,
     /// glTF binary with `KHR_gaussian_splatting` (`.glb`).
     Glb,
+    /// PlayCanvas's SOG: a `.sog` bundle, or a folder's `meta.json` with its pictures beside.
+    Sog,
 }
 
 impl SplatFormat {
     /// Every format, in the order of [`SplatFormat::name`]s a command lists.
-    pub const ALL: [Self; 6] = [
+    pub const ALL: [Self; 7] = [
         Self::Ply,
         Self::CompressedPly,
         Self::Splat,
         Self::Spz,
         Self::SpzV2,
         Self::Glb,
+        Self::Sog,
     ];
 
     /// The format's name on the command line.
@@ -61,6 +64,7 @@ impl SplatFormat {
             Self::Spz => "spz",
             Self::SpzV2 => "spz-v2",
             Self::Glb => "glb",
+            Self::Sog => "sog",
         }
     }
 
@@ -72,12 +76,17 @@ impl SplatFormat {
             Self::Splat => ".splat",
             Self::Spz | Self::SpzV2 => ".spz",
             Self::Glb => ".glb",
+            Self::Sog => ".sog",
         }
     }
 
     /// The format of a file named `path` by its ending (`.compressed.ply` before `.ply`; SPZ
-    /// files are written in version 4 and read in any), `None` for an unknown ending.
+    /// files are written in version 4 and read in any; a file named `meta.json` is a SOG
+    /// folder's), `None` for an unknown ending.
     pub fn from_path(path: &Path) -> Option<Self> {
+        if is_sog_folder(path) {
+            return Some(Self::Sog);
+        }
         let name = path.file_name()?.to_str()?.to_ascii_lowercase();
         [
             Self::CompressedPly,
@@ -85,6 +94,7 @@ impl SplatFormat {
             Self::Splat,
             Self::Spz,
             Self::Glb,
+            Self::Sog,
         ]
         .into_iter()
         .find(|f| name.ends_with(f.extension()))
@@ -163,14 +173,6 @@ pub fn read_splats(path: &Path) -> Result<PlyGaussians, SplatFileError> {
 /// [`read_splats`], with the body format of an INRIA PLY (binary little-endian for every other
 /// format), so a modified copy can be written as the input was.
 pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat), SplatFileError> {
-    if let Some(sog) = read_sog(path) {
-        return sog.map(|set| {
-            (
-                PlyGaussians::without_normals(set),
-                PlyFormat::BinaryLittleEndian,
-            )
-        });
-    }
     let format = match SplatFormat::from_path(path) {
         Some(format) => format,
         None if head(path)?.starts_with(b"ply") => SplatFormat::Ply,
@@ -201,6 +203,10 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
         SplatFormat::Splat => splat_format::decode(&read()?).map_err(format_error)?,
         SplatFormat::Spz | SplatFormat::SpzV2 => spz::decode(&read()?).map_err(format_error)?,
         SplatFormat::Glb => gltf::decode(&read()?).map_err(format_error)?,
+        SplatFormat::Sog if is_sog_folder(path) => {
+            sog::decode_folder(path).map_err(format_error)?
+        }
+        SplatFormat::Sog => sog::decode_bundle(&read()?).map_err(format_error)?,
     };
     Ok((
         PlyGaussians::without_normals(gaussians),
@@ -208,27 +214,9 @@ pub fn read_splats_with_format(path: &Path) -> Result<(PlyGaussians, PlyFormat),
     ))
 }
 
-/// The Gaussians of the SOG at `path` when it names one (a `.sog` bundle, or a folder's
-/// `meta.json`), `None` otherwise.
-fn read_sog(path: &Path) -> Option<Result<GaussianSet, SplatFileError>> {
-    let named = |name: &str| path.file_name().is_some_and(|n| n == name);
-    let bundle = path
-        .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("sog"));
-    if !bundle && !named(sog::META_JSON) {
-        return None;
-    }
-    let decoded = if bundle {
-        std::fs::read(path)
-            .map_err(|source| SplatFileError::Io {
-                path: path.to_path_buf(),
-                source,
-            })
-            .and_then(|bytes| sog::decode_bundle(&bytes).map_err(|e| decode_error(path, e)))
-    } else {
-        sog::decode_folder(path).map_err(|e| decode_error(path, e))
-    };
-    Some(decoded)
+/// Whether `path` names a SOG folder's `meta.json`.
+fn is_sog_folder(path: &Path) -> bool {
+    path.file_name().is_some_and(|n| n == sog::META_JSON)
 }
 
 /// A decoder's error as the file's.
@@ -254,20 +242,36 @@ fn head(path: &Path) -> Result<Vec<u8>, SplatFileError> {
     })
 }
 
-/// Writes `ply` to `path` in `format` (through a temporary name, renamed when complete).
-/// Formats other than INRIA's PLY keep only the Gaussians.
+/// Writes `ply` to `path` in `format` (through a temporary name, renamed when complete; a SOG
+/// folder's pictures first, its `meta.json` last). Formats other than INRIA's PLY keep only the
+/// Gaussians.
 pub fn write_splats(
     path: &Path,
     ply: &PlyGaussians,
     format: SplatFormat,
 ) -> Result<(), SplatFileError> {
+    let set = &ply.gaussians;
     let bytes = match format {
         SplatFormat::Ply => return Ok(write_ply(path, ply, PlyFormat::BinaryLittleEndian)?),
-        SplatFormat::CompressedPly => compressed_ply::encode(&ply.gaussians),
-        SplatFormat::Splat => splat_format::encode(&ply.gaussians),
-        SplatFormat::Spz => spz::encode(&ply.gaussians, spz::Version::V4),
-        SplatFormat::SpzV2 => spz::encode(&ply.gaussians, spz::Version::V2),
-        SplatFormat::Glb => gltf::encode(&ply.gaussians),
+        SplatFormat::CompressedPly => compressed_ply::encode(set),
+        SplatFormat::Splat => splat_format::encode(set),
+        SplatFormat::Spz => spz::encode(set, spz::Version::V4),
+        SplatFormat::SpzV2 => spz::encode(set, spz::Version::V2),
+        SplatFormat::Glb => gltf::encode(set),
+        SplatFormat::Sog if is_sog_folder(path) => {
+            let files = sog::encode(set).map_err(|message| SplatFileError::Format {
+                path: path.to_path_buf(),
+                message,
+            })?;
+            let folder = path.parent().unwrap_or(Path::new(""));
+            for (name, bytes) in &files {
+                let file = folder.join(name);
+                crate::fs::write_atomic(&file, bytes)
+                    .map_err(|source| SplatFileError::Io { path: file, source })?;
+            }
+            return Ok(());
+        }
+        SplatFormat::Sog => sog::encode(set).and_then(|files| sog::bundle(&files)),
     }
     .map_err(|message| SplatFileError::Format {
         path: path.to_path_buf(),

@@ -1,6 +1,6 @@
 //! PlayCanvas's SOG (version 2), as `@playcanvas/splat-transform` and SuperSplat write it: a
 //! `meta.json` and lossless WebP pictures (one texel a Gaussian, row by row), either as files
-//! beside `meta.json` or bundled in one zip file (`.sog`). Read here, not written.
+//! beside `meta.json` or bundled in one zip file (`.sog`). Read and written.
 //!
 //! - positions: `means_l` and `means_u` hold the low and high byte of a 16-bit fraction of
 //!   each axis between `means.mins` and `means.maxs`, of `sign(x) ln(|x| + 1)`;
@@ -16,12 +16,21 @@
 //! Values are as held in 3DGS's PLY frame (splat-transform writes SOG in it). An invalid
 //! rotation tag reads as no rotation and a palette entry past `shN.count` as no SH, as
 //! splat-transform reads them. Version 1 files (no `version`) are refused.
+//!
+//! Writing quantises as splat-transform 3.7 does (positions truncated to 16 bits, rotation
+//! bytes truncated, the scale and colour codebooks by its `quantize1d`, opacity levels
+//! truncated), with two differences: the Gaussians keep their order (splat-transform sorts
+//! them in Morton order, which compresses better; ours keeps a model and its stylized copy
+//! the same Gaussians, as `interpolate` needs), and the SH palette is a deterministic k-means
+//! ([`codebook::palette`]) of as many entries as splat-transform's (`1024 x 2^floor(log2(N /
+//! 1024))`, at most 65536) where splat-transform seeds its k-means at random.
 
 use std::io::Read;
 use std::path::Path;
 
 use serde::Deserialize;
 
+use super::codebook::{self, Codebook};
 use super::DecodeError;
 use crate::GaussianSet;
 
@@ -100,6 +109,11 @@ fn webp(name: &str, bytes: &[u8], max_pixels: u64) -> Result<Texture, String> {
         height: picture.height() as usize,
         rgba: picture.into_raw(),
     })
+}
+
+/// `sign(x) ln(|x| + 1)`: positions are stored of it.
+fn to_log(x: f64) -> f64 {
+    x.signum() * (x.abs() + 1.0).ln()
 }
 
 /// `x` from `sign(x) ln(|x| + 1)`.
@@ -284,4 +298,202 @@ pub fn decode_folder(path: &Path) -> Result<GaussianSet, DecodeError> {
         let file = folder.join(name);
         std::fs::read(&file).map_err(|e| format!("{}: {e}", file.display()))
     })
+}
+
+/// The widest side of a WebP picture, in texels.
+const MAX_SIDE: usize = 16383;
+
+/// The pictures of a SOG and its `meta.json`: `(file name, bytes)`, `meta.json` last.
+pub type SogFiles = Vec<(String, Vec<u8>)>;
+
+/// The SOG files of `set` (its order kept; see the module's notes on quantisation); an error
+/// names a value the format cannot hold.
+pub fn encode(set: &GaussianSet) -> Result<SogFiles, String> {
+    super::check_finite(set)?;
+    super::check_rotations(set)?;
+    let n = set.len();
+    if n == 0 {
+        return Err("a SOG holds at least one Gaussian; this model has none".into());
+    }
+    // splat-transform's layout: a near-square picture, both sides multiples of 4.
+    let width = ((n as f64).sqrt() / 4.0).ceil() as usize * 4;
+    let height = n.div_ceil(width).div_ceil(4) * 4;
+    if width > MAX_SIDE || height > MAX_SIDE {
+        return Err(format!(
+            "{n} Gaussians need {width}x{height} texels, more than WebP's {MAX_SIDE} a side"
+        ));
+    }
+    let picture = |texel: &dyn Fn(usize) -> [u8; 4]| -> Result<Vec<u8>, String> {
+        let mut rgba = vec![0u8; 4 * width * height];
+        for i in 0..n {
+            rgba[4 * i..4 * i + 4].copy_from_slice(&texel(i));
+        }
+        lossless_webp(&rgba, width, height)
+    };
+    let mut files = SogFiles::new();
+
+    // Positions: 16 bits of each axis's span of sign(x) ln(|x| + 1), truncated.
+    let mut mins = [f64::INFINITY; 3];
+    let mut maxs = [f64::NEG_INFINITY; 3];
+    for p in set.means.chunks_exact(3) {
+        for k in 0..3 {
+            let v = to_log(f64::from(p[k]));
+            mins[k] = mins[k].min(v);
+            maxs[k] = maxs[k].max(v);
+        }
+    }
+    let fraction = |i: usize, k: usize| -> u16 {
+        let span = maxs[k] - mins[k];
+        if span == 0.0 {
+            return 0;
+        }
+        (65535.0 * (to_log(f64::from(set.means[3 * i + k])) - mins[k]) / span) as u16
+    };
+    files.push((
+        "means_l.webp".into(),
+        picture(&|i| opaque([0, 1, 2].map(|k| fraction(i, k) as u8)))?,
+    ));
+    files.push((
+        "means_u.webp".into(),
+        picture(&|i| opaque([0, 1, 2].map(|k| (fraction(i, k) >> 8) as u8)))?,
+    ));
+
+    // Rotations: the unit quaternion's smallest three, the largest made positive.
+    const INDEX: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
+    files.push((
+        "quats.webp".into(),
+        picture(&|i| {
+            let q = &set.quats[4 * i..4 * i + 4];
+            let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
+            let q = [0, 1, 2, 3].map(|k| f64::from(q[k]) / norm);
+            let mut largest = 0;
+            for k in 1..4 {
+                if q[k].abs() > q[largest].abs() {
+                    largest = k;
+                }
+            }
+            let s = q[largest].signum() * std::f64::consts::SQRT_2;
+            let byte = |k: usize| (255.0 * (q[k] * s * 0.5 + 0.5)).clamp(0.0, 255.0) as u8;
+            let [a, b, c] = INDEX[largest];
+            [byte(a), byte(b), byte(c), 252 + largest as u8]
+        })?,
+    ));
+
+    // Log-scales and colours: a codebook each, pooled over the three axes or channels.
+    let pooled = |values: &[f32]| -> Codebook {
+        let columns: Vec<f32> = (0..3)
+            .flat_map(|k| values.iter().skip(k).step_by(3).copied())
+            .collect();
+        codebook::scalar_codebook(&columns)
+    };
+    let label = |book: &Codebook, i: usize, k: usize| book.labels[k * n + i];
+    let scales = pooled(&set.log_scales);
+    files.push((
+        "scales.webp".into(),
+        picture(&|i| opaque([0, 1, 2].map(|k| label(&scales, i, k))))?,
+    ));
+    let colours = pooled(&set.sh_dc);
+    files.push((
+        "sh0.webp".into(),
+        picture(&|i| {
+            let alpha = super::sigmoid(f64::from(set.opacity_logits[i])) * 255.0;
+            let [r, g, b] = [0, 1, 2].map(|k| label(&colours, i, k));
+            [r, g, b, alpha.clamp(0.0, 255.0) as u8]
+        })?,
+    ));
+
+    let sh_n = match set.sh_degree() {
+        0 => None,
+        degree => {
+            let coefficients = (degree + 1) * (degree + 1) - 1;
+            let dim = 3 * coefficients;
+            // splat-transform's 1024 x 2^floor(log2(N / 1024)), capped at 65536: the largest
+            // power of two not above N.
+            let size = (1usize << n.ilog2()).min(65536);
+            let palette = codebook::palette(&set.sh_rest, dim, size);
+            let entries = palette.entries.len() / dim;
+            let book = codebook::scalar_codebook(&palette.entries);
+            // 64 entries a row, a texel a coefficient, the channels in R, G, B.
+            let rows = entries.div_ceil(64);
+            let mut rgba = vec![0u8; 4 * 64 * coefficients * rows];
+            for e in 0..entries {
+                for j in 0..coefficients {
+                    let at = 4 * (e * coefficients + j);
+                    for ch in 0..3 {
+                        rgba[at + ch] = book.labels[e * dim + 3 * j + ch];
+                    }
+                    rgba[at + 3] = 255;
+                }
+            }
+            files.push((
+                "shN_centroids.webp".into(),
+                lossless_webp(&rgba, 64 * coefficients, rows)?,
+            ));
+            files.push((
+                "shN_labels.webp".into(),
+                picture(&|i| {
+                    let l = palette.labels[i];
+                    [l as u8, (l >> 8) as u8, 0, 255]
+                })?,
+            ));
+            Some(serde_json::json!({
+                "count": entries,
+                "bands": degree,
+                "codebook": book.values,
+                "files": ["shN_centroids.webp", "shN_labels.webp"],
+            }))
+        }
+    };
+    let mut meta = serde_json::json!({
+        "version": 2,
+        "asset": {"generator": concat!("clipgaussian ", env!("CARGO_PKG_VERSION"))},
+        "count": n,
+        "means": {"mins": mins, "maxs": maxs, "files": ["means_l.webp", "means_u.webp"]},
+        "scales": {"codebook": scales.values, "files": ["scales.webp"]},
+        "quats": {"files": ["quats.webp"]},
+        "sh0": {"codebook": colours.values, "files": ["sh0.webp"]},
+    });
+    if let Some(sh_n) = sh_n {
+        meta["shN"] = sh_n;
+    }
+    files.push((META_JSON.into(), meta.to_string().into_bytes()));
+    Ok(files)
+}
+
+/// Three bytes and an opaque alpha, as a texel.
+fn opaque([r, g, b]: [u8; 3]) -> [u8; 4] {
+    [r, g, b, 255]
+}
+
+/// The lossless WebP of `rgba` (`width x height` texels, row by row), every byte kept (under
+/// a zero alpha too).
+fn lossless_webp(rgba: &[u8], width: usize, height: usize) -> Result<Vec<u8>, String> {
+    use image::ImageEncoder;
+    let mut out = Vec::new();
+    image::codecs::webp::WebPEncoder::new_lossless(&mut out)
+        .write_image(
+            rgba,
+            width as u32,
+            height as u32,
+            image::ExtendedColorType::Rgba8,
+        )
+        .map_err(|e| format!("WebP encoding: {e}"))?;
+    Ok(out)
+}
+
+/// The `.sog` bundle of SOG `files`: a zip of them, stored (WebP is compressed already), with
+/// no time stamp of the moment (the same model gives the same bytes).
+pub fn bundle(files: &SogFiles) -> Result<Vec<u8>, String> {
+    use std::io::Write;
+    let mut zip = zip::ZipWriter::new(std::io::Cursor::new(Vec::new()));
+    let options = zip::write::SimpleFileOptions::default()
+        .compression_method(zip::CompressionMethod::Stored)
+        .last_modified_time(zip::DateTime::default());
+    let failed = |e: &dyn std::fmt::Display| format!("writing the bundle: {e}");
+    for (name, bytes) in files {
+        zip.start_file(name.as_str(), options)
+            .map_err(|e| failed(&e))?;
+        zip.write_all(bytes).map_err(|e| failed(&e))?;
+    }
+    Ok(zip.finish().map_err(|e| failed(&e))?.into_inner())
 }
