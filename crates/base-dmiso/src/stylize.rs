@@ -72,9 +72,13 @@ pub struct DynamicSceneStylizeConfig {
     /// Without `data`: where the views come from (`cameras`, `orbit`, `orbit_views`,
     /// `width`, `height`, `up`; see [`ModelViews`]; `up` is `[0, 0, 1]` here, D-NeRF's
     /// Blender frame). View `i` of `n` is at time `i / (n - 1)` (a camera file records no
-    /// times), its ground truth the model's render at that time.
+    /// times) unless `times` says otherwise, its ground truth the model's render at that time.
     #[serde(flatten)]
     pub views: ModelViews,
+    /// Without `data`: the views' times, this many evenly spaced in `[0, 1]` (`k / (N - 1)`,
+    /// time 0 for one), view `i` at the `(i mod N)`-th; at least 1 and at most the number of
+    /// views. None: view `i` of `n` at `i / (n - 1)`.
+    pub times: Option<usize>,
     /// The output folder.
     pub out: Option<PathBuf>,
     /// The colour the pictures are composited over and the scene renders over: `white`
@@ -137,6 +141,7 @@ impl Default for DynamicSceneStylizeConfig {
                 up: [0.0, 0.0, 1.0],
                 ..ModelViews::default()
             },
+            times: None,
             out: None,
             background: None,
             max_width: gs_core::wide_pictures::AUTHORS_MAX_WIDTH,
@@ -189,6 +194,13 @@ impl DynamicSceneStylizeConfig {
         }
         self.learning_rates.check(&GROUP_NAMES)?;
         self.views.validate(self.data.is_some())?;
+        match self.times {
+            Some(_) if self.data.is_some() => {
+                return bad("times: the views of data have their own times; drop --times".into())
+            }
+            Some(0) => return bad("times: 0: give at least 1 (--times)".into()),
+            _ => {}
+        }
         if !(self.sweep_fps.is_finite() && self.sweep_fps > 0.0) {
             return bad(format!(
                 "sweep_fps: {} must be positive (--set sweep_fps=24)",
@@ -386,6 +398,29 @@ pub struct DynamicSceneInput {
     original: Vec<Image>,
 }
 
+/// The times of `n` views made without data: with `times` `Some(k)`, view `i` at the `(i mod
+/// k)`-th of `k` times evenly spaced in `[0, 1]` (time 0 for one); with `None`, view `i` at
+/// `i / (n - 1)`. An error names `times` when it is 0 or more than `n`.
+pub fn view_times(n: usize, times: Option<usize>) -> Result<Vec<f64>, DynamicSceneStylizeError> {
+    let k = match times {
+        None => n,
+        Some(k) if (1..=n).contains(&k) => k,
+        Some(k) => {
+            return Err(DynamicSceneStylizeError::Config(format!(
+                "times: {k}: give from 1 to the {n} views (lower --times or raise --orbit-views)"
+            )))
+        }
+    };
+    let at = |j: usize| {
+        if k > 1 {
+            j as f64 / (k - 1) as f64
+        } else {
+            0.0
+        }
+    };
+    Ok((0..n).map(|i| at(i % k.max(1))).collect())
+}
+
 impl DynamicSceneStylizeConfig {
     /// The inputs of a run: its training views, each named by its picture, checked against
     /// the patch size and the batch size.
@@ -421,8 +456,7 @@ impl DynamicSceneStylizeConfig {
     }
 
     /// The training views of the model at `path` given without data: the views
-    /// [`ModelViews::views`] chooses around its Gaussians at time 0, view `i` of `n` at time
-    /// `i / (n - 1)`, each with the model's render at that time over `background` (clamped to
+    /// [`ModelViews::views`] chooses around its Gaussians at time 0, at [`view_times`], each with the model's render at that time over `background` (clamped to
     /// `[0, 1]`) as its picture; the extent INRIA's rule gives their cameras, or the model's
     /// robust radius where they stand at one point. Prints where the cameras came from when
     /// the run shows progress.
@@ -444,23 +478,24 @@ impl DynamicSceneStylizeConfig {
         let splits = self.train_splits.unwrap_or_default();
         let (found, from) = self.views.views(path, &bounds, splits, &options)?;
         let n = found.len();
+        let times = view_times(n, self.times)?;
         let views: Vec<View> = found
             .into_iter()
-            .enumerate()
-            .map(|(i, v)| View {
+            .zip(&times)
+            .map(|(v, &time)| View {
                 camera: v.view.camera,
-                time: if n > 1 {
-                    i as f64 / (n - 1) as f64
-                } else {
-                    0.0
-                },
+                time,
             })
             .collect();
         let show = run.options().progress;
         if show {
+            let spread = match self.times {
+                Some(k) => format!("{k} time(s) evenly from 0 to 1"),
+                None => "times evenly from 0 to 1".into(),
+            };
             eprintln!(
-                "cameras: {n} view(s) {from}, at times evenly from 0 to 1; the ground truth is \
-                 the model's own render"
+                "cameras: {n} view(s) {from}, at {spread}; the ground truth is the model's own \
+                 render"
             );
         }
         let rgb = background.rgb();
@@ -716,6 +751,22 @@ impl Modality for DynamicSceneStylizeConfig {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn views_take_times_evenly_or_in_turn() {
+        assert_eq!(view_times(5, None).unwrap(), [0.0, 0.25, 0.5, 0.75, 1.0]);
+        assert_eq!(view_times(1, None).unwrap(), [0.0]);
+        assert_eq!(view_times(5, Some(2)).unwrap(), [0.0, 1.0, 0.0, 1.0, 0.0]);
+        assert_eq!(view_times(3, Some(1)).unwrap(), [0.0; 3]);
+        assert_eq!(
+            view_times(3, Some(3)).unwrap(),
+            view_times(3, None).unwrap()
+        );
+        for bad in [0, 4] {
+            let e = view_times(3, Some(bad)).unwrap_err().to_string();
+            assert!(e.contains(&format!("times: {bad}")), "{e}");
+        }
+    }
 
     #[test]
     fn the_defaults_are_the_papers_4d_settings() {

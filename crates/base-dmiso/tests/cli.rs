@@ -602,8 +602,8 @@ fn fit_errors_name_their_flags() {
     assert!(!out.exists());
 }
 
-/// A model given without data is stylized alone: an orbit made from it at times evenly from 0
-/// to 1 (the run says so), the model's own renders as the pictures, so the content term starts
+/// A model given without data is stylized alone: an orbit made from it at `--times` evenly
+/// spaced times from 0 to 1 (the run says so), the model's own renders as the pictures, so the content term starts
 /// at 0; the cores, sub-Gaussians and network keep their shapes. With neither data nor a model
 /// the run is refused naming both.
 #[test]
@@ -624,12 +624,12 @@ fn a_model_alone_is_stylized_against_its_own_renders() {
     let out = run(cmd
         .args(["--set", "sweep_frames=3", "--device", "cpu"])
         .args(["--model", s(&model), "--out", s(&styled)])
-        .args(["--orbit", "object", "--orbit-views", "4"])
+        .args(["--orbit", "object", "--orbit-views", "4", "--times", "2"])
         .args(["--width", &SIZE.to_string(), "--height", &SIZE.to_string()]));
     let said = String::from_utf8_lossy(&out.stderr);
     assert!(
         said.contains("cameras: 4 view(s) of an object orbit")
-            && said.contains("at times evenly from 0 to 1"),
+            && said.contains("at 2 time(s) evenly from 0 to 1"),
         "{said}"
     );
     let losses: Vec<gs_stylize::outputs::StepLosses> =
@@ -640,6 +640,30 @@ fn a_model_alone_is_stylized_against_its_own_renders() {
     let shape = |m: &Dmiso| (m.cores(), m.subs_per_core(), m.net().width);
     assert_eq!(shape(&stylized), shape(&base));
     assert!(styled.join("preview.gif").is_file());
+
+    // More times than views, or none, is refused before any render, naming the flag.
+    for (times, said) in [
+        ("5", "times: 5: give from 1 to the 4 views"),
+        ("0", "times: 0"),
+    ] {
+        let refused = dir.path().join(format!("times{times}"));
+        let mut cmd = bin();
+        cmd.args(["stylize", "--steps", "3"]);
+        tiny_style_flags(&mut cmd, &models);
+        let e = fails(
+            cmd.args([
+                "--device",
+                "cpu",
+                "--model",
+                s(&model),
+                "--out",
+                s(&refused),
+            ])
+            .args(["--orbit", "object", "--orbit-views", "4", "--times", times]),
+        );
+        assert!(e.contains(said) && e.contains("--times"), "{e}");
+        assert!(!refused.exists());
+    }
 
     let nothing = dir.path().join("nothing");
     let mut cmd = bin();

@@ -65,8 +65,8 @@ struct StylizeArgs {
     /// The D-NeRF scene folder (transforms_train.json and transforms_test.json with a time per
     /// frame, RGBA pictures). Without it a --model is stylized alone: the views come from
     /// --cameras, else from the cameras.json in the model's folder (or beside its file), else
-    /// from an orbit made from the model, at times evenly from 0 to 1, and each view's ground
-    /// truth is the model's own render.
+    /// from an orbit made from the model, at times evenly from 0 to 1 (or --times), and each
+    /// view's ground truth is the model's own render.
     #[arg(long)]
     #[serde(skip_serializing_if = "Option::is_none")]
     data: Option<PathBuf>,
@@ -79,6 +79,12 @@ struct StylizeArgs {
     #[command(flatten)]
     #[serde(flatten)]
     views: ModelViewFlags,
+    /// Without --data: the views' times, this many evenly spaced from 0 to 1, view i at the
+    /// (i mod N)-th (at least 1, at most the number of views); default: view i of n at time
+    /// i / (n - 1).
+    #[arg(long, conflicts_with = "data")]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    times: Option<usize>,
     /// The iteration of an authors' model folder to read (best, or a number); default: best,
     /// else the highest.
     #[arg(long)]
