@@ -184,11 +184,25 @@ pub enum PictureDecodeError {
         /// Height its header gives, pixels.
         height: u32,
     },
+    /// A picture whose header claims a side longer than [`crate::camera::MAX_SIDE`]: no
+    /// camera can have it, and resizing it would cost in proportion to that side.
+    #[error(
+        "the picture is {width}x{height}; pictures up to {} pixels a side are read: crop or \
+         downscale it first",
+        crate::camera::MAX_SIDE
+    )]
+    TooLong {
+        /// Width its header gives, pixels.
+        width: u32,
+        /// Height its header gives, pixels.
+        height: u32,
+    },
 }
 
 /// Decodes the picture at `path` after reading its size from its header: one of more than
-/// [`MAX_PICTURE_PIXELS`] is refused before any of it is decoded (a few kilobytes of PNG can
-/// claim 23000 x 23000), and the decoder may not allocate more than such a picture needs.
+/// [`MAX_PICTURE_PIXELS`], or with a side longer than [`crate::camera::MAX_SIDE`], is refused
+/// before any of it is decoded (a few kilobytes of PNG can claim 23000 x 23000, or
+/// 67108864 x 1), and the decoder may not allocate more than such a picture needs.
 pub fn decode_picture(path: &Path) -> Result<image::DynamicImage, PictureDecodeError> {
     let open = || -> Result<image::ImageReader<_>, image::ImageError> {
         Ok(image::ImageReader::open(path)?.with_guessed_format()?)
@@ -196,6 +210,9 @@ pub fn decode_picture(path: &Path) -> Result<image::DynamicImage, PictureDecodeE
     let (width, height) = open()?.into_dimensions()?;
     if u64::from(width) * u64::from(height) > MAX_PICTURE_PIXELS {
         return Err(PictureDecodeError::TooLarge { width, height });
+    }
+    if width.max(height) > crate::camera::MAX_SIDE {
+        return Err(PictureDecodeError::TooLong { width, height });
     }
     let mut reader = open()?;
     let mut limits = image::Limits::default();

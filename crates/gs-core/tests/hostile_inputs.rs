@@ -54,6 +54,44 @@ fn a_picture_claiming_23000_squared_is_refused_before_decoding() {
     ));
 }
 
+/// A picture with a side past 65536 pixels is refused from its header however few its pixels
+/// (67108864 x 1 is within the 64-megapixel limit, and resizing it cost 120 GB); at 65536 a
+/// side the header passes and the decoder then finds the data missing.
+#[test]
+fn a_picture_longer_than_65536_a_side_is_refused_before_decoding() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("long.png");
+    for (width, height) in [
+        (67_108_864, 1),
+        (1, 67_108_864),
+        (8_388_608, 8),
+        (65_537, 2),
+    ] {
+        png_claiming(&path, width, height);
+        match decode_picture(&path) {
+            Err(PictureDecodeError::TooLong {
+                width: w,
+                height: h,
+            }) => {
+                assert_eq!((w, h), (width, height))
+            }
+            other => panic!("{width}x{height}: {other:?}"),
+        }
+        let e = Image::load(&path, [0.0; 3]).unwrap_err().to_string();
+        assert!(
+            e.contains("long.png")
+                && e.contains(&format!("{width}x{height}"))
+                && e.contains("65536 pixels a side"),
+            "{e}"
+        );
+    }
+    png_claiming(&path, 65_536, 2);
+    assert!(matches!(
+        decode_picture(&path),
+        Err(PictureDecodeError::Image(_))
+    ));
+}
+
 /// A one-frame NeRF-synthetic scene with `matrix` as its pose.
 fn scene_with_pose(dir: &Path, matrix: serde_json::Value) -> String {
     image::RgbaImage::from_pixel(4, 4, image::Rgba([200, 100, 50, 255]))

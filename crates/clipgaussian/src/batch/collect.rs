@@ -184,7 +184,9 @@ fn contact_sheet(plan: &Plan, rows: &[JobResult]) -> Result<image::RgbImage, Str
         .iter()
         .map(|r| {
             let path = r.preview.as_ref()?;
-            let picture = image::open(path).ok()?.to_rgb8();
+            let picture = gs_core::image::decode_picture(std::path::Path::new(path))
+                .ok()?
+                .to_rgb8();
             let height = (u64::from(picture.height()) * u64::from(CELL_WIDTH)
                 / u64::from(picture.width().max(1)))
             .max(1) as u32;
