@@ -315,6 +315,47 @@ fn sog_reads_from_a_folder_as_from_its_bundle() {
     assert!(e.contains("bad.sog") && e.contains("zip"), "{e}");
 }
 
+/// A compressed PLY whose chunk bounds no writer could have written (not finite, a log-scale
+/// past the format's [-20, 20], a minimum above its maximum) is refused naming the chunk and
+/// the bound; decoded, that chunk's Gaussians would vanish from renders without a word.
+#[test]
+fn compressed_ply_chunk_bounds_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    let valid = std::fs::read(fixture("source.compressed.ply")).unwrap();
+    let start = valid.len() - body(&valid).len();
+    // Chunk 0's 18 float bounds open the body: min_x..max_z, min_scale_x..max_scale_z,
+    // min_r..max_b.
+    for (k, value, said) in [
+        (0, f32::NAN, "chunk 0: min_x is NaN"),
+        (4, f32::INFINITY, "chunk 0: max_y is inf"),
+        (14, f32::NEG_INFINITY, "chunk 0: min_b is -inf"),
+        (
+            6,
+            1e30,
+            "chunk 0: min_scale_x is 1000000015047466200000000000000",
+        ),
+        (11, -20.5, "max_scale_z is -20.5, outside the [-20, 20]"),
+        (2, 1e6, "chunk 0: min_z 1000000 is above max_z"),
+    ] {
+        let mut bytes = valid.clone();
+        bytes[start + 4 * k..start + 4 * k + 4].copy_from_slice(&value.to_le_bytes());
+        let path = dir.path().join("hostile.compressed.ply");
+        std::fs::write(&path, &bytes).unwrap();
+        let e = read_splats(&path).unwrap_err().to_string();
+        assert!(
+            e.contains("hostile.compressed.ply") && e.contains(said),
+            "{said}: {e}"
+        );
+    }
+    // At the limits the file reads: log-scale bounds of exactly -20 and 20.
+    let mut bytes = valid.clone();
+    bytes[start + 24..start + 28].copy_from_slice(&(-20.0f32).to_le_bytes());
+    bytes[start + 36..start + 40].copy_from_slice(&20.0f32.to_le_bytes());
+    let path = dir.path().join("edge.compressed.ply");
+    std::fs::write(&path, &bytes).unwrap();
+    read_splats(&path).unwrap();
+}
+
 /// The `meta.json` of a `.sog` bundle's bytes.
 fn sog_meta(bundle: &[u8]) -> serde_json::Value {
     let mut zip = zip::ZipArchive::new(std::io::Cursor::new(bundle)).unwrap();

@@ -53,6 +53,45 @@ const VERTEX_PROPERTIES: [&str; 4] = [
     "packed_color",
 ];
 
+/// The bound of a chunk's log-scales the format's writers keep to (SuperSplat's and
+/// splat-transform's clamp).
+const LOG_SCALE_BOUND: f64 = 20.0;
+
+/// Refuses chunk `c`'s `bounds` (in [`CHUNK_PROPERTIES`] order; the colour range only where
+/// `colour` says the file has one) where a writer could not have written them: a bound not
+/// finite, a minimum above its maximum, or a log-scale bound outside `[-20, 20]`. Decoded, such
+/// a chunk's Gaussians would vanish from renders without a word.
+fn check_chunk_bounds(c: usize, bounds: &[f64; 18], colour: bool) -> Result<(), String> {
+    let used = if colour { 18 } else { 12 };
+    for k in 0..used {
+        let v = bounds[k];
+        if !v.is_finite() {
+            return Err(format!("chunk {c}: {} is {v}", CHUNK_PROPERTIES[k]));
+        }
+        if (6..12).contains(&k) && v.abs() > LOG_SCALE_BOUND {
+            return Err(format!(
+                "chunk {c}: {} is {v}, outside the [-20, 20] log-scales the format holds",
+                CHUNK_PROPERTIES[k]
+            ));
+        }
+    }
+    for lo in [0, 1, 2, 6, 7, 8, 12, 13, 14]
+        .into_iter()
+        .filter(|&k| k < used)
+    {
+        if bounds[lo] > bounds[lo + 3] {
+            return Err(format!(
+                "chunk {c}: {} {} is above {} {}",
+                CHUNK_PROPERTIES[lo],
+                bounds[lo],
+                CHUNK_PROPERTIES[lo + 3],
+                bounds[lo + 3]
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// Whether `bytes` is a PLY file with a `chunk` element (the compressed layout).
 pub fn is_compressed(bytes: &[u8]) -> bool {
     let head = &bytes[..bytes.len().min(4096)];
@@ -336,6 +375,9 @@ pub fn decode(bytes: &[u8]) -> Result<GaussianSet, DecodeError> {
             bound_offsets.map(|offset| f32_at(row + offset))
         })
         .collect();
+    for (c, b) in bounds.iter().enumerate() {
+        check_chunk_bounds(c, b, has_colour_range)?;
+    }
     let degree = [0, 9, 24, 45].iter().position(|&c| c == rest).unwrap_or(0);
     let mut set = GaussianSet::try_zeros(n, degree)?;
     let unpack = |bits: u32, width: u32| {
