@@ -363,12 +363,43 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
     let good: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&path).unwrap()).unwrap();
     let batch = dir.path().join("batch");
-    let cases: [(&str, serde_json::Value, &str); 8] = [
+    // Files that exist but are not of their kind, and settings the job's run would refuse.
+    std::fs::create_dir(dir.path().join("a-folder")).unwrap();
+    std::fs::write(dir.path().join("text.png"), "not a picture").unwrap();
+    let cases: [(&str, serde_json::Value, &str); 16] = [
         (
             "/inputs/1/picture",
             "missing.png".into(),
             "inputs[1].picture: ",
         ),
+        (
+            "/inputs/1/picture",
+            "/dev/zero".into(),
+            "inputs[1].picture: /dev/zero is not a regular file",
+        ),
+        (
+            "/inputs/0/picture",
+            "text.png".into(),
+            "inputs[0].picture: ",
+        ),
+        (
+            "/styles/1/style_image",
+            "a-folder".into(),
+            "a-folder is a folder, not a file",
+        ),
+        ("/set/clip_weights", "text.png".into(), "set.clip_weights: "),
+        (
+            "/set/tokenizer",
+            "/dev/zero".into(),
+            "set.tokenizer: /dev/zero is not a regular file",
+        ),
+        (
+            "/set/learning_rates",
+            serde_json::json!({"colour": 0.1}),
+            "inputs[0] with styles[0]: ",
+        ),
+        ("/set/patch_size", 0.into(), "patch_size"),
+        ("/styles/0/style_prompt", "  ".into(), "prompt"),
         ("/styles/0/bogus", 1.into(), "styles[0]: "),
         ("/inputs/0/fit_steps", "many".into(), "inputs[0]: "),
         (
@@ -397,14 +428,14 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
         } else {
             bad.pointer_mut(parent).unwrap()
         };
-        target[key] = value;
+        target[key] = value.clone();
         if pointer == "/pairing" {
             bad["styles"].as_array_mut().unwrap().pop();
         }
         std::fs::write(&path, bad.to_string()).unwrap();
         let out = run(&["batch", "plan", s(&path), "--out", s(&batch)]);
         let stderr = String::from_utf8_lossy(&out.stderr);
-        assert_eq!(out.status.code(), Some(65), "{pointer}: {stderr}");
+        assert_eq!(out.status.code(), Some(65), "{pointer} {value}: {stderr}");
         assert!(
             stderr.contains(expected) && stderr.contains("manifest.json"),
             "{pointer}: {stderr}"
@@ -413,6 +444,181 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
             !batch.join("jobs.json").exists(),
             "{pointer}: nothing planned"
         );
+    }
+}
+
+/// A 3D job without a model is refused at plan, as its run would refuse it.
+#[test]
+fn a_3d_input_without_a_model_is_refused_at_plan() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    std::fs::create_dir(&scene).unwrap();
+    let path = dir.path().join("manifest.json");
+    let manifest = serde_json::json!({
+        "modality": "3d",
+        "inputs": [{"data": "scene"}],
+        "styles": [{"style_prompt": "fire"}],
+    });
+    std::fs::write(&path, manifest.to_string()).unwrap();
+    let batch = dir.path().join("batch");
+    let out = run(&["batch", "plan", s(&path), "--out", s(&batch)]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(65), "{stderr}");
+    assert!(
+        stderr.contains("inputs[0] with styles[0]: ") && stderr.contains("model: is required"),
+        "{stderr}"
+    );
+    assert!(!batch.join("jobs.json").exists());
+}
+
+/// A `jobs.json` edited so that an id would leave the batch folder (`..`, an absolute path),
+/// or one no plan writes, is refused by run, status and collect naming the file and entry;
+/// nothing is written outside.
+#[test]
+fn job_ids_that_are_not_ids_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let manifest = manifest(dir.path(), 2);
+    let batch = dir.path().join("batch");
+    succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+    let planned = jobs(&batch);
+    let escape = dir.path().join("escaped");
+    let first = planned["jobs"][0]["id"].as_str().unwrap().to_string();
+    for (id, said) in [
+        (
+            "../../escaped".to_string(),
+            "jobs[0].id: \"../../escaped\" is not a job id",
+        ),
+        (s(&escape).to_string(), "is not a job id"),
+        (first.to_uppercase(), "is not a job id"),
+        (
+            planned["jobs"][1]["id"].as_str().unwrap().into(),
+            "is also jobs[0]'s",
+        ),
+    ] {
+        let mut edited = planned.clone();
+        edited["jobs"][0]["id"] = id.clone().into();
+        std::fs::write(batch.join("jobs.json"), edited.to_string()).unwrap();
+        for args in [
+            vec!["batch", "run", s(&batch), "--index", "0", "--quiet"],
+            vec!["batch", "status", s(&batch)],
+            vec!["batch", "collect", s(&batch)],
+        ] {
+            let out = run(&args);
+            let stderr = String::from_utf8_lossy(&out.stderr);
+            assert_ne!(out.status.code(), Some(0), "{id} {args:?}: {stderr}");
+            assert!(
+                stderr.contains("jobs.json") && stderr.contains(said),
+                "{id} {args:?}: {stderr}"
+            );
+        }
+    }
+    assert!(!dir.path().join("escaped.lock").exists());
+    assert!(!dir.path().join("escaped.json").exists());
+    assert!(!escape.exists());
+}
+
+/// Reads every state file of `batch` and counts those that say running.
+fn running_states(batch: &Path) -> usize {
+    let Ok(entries) = std::fs::read_dir(batch.join("state")) else {
+        return 0;
+    };
+    entries
+        .filter_map(|e| std::fs::read_to_string(e.ok()?.path()).ok())
+        .filter_map(|text| serde_json::from_str::<serde_json::Value>(&text).ok())
+        .filter(|state| state["status"] == "running")
+        .count()
+}
+
+/// `--parallel 2` on the CPU runs two jobs at once; one stop, delivered to the batch's
+/// process group as a terminal's Ctrl-C is, or to the batch and to every job as a scheduler
+/// sends it, stops each running job once, with a checkpoint: exit 75, the jobs stopped (not
+/// quit at once, not left running), and the batch run again resumes them.
+#[test]
+fn a_parallel_batch_runs_jobs_at_once_and_stops_them_once() {
+    let dir = tempfile::tempdir().unwrap();
+    // Steps enough that no job ends before the stop reaches it; stopped jobs take few of them.
+    let manifest = manifest(dir.path(), 20_000);
+    for delivery in ["group", "everyone"] {
+        let batch = dir.path().join(delivery);
+        succeeds(&["batch", "plan", s(&manifest), "--out", s(&batch)]);
+        let planned = jobs(&batch);
+        let mut child = {
+            use std::os::unix::process::CommandExt;
+            bin()
+                .args([
+                    "batch",
+                    "run",
+                    s(&batch),
+                    "--parallel",
+                    "2",
+                    "--threads",
+                    "1",
+                ])
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::piped())
+                .process_group(0)
+                .spawn()
+                .unwrap()
+        };
+        // Both first jobs hold a checkpoint, both running at once.
+        let out = |i: usize| batch.join(planned["jobs"][i]["id"].as_str().unwrap());
+        let mut both = false;
+        while !(out(0).join("checkpoint/state.json").exists()
+            && out(1).join("checkpoint/state.json").exists())
+        {
+            both |= running_states(&batch) == 2;
+            assert!(child.try_wait().unwrap().is_none(), "the batch ended early");
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        both |= running_states(&batch) == 2;
+        assert!(both, "two jobs ran at once");
+        let pid = child.id().to_string();
+        let kill = |args: &[&str]| {
+            assert!(Command::new("kill").args(args).status().unwrap().success());
+        };
+        if delivery == "group" {
+            kill(&["-INT", "--", &format!("-{pid}")]);
+        } else {
+            let pids: Vec<String> = (0..2)
+                .map(|i| {
+                    let state = batch.join(format!(
+                        "state/{}.json",
+                        planned["jobs"][i]["id"].as_str().unwrap()
+                    ));
+                    let state: serde_json::Value =
+                        serde_json::from_str(&std::fs::read_to_string(state).unwrap()).unwrap();
+                    state["pid"].to_string()
+                })
+                .collect();
+            // A scheduler's SIGTERM to every process, and a SIGINT straight after (a signal
+            // of another kind, so the kernel cannot merge it with the first): each job sees
+            // two stops within the window, which are one.
+            kill(&["-TERM", &pid, &pids[0], &pids[1]]);
+            kill(&["-INT", &pids[0], &pids[1]]);
+        }
+        let output = child.wait_with_output().unwrap();
+        let said = String::from_utf8_lossy(&output.stdout);
+        assert_eq!(output.status.code(), Some(75), "{delivery}: {said}");
+        assert!(
+            said.matches("stopped (exit 75").count() == 2,
+            "{delivery}: {said}"
+        );
+        let report = succeeds(&["batch", "status", s(&batch)]);
+        assert!(report.contains("2 stopped, 2 left"), "{delivery}: {report}");
+        for i in 0..2 {
+            let state = batch.join(format!(
+                "state/{}.json",
+                planned["jobs"][i]["id"].as_str().unwrap()
+            ));
+            let state: serde_json::Value =
+                serde_json::from_str(&std::fs::read_to_string(state).unwrap()).unwrap();
+            let reason = state["reason"].as_str().unwrap_or_default();
+            assert!(
+                state["exit_code"] == 75 && !reason.contains("quit at once"),
+                "{delivery}: job {i} {state}"
+            );
+            assert!(out(i).join("checkpoint/state.json").is_file());
+        }
     }
 }
 

@@ -12,6 +12,7 @@
 //! running again as it is: a bad input, configuration or model file.
 
 use std::error::Error;
+use std::os::unix::process::CommandExt;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command};
 use std::time::{Duration, Instant};
@@ -19,7 +20,7 @@ use std::time::{Duration, Instant};
 use gs_stylize::checkpoint::finished_step;
 use gs_stylize::error::causes;
 use gs_stylize::evaluation::{resolve_clip, METRICS_JSON};
-use gs_stylize::interrupt::stop_on_ctrl_c;
+use gs_stylize::interrupt::{count_stops, stop_on_ctrl_c_once, SAME_STOP};
 use gs_stylize::outputs::{read_json, write_json};
 use gs_stylize::{RunOptions, StylizeError};
 use serde::{Deserialize, Serialize};
@@ -268,7 +269,24 @@ pub fn run_one(dir: &Path, index: usize, progress: bool) -> u8 {
         0.0
     };
     let started = Instant::now();
-    let result = stop_on_ctrl_c()
+    // A stop may reach a job twice (a scheduler signals every process, a batch passes its own
+    // on): one within SAME_STOP of the first is the same; a later one quits at once, its state
+    // recorded as stopped.
+    let quit = {
+        let (dir, job, state) = (dir.to_path_buf(), job.clone(), state.clone());
+        move || {
+            let mut state = state.clone();
+            state.status = "failed".into();
+            state.exit_code = Some(EXIT_RETRY);
+            state.reason = Some(
+                "quit at once by a second stop; running it again resumes from its last \
+                 checkpoint"
+                    .into(),
+            );
+            let _ = write_state(&dir, &job, &state);
+        }
+    };
+    let result = stop_on_ctrl_c_once(SAME_STOP, EXIT_RETRY, quit)
         .map_err(|e| Box::new(e) as Box<dyn Error>)
         .and_then(|stop| {
             let options = RunOptions {
@@ -333,7 +351,8 @@ pub struct Parallel {
 /// process of this program (`batch run --index`) logging to `<batch>/logs/<index>.log`; returns
 /// 0 when all are done, else [`EXIT_RETRY`] when any may be retried or is left, else
 /// [`EXIT_NEVER_RETRY`]. Ctrl-C or SIGTERM starts no new job and passes SIGTERM on to the
-/// running ones (which stop with a checkpoint), then waits for them.
+/// running ones (which stop with a checkpoint), then waits for them; a second stop quits the
+/// running ones at once (their states say stopped).
 pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
     let plan = plan::read(dir)?;
     let pending: Vec<&Job> = plan
@@ -341,31 +360,38 @@ pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
         .iter()
         .filter(|j| !is_done(dir, &plan, j))
         .collect();
+    let devices = gpu_devices(parallel.gpus);
+    // One job per GPU when GPUs are shared out; on the CPU as many as asked.
+    let slots = match devices.len() {
+        0 => parallel.jobs.max(1),
+        gpus => gpus.min(parallel.jobs.max(1)),
+    };
     println!(
-        "{} of {} jobs to run, {} at once, {} threads each",
+        "{} of {} jobs to run, {slots} at once, {} threads each",
         pending.len(),
         plan.jobs.len(),
-        parallel.jobs,
         parallel.threads
     );
-    let stop = stop_on_ctrl_c().map_err(|e| e.to_string())?;
+    // This process never quits on a stop: it passes each on (the jobs, in their own process
+    // groups, see a terminal's Ctrl-C only through it) and waits for the jobs.
+    let stops = count_stops(SAME_STOP).map_err(|e| e.to_string())?;
     let logs = dir.join(LOG_DIR);
     std::fs::create_dir_all(&logs).map_err(|e| format!("{}: {e}", logs.display()))?;
     let exe = std::env::current_exe().map_err(|e| e.to_string())?;
-    let devices = gpu_devices(parallel.gpus);
-    let slots = devices.len().clamp(1, parallel.jobs.max(1));
     let mut free: Vec<usize> = (0..slots).rev().collect();
     let mut running: Vec<(Child, &Job, usize)> = Vec::new();
     let mut queue = pending.into_iter();
     let mut codes: Vec<u8> = Vec::new();
     let mut failure: Option<String> = None;
-    let mut stopping = false;
+    // Stops passed on to the running jobs: the first stops each after its step with a
+    // checkpoint, a second quits them at once.
+    let mut passed = 0;
     loop {
-        let stopped = stop.load(std::sync::atomic::Ordering::Relaxed);
-        if stopped && !stopping {
-            stopping = true;
+        let received = stops.load(std::sync::atomic::Ordering::SeqCst).min(2);
+        let stopped = received > 0;
+        while passed < received {
+            passed += 1;
             for (child, _, _) in &running {
-                // The children have their own handler: one SIGTERM stops each after its step.
                 let _ = Command::new("kill")
                     .args(["-TERM", &child.id().to_string()])
                     .status();
@@ -397,10 +423,12 @@ pub fn run_all(dir: &Path, parallel: &Parallel) -> Result<u8, String> {
                         Ok(Some(status)) => status.code().map_or(EXIT_RETRY, |c| c as u8),
                         _ => EXIT_RETRY,
                     };
-                    let said = if code == 0 {
-                        "done".to_string()
-                    } else {
-                        format!("failed (exit {code})")
+                    let said = match code {
+                        0 => "done".to_string(),
+                        EXIT_RETRY => format!(
+                            "stopped (exit {EXIT_RETRY}: running the batch again resumes it)"
+                        ),
+                        _ => format!("failed (exit {code})"),
                     };
                     println!("job {} ({}) {said}", job.index, job.id);
                     codes.push(code);
@@ -471,7 +499,11 @@ fn spawn(
         .args(["--index", &job.index.to_string()])
         .env("RAYON_NUM_THREADS", parallel.threads.to_string())
         .stdout(file)
-        .stderr(err);
+        .stderr(err)
+        .stdin(std::process::Stdio::null())
+        // Its own process group: a terminal's Ctrl-C reaches the batch, which passes it on
+        // once, not the job directly as well.
+        .process_group(0);
     if let Some((slot, device)) = device {
         // candle's CUDA device by CUDA_VISIBLE_DEVICES, the rasterizer's adapter by its index
         // among the GPUs the drivers list; both in PCI bus order.

@@ -144,12 +144,12 @@ pub fn expand(manifest: &Manifest, folder: &Path) -> Result<Vec<JobConfig>, Stri
             return Err(format!("config: {} does not exist", c.display()));
         }
     }
-    let set = entry("set", &manifest.set, folder)?;
+    let set = entry(manifest.modality, "set", &manifest.set, folder)?;
     let inputs = manifest
         .inputs
         .iter()
         .enumerate()
-        .map(|(i, e)| entry(&format!("inputs[{i}]"), e, folder))
+        .map(|(i, e)| entry(manifest.modality, &format!("inputs[{i}]"), e, folder))
         .collect::<Result<Vec<_>, _>>()?;
     let styles = manifest
         .styles
@@ -158,7 +158,7 @@ pub fn expand(manifest: &Manifest, folder: &Path) -> Result<Vec<JobConfig>, Stri
         .map(|(i, e)| {
             let name = format!("styles[{i}]");
             check_style(&name, e)?;
-            entry(&name, e, folder)
+            entry(manifest.modality, &name, e, folder)
         })
         .collect::<Result<Vec<_>, _>>()?;
     // Each entry alone first, so that an unknown field or a bad value is named by its entry.
@@ -238,8 +238,10 @@ fn overrides(entries: &[&Map<String, Value>]) -> Vec<Override> {
 }
 
 /// The entry `fields` named `name` with its relative paths taken from `folder`; an error for
-/// an `out` field or a path that does not exist.
+/// an `out` field or a path that does not exist or is not of its kind for `modality`
+/// ([`ModalityKind::check_path`]).
 fn entry(
+    modality: ModalityKind,
     name: &str,
     fields: &Map<String, Value>,
     folder: &Path,
@@ -257,6 +259,9 @@ fn entry(
                 if !path.exists() {
                     return Err(format!("{name}.{field}: {} does not exist", path.display()));
                 }
+                modality
+                    .check_path(field, &path)
+                    .map_err(|e| format!("{name}.{field}: {e}"))?;
                 Value::String(path.display().to_string())
             }
             other => other.clone(),

@@ -5,7 +5,9 @@ use std::error::Error;
 use std::path::Path;
 
 use gs_stylize::config::resolve_config;
+use gs_stylize::drive::Modality;
 use gs_stylize::evaluation::ClipFiles;
+use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::{Override, RunOptions, StylizeError};
 use serde::de::DeserializeOwned;
 use serde::{Deserialize, Serialize};
@@ -72,6 +74,67 @@ impl ModalityKind {
         }
     }
 
+    /// Checks `config` (as [`ModalityKind::resolve`] gave it, with an `out`) as the modality's
+    /// run checks it before any work: its own fields (required inputs, learning-rate groups,
+    /// ranges) and the shared style settings (an empty prompt, a patch size of 0).
+    pub fn check(self, config: &Value) -> Result<(), String> {
+        match self {
+            Self::Picture => check_as::<base_mirage::stylize::PictureStylizeConfig>(config),
+            Self::Video => check_as::<base_vegas::stylize::VideoStylizeConfig>(config),
+            Self::Scene => check_as::<base_3dgs::stylize::SceneStylizeConfig>(config),
+            Self::DynamicScene => {
+                check_as::<base_dmiso::stylize::DynamicSceneStylizeConfig>(config)
+            }
+        }
+    }
+
+    /// The binary whose runs this modality's jobs are.
+    fn binary(self) -> Binary {
+        match self {
+            Self::Picture => Binary::Picture,
+            Self::Video => Binary::Video,
+            Self::Scene => Binary::Scene,
+            Self::DynamicScene => Binary::DynamicScene,
+        }
+    }
+
+    /// Refuses the file or folder `path` given as `field` (one of [`PATH_FIELDS`]) when the run
+    /// could not read it as that: `data` a folder; `video` a file or a folder of frames;
+    /// `model` a file or (4D) a folder, of this modality; pictures a file whose header gives a
+    /// size; `clip_config` and `tokenizer` JSON files; weights safetensors files (their header
+    /// parsed). Special files (`/dev/zero`) are refused everywhere.
+    pub fn check_path(self, field: &str, path: &Path) -> Result<(), String> {
+        let meta = std::fs::metadata(path).map_err(|e| format!("{}: {e}", path.display()))?;
+        let is = |kind: &str| format!("{} is {kind}", path.display());
+        if meta.is_dir() {
+            return match field {
+                "data" | "video" => Ok(()),
+                "model" if self == Self::DynamicScene => Ok(()),
+                _ => Err(is("a folder, not a file")),
+            };
+        }
+        if !meta.is_file() {
+            return Err(is("not a regular file"));
+        }
+        match field {
+            "data" => Err(is("a file, not a dataset folder")),
+            "video" => Ok(()),
+            "model" => check_model(self.binary(), "model", path),
+            "picture" | "style_image" => gs_core::image::picture_size(path)
+                .map(drop)
+                .map_err(|e| format!("{e} (not a picture)")),
+            "clip_config" | "tokenizer" => {
+                let text = std::fs::read(path).map_err(|e| format!("{}: {e}", path.display()))?;
+                match serde_json::from_slice::<Value>(&text) {
+                    Ok(Value::Object(_)) => Ok(()),
+                    _ => Err(is("not a JSON object")),
+                }
+            }
+            "clip_weights" | "vgg_weights" => safetensors_header(path, meta.len()),
+            _ => Ok(()),
+        }
+    }
+
     /// Runs the stylization of `config` (as [`ModalityKind::resolve`] gave it) in this process.
     pub fn run(self, config: &Value, options: &RunOptions) -> Result<(), Box<dyn Error>> {
         match self {
@@ -122,6 +185,43 @@ where
 {
     let config: C = resolve_config(file, overrides)?;
     Ok(serde_json::to_value(config).expect("configurations serialize"))
+}
+
+/// Refuses a file of `length` bytes at `path` whose start is not a safetensors header: a
+/// little-endian `u64` length, then that many bytes of a JSON object, within the file.
+fn safetensors_header(path: &Path, length: u64) -> Result<(), String> {
+    let refused = || {
+        format!(
+            "{} is not a safetensors file (its header does not parse)",
+            path.display()
+        )
+    };
+    let head = gs_core::fs::read_head(path, 8).map_err(|e| format!("{}: {e}", path.display()))?;
+    let size = match head.get(..8) {
+        Some(b) => u64::from_le_bytes(b.try_into().expect("8 bytes")),
+        None => return Err(refused()),
+    };
+    // Real headers are kilobytes to a few megabytes.
+    if size > (100 << 20) || size.saturating_add(8) > length {
+        return Err(refused());
+    }
+    let head =
+        gs_core::fs::read_head(path, 8 + size).map_err(|e| format!("{}: {e}", path.display()))?;
+    match serde_json::from_slice::<Value>(&head[8..]) {
+        Ok(Value::Object(_)) => Ok(()),
+        _ => Err(refused()),
+    }
+}
+
+/// [`ModalityKind::check`] of a configuration of type `C`.
+fn check_as<C>(config: &Value) -> Result<(), String>
+where
+    C: DeserializeOwned + Modality,
+    C::Error: std::fmt::Display,
+{
+    let config: C = parse(config).map_err(|e| e.to_string())?;
+    config.check().map_err(|e| e.to_string())?;
+    config.settings().validate().map_err(|e| e.to_string())
 }
 
 /// A configuration of type `C` from its JSON.

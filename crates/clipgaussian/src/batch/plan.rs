@@ -6,6 +6,7 @@
 //! its id (and so its finished or interrupted output), a job whose input or settings changed
 //! gets a new one.
 
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
 
 use gs_stylize::outputs::write_json;
@@ -86,17 +87,40 @@ pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
     let configs = manifest::expand(&manifest, folder)
         .map_err(|e| format!("manifest {}: {e}", manifest_path.display()))?;
     let mut jobs: Vec<Job> = Vec::with_capacity(configs.len());
+    // Each id's job, so a repeated job is found in constant time (a scan made plans of
+    // 70k jobs take 35 s).
+    let mut seen: HashMap<String, usize> = HashMap::with_capacity(configs.len());
+    let mut checked_paths = HashSet::new();
     for (index, mut c) in configs.into_iter().enumerate() {
         // Paths a configuration file gives are taken from the working folder, as the binaries
         // take them; the tasks may run elsewhere.
         for field in PATH_FIELDS {
             if let Some(path) = c.config[field].as_str() {
                 let absolute = std::path::absolute(path).map_err(|e| format!("{field}: {e}"))?;
+                // A configuration file's paths, the same for many jobs: each checked once.
+                if checked_paths.insert((field, absolute.clone())) {
+                    manifest
+                        .modality
+                        .check_path(field, &absolute)
+                        .map_err(|e| format!("config {field}: {e}"))?;
+                }
                 c.config[field] = Value::String(absolute.display().to_string());
             }
         }
+        // As the job's run would check it (its output folder is not known yet: any will do).
+        let mut checked = c.config.clone();
+        checked["out"] = Value::String(dir.join("job").display().to_string());
+        manifest.modality.check(&checked).map_err(|e| {
+            format!(
+                "manifest {}: inputs[{}] with styles[{}]: {e}",
+                manifest_path.display(),
+                c.input,
+                c.style
+            )
+        })?;
         let id = job_id(manifest.modality, &c.config)?;
-        if let Some(same) = jobs.iter().find(|j| j.id == id) {
+        if let Some(&same) = seen.get(&id) {
+            let same = &jobs[same];
             return Err(format!(
                 "manifest {}: inputs[{}] with styles[{}] is the same job as inputs[{}] with \
                  styles[{}]",
@@ -107,6 +131,7 @@ pub fn plan(manifest_path: &Path, dir: &Path) -> Result<Plan, String> {
                 same.style
             ));
         }
+        seen.insert(id.clone(), index);
         jobs.push(Job {
             index,
             id,
@@ -146,7 +171,50 @@ pub fn read(dir: &Path) -> Result<Plan, String> {
             dir.display()
         )
     })?;
-    serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))
+    let plan: Plan = serde_json::from_str(&text).map_err(|e| format!("{}: {e}", path.display()))?;
+    plan.check()
+        .map_err(|e| format!("{}: {e}", path.display()))?;
+    Ok(plan)
+}
+
+/// Bytes of the hash a job id is the hexadecimal of.
+const ID_BYTES: usize = 8;
+
+/// Refuses `id` unless it is a job id as [`plan`] makes them: [`ID_BYTES`] x 2 lowercase
+/// hexadecimal digits. An id is a folder's and a file's name in the batch folder, so nothing
+/// else (`..`, `/`, an absolute path) may reach a path.
+pub fn check_id(id: &str) -> Result<(), String> {
+    let hex = |b: u8| b.is_ascii_digit() || (b'a'..=b'f').contains(&b);
+    if id.len() == 2 * ID_BYTES && id.bytes().all(hex) {
+        return Ok(());
+    }
+    Err(format!(
+        "{id:?} is not a job id ({} lowercase hexadecimal digits, as `batch plan` writes them); \
+         plan the batch again",
+        2 * ID_BYTES
+    ))
+}
+
+impl Plan {
+    /// Refuses a plan `batch plan` could not have written: an entry whose index is not its
+    /// place, an id that is not one ([`check_id`]), or an id two entries share (they would
+    /// share a folder).
+    fn check(&self) -> Result<(), String> {
+        let mut seen = HashMap::with_capacity(self.jobs.len());
+        for (k, job) in self.jobs.iter().enumerate() {
+            if job.index != k {
+                return Err(format!(
+                    "jobs[{k}].index: {} (the entry is number {k})",
+                    job.index
+                ));
+            }
+            check_id(&job.id).map_err(|e| format!("jobs[{k}].id: {e}"))?;
+            if let Some(j) = seen.insert(job.id.as_str(), k) {
+                return Err(format!("jobs[{k}].id: {} is also jobs[{j}]'s", job.id));
+            }
+        }
+        Ok(())
+    }
 }
 
 /// Adds the path, size and modification time of `path` to `files`, and of every file under it
@@ -185,7 +253,7 @@ fn job_id(modality: ModalityKind, config: &Value) -> Result<String, String> {
     let identity = json!({"modality": modality.name(), "config": config, "files": files});
     Ok(short_hash(
         &serde_json::to_vec(&identity).expect("JSON serializes"),
-        8,
+        ID_BYTES,
     ))
 }
 
