@@ -218,5 +218,99 @@ fn a_lens_without_coefficients_is_none_and_bad_ones_are_refused() {
     };
     assert_eq!(folded.undistort([1.6, 0.0]), None);
     let e = Undistortion::new([20.0, 20.0, 32.0, 24.0], folded, 64, 48).unwrap_err();
-    assert!(e.contains("folds"), "{e}");
+    assert!(
+        e.contains("not monotone") && e.contains("stops growing") && e.contains("k1 = -0.5"),
+        "{e}"
+    );
+}
+
+/// A nerfstudio scene of one 8x6 picture whose transforms.json has the fields `lens` besides a
+/// frame; the error of loading it (none when it loads).
+fn nerfstudio_load(dir: &std::path::Path, lens: serde_json::Value) -> Option<String> {
+    image::RgbaImage::from_pixel(8, 6, image::Rgba([200, 100, 50, 255]))
+        .save(dir.join("r_0.png"))
+        .unwrap();
+    let mut json = serde_json::json!({
+        "w": 8, "h": 6, "fl_x": 6.0, "fl_y": 6.0, "cx": 4.0, "cy": 3.0,
+        "frames": [{"file_path": "r_0",
+            "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}],
+    });
+    for (k, v) in lens.as_object().unwrap() {
+        json[k] = v.clone();
+    }
+    std::fs::write(dir.join("transforms_train.json"), json.to_string()).unwrap();
+    gs_core::dataset::nerf_synthetic::load(
+        dir,
+        gs_core::dataset::nerf_synthetic::Split::Train,
+        &gs_core::dataset::LoadOptions::default(),
+    )
+    .err()
+    .map(|e| e.to_string())
+}
+
+/// Lenses whose undistortion is not monotone over the picture (the fuzz campaign's: each once
+/// rendered as a pinhole or black) and intrinsics no camera has are refused at load, naming the
+/// file, the frame and the coefficient; lenses as strong as real wide-angle ones load, up to
+/// the edge of monotonicity.
+#[test]
+fn absurd_lenses_and_intrinsics_are_refused_naming_the_coefficient() {
+    use serde_json::json;
+    let dir = tempfile::tempdir().unwrap();
+    for (lens, said) in [
+        (json!({"k1": -50.0}), "k1 = -50"),
+        (json!({"k1": -1e308}), "k1 = -1e308"),
+        (json!({"k2": 1e300}), "k2 = 1e300"),
+        (json!({"p1": 1e3}), "p1 = 1000"),
+        (
+            json!({"camera_model": "OPENCV_FISHEYE", "k4": 1e308}),
+            "k4 = 1e308",
+        ),
+        (json!({"fl_x": 1e308}), "fx = 1e308"),
+        (json!({"cy": -1e308}), "cy = -1e308"),
+        (json!({"fl_x": 6e5}), "a focal length in (0, 80000]"),
+    ] {
+        let e =
+            nerfstudio_load(dir.path(), lens.clone()).unwrap_or_else(|| panic!("{lens} loaded"));
+        assert!(
+            e.contains("transforms_train.json") && e.contains("frame 0") && e.contains(said),
+            "{lens}: {e}"
+        );
+    }
+    // Real lenses load: barrel and pincushion as strong as wide-angle cameras, a fisheye, and
+    // a focal length at the limit.
+    for lens in [
+        json!({"k1": -0.3, "k2": 0.1}),
+        json!({"k1": 0.2, "p1": 0.01, "p2": -0.01}),
+        json!({"camera_model": "OPENCV_FISHEYE", "k1": 0.05, "k2": -0.01}),
+        json!({"fl_x": 8e4, "fl_y": 8e4}),
+    ] {
+        assert_eq!(nerfstudio_load(dir.path(), lens.clone()), None, "{lens}");
+    }
+    // At the edge: with k1 < 0 alone the distorted radius r (1 + k1 r^2) peaks at
+    // r = 1 / sqrt(-3 k1), at (2/3) of that; it must reach the corner's, here 5/6 (0.8333),
+    // so k1 >= -0.2133. k1 = -0.20 loads, k1 = -0.23 does not.
+    assert_eq!(nerfstudio_load(dir.path(), json!({"k1": -0.2})), None);
+    let e = nerfstudio_load(dir.path(), json!({"k1": -0.23})).unwrap();
+    assert!(
+        e.contains("k1 = -0.23") && e.contains("not monotone"),
+        "{e}"
+    );
+}
+
+/// COLMAP's lenses of the fuzz campaign, at the undistortion both readers build: OPENCV with
+/// k1 -1e6 (the lens folds at once), SIMPLE_RADIAL with k 1e6 (monotone, but OpenCV's five
+/// steps do not invert it), FULL_OPENCV whose denominator is zero at a corner.
+#[test]
+fn colmap_lenses_that_do_not_invert_are_refused() {
+    let perspective = |k: [f64; 6]| LensDistortion::Perspective { k, p: [0.0; 2] };
+    // The corner (0, 0) of this camera is at normalized (-0.64, -0.48): r^2 = 0.64.
+    let intrinsics = [50.0, 50.0, 32.0, 24.0];
+    for (lens, said) in [
+        (perspective([-1e6, 0.0, 0.0, 0.0, 0.0, 0.0]), "k1 = -1e6"),
+        (perspective([1e6, 0.0, 0.0, 0.0, 0.0, 0.0]), "OpenCV's undistortion"),
+        (perspective([0.0, 0.0, 0.0, -1.0 / 0.64, 0.0, 0.0]), "k4 = -1.5625"),
+    ] {
+        let e = Undistortion::new(intrinsics, lens, 64, 48).unwrap_err();
+        assert!(e.contains("not monotone") && e.contains(said), "{lens:?}: {e}");
+    }
 }

@@ -140,6 +140,185 @@ impl LensDistortion {
     }
 }
 
+/// Samples of the undistorted radius from the axis to a corner's, when checking a lens.
+const RAY_STEPS: usize = 2048;
+/// Samples of the distorted radius when checking OpenCV's undistortion along a ray.
+const INVERSE_STEPS: usize = 256;
+/// The furthest undistorted radius a corner may need: `tan 89.94°`.
+const MAX_RADIUS: f64 = 1e3;
+/// How far OpenCV's undistortion of a corner may be from the lens's own inverse (a factor).
+const CORNER_FACTOR: f64 = 2.0;
+/// The largest focal length a dataset camera may have, in multiples of its picture's longer
+/// side (a field of view of 0.006 degrees).
+pub const MAX_FOCAL_SIDES: f64 = 1e4;
+
+/// Refuses dataset intrinsics `[fx, fy, cx, cy]` of a `width x height` picture that no camera
+/// has: a focal length above [`MAX_FOCAL_SIDES`] times the longer side (the scene would
+/// collapse to a point), or a principal point more than a picture away from it.
+pub fn check_intrinsics([fx, fy, cx, cy]: [f64; 4], width: u32, height: u32) -> Result<(), String> {
+    let (w, h) = (f64::from(width), f64::from(height));
+    let most = MAX_FOCAL_SIDES * w.max(h);
+    for (name, f) in [("fx", fx), ("fy", fy)] {
+        if !(f.is_finite() && f > 0.0 && f <= most) {
+            return Err(format!(
+                "{name} = {}: a focal length in (0, {most}] pixels is expected for a \
+                 {width}x{height} picture",
+                number(f)
+            ));
+        }
+    }
+    for (name, c, side) in [("cx", cx, w), ("cy", cy, h)] {
+        if !(c.is_finite() && (-side..=2.0 * side).contains(&c)) {
+            return Err(format!(
+                "{name} = {}: the principal point is more than a picture away from the \
+                 {width}x{height} picture",
+                number(c)
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// `v` as a message prints it: plainly, or in scientific notation when very large or small.
+fn number(v: f64) -> String {
+    if v != 0.0 && v.is_finite() && !(1e-4..1e6).contains(&v.abs()) {
+        format!("{v:e}")
+    } else {
+        format!("{v}")
+    }
+}
+
+impl LensDistortion {
+    /// The coefficients with their names (OpenCV's `k1..k6, p1, p2`; fisheye `k1..k4`).
+    fn named(&self) -> Vec<(&'static str, f64)> {
+        match *self {
+            Self::Perspective { k, p } => ["k1", "k2", "k3", "k4", "k5", "k6", "p1", "p2"]
+                .into_iter()
+                .zip(k.into_iter().chain(p))
+                .collect(),
+            Self::Fisheye { k } => ["k1", "k2", "k3", "k4"].into_iter().zip(k).collect(),
+        }
+    }
+
+    /// The coefficient whose term is largest at undistorted radius `r`: the one an error
+    /// names.
+    fn dominant(&self, r: f64) -> (&'static str, f64) {
+        let powers: Vec<f64> = match self {
+            Self::Perspective { .. } => {
+                let r2 = r * r;
+                vec![r2, r2 * r2, r2 * r2 * r2, r2, r2 * r2, r2 * r2 * r2, r, r]
+            }
+            Self::Fisheye { .. } => {
+                let t2 = r.atan().powi(2);
+                vec![t2, t2 * t2, t2 * t2 * t2, t2 * t2 * t2 * t2]
+            }
+        };
+        let size = |c: f64, power: f64| match (c * power).abs() {
+            t if t.is_nan() => f64::INFINITY,
+            t => t,
+        };
+        self.named()
+            .into_iter()
+            .zip(powers)
+            .max_by(|(a, pa), (b, pb)| size(a.1, *pa).total_cmp(&size(b.1, *pb)))
+            .map_or(("k1", 0.0), |(named, _)| named)
+    }
+
+    /// Refuses this lens on a `width x height` picture of intrinsics `[fx, fy, cx, cy]` when
+    /// its undistortion is not monotone over the picture: toward each corner, the lens's
+    /// distorted radius must grow with the undistorted one until it reaches the corner, OpenCV's
+    /// iterated undistortion ([`LensDistortion::undistort`]) must grow with the distorted radius,
+    /// and its undistortion of the corner must lie within a factor of 2 of the lens's own
+    /// inverse. A lens that fails renders as a pinhole or black; the error names the corner and
+    /// the coefficient whose term dominates where it fails.
+    pub fn check_over_picture(
+        &self,
+        [fx, fy, cx, cy]: [f64; 4],
+        width: u32,
+        height: u32,
+    ) -> Result<(), String> {
+        let (w, h) = (f64::from(width) - 1.0, f64::from(height) - 1.0);
+        let fisheye = matches!(self, Self::Fisheye { .. });
+        for [u, v] in [[0.0, 0.0], [w, 0.0], [0.0, h], [w, h]] {
+            let corner = [(u - cx) / fx, (v - cy) / fy];
+            let reach = corner[0].hypot(corner[1]);
+            if reach == 0.0 {
+                continue;
+            }
+            let dir = corner.map(|c| c / reach);
+            // OpenCV's fisheye undistortion clamps the distorted radius to pi / 2.
+            let target = if fisheye {
+                reach.min(std::f64::consts::FRAC_PI_2)
+            } else {
+                reach
+            };
+            let along = |p: [f64; 2]| p[0] * dir[0] + p[1] * dir[1];
+            let blame = |r: f64, what: String| {
+                let (name, value) = self.dominant(r);
+                format!(
+                    "the lens is not monotone over the picture toward its corner ({u}, {v}): \
+                     {what} ({name} = {} dominates there)",
+                    number(value)
+                )
+            };
+            // The lens: the distorted radius finite and strictly growing up to the corner.
+            let (mut r, mut last, mut step) = (0.0, 0.0, 0);
+            let reached = loop {
+                step += 1;
+                r = if step <= RAY_STEPS {
+                    target * step as f64 / RAY_STEPS as f64
+                } else {
+                    r * 1.005
+                };
+                let distorted = along(self.distort(dir.map(|d| d * r)));
+                if !(distorted.is_finite() && distorted > last) {
+                    return Err(blame(
+                        r,
+                        format!(
+                            "the distorted radius stops growing at radius {r:.4} ({distorted})"
+                        ),
+                    ));
+                }
+                if distorted >= target {
+                    break r;
+                }
+                if r > MAX_RADIUS {
+                    return Err(blame(
+                        r,
+                        format!(
+                            "no ray within 89.9 degrees of the axis reaches radius {target:.4}"
+                        ),
+                    ));
+                }
+                last = distorted;
+            };
+            // The inverse the maps use: OpenCV's iteration, growing along the ray.
+            let mut last = 0.0;
+            for step in 1..=INVERSE_STEPS {
+                let q = target * step as f64 / INVERSE_STEPS as f64;
+                let undistorted = self.undistort(dir.map(|d| d * q)).map_or(f64::NAN, along);
+                if !(undistorted.is_finite() && undistorted > last) {
+                    return Err(blame(
+                        reached,
+                        format!("OpenCV's undistortion stops growing at distorted radius {q:.4}"),
+                    ));
+                }
+                last = undistorted;
+            }
+            if !(reached / CORNER_FACTOR..=reached * CORNER_FACTOR).contains(&last) {
+                return Err(blame(
+                    reached,
+                    format!(
+                        "OpenCV's undistortion puts the corner at radius {last:.4}, the lens at \
+                         {reached:.4}"
+                    ),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
 /// A distorted camera's picture resampled to a pinhole camera: the pinhole camera and crop,
 /// and where each pixel of the undistorted, cropped picture lies in the stored one (computed
 /// when asked: building one costs a 9 x 9 grid, so a caller that needs only the camera pays
@@ -210,6 +389,7 @@ impl Undistortion {
                 "the distortion coefficients {lens:?} are not all finite"
             ));
         }
+        lens.check_over_picture([fx, fy, cx, cy], width, height)?;
         let to_normalized = |[u, v]: [f64; 2]| [(u - cx) / fx, (v - cy) / fy];
         let inner = inner_rectangle(|p| lens.undistort(to_normalized(p)), width, height)
             .ok_or_else(|| {

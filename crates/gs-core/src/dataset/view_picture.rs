@@ -133,6 +133,12 @@ pub(crate) fn camera(
         source,
     };
     let lens = lens.filter(|lens| !lens.is_none());
+    super::undistort::check_intrinsics(
+        [full.fx, full.fy, full.cx, full.cy],
+        full.width,
+        full.height,
+    )
+    .map_err(|why| camera_error(GsError::InvalidCamera(why)))?;
     let stored = if picture.prescaled {
         let scaled = training_camera(full, options).map_err(camera_error)?;
         let found = images::dimensions(&picture.path).map_err(|e| of_view(e, context))?;
