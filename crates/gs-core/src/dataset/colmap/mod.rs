@@ -127,6 +127,47 @@ pub struct SparseModel {
     pub images_path: PathBuf,
 }
 
+/// Refuses images a picture cannot be read for, naming the image: an id given twice (two
+/// poses for one image), a name that is empty, names a folder (`.`, ending in `/`), or leaves
+/// the images folder (a `..` part, an absolute path).
+fn check_images(images: &[ColmapImage]) -> Result<(), String> {
+    use std::path::Component;
+    let mut seen = std::collections::HashSet::with_capacity(images.len());
+    for img in images {
+        if !seen.insert(img.id) {
+            return Err(format!("image {} appears twice", img.id));
+        }
+        let name = &img.name;
+        let mut files = 0;
+        for part in Path::new(name).components() {
+            match part {
+                Component::Normal(_) => files += 1,
+                Component::CurDir => {}
+                Component::ParentDir => {
+                    return Err(format!(
+                        "image {}: NAME {name:?} leaves the images folder (a `..` part)",
+                        img.id
+                    ))
+                }
+                Component::RootDir | Component::Prefix(_) => {
+                    return Err(format!(
+                        "image {}: NAME {name:?} is absolute; names are relative to the images \
+                         folder",
+                        img.id
+                    ))
+                }
+            }
+        }
+        if files == 0 || name.ends_with(['/', '\\']) {
+            return Err(format!(
+                "image {}: NAME {name:?} names no picture file",
+                img.id
+            ));
+        }
+    }
+    Ok(())
+}
+
 /// `dir/<stem>.bin` if it exists, else `dir/<stem>.txt`, with whether it is binary.
 fn model_file(dir: &Path, stem: &str) -> Result<(PathBuf, bool), DatasetError> {
     let bin = dir.join(format!("{stem}.bin"));
@@ -171,6 +212,10 @@ pub fn read_sparse_model(dir: &Path) -> Result<SparseModel, DatasetError> {
     } else {
         text::images(&images_path, &read_text(&images_path)?)?
     };
+    check_images(&images).map_err(|message| DatasetError::Format {
+        path: images_path.clone(),
+        message,
+    })?;
     let (path, bin) = model_file(dir, "points3D")?;
     let points = if bin {
         binary::points(&path, &read_file(&path)?)?
