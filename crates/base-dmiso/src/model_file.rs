@@ -222,7 +222,15 @@ pub fn load(path: &Path, device: &Device) -> Result<Dmiso, DmisoFileError> {
     let net = NetShape {
         width: number("deform_width")?,
     };
-    let deformation = meta.get("deformation").map(String::as_str) != Some("false");
+    let deformation = match meta.get("deformation").map(String::as_str) {
+        None | Some("true") => true,
+        Some("false") => false,
+        Some(other) => {
+            return Err(format(format!(
+                "metadata deformation is {other:?}; true or false expected"
+            )))
+        }
+    };
     let tensors = safetensors::SafeTensors::deserialize(&bytes).map_err(not_safetensors)?;
     let mut found = HashMap::new();
     for (name, view) in tensors.tensors() {
@@ -483,10 +491,7 @@ pub fn recorded_background(path: &Path) -> Result<Option<Background>, DmisoFileE
         }
     };
     if path.is_dir() {
-        return Ok(cfg_args(path)?
-            .as_deref()
-            .and_then(white_background)
-            .map(white_or_black));
+        return Ok(folder_flag(path, "white_background")?.map(white_or_black));
     }
     // Only the header: an 8-byte length, then the JSON header with the metadata.
     use std::io::Read;
@@ -519,34 +524,47 @@ pub fn recorded_background(path: &Path) -> Result<Option<Background>, DmisoFileE
                 message: format!("metadata background: {why}"),
             });
     }
-    Ok(metadata["white_background"]
-        .as_str()
-        .and_then(|v| v.parse().ok())
-        .map(white_or_black))
+    match metadata["white_background"].as_str() {
+        None => Ok(None),
+        Some("true") => Ok(Some(Background::White)),
+        Some("false") => Ok(Some(Background::Black)),
+        Some(other) => Err(DmisoFileError::Format {
+            path: path.to_path_buf(),
+            message: format!("metadata white_background is {other:?}; true or false expected"),
+        }),
+    }
 }
 
 /// The largest safetensors header read for its metadata (the format's own limit is 100 MB).
 const MAX_HEADER_BYTES: u64 = 100_000_000;
 
-/// Whether `cfg_args` (a Python `Namespace(...)`) says `white_background=True`; `None` when it
-/// does not say.
-pub fn white_background(cfg_args: &str) -> Option<bool> {
-    cfg_flag(cfg_args, "white_background")
+/// The boolean `name` of `cfg_args` (a Python `Namespace(a=1, name=True, ...)`); `None` when it
+/// has no such argument, an error when its value is not `True` or `False`.
+pub fn cfg_flag(cfg_args: &str, name: &str) -> Result<Option<bool>, String> {
+    let Some(rest) = ["(", " "]
+        .iter()
+        .find_map(|before| cfg_args.split(&format!("{before}{name}=")).nth(1))
+    else {
+        return Ok(None);
+    };
+    match rest.split([',', ')']).next().unwrap_or_default().trim() {
+        "True" => Ok(Some(true)),
+        "False" => Ok(Some(false)),
+        other => Err(format!("{name}={other}: True or False expected")),
+    }
 }
 
-/// The boolean `name` of `cfg_args` (a Python `Namespace(a=1, name=True, ...)`); `None` when it
-/// has no such argument or it is not `True` or `False`.
-pub fn cfg_flag(cfg_args: &str, name: &str) -> Option<bool> {
-    let rest = ["(", " "]
-        .iter()
-        .find_map(|before| cfg_args.split(&format!("{before}{name}=")).nth(1))?;
-    if rest.starts_with("True") {
-        Some(true)
-    } else if rest.starts_with("False") {
-        Some(false)
-    } else {
-        None
-    }
+/// The boolean `name` of the `cfg_args` beside the authors' model folder `dir`; `None` when
+/// there is no `cfg_args` or it does not say; an error naming the file when it says neither
+/// `True` nor `False`.
+fn folder_flag(dir: &Path, name: &str) -> Result<Option<bool>, DmisoFileError> {
+    let Some(text) = cfg_args(dir)? else {
+        return Ok(None);
+    };
+    cfg_flag(&text, name).map_err(|message| DmisoFileError::Format {
+        path: dir.join("cfg_args"),
+        message,
+    })
 }
 
 /// Whether the authors' model folder `path` was fitted with `--eval` (its `cfg_args` says
@@ -556,7 +574,7 @@ pub fn recorded_eval(path: &Path) -> Result<Option<bool>, DmisoFileError> {
     if !path.is_dir() {
         return Ok(None);
     }
-    Ok(cfg_args(path)?.and_then(|text| cfg_flag(&text, "eval")))
+    folder_flag(path, "eval")
 }
 
 /// The `cfg_args` beside the authors' model folder `dir`; `None` when there is none.
@@ -823,19 +841,43 @@ mod tests {
     fn cfg_args_say_the_background() {
         let white = "Namespace(data_device='cuda', white_background=True, is_blender=True)";
         let black = "Namespace(white_background=False)";
-        assert_eq!(white_background(white), Some(true));
-        assert_eq!(white_background(black), Some(false));
-        assert_eq!(white_background("Namespace(eval=True)"), None);
+        assert_eq!(cfg_flag(white, "white_background"), Ok(Some(true)));
+        assert_eq!(cfg_flag(black, "white_background"), Ok(Some(false)));
+        assert_eq!(
+            cfg_flag("Namespace(eval=True)", "white_background"),
+            Ok(None)
+        );
         let cfg = "Namespace(eval=True, is_blender=True, load2gpu_on_the_fly=False)";
-        assert_eq!(cfg_flag(cfg, "eval"), Some(true));
+        assert_eq!(cfg_flag(cfg, "eval"), Ok(Some(true)));
         assert_eq!(
             cfg_flag("Namespace(sh_degree=3, eval=False)", "eval"),
-            Some(false)
+            Ok(Some(false))
         );
         assert_eq!(
             cfg_flag("Namespace(no_eval=True)", "eval"),
-            None,
+            Ok(None),
             "whole names only"
         );
+        // Strict: only True and False, whole.
+        for bad in ["maybe", "Truex", "'True'", ""] {
+            let e = cfg_flag(&format!("Namespace(eval={bad}, x=1)"), "eval").unwrap_err();
+            assert!(e.contains(&format!("eval={bad}: True or False")), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_folder_whose_cfg_args_says_maybe_is_refused_naming_it() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(
+            dir.path().join("cfg_args"),
+            "Namespace(white_background=maybe, eval=True)",
+        )
+        .unwrap();
+        let e = recorded_background(dir.path()).unwrap_err().to_string();
+        assert!(
+            e.contains("cfg_args") && e.contains("white_background=maybe: True or False"),
+            "{e}"
+        );
+        assert_eq!(recorded_eval(dir.path()).unwrap(), Some(true));
     }
 }
