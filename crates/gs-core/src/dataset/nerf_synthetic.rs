@@ -265,11 +265,27 @@ pub fn load_training(
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<Dataset, DatasetError> {
-    let mut dataset = load(root, Split::Train, options)?;
-    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
-        dataset.append(load(root, Split::Test, options)?);
+    let mut loaded = training_splits(root, splits)?
+        .into_iter()
+        .map(|split| load(root, split, options));
+    let mut dataset = loaded.next().expect("at least one split")?;
+    for more in loaded {
+        dataset.append(more?);
     }
     Ok(dataset)
+}
+
+/// The splits [`load_training`] reads as `splits` says: the train split, then the test split
+/// when `splits` takes it and it has frames; an empty train split is no views when the test
+/// split trains too and has some (as INRIA's loader takes it). Never empty: with no frames to
+/// train on, the train split, whose reading says why.
+fn training_splits(root: &Path, splits: TrainSplits) -> Result<Vec<Split>, DatasetError> {
+    let test = splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)?;
+    Ok(match (has_split(root, Split::Train)?, test) {
+        (true, true) => vec![Split::Train, Split::Test],
+        (false, true) => vec![Split::Test],
+        (_, false) => vec![Split::Train],
+    })
 }
 
 /// The views [`load_training`] would train on, as [`views`] reads them (no picture decoded):
@@ -279,24 +295,26 @@ pub fn training_views(
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<Vec<DatasetView>, DatasetError> {
-    let mut found = views(root, Split::Train, options)?;
-    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
-        found.extend(views(root, Split::Test, options)?);
+    let mut found = Vec::new();
+    for split in training_splits(root, splits)? {
+        found.extend(views(root, split, options)?);
     }
     Ok(found)
 }
 
-/// Whether the scene in `root` has `split`: its `transforms_<split>.json`, or a
-/// `transforms.json` whose frames make the split (see the module's documentation).
+/// Whether the scene in `root` has frames of `split`: its `transforms_<split>.json`, or a
+/// `transforms.json` whose frames make the split (see the module's documentation), with at
+/// least one frame (`"frames": []` is no views of the split, as INRIA's loader reads it).
 pub fn has_split(root: &Path, split: Split) -> Result<bool, DatasetError> {
-    if root.join(split.file_name()).is_file() {
-        return Ok(true);
+    let own = root.join(split.file_name());
+    if own.is_file() {
+        return Ok(!parse_file(&own)?.1.frames.is_empty());
     }
     if !root.join(SINGLE_FILE).is_file() {
         return Ok(false);
     }
     let (path, transforms) = parse_file(&root.join(SINGLE_FILE))?;
-    Ok(split_frames(&path, transforms, split)?.is_some())
+    Ok(split_frames(&path, transforms, split)?.is_some_and(|t| !t.frames.is_empty()))
 }
 
 /// The split a render of the scene in `root` takes when none is asked for: the test split
@@ -339,10 +357,7 @@ pub fn training_pixels(
     splits: TrainSplits,
     options: &LoadOptions,
 ) -> Result<(Vec<u64>, u64), DatasetError> {
-    let mut read = vec![Split::Train];
-    if splits == TrainSplits::TrainAndTest && has_split(root, Split::Test)? {
-        read.push(Split::Test);
-    }
+    let read = training_splits(root, splits)?;
     let mut views = Vec::new();
     let mut largest = 0u64;
     for split in read {
