@@ -251,7 +251,12 @@ pub fn read_model(path: &Path) -> Result<(FoldedGaussians, Option<VideoRecord>),
             Ok(v)
         })
         .collect::<Result<Vec<f32>, _>>()?;
-    let record = ply_header.comments.iter().find_map(|c| parse_record(c));
+    let record = ply_header
+        .comments
+        .iter()
+        .find_map(|c| parse_record(c))
+        .transpose()
+        .map_err(&fail)?;
     let model = FoldedGaussians::new(p, logits).map_err(fail)?;
     Ok((model, record))
 }
@@ -295,30 +300,46 @@ pub fn read_header(path: &Path) -> Result<(usize, Option<VideoRecord>), VegasFil
     let record = String::from_utf8_lossy(&header)
         .lines()
         .filter_map(|l| l.strip_prefix("comment "))
-        .find_map(parse_record);
+        .find_map(parse_record)
+        .transpose()
+        .map_err(&fail)?;
     Ok((time.properties.len() + 1, record))
 }
 
-/// The video of a `clipgaussian-video frames WxH fps R distance D` comment; none when the
-/// comment is another or holds a size, rate or distance that is not positive.
-fn parse_record(comment: &str) -> Option<VideoRecord> {
+/// The video of a `clipgaussian-video frames WxH fps R distance D` comment: none when the
+/// comment is another; an error when it holds a size, rate or distance that is not positive,
+/// or a frame size no camera can have.
+fn parse_record(comment: &str) -> Option<Result<VideoRecord, String>> {
     let rest = comment.strip_prefix(RECORD_PREFIX)?.trim();
-    let mut parts = rest.split_whitespace();
-    let (w, h) = parts.next()?.split_once('x')?;
-    let mut number = |key: &str| -> Option<f64> {
-        (parts.next()? == key).then_some(())?;
-        parts
-            .next()?
-            .parse()
-            .ok()
-            .filter(|v: &f64| v.is_finite() && *v > 0.0)
+    let parsed = || -> Result<VideoRecord, String> {
+        let bad = || {
+            format!("{comment:?}: `{RECORD_PREFIX} WxH fps R distance D` expected, each positive")
+        };
+        let mut parts = rest.split_whitespace();
+        let (w, h) = parts
+            .next()
+            .and_then(|s| s.split_once('x'))
+            .ok_or_else(bad)?;
+        let mut number = |key: &str| -> Result<f64, String> {
+            if parts.next() != Some(key) {
+                return Err(bad());
+            }
+            parts
+                .next()
+                .and_then(|v| v.parse().ok())
+                .filter(|v: &f64| v.is_finite() && *v > 0.0)
+                .ok_or_else(bad)
+        };
+        let (fps, distance) = (number("fps")?, number("distance")?);
+        let record = VideoRecord {
+            width: w.parse().ok().filter(|&w| w > 0).ok_or_else(bad)?,
+            height: h.parse().ok().filter(|&h| h > 0).ok_or_else(bad)?,
+            fps,
+            distance,
+        };
+        gs_core::mirror_pair::plane_camera(record.width, record.height, record.distance, false)
+            .map_err(|e| format!("{comment:?}: its frames: {e}"))?;
+        Ok(record)
     };
-    let (fps, distance) = (number("fps")?, number("distance")?);
-    let record = VideoRecord {
-        width: w.parse().ok().filter(|&w| w > 0)?,
-        height: h.parse().ok().filter(|&h| h > 0)?,
-        fps,
-        distance,
-    };
-    Some(record)
+    Some(parsed())
 }

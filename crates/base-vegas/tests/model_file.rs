@@ -86,6 +86,32 @@ fn our_model_files_read_back_exactly() {
     std::fs::remove_file(&cut).unwrap();
     let leftovers: Vec<_> = std::fs::read_dir(dir.path()).unwrap().collect();
     assert_eq!(leftovers.len(), 1, "no temporary file left");
+    // A record whose frames no camera can have (a side past 65536 pixels), or whose numbers
+    // are not positive, is refused by both readers naming the file and the comment.
+    for (record, said) in [
+        ("96x64 fps 29.97 distance 1.5", None),
+        ("70000x2 fps 24 distance 1", Some("its frames")),
+        ("96x64 fps -1 distance 1", Some("each positive")),
+        ("96x64 fps 24", Some("each positive")),
+    ] {
+        let was = b"96x64 fps 29.97 distance 1.5";
+        let at = bytes.windows(was.len()).position(|w| w == was).unwrap();
+        let edited = [&bytes[..at], record.as_bytes(), &bytes[at + was.len()..]].concat();
+        let odd = dir.path().join("record.ply");
+        std::fs::write(&odd, edited).unwrap();
+        for e in [
+            read_model(&odd).err().map(|e| e.to_string()),
+            read_header(&odd).err().map(|e| e.to_string()),
+        ] {
+            match said {
+                None => assert_eq!(e, None),
+                Some(said) => {
+                    let e = e.unwrap_or_else(|| panic!("{record} accepted"));
+                    assert!(e.contains("record.ply") && e.contains(said), "{e}");
+                }
+            }
+        }
+    }
 }
 
 #[test]
