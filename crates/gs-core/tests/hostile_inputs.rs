@@ -250,3 +250,92 @@ fn a_camera_listed_twice_among_200000_is_refused_naming_it() {
         );
     }
 }
+
+/// COLMAP images a picture cannot be read for are refused naming images.txt and the image: a
+/// name that is a folder (`.`, `sub/`), leaves the images folder (`../x.png`, `/etc/passwd`),
+/// and an id given twice; an ordinary name in a subfolder reads.
+#[test]
+fn colmap_image_names_and_ids_are_checked() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join("cameras.txt"), "1 PINHOLE 8 6 10 10 4 3\n").unwrap();
+    std::fs::write(dir.path().join("points3D.txt"), "").unwrap();
+    let image = |id: u32, name: &str| format!("{id} 1 0 0 0 0 0 3 1 {name}\n\n");
+    for (images, said) in [
+        (image(1, "."), "image 1: NAME \".\" names no picture file"),
+        (
+            image(2, "sub/"),
+            "image 2: NAME \"sub/\" names no picture file",
+        ),
+        (
+            image(3, "../x.png"),
+            "image 3: NAME \"../x.png\" leaves the images folder",
+        ),
+        (
+            image(4, "/etc/passwd"),
+            "image 4: NAME \"/etc/passwd\" is absolute",
+        ),
+        (
+            image(5, "a.png") + &image(5, "b.png"),
+            "image 5 appears twice",
+        ),
+    ] {
+        std::fs::write(dir.path().join("images.txt"), &images).unwrap();
+        let e = gs_core::dataset::colmap::read_sparse_model(dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("images.txt") && e.contains(said), "{said}: {e}");
+    }
+    std::fs::write(dir.path().join("images.txt"), image(6, "sub/a b.png")).unwrap();
+    let model = gs_core::dataset::colmap::read_sparse_model(dir.path()).unwrap();
+    assert_eq!(model.images[0].name, "sub/a b.png");
+}
+
+/// A split file with `"frames": []` is no views of that split, as INRIA's loader reads it: an
+/// empty test split leaves the training views (and renders default to the train split); an
+/// empty train split trains on the test views where the test split trains too, and is refused
+/// where only the train split trains.
+#[test]
+fn an_empty_split_is_no_views_where_the_other_has_some() {
+    use gs_core::dataset::nerf_synthetic::{default_render_split, load_training, TrainSplits};
+    use gs_core::dataset::LoadOptions;
+    let dir = tempfile::tempdir().unwrap();
+    image::RgbaImage::from_pixel(4, 4, image::Rgba([200, 100, 50, 255]))
+        .save(dir.path().join("r_0.png"))
+        .unwrap();
+    let split = |frames: usize| {
+        serde_json::json!({
+            "camera_angle_x": 0.8,
+            "frames": (0..frames).map(|_| serde_json::json!({"file_path": "r_0",
+                "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}))
+                .collect::<Vec<_>>(),
+        })
+        .to_string()
+    };
+    let write = |train: usize, test: usize| {
+        std::fs::write(dir.path().join("transforms_train.json"), split(train)).unwrap();
+        std::fs::write(dir.path().join("transforms_test.json"), split(test)).unwrap();
+    };
+    let options = LoadOptions::default();
+    write(1, 0);
+    let views = load_training(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
+    assert_eq!(views.views.len(), 1);
+    assert_eq!(default_render_split(dir.path()).unwrap(), Split::Train);
+    write(0, 2);
+    let views = load_training(dir.path(), TrainSplits::TrainAndTest, &options).unwrap();
+    assert_eq!(views.views.len(), 2);
+    let e = load_training(dir.path(), TrainSplits::Train, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("transforms_train.json") && e.contains("no frames"),
+        "{e}"
+    );
+    write(0, 0);
+    let e = load_training(dir.path(), TrainSplits::TrainAndTest, &options)
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("transforms_train.json") && e.contains("no frames"),
+        "{e}"
+    );
+}

@@ -307,10 +307,19 @@ fn colmap_lenses_that_do_not_invert_are_refused() {
     let intrinsics = [50.0, 50.0, 32.0, 24.0];
     for (lens, said) in [
         (perspective([-1e6, 0.0, 0.0, 0.0, 0.0, 0.0]), "k1 = -1e6"),
-        (perspective([1e6, 0.0, 0.0, 0.0, 0.0, 0.0]), "OpenCV's undistortion"),
-        (perspective([0.0, 0.0, 0.0, -1.0 / 0.64, 0.0, 0.0]), "k4 = -1.5625"),
+        (
+            perspective([1e6, 0.0, 0.0, 0.0, 0.0, 0.0]),
+            "OpenCV's undistortion",
+        ),
+        (
+            perspective([0.0, 0.0, 0.0, -1.0 / 0.64, 0.0, 0.0]),
+            "k4 = -1.5625",
+        ),
     ] {
         let e = Undistortion::new(intrinsics, lens, 64, 48).unwrap_err();
-        assert!(e.contains("not monotone") && e.contains(said), "{lens:?}: {e}");
+        assert!(
+            e.contains("not monotone") && e.contains(said),
+            "{lens:?}: {e}"
+        );
     }
 }
