@@ -339,3 +339,47 @@ fn an_empty_split_is_no_views_where_the_other_has_some() {
         "{e}"
     );
 }
+
+/// A NeRF frame whose `file_path` is not a file inside the scene folder (absolute, with a `..`
+/// part, or naming the folder itself) is refused naming the json file and the frame;
+/// Blender's `./train/r_0` reads.
+#[test]
+fn nerf_file_paths_stay_inside_the_scene_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::create_dir(dir.path().join("train")).unwrap();
+    image::RgbaImage::from_pixel(4, 4, image::Rgba([200, 100, 50, 255]))
+        .save(dir.path().join("train/r_0.png"))
+        .unwrap();
+    let write = |file_path: &str| {
+        let json = serde_json::json!({
+            "camera_angle_x": 0.8,
+            "frames": [{"file_path": file_path,
+                "transform_matrix": [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]}],
+        });
+        std::fs::write(dir.path().join("transforms_train.json"), json.to_string()).unwrap();
+    };
+    let options = gs_core::dataset::LoadOptions::default();
+    for (file_path, said) in [
+        ("/etc/passwd", "is absolute"),
+        ("../../outside/r_0", "leaves the scene folder"),
+        ("train/../../r_0", "leaves the scene folder"),
+        (".", "names no file"),
+    ] {
+        write(file_path);
+        let e = nerf_synthetic::load(dir.path(), Split::Train, &options)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("transforms_train.json") && e.contains("frame 0") && e.contains(said),
+            "{file_path}: {e}"
+        );
+    }
+    write("./train/r_0");
+    assert_eq!(
+        nerf_synthetic::load(dir.path(), Split::Train, &options)
+            .unwrap()
+            .views
+            .len(),
+        1
+    );
+}

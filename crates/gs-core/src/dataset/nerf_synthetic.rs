@@ -416,11 +416,39 @@ fn parse_file(path: &Path) -> Result<(PathBuf, Transforms), DatasetError> {
         path: path.to_path_buf(),
         source,
     })?;
-    let transforms = serde_json::from_str(&text).map_err(|source| DatasetError::Json {
-        path: path.to_path_buf(),
-        source,
-    })?;
+    let transforms: Transforms =
+        serde_json::from_str(&text).map_err(|source| DatasetError::Json {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    for (i, frame) in transforms.frames.iter().enumerate() {
+        check_inside(&frame.file_path).map_err(|why| DatasetError::Format {
+            path: path.to_path_buf(),
+            message: format!("frame {i}: file_path {:?} {why}", frame.file_path),
+        })?;
+    }
     Ok((path.to_path_buf(), transforms))
+}
+
+/// Refuses a `file_path` that would not name a file inside the scene folder: empty, absolute,
+/// or with a `..` part.
+fn check_inside(file_path: &str) -> Result<(), &'static str> {
+    use std::path::Component;
+    let mut files = 0;
+    for part in Path::new(file_path).components() {
+        match part {
+            Component::Normal(_) => files += 1,
+            Component::CurDir => {}
+            Component::ParentDir => return Err("leaves the scene folder (a `..` part)"),
+            Component::RootDir | Component::Prefix(_) => {
+                return Err("is absolute; frames are named relative to the scene folder")
+            }
+        }
+    }
+    if files == 0 {
+        return Err("names no file");
+    }
+    Ok(())
 }
 
 /// The frames of `split` in the single file `transforms`: those its split list names (each
