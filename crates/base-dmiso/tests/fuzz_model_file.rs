@@ -177,3 +177,20 @@ fn a_storage_changed_to_bytes_is_refused_naming_the_tensor() {
         "{e}"
     );
 }
+
+/// The authors' `cfg_args` (a Python `Namespace(...)`), mutated: what the 4D binary reads of it
+/// (the background and the eval flag) is read or refused naming the file, never guessed.
+#[test]
+fn cfg_args_survive_mutations() {
+    let valid = b"Namespace(data_device='cuda', eval=False, images='images', is_blender=True, \
+                  model_path='output/trex', resolution=-1, sh_degree=3, source_path='trex', \
+                  white_background=True)";
+    let refused = fuzz("cfg_args", valid, 31, |path| {
+        let folder = path.parent().unwrap();
+        base_dmiso::model_file::recorded_background(folder)
+            .and_then(|_| base_dmiso::model_file::recorded_eval(folder))
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    });
+    assert!(refused > 0, "a flipped True or False is refused");
+}

@@ -195,3 +195,28 @@ fn a_valid_compressed_ply_larger_than_memory_is_an_error() {
         "{e}"
     );
 }
+
+/// Pictures of every kind a run reads (2D pictures, style pictures, dataset and video frames
+/// all go through `decode_picture`), mutated: PNG, JPEG and WebP.
+#[test]
+fn picture_decoding_survives_mutated_files() {
+    let picture = image::RgbImage::from_fn(24, 16, |x, y| {
+        image::Rgb([(x * 10) as u8, (y * 15) as u8, ((x + y) * 5) as u8])
+    });
+    for (name, format, seed) in [
+        ("p.png", image::ImageFormat::Png, 41),
+        ("p.jpg", image::ImageFormat::Jpeg, 42),
+        ("p.webp", image::ImageFormat::WebP, 43),
+    ] {
+        let mut valid = Vec::new();
+        picture
+            .write_to(&mut std::io::Cursor::new(&mut valid), format)
+            .unwrap();
+        let refused = fuzz(name, &valid, seed, |path| {
+            gs_core::image::decode_picture(path)
+                .map(|_| ())
+                .map_err(|e| format!("{}: {e}", path.display()))
+        });
+        assert!(refused > 0, "{name}: some mutations are refused");
+    }
+}

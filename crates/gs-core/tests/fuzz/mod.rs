@@ -169,5 +169,11 @@ pub fn fuzz_with(
             "{name} case {case}: {peak} bytes held at the peak"
         );
     }
+    // The line scripts/fuzz_campaign.sh tabulates.
+    eprintln!(
+        "fuzz {name} (seed {seed}): {} cases, {refused} refused, {} read, 0 panics",
+        cases(),
+        cases() - refused
+    );
     refused
 }
