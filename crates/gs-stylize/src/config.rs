@@ -157,6 +157,19 @@ impl StyleSettings {
         }
     }
 
+    /// The style in a few words, for titles: the prompt in quotes, or the style picture's file
+    /// name.
+    pub fn label(&self) -> String {
+        match (&self.style_prompt, &self.style_image) {
+            (Some(prompt), _) => format!("\"{prompt}\""),
+            (None, Some(image)) => image.file_name().map_or_else(
+                || image.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            ),
+            (None, None) => "no style".into(),
+        }
+    }
+
     /// Checks what deserializing cannot: exactly one style, non-empty prompts, at least one
     /// step, finite non-negative weights, patches when the patch loss is
     /// on, a distortion in `[0, 1]`. Errors name the field.

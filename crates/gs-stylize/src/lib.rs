@@ -60,6 +60,7 @@ pub mod stylize;
 pub mod summary;
 #[cfg(feature = "test-support")]
 pub mod test_support;
+pub mod viewer;
 pub mod weights;
 pub mod writable;
 

@@ -12,6 +12,7 @@ use gs_core::GaussianSet;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
 use gs_stylize::outputs::{write_previews, StepLosses};
 use gs_stylize::progress::with_loading_progress;
+use gs_stylize::viewer;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
     StylizeJob, StylizeOutcome,
@@ -245,6 +246,25 @@ impl Modality for SceneStylizeConfig {
             dataset.background,
             run.backend(),
         )?;
+        if base.len() <= viewer::MAX_GAUSSIANS {
+            viewer::write_viewer(
+                &out.join(viewer::VIEWER_HTML),
+                &viewer::ViewerScene {
+                    title: format!("{}: {}", self.model_path().display(), self.style.label()),
+                    base: &base,
+                    stylized: Some(&stylized.gaussians),
+                    cameras: viewer::named_cameras(&dataset.views, &dataset.image_paths),
+                    background: dataset.background,
+                },
+            )?;
+        } else if run.options().progress {
+            eprintln!(
+                "{}: not written for {} Gaussians (a viewer holds at most {} for now)",
+                viewer::VIEWER_HTML,
+                base.len(),
+                viewer::MAX_GAUSSIANS
+            );
+        }
         Ok(SceneSummary {
             gaussians: stylized.gaussians,
             losses: outcome.losses,

@@ -1,0 +1,227 @@
+//! `viewer.html`: one file that shows Gaussians in a browser with no network and no server
+//! (WebGL2, the projection, SH colour and compositing of gs-core's rasterizer, the depth sort
+//! in a worker), with orbit, pan and zoom, the run's cameras to jump between, and a style
+//! slider from the base model (0) to the stylized one (1) that blends every parameter as
+//! `interpolate` does.
+//!
+//! The page (`viewer/viewer.html`, our own code) reads its scene from a JSON block: the
+//! Gaussians as little-endian `f32` arrays in base64, the cameras, the background. Opened with
+//! `#camera=K&t=T&clean` it draws camera K at slider T at the camera's own size, without its
+//! panel (what the tests screenshot).
+
+use std::path::{Path, PathBuf};
+
+use crate::StylizeError;
+
+use gs_core::{Camera, GaussianSet};
+use serde_json::json;
+
+/// The page, with `/*SCENE*/` where the scene's JSON goes.
+const PAGE: &str = include_str!("viewer/viewer.html");
+
+/// The file name every run writes its viewer to.
+pub const VIEWER_HTML: &str = "viewer.html";
+
+/// What a viewer shows.
+pub struct ViewerScene<'a> {
+    /// The page's title line (the run, the style).
+    pub title: String,
+    /// The Gaussians at slider 0 (the base model).
+    pub base: &'a GaussianSet,
+    /// The same Gaussians stylized, at slider 1; none: no slider.
+    pub stylized: Option<&'a GaussianSet>,
+    /// Cameras to jump between, with their names; the first is shown first.
+    pub cameras: Vec<(String, Camera)>,
+    /// The colour behind the Gaussians, linear RGB in `[0, 1]`.
+    pub background: [f32; 3],
+}
+
+/// The most Gaussians a page holds for now (as 32-bit floats, about 630 bytes a Gaussian with
+/// both models): a larger scene's run writes no viewer and says so.
+pub const MAX_GAUSSIANS: usize = 300_000;
+
+/// Writes `scene`'s viewer to `path` (through a temporary name); an error names what cannot be
+/// shown (no camera, models of different Gaussians) or the file.
+pub fn write_viewer(path: &Path, scene: &ViewerScene) -> Result<(), StylizeError> {
+    let page = viewer_page(scene).map_err(StylizeError::Input)?;
+    crate::outputs::write_atomic(path, page.as_bytes())
+}
+
+/// The cameras of `views` for a viewer, named by their pictures' file names (`labels`, when
+/// given one a view) or `view N`.
+pub fn named_cameras(views: &[gs_core::model::View], labels: &[PathBuf]) -> Vec<(String, Camera)> {
+    views
+        .iter()
+        .enumerate()
+        .map(|(i, v)| {
+            let name = labels
+                .get(i)
+                .and_then(|p| p.file_name())
+                .map_or_else(|| format!("view {i}"), |n| n.to_string_lossy().into_owned());
+            (name, v.camera.clone())
+        })
+        .collect()
+}
+
+/// The page of `scene`.
+pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
+    let base = scene.base;
+    if scene.cameras.is_empty() {
+        return Err("a viewer needs at least one camera".into());
+    }
+    let mut models = vec![model_json(base, None)];
+    if let Some(stylized) = scene.stylized {
+        if (stylized.len(), stylized.sh_degree()) != (base.len(), base.sh_degree()) {
+            return Err(format!(
+                "the stylized model has {} Gaussians of SH degree {}, the base {} of degree {}: \
+                 a viewer's slider blends the same Gaussians",
+                stylized.len(),
+                stylized.sh_degree(),
+                base.len(),
+                base.sh_degree()
+            ));
+        }
+        models.push(model_json(stylized, Some(&base.quats)));
+    }
+    let cameras: Vec<_> = scene
+        .cameras
+        .iter()
+        .map(|(name, c)| {
+            json!({
+                "name": name, "rotation": c.rotation, "translation": c.translation,
+                "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+                "width": c.width, "height": c.height,
+            })
+        })
+        .collect();
+    let first = &scene.cameras[0].1;
+    let json = json!({
+        "title": scene.title,
+        "count": base.len(),
+        "degree": base.sh_degree(),
+        "models": models,
+        "cameras": cameras,
+        "background": scene.background,
+        "pivot_distance": pivot_distance(base, first),
+    });
+    // In a <script> block "</" must not appear; "<\/" is the same JSON string.
+    let text = json.to_string().replace("</", "<\\/");
+    Ok(PAGE.replacen("/*SCENE*/", &text, 1))
+}
+
+/// One model's arrays for the page; with `align_to`, its quaternions each turned to the
+/// hemisphere of the one they blend with (the same rotation; `interpolate`'s rule).
+fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value {
+    let mut quats = set.quats.clone();
+    if let Some(other) = align_to {
+        for (q, o) in quats.chunks_exact_mut(4).zip(other.chunks_exact(4)) {
+            if q.iter().zip(o).map(|(a, b)| a * b).sum::<f32>() < 0.0 {
+                q.iter_mut().for_each(|v| *v = -*v);
+            }
+        }
+    }
+    json!({
+        "means": base64_f32(&set.means),
+        "quats": base64_f32(&quats),
+        "log_scales": base64_f32(&set.log_scales),
+        "opacity_logits": base64_f32(&set.opacity_logits),
+        "sh": base64_f32(&set.sh()),
+    })
+}
+
+/// The median camera depth of the Gaussians' centres in `camera`: the distance the page orbits
+/// at (1 when none is in front).
+fn pivot_distance(set: &GaussianSet, camera: &Camera) -> f64 {
+    let mut depths: Vec<f64> = set
+        .means
+        .chunks_exact(3)
+        .map(|p| {
+            let r = camera.rotation[2];
+            r[0] * f64::from(p[0])
+                + r[1] * f64::from(p[1])
+                + r[2] * f64::from(p[2])
+                + camera.translation[2]
+        })
+        .filter(|z| z.is_finite() && *z > 0.0)
+        .collect();
+    if depths.is_empty() {
+        return 1.0;
+    }
+    depths.sort_by(f64::total_cmp);
+    depths[depths.len() / 2]
+}
+
+/// `values` as little-endian bytes in standard base64 (with padding).
+fn base64_f32(values: &[f32]) -> String {
+    let bytes: Vec<u8> = values.iter().flat_map(|v| v.to_le_bytes()).collect();
+    base64(&bytes)
+}
+
+/// Standard base64 (RFC 4648, `+/`, `=` padding) of `bytes`.
+fn base64(bytes: &[u8]) -> String {
+    const ALPHABET: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for chunk in bytes.chunks(3) {
+        let b = [
+            chunk[0],
+            *chunk.get(1).unwrap_or(&0),
+            *chunk.get(2).unwrap_or(&0),
+        ];
+        let n = u32::from(b[0]) << 16 | u32::from(b[1]) << 8 | u32::from(b[2]);
+        for k in 0..4 {
+            if k <= chunk.len() {
+                out.push(ALPHABET[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_is_rfc_4648() {
+        // RFC 4648's test vectors.
+        for (plain, encoded) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(plain.as_bytes()), encoded);
+        }
+        assert_eq!(base64(&[0xfb, 0xff]), "+/8=");
+    }
+
+    #[test]
+    fn a_page_holds_its_scene_and_refuses_other_gaussians() {
+        let set = GaussianSet::zeros(3, 1);
+        let camera =
+            Camera::look_at([0.0, 0.0, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 1.0, 8, 6).unwrap();
+        let scene = ViewerScene {
+            title: "a </script> title".into(),
+            base: &set,
+            stylized: Some(&set),
+            cameras: vec![("view 0".into(), camera.clone())],
+            background: [1.0, 1.0, 1.0],
+        };
+        let page = viewer_page(&scene).unwrap();
+        assert!(!page.contains("/*SCENE*/"));
+        assert!(page.contains("a <\\/script> title"));
+        assert_eq!(page.matches("</script>").count(), 2, "only the page's own");
+        let other = GaussianSet::zeros(4, 1);
+        let e = viewer_page(&ViewerScene {
+            stylized: Some(&other),
+            ..scene
+        })
+        .unwrap_err();
+        assert!(e.contains("4 Gaussians") && e.contains("base 3"), "{e}");
+    }
+}
