@@ -666,6 +666,7 @@ fn stylize_help_says_what_it_writes_and_where_the_weights_come_from() {
     let help = succeeds(&["stylize", "--help"]);
     for text in [
         "model.ply",
+        "viewer.html",
         "preview.png",
         "losses.json",
         "losses.png",
@@ -867,5 +868,97 @@ fn export_writes_every_format_and_render_reads_them() {
         ],
         &["scene.obj", "--format"],
         &dir.path().join("scene.obj"),
+    );
+}
+
+/// `export --format html` (or an .html name) writes a viewer page of the model, with `--b`
+/// (its stylization) for the slider; a `--b` of other Gaussians is refused naming both files,
+/// and `--b` without a page is refused; nothing is written when refused.
+#[test]
+fn export_writes_a_viewer_page_of_one_model_or_two() {
+    let dir = TempDir::new("cli-export-html");
+    let (a, _) = write_scene(dir.path());
+    let mut stylized = read_ply(&a).unwrap();
+    stylized.gaussians.sh_dc.iter_mut().for_each(|v| *v = -*v);
+    let b = dir.path().join("b.ply");
+    write_ply(&b, &stylized, PlyFormat::BinaryLittleEndian).unwrap();
+    let n = stylized.gaussians.len();
+    let scene_of = |page: &Path| -> serde_json::Value {
+        let page = std::fs::read_to_string(page).unwrap();
+        let start = page.find("id=\"scene\">").unwrap() + "id=\"scene\">".len();
+        let end = start + page[start..].find("</script>").unwrap();
+        serde_json::from_str(&page[start..end]).unwrap()
+    };
+    let one = dir.path().join("one.html");
+    let line = succeeds(&["export", "--model", s(&a), "--out", s(&one)]);
+    assert!(
+        line.contains(&format!("a viewer of {n} Gaussians")),
+        "{line}"
+    );
+    let scene = scene_of(&one);
+    assert_eq!(scene["models"].as_array().unwrap().len(), 1);
+    assert_eq!(scene["cameras"].as_array().unwrap().len(), 16);
+    let two = dir.path().join("two.page");
+    let line = succeeds(&[
+        "export",
+        "--a",
+        s(&a),
+        "--b",
+        s(&b),
+        "--format",
+        "html",
+        "--out",
+        s(&two),
+    ]);
+    assert!(line.contains("and their stylization"), "{line}");
+    assert_eq!(scene_of(&two)["models"].as_array().unwrap().len(), 2);
+
+    // The same scene less its last Gaussian.
+    let g = &read_ply(&a).unwrap().gaussians;
+    let m = n - 1;
+    let fewer = PlyGaussians::new(
+        gs_core::GaussianSet::from_arrays(
+            g.means[..3 * m].to_vec(),
+            g.log_scales[..3 * m].to_vec(),
+            g.quats[..4 * m].to_vec(),
+            g.opacity_logits[..m].to_vec(),
+            &g.sh()[..3 * g.sh_coeffs() * m],
+        )
+        .unwrap(),
+    );
+    let c = dir.path().join("c.ply");
+    write_ply(&c, &fewer, PlyFormat::BinaryLittleEndian).unwrap();
+    let refused = dir.path().join("refused.html");
+    fails(
+        &[
+            "export",
+            "--model",
+            s(&a),
+            "--b",
+            s(&c),
+            "--out",
+            s(&refused),
+        ],
+        &[
+            "--b",
+            "c.ply",
+            &format!("{} Gaussians", n - 1),
+            "same Gaussians",
+        ],
+        &refused,
+    );
+    let not_a_page = dir.path().join("refused.spz");
+    fails(
+        &[
+            "export",
+            "--model",
+            s(&a),
+            "--b",
+            s(&b),
+            "--out",
+            s(&not_a_page),
+        ],
+        &["--b: only a viewer page"],
+        &not_a_page,
     );
 }

@@ -23,10 +23,12 @@ use gs_core::image::picture_size;
 use gs_core::image_loss::psnr;
 use gs_core::model::BaseModel;
 use gs_core::wide_pictures::{shrunk_size, AUTHORS_MAX_WIDTH};
-use gs_core::Image;
+use gs_core::{GaussianSet, Image};
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
+use gs_stylize::export::gaussians_at;
 use gs_stylize::rates::{gaussian_stylization, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
+use gs_stylize::viewer;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
     StylizeJob, StylizeOutcome,
@@ -204,6 +206,8 @@ pub fn run(
 pub struct PictureInput {
     picture: Image,
     label: String,
+    /// The model's Gaussians before stylizing (set when the job is made), for the viewer.
+    base: Option<GaussianSet>,
 }
 
 impl PictureInput {
@@ -337,7 +341,11 @@ impl Modality for PictureStylizeConfig {
             std::slice::from_ref(&picture),
             std::slice::from_ref(&label),
         )?;
-        Ok(PictureInput { picture, label })
+        Ok(PictureInput {
+            picture,
+            label,
+            base: None,
+        })
     }
 
     /// A MiraGe PLY, checked against the picture (a model of another size is refused; one of
@@ -406,7 +414,8 @@ impl Modality for PictureStylizeConfig {
         model: FlatGaussians,
         _run: &PreparedRun,
     ) -> Result<StylizeJob<FlatGaussians>, PictureStylizeError> {
-        let PictureInput { picture, label } = inputs;
+        inputs.base = Some(gaussians_at(&model, 0.0).map_err(StylizeError::Input)?);
+        let PictureInput { picture, label, .. } = inputs;
         let views = mirror_views(picture.width, picture.height, self.distance)
             .map_err(StylizeError::from)?;
         Ok(StylizeJob {
@@ -433,7 +442,7 @@ impl Modality for PictureStylizeConfig {
     ) -> Result<PictureSummary, PictureStylizeError> {
         let out = run.out();
         let fitted_to = inputs.fitted_to(self.distance);
-        let picture = inputs.picture;
+        let picture = inputs.picture.clone();
         let mut model = outcome.model;
         let stylized = self.front_view(&mut model, &picture, run)?;
         write_model(&out.join(MODEL_PLY), &model, &fitted_to)?;
@@ -444,6 +453,24 @@ impl Modality for PictureStylizeConfig {
         };
         save(&stylized, STYLIZED_PNG)?;
         save(&Image::side_by_side(&[&picture, &stylized]), PREVIEW_PNG)?;
+        if let Some(base) = &inputs.base {
+            let after = gaussians_at(&model, 0.0).map_err(StylizeError::Input)?;
+            let views = mirror_views(picture.width, picture.height, self.distance)
+                .map_err(StylizeError::from)?;
+            viewer::write_viewer(
+                &out.join(viewer::VIEWER_HTML),
+                &viewer::ViewerScene {
+                    title: format!("{}: {}", inputs.label, self.style.label()),
+                    base,
+                    stylized: Some(&after),
+                    cameras: vec![
+                        ("picture".into(), views[0].camera.clone()),
+                        ("mirror".into(), views[1].camera.clone()),
+                    ],
+                    background: self.background,
+                },
+            )?;
+        }
         if self.picture.is_none() {
             save(&picture, ORIGINAL_PNG)?;
         }

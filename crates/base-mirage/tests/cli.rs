@@ -151,6 +151,17 @@ fn fit_then_stylize_from_file_to_file() {
     assert_eq!(png_size(&sty.join("losses.png")).0, 640);
     let stylized = read_ply(&sty.join("model.ply")).unwrap();
     assert_eq!(stylized.gaussians.len(), 400, "the count never changes");
+    // The viewer: the fitted and the stylized Gaussians, the picture's camera and its mirror,
+    // over the run's background.
+    let page = std::fs::read_to_string(sty.join("viewer.html")).unwrap();
+    let start = page.find("id=\"scene\">").unwrap() + "id=\"scene\">".len();
+    let end = start + page[start..].find("</script>").unwrap();
+    let scene: serde_json::Value = serde_json::from_str(&page[start..end]).unwrap();
+    assert_eq!(scene["count"], 400);
+    assert_eq!(scene["models"].as_array().unwrap().len(), 2);
+    assert_eq!(scene["cameras"][1]["name"], "mirror");
+    assert_eq!(scene["cameras"][0]["width"], W);
+    assert_eq!(scene["background"], serde_json::json!([1.0, 1.0, 1.0]));
     assert_ne!(
         stylized.gaussians.sh_dc, base.gaussians.sh_dc,
         "colours changed"
@@ -821,6 +832,7 @@ fn stylize_help_lists_every_file_it_writes() {
         "stylized.png",
         "preview.png",
         "model.ply",
+        "viewer.html",
         "base.ply",
         "original.png",
         "losses.json",

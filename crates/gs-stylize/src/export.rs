@@ -3,7 +3,7 @@
 //! or time, or a folder of them for many.
 
 use std::error::Error;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use gs_core::model::{BaseModel, View};
 use gs_core::ply::PlyGaussians;
@@ -13,38 +13,74 @@ use gs_core::{Camera, GaussianSet};
 use crate::model_kind::{check_model, Binary};
 use crate::outputs::{create_folder, into_new_folder};
 use crate::progress::Progress;
+use crate::viewer::{write_viewer, ViewerScene};
 use crate::writable::{check_output_file, check_output_folder};
+
+/// What `export` writes: a splat file, or a viewer page.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ExportFormat {
+    /// A splat file of this format.
+    Splats(SplatFormat),
+    /// `viewer.html` (see [`crate::viewer`]).
+    Html,
+}
+
+impl ExportFormat {
+    /// The name on the command line: the splat format's, or `html`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Splats(format) => format.name(),
+            Self::Html => "html",
+        }
+    }
+
+    /// The format `--out`'s name ends in (`.html`, or a splat format's ending).
+    fn from_path(path: &Path) -> Option<Self> {
+        let html = path
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("html"));
+        if html {
+            return Some(Self::Html);
+        }
+        SplatFormat::from_path(path).map(Self::Splats)
+    }
+}
 
 /// Flags of `export`, the same in every binary.
 #[derive(clap::Args, Debug)]
 pub struct ExportArgs {
-    /// The model to export (the file the binary's other commands take as --model).
-    #[arg(long)]
+    /// The model to export (the file the binary's other commands take as --model; `--a` is
+    /// the same flag).
+    #[arg(long, visible_alias = "a")]
     pub model: PathBuf,
+    /// With --format html: a second model of the same Gaussians (a stylization of --model):
+    /// the page's style slider goes from --model (0) to it (1).
+    #[arg(long)]
+    pub b: Option<PathBuf>,
     /// Where to write: a file whose name ends in .ply, .compressed.ply, .splat, .spz, .glb or
-    /// .sog, or a SOG folder's meta.json (its pictures written beside it) (the ending picks the
-    /// format unless --format is given); a folder when several frames or times are exported,
-    /// one file each (00000.ply, 00001.ply, ...).
+    /// .sog, or a SOG folder's meta.json (its pictures written beside it), or .html (a viewer
+    /// page) (the ending picks the format unless --format is given); a folder when several
+    /// frames or times are exported, one file each (00000.ply, 00001.ply, ...).
     #[arg(long)]
     pub out: PathBuf,
     /// The format: ply (INRIA, exact), compressed-ply (SuperSplat), splat (antimatter15,
     /// degree-0 colour only), spz (Niantic, version 4), spz-v2 (for older SPZ readers), glb
-    /// (glTF with KHR_gaussian_splatting) or sog (PlayCanvas SOG). Default: from the ending of
-    /// --out; ply for a folder.
+    /// (glTF with KHR_gaussian_splatting), sog (PlayCanvas SOG) or html (a viewer page that
+    /// opens from disk in a browser). Default: from the ending of --out; ply for a folder.
     #[arg(long, value_parser = format_parser())]
-    pub format: Option<SplatFormat>,
+    pub format: Option<ExportFormat>,
 }
 
 impl ExportArgs {
     /// The format to write one file: `--format`, else the ending of `--out`; an error naming
     /// the flag when neither says one.
-    pub fn file_format(&self) -> Result<SplatFormat, Box<dyn Error>> {
+    pub fn file_format(&self) -> Result<ExportFormat, Box<dyn Error>> {
         match self.format {
             Some(format) => Ok(format),
-            None => SplatFormat::from_path(&self.out).ok_or_else(|| {
+            None => ExportFormat::from_path(&self.out).ok_or_else(|| {
                 format!(
-                    "--out {}: the name ends in no splat format (.ply, .compressed.ply, .splat, \
-                     .spz, .glb, .sog, meta.json); give --format",
+                    "--out {}: the name ends in no format (.ply, .compressed.ply, .splat, .spz, \
+                     .glb, .sog, meta.json, .html); give --format",
                     self.out.display()
                 )
                 .into()
@@ -52,27 +88,100 @@ impl ExportArgs {
         }
     }
 
-    /// The format of a folder's files: `--format`, else INRIA PLY.
-    fn folder_format(&self) -> SplatFormat {
-        self.format.unwrap_or(SplatFormat::Ply)
+    /// Whether `--out` is a viewer page.
+    pub fn is_html(&self) -> bool {
+        matches!(self.file_format(), Ok(ExportFormat::Html))
     }
 
-    /// Checks before any work that `--model` is a model of `binary` and that `--out` can be
-    /// written, as a file (`folder` false, its format known) or as a folder.
+    /// The format of a folder's files: `--format`, else INRIA PLY (a page is one file).
+    fn folder_format(&self) -> Result<SplatFormat, Box<dyn Error>> {
+        match self.format {
+            None => Ok(SplatFormat::Ply),
+            Some(ExportFormat::Splats(format)) => Ok(format),
+            Some(ExportFormat::Html) => {
+                Err("--format html writes one page: export one frame or time".into())
+            }
+        }
+    }
+
+    /// Checks before any work that `--model` (and `--b`) are models of `binary` and that
+    /// `--out` can be written, as a file (`folder` false, its format known) or as a folder.
     pub fn check(&self, binary: Binary, folder: bool) -> Result<(), Box<dyn Error>> {
         check_model(binary, "--model", &self.model)?;
+        if let Some(b) = &self.b {
+            check_model(binary, "--b", b)?;
+        }
         if folder {
+            self.folder_format()?;
             check_output_folder(&self.out)?;
         } else {
             self.file_format()?;
             check_output_file(&self.out)?;
         }
+        if self.b.is_some() && !self.is_html() {
+            return Err("--b: only a viewer page (--format html) shows two models".into());
+        }
         Ok(())
+    }
+
+    /// Writes the viewer page of `base` (and `stylized`, `--b`'s Gaussians, for the slider)
+    /// with `cameras` over `background` to `--out`; returns the line that says so. Models of
+    /// different Gaussians are refused naming both files.
+    pub fn write_html(
+        &self,
+        base: &GaussianSet,
+        stylized: Option<&GaussianSet>,
+        cameras: Vec<(String, Camera)>,
+        background: [f32; 3],
+    ) -> Result<String, Box<dyn Error>> {
+        if let (Some(b), Some(set)) = (&self.b, stylized) {
+            if (set.len(), set.sh_degree()) != (base.len(), base.sh_degree()) {
+                return Err(format!(
+                    "--b {}: {} Gaussians of SH degree {}, --model {} has {} of degree {}: the \
+                     slider blends two models of the same Gaussians (a model and its \
+                     stylization)",
+                    b.display(),
+                    set.len(),
+                    set.sh_degree(),
+                    self.model.display(),
+                    base.len(),
+                    base.sh_degree()
+                )
+                .into());
+            }
+        }
+        let title = match &self.b {
+            Some(b) => format!("{} to {}", self.model.display(), b.display()),
+            None => self.model.display().to_string(),
+        };
+        let views = cameras.len();
+        write_viewer(
+            &self.out,
+            &ViewerScene {
+                title,
+                base,
+                stylized,
+                cameras,
+                background,
+            },
+        )?;
+        Ok(format!(
+            "wrote {} (a viewer of {} Gaussians{}, {views} camera(s))",
+            self.out.display(),
+            base.len(),
+            if stylized.is_some() {
+                " and their stylization"
+            } else {
+                ""
+            }
+        ))
     }
 
     /// Writes `ply` to `--out` in its format and returns the line that says so.
     pub fn write_file(&self, ply: &PlyGaussians) -> Result<String, Box<dyn Error>> {
-        let format = self.file_format()?;
+        let ExportFormat::Splats(format) = self.file_format()? else {
+            return Err("--format html: this binary writes no viewer page yet".into());
+        };
         write_splats(&self.out, ply, format)?;
         Ok(format!(
             "wrote {} ({} Gaussians, {})",
@@ -97,7 +206,7 @@ impl ExportArgs {
             let &time = times.first().ok_or("no time to export")?;
             return self.write_file(&PlyGaussians::without_normals(gaussians_at(model, time)?));
         }
-        let format = self.folder_format();
+        let format = self.folder_format()?;
         let progress = Progress::new(times.len() > 1, "export", times.len() as u64, 0);
         let written = into_new_folder(&self.out, || {
             create_folder(&self.out)?;
@@ -125,11 +234,20 @@ impl ExportArgs {
     }
 }
 
-/// `--format`'s values: the names of [`SplatFormat::ALL`], listed in `--help`.
-fn format_parser() -> impl clap::builder::TypedValueParser<Value = SplatFormat> {
+/// `--format`'s values: the names of [`SplatFormat::ALL`] and `html`, listed in `--help`.
+fn format_parser() -> impl clap::builder::TypedValueParser<Value = ExportFormat> {
     use clap::builder::TypedValueParser;
-    clap::builder::PossibleValuesParser::new(SplatFormat::ALL.map(SplatFormat::name))
-        .map(|name| SplatFormat::from_name(&name).expect("a name of SplatFormat::ALL"))
+    let names: Vec<&str> = SplatFormat::ALL
+        .map(SplatFormat::name)
+        .into_iter()
+        .chain(["html"])
+        .collect();
+    clap::builder::PossibleValuesParser::new(names).map(|name| match name.as_str() {
+        "html" => ExportFormat::Html,
+        name => {
+            ExportFormat::Splats(SplatFormat::from_name(name).expect("a name of SplatFormat::ALL"))
+        }
+    })
 }
 
 /// The Gaussians `model` renders at `time` (its forward at a view of that time; the camera of
@@ -150,6 +268,7 @@ mod tests {
     fn args(out: PathBuf) -> ExportArgs {
         ExportArgs {
             model: PathBuf::from("model.ply"),
+            b: None,
             out,
             format: None,
         }

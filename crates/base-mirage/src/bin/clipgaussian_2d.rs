@@ -23,6 +23,7 @@ use base_mirage::picture::load_picture;
 use base_mirage::stylize::{run, PictureStylizeConfig, PREVIEW_PNG, STYLIZED_PNG};
 use clap::{Args, Subcommand};
 use gs_core::image_loss::psnr;
+use gs_core::mirror_pair::plane_camera;
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_core::Image;
 use gs_stylize::background::parse_background;
@@ -30,7 +31,7 @@ use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
-use gs_stylize::export::ExportArgs;
+use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
 use gs_stylize::writable::check_output_file;
@@ -45,6 +46,7 @@ use serde::Serialize;
 /// paper's 2D settings (configs/2d.json). A --model given without --picture is stylized
 /// alone: the picture is its own render, at the size it records. Writes to --out:
 /// stylized.png (the size of the picture), preview.png (original | stylized), model.ply (the
+/// stylized model), viewer.html (both in a browser, with a slider from the fit to the
 /// stylized model),
 /// base.ply and fit_psnr.png (the fit and its PSNR per step, when this run fitted),
 /// original.png (the embedded default picture or the model's own render, when no --picture
@@ -383,7 +385,32 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     args.check(Binary::Picture, false)?;
     let file = read_model(&args.model)?;
-    println!("{}", args.write_at(&file.model, &[0.0], false)?);
+    if !args.is_html() {
+        println!("{}", args.write_at(&file.model, &[0.0], false)?);
+        return Ok(());
+    }
+    // The page shows the picture's camera and its mirror, as the model was fitted.
+    let fitted = file.fitted_to.ok_or_else(|| {
+        format!(
+            "{}: the model records no picture size (a MiraGe PLY, not one of ours), so the \
+             page has no camera; export it with `render` instead",
+            args.model.display()
+        )
+    })?;
+    let camera = |mirrored| plane_camera(fitted.width, fitted.height, fitted.distance, mirrored);
+    let cameras = vec![
+        ("picture".to_string(), camera(false)?),
+        ("mirror".to_string(), camera(true)?),
+    ];
+    let stylized = match &args.b {
+        Some(b) => Some(gaussians_at(&read_model(b)?.model, 0.0)?),
+        None => None,
+    };
+    let base = gaussians_at(&file.model, 0.0)?;
+    println!(
+        "{}",
+        args.write_html(&base, stylized.as_ref(), cameras, [1.0; 3])?
+    );
     Ok(())
 }
 
