@@ -447,6 +447,14 @@ fn resuming_from_step_10_ends_where_an_uninterrupted_run_ends() {
     assert!(e.to_string().contains("--resume"), "{e}");
     assert_eq!(checkpoint::load(&out).unwrap().step, 1);
     assert!(!out.join("model.ply").exists());
+    // The live preview (every 5 % of 20 steps: each step) was written before the stop: the
+    // first view's picture | its render, and the losses so far.
+    let preview = image::open(out.join("preview.png")).unwrap();
+    assert_eq!((preview.width(), preview.height()), (2 * SIZE, SIZE));
+    let so_far: Vec<serde_json::Value> =
+        serde_json::from_str(&std::fs::read_to_string(out.join("losses.json")).unwrap()).unwrap();
+    assert_eq!(so_far.len(), 1);
+    assert!(out.join("losses.png").is_file());
     let e = run(&stopped, &quiet()).unwrap_err().to_string();
     assert!(
         e.contains("unfinished run") && e.contains("--resume"),

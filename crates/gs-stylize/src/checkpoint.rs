@@ -38,9 +38,10 @@ const PARAMS_VERSION: u32 = 1;
 /// trajectory of the parameters (`device` only within float rounding: a checkpoint of either
 /// device resumes on the other). `out` (the output folder, which holds the checkpoint, may be
 /// spelled differently) and `preview_views` are the modalities' names of those fields.
-pub const RESUMABLE_CHANGES: [&str; 6] = [
+pub const RESUMABLE_CHANGES: [&str; 7] = [
     "steps",
     "checkpoint_every",
+    "preview_every",
     "preview_views",
     "out",
     "device",

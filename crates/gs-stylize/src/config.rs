@@ -61,6 +61,11 @@ pub struct StyleSettings {
     pub distortion_scale: f64,
     /// Save a checkpoint every this many steps (0: never).
     pub checkpoint_every: u64,
+    /// Refresh `preview.png` (the first view's picture | its render now) and `losses.png` /
+    /// `losses.json` during the run every this many steps, so a long run can be watched
+    /// (0: only at the end); none: every 5 % of the steps or every 60 seconds, whichever
+    /// comes first.
+    pub preview_every: Option<u64>,
     /// CLIP's `config.json` (`transformers` layout); none: ViT-B/32.
     pub clip_config: Option<PathBuf>,
     /// CLIP weights; none: `$CLIPGAUSSIAN_CLIP_B32_WEIGHTS`, then the Hugging Face cache.
@@ -119,6 +124,7 @@ impl StyleSettings {
             num_patches: 64,
             distortion_scale: 0.5,
             checkpoint_every: 500,
+            preview_every: None,
             clip_config: None,
             clip_weights: None,
             tokenizer: None,

@@ -3,8 +3,10 @@
 //! optimizer, resumes or refuses an earlier run's checkpoint, then (and only then) creates the
 //! output folder and runs the steps, a plain loop: one step (render, the style loss and its
 //! image gradient, backward, Adam: `Trainer::step`), its losses shown and logged, a checkpoint
-//! when due, a stop after Ctrl-C; then it writes the loss log and plot.
+//! when due, the live preview when due, a stop after Ctrl-C; then it writes the loss log and
+//! plot.
 
+use std::path::Path;
 use std::sync::atomic::Ordering;
 
 use gs_core::adam::{AdamHyper, GroupConfig};
@@ -20,7 +22,8 @@ use style_loss::{CacheBudget, LossWeights, PatchSettings, StyleLoss, StyleObject
 use crate::checkpoint::{self, changed_fields, restore_params, Checkpoint, ParamGroup};
 use crate::memory_estimate::{check_memory, machine_memory, MemoryEstimate};
 use crate::outputs::{
-    create_folder, write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG, VIEW_CACHE_DIR,
+    create_folder, write_json, StepLosses, CONFIG_JSON, LOSSES_JSON, LOSSES_PNG, PREVIEW_PNG,
+    VIEW_CACHE_DIR,
 };
 use crate::plot::write_loss_plot;
 use crate::prepare::{PreparedRun, StyleModels};
@@ -218,6 +221,8 @@ impl PreparedRun {
         );
         let every = settings.checkpoint_every;
         let mut saved_at = trainer.step_count();
+        let mut live =
+            LivePreview::new(settings.preview_every, settings.steps, trainer.step_count());
         let save = |trainer: &mut Trainer<M>, objective: &StyleObjective, losses: &[StepLosses]| {
             let params = names
                 .iter()
@@ -245,6 +250,11 @@ impl PreparedRun {
             let step = StepLosses::from_report(&report);
             progress.update(report.step, &describe(&step));
             losses.push(step);
+            // The live preview: the first view's picture | its render now, and the losses.
+            if report.step < settings.steps && live.due(report.step) {
+                let now = trainer.render(&views[0], background)?;
+                write_live_preview(out, &images[0], &now, &losses)?;
+            }
             // Checkpoints, and Ctrl-C: a checkpoint of this step, then stop.
             let stopped = options.stop.load(Ordering::SeqCst) && report.step < settings.steps;
             if stopped || report.step.checked_rem(every) == Some(0) {
@@ -274,6 +284,59 @@ impl PreparedRun {
             losses,
         })
     }
+}
+
+/// When a run refreshes its live preview: every `every` steps, or (unset) every 5 % of the
+/// steps or [`LIVE_PREVIEW_SECONDS`], whichever comes first.
+struct LivePreview {
+    every: Option<u64>,
+    steps: u64,
+    last_step: u64,
+    last_time: std::time::Instant,
+}
+
+/// The longest a run goes without refreshing its live preview (unless `preview_every` is set).
+const LIVE_PREVIEW_SECONDS: u64 = 60;
+
+impl LivePreview {
+    fn new(every: Option<u64>, steps: u64, start: u64) -> Self {
+        Self {
+            every,
+            steps,
+            last_step: start,
+            last_time: std::time::Instant::now(),
+        }
+    }
+
+    /// Whether the preview is due after `step`; if so, the schedule restarts from it.
+    fn due(&mut self, step: u64) -> bool {
+        let due = match self.every {
+            Some(0) => false,
+            Some(k) => step.is_multiple_of(k),
+            None => {
+                step - self.last_step >= (self.steps / 20).max(1)
+                    || self.last_time.elapsed().as_secs() >= LIVE_PREVIEW_SECONDS
+            }
+        };
+        if due {
+            self.last_step = step;
+            self.last_time = std::time::Instant::now();
+        }
+        due
+    }
+}
+
+/// Writes the live preview into `out`: `preview.png` (`picture` | `now`), and the losses so far
+/// (`losses.json`, `losses.png`); the run's own outputs replace them at its end.
+fn write_live_preview(
+    out: &Path,
+    picture: &Image,
+    now: &Image,
+    losses: &[StepLosses],
+) -> Result<(), StylizeError> {
+    Image::side_by_side(&[picture, now]).save_png(&out.join(PREVIEW_PNG))?;
+    write_json(&out.join(LOSSES_JSON), &losses)?;
+    write_loss_plot(&out.join(LOSSES_PNG), losses)
 }
 
 /// Checks that the job's lists agree, that its optimizer groups match the model's, and that
@@ -380,4 +443,25 @@ fn build_loss(
         StyleLoss::new(clip, vgg, direction, weights, patches)?,
         masks,
     ))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_live_preview_is_due_on_its_schedule() {
+        let due = |every: Option<u64>, steps: u64| -> Vec<u64> {
+            let mut live = LivePreview::new(every, steps, 0);
+            (1..=steps).filter(|&s| live.due(s)).collect()
+        };
+        assert_eq!(due(Some(0), 10), Vec::<u64>::new());
+        assert_eq!(due(Some(3), 10), [3, 6, 9]);
+        // Unset: every 5 % of the steps (at least every step), the minute not yet reached.
+        assert_eq!(due(None, 100), (1..=20).map(|k| 5 * k).collect::<Vec<_>>());
+        assert_eq!(due(None, 7), (1..=7).collect::<Vec<_>>());
+        // A resumed run counts from where it starts.
+        let mut live = LivePreview::new(None, 100, 42);
+        assert!(!live.due(43) && live.due(47));
+    }
 }

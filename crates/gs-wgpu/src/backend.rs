@@ -435,6 +435,18 @@ impl<M: GpuModel> Trainer<M> {
         }
     }
 
+    /// The image of `view` over `background` from the model as trained so far (for a run's
+    /// live preview, between steps), as [`ModelRenderer::render`] renders it.
+    pub fn render(&mut self, view: &View, background: [f32; 3]) -> Result<Image, RenderError> {
+        match &mut self.state {
+            State::Cpu(cpu) => {
+                let forward = cpu.model().forward(view).map_err(RenderError::Model)?;
+                Ok(gs_core::raster::render(&forward.gaussians, &view.camera, background).image)
+            }
+            State::Gpu(gpu) => gpu.render(view, background),
+        }
+    }
+
     /// The trained model (its parameters read back from a GPU).
     pub fn into_model(self) -> M {
         match self.state {

@@ -40,6 +40,30 @@ pub(crate) struct GpuTrainer<M> {
 }
 
 impl<M: GpuModel> GpuTrainer<M> {
+    /// The image of `view` over `background` from the parameters as they are now (between
+    /// steps; the step's scratch buffers are rebuilt by the next step).
+    pub(crate) fn render(
+        &mut self,
+        view: &gs_core::model::View,
+        background: [f32; 3],
+    ) -> Result<gs_core::Image, crate::backend::RenderError> {
+        let gaussians = crate::model::gaussians_for_view(
+            &mut self.model,
+            &self.ctx,
+            &self.params,
+            &mut self.scratch,
+            view,
+        )
+        .map_err(|e| match e.downcast::<GpuError>() {
+            Ok(gpu) => crate::backend::RenderError::from(*gpu),
+            Err(e) => crate::backend::RenderError::Model(e),
+        })?;
+        Ok(
+            crate::forward::render(&self.ctx, &gaussians, &view.camera, background)?
+                .image(&self.ctx),
+        )
+    }
+
     /// `model` uploaded to `ctx` with a fresh Adam over `groups`, one per parameter group in
     /// the model's order.
     pub(crate) fn new(
