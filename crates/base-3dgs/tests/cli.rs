@@ -883,12 +883,7 @@ fn export_writes_a_viewer_page_of_one_model_or_two() {
     let b = dir.path().join("b.ply");
     write_ply(&b, &stylized, PlyFormat::BinaryLittleEndian).unwrap();
     let n = stylized.gaussians.len();
-    let scene_of = |page: &Path| -> serde_json::Value {
-        let page = std::fs::read_to_string(page).unwrap();
-        let start = page.find("id=\"scene\">").unwrap() + "id=\"scene\">".len();
-        let end = start + page[start..].find("</script>").unwrap();
-        serde_json::from_str(&page[start..end]).unwrap()
-    };
+    let scene_of = |page: &Path| gs_stylize::viewer::read_scene(page).unwrap();
     let one = dir.path().join("one.html");
     let line = succeeds(&["export", "--model", s(&a), "--out", s(&one)]);
     assert!(

@@ -221,10 +221,7 @@ fn a_run_from_files_writes_every_output_and_lowers_the_loss() {
     }
     assert!(!out.join("preview_view000.png").exists());
     // The viewer holds both models (the slider's ends) and every training camera.
-    let page = std::fs::read_to_string(out.join("viewer.html")).unwrap();
-    let start = page.find("id=\"scene\">").unwrap() + "id=\"scene\">".len();
-    let end = start + page[start..].find("</script>").unwrap();
-    let scene: serde_json::Value = serde_json::from_str(&page[start..end]).unwrap();
+    let scene = gs_stylize::viewer::read_scene(&out.join("viewer.html")).unwrap();
     let stylized_ply = gs_core::ply::read_ply(&out.join("model.ply")).unwrap();
     assert_eq!(scene["count"], stylized_ply.gaussians.len());
     assert_eq!(scene["models"].as_array().unwrap().len(), 2);

@@ -153,10 +153,7 @@ fn fit_then_stylize_from_file_to_file() {
     assert_eq!(stylized.gaussians.len(), 400, "the count never changes");
     // The viewer: the fitted and the stylized Gaussians, the picture's camera and its mirror,
     // over the run's background.
-    let page = std::fs::read_to_string(sty.join("viewer.html")).unwrap();
-    let start = page.find("id=\"scene\">").unwrap() + "id=\"scene\">".len();
-    let end = start + page[start..].find("</script>").unwrap();
-    let scene: serde_json::Value = serde_json::from_str(&page[start..end]).unwrap();
+    let scene = gs_stylize::viewer::read_scene(&sty.join("viewer.html")).unwrap();
     assert_eq!(scene["count"], 400);
     assert_eq!(scene["models"].as_array().unwrap().len(), 2);
     assert_eq!(scene["cameras"][1]["name"], "mirror");

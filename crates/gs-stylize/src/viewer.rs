@@ -109,6 +109,21 @@ pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
     Ok(PAGE.replacen("/*SCENE*/", &text, 1))
 }
 
+/// The scene the viewer page at `path` holds (its JSON block), as [`viewer_page`] wrote it.
+pub fn read_scene(path: &Path) -> Result<serde_json::Value, String> {
+    let page = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
+    let opening = "<script type=\"application/json\" id=\"scene\">";
+    let start = page
+        .find(opening)
+        .map(|at| at + opening.len())
+        .ok_or_else(|| format!("{}: not a viewer page (no scene block)", path.display()))?;
+    let end = page[start..]
+        .find("</script>")
+        .map(|len| start + len)
+        .ok_or_else(|| format!("{}: the scene block does not end", path.display()))?;
+    serde_json::from_str(&page[start..end]).map_err(|e| format!("{}: {e}", path.display()))
+}
+
 /// One model's arrays for the page; with `align_to`, its quaternions each turned to the
 /// hemisphere of the one they blend with (the same rotation; `interpolate`'s rule).
 fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value {
@@ -214,6 +229,13 @@ mod tests {
         };
         let page = viewer_page(&scene).unwrap();
         assert!(!page.contains("/*SCENE*/"));
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("viewer.html");
+        std::fs::write(&path, &page).unwrap();
+        let read = read_scene(&path).unwrap();
+        assert_eq!(read["title"], "a </script> title");
+        assert_eq!(read["count"], 3);
+        assert_eq!(read["models"][1]["means"], base64_f32(&set.means));
         assert!(page.contains("a <\\/script> title"));
         assert_eq!(page.matches("</script>").count(), 2, "only the page's own");
         let other = GaussianSet::zeros(4, 1);
