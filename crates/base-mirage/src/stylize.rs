@@ -461,8 +461,10 @@ impl Modality for PictureStylizeConfig {
                 &out.join(viewer::VIEWER_HTML),
                 &viewer::ViewerScene {
                     title: format!("{}: {}", inputs.label, self.style.label()),
-                    base,
-                    stylized: Some(&after),
+                    shown: viewer::Shown::Still {
+                        base,
+                        stylized: Some(&after),
+                    },
                     cameras: vec![
                         ("picture".into(), views[0].camera.clone()),
                         ("mirror".into(), views[1].camera.clone()),

@@ -28,3 +28,4 @@ pub mod stylize;
 pub mod temporal;
 pub mod time;
 pub mod video_input;
+pub mod viewer;

@@ -17,7 +17,7 @@
 
 use std::path::{Path, PathBuf};
 
-use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_core::mirror_pair::{plane_camera, DEFAULT_DISTANCE};
 use gs_core::model::BaseModel;
 use gs_core::Image;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
@@ -25,6 +25,7 @@ use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
+use gs_stylize::viewer;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
     StylizeJob, StylizeOutcome,
@@ -510,6 +511,33 @@ impl Modality for VideoStylizeConfig {
         write_pair(&out.join(PREVIEW_PNG), &video.frames[0], &stylized[0])?;
         write_preview_gif(&out.join(PREVIEW_GIF), &video.frames, &stylized, video.fps)?;
         let wrote_mp4 = write_mp4_or_warn(&frames_dir, video.fps, &out.join(STYLIZED_MP4));
+        // The viewer: the base model (the one given, or this run's fit) and the stylized one,
+        // played frame by frame in the page.
+        let count = model.params().len();
+        if count <= viewer::MAX_GAUSSIANS {
+            let base_path = self.model.clone().unwrap_or_else(|| out.join(BASE_PLY));
+            let (base, _) = read_model(&base_path)?;
+            let camera = plane_camera(w, h, self.distance, false).map_err(StylizeError::from)?;
+            viewer::write_viewer(
+                &out.join(viewer::VIEWER_HTML),
+                &viewer::ViewerScene {
+                    title: format!(
+                        "{}: {}",
+                        self.video.as_deref().unwrap_or(&base_path).display(),
+                        self.style.label()
+                    ),
+                    shown: viewer::Shown::Animated(crate::viewer::animation(&base, Some(&model))),
+                    cameras: vec![("frame".into(), camera)],
+                    background: self.background,
+                },
+            )?;
+        } else if run.options().progress {
+            eprintln!(
+                "{}: not written for {count} Gaussians (a viewer holds at most {} for now)",
+                viewer::VIEWER_HTML,
+                viewer::MAX_GAUSSIANS
+            );
+        }
         Ok(VideoSummary {
             model,
             frames: stylized,

@@ -115,12 +115,18 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         "preview.gif",
         "preview.png",
         "model.ply",
+        "viewer.html",
         "losses.json",
         "losses.png",
         "config.json",
     ] {
         assert!(styled.join(name).is_file(), "{name}");
     }
+    // The viewer plays the fit (slider 0) and the stylized model (1) frame by frame.
+    let scene = gs_stylize::viewer::read_scene(&styled.join("viewer.html")).unwrap();
+    assert_eq!(scene["animation"]["frames"], FRAMES);
+    assert_eq!(scene["animation"]["models"].as_array().unwrap().len(), 2);
+    assert_eq!(scene["cameras"][0]["width"], W);
     let (base, _) = read_model(&fitted.join("model.ply")).unwrap();
     let (stylized, record) = read_model(&styled.join("model.ply")).unwrap();
     assert_eq!(
@@ -151,6 +157,27 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         let set = gs_core::splats::read_splats(&path).unwrap().gaussians;
         assert_eq!(set.len(), at(f).len(), "{}", path.display());
     }
+    // A page of the fit and its stylization; a page of every frame is one page, not a folder.
+    let page = dir.path().join("video.html");
+    let said = run(bin()
+        .args(["export", "--model", s(&fitted.join("model.ply"))])
+        .args(["--b", s(&styled.join("model.ply")), "--out", s(&page)]));
+    let said = String::from_utf8_lossy(&said.stdout);
+    assert!(said.contains("and their stylization"), "{said}");
+    let scene = gs_stylize::viewer::read_scene(&page).unwrap();
+    assert_eq!(scene["animation"]["models"].as_array().unwrap().len(), 2);
+    let e = fails(
+        bin()
+            .args(["export", "--model", s(&styled.join("model.ply"))])
+            .args([
+                "--all-frames",
+                "--format",
+                "html",
+                "--out",
+                s(&dir.path().join("pages")),
+            ]),
+    );
+    assert!(e.contains("--format html writes one page"), "{e}");
     let e = fails(
         bin()
             .args(["export", "--model", s(&styled.join("model.ply"))])

@@ -5,7 +5,7 @@
 //! `cargo run --release -p gs-stylize --example viewer_timing -- <folder> [count ...]`
 
 use gs_core::{Camera, GaussianSet};
-use gs_stylize::viewer::{write_viewer, ViewerScene};
+use gs_stylize::viewer::{write_viewer, Shown, ViewerScene};
 use rand::{Rng, SeedableRng};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -41,8 +41,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             &path,
             &ViewerScene {
                 title: format!("{n} random Gaussians"),
-                base: &set,
-                stylized: Some(&stylized),
+                shown: Shown::Still {
+                    base: &set,
+                    stylized: Some(&stylized),
+                },
                 cameras: vec![("front".into(), camera.clone())],
                 background: [0.0; 3],
             },

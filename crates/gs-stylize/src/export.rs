@@ -13,7 +13,7 @@ use gs_core::{Camera, GaussianSet};
 use crate::model_kind::{check_model, Binary};
 use crate::outputs::{create_folder, into_new_folder};
 use crate::progress::Progress;
-use crate::viewer::{write_viewer, ViewerScene};
+use crate::viewer::{write_viewer, Shown, ViewerScene};
 use crate::writable::{check_output_file, check_output_folder};
 
 /// What `export` writes: a splat file, or a viewer page.
@@ -150,30 +150,48 @@ impl ExportArgs {
                 .into());
             }
         }
+        self.write_page(Shown::Still { base, stylized }, cameras, background)
+    }
+
+    /// Writes the viewer page of `shown` with `cameras` over `background` to `--out`; returns
+    /// the line that says so. An error of the page (models of other Gaussians) names `--model`
+    /// and `--b`.
+    pub fn write_page(
+        &self,
+        shown: Shown,
+        cameras: Vec<(String, Camera)>,
+        background: [f32; 3],
+    ) -> Result<String, Box<dyn Error>> {
         let title = match &self.b {
             Some(b) => format!("{} to {}", self.model.display(), b.display()),
             None => self.model.display().to_string(),
+        };
+        let (count, two) = match &shown {
+            Shown::Still { base, stylized } => (base.len(), stylized.is_some()),
+            Shown::Animated(a) => (a.count, a.models.len() > 1),
         };
         let views = cameras.len();
         write_viewer(
             &self.out,
             &ViewerScene {
                 title,
-                base,
-                stylized,
+                shown,
                 cameras,
                 background,
             },
-        )?;
+        )
+        .map_err(|e| match &self.b {
+            Some(b) => format!(
+                "--model {} and --b {}: {e}",
+                self.model.display(),
+                b.display()
+            ),
+            None => format!("--model {}: {e}", self.model.display()),
+        })?;
         Ok(format!(
-            "wrote {} (a viewer of {} Gaussians{}, {views} camera(s))",
+            "wrote {} (a viewer of {count} Gaussians{}, {views} camera(s))",
             self.out.display(),
-            base.len(),
-            if stylized.is_some() {
-                " and their stylization"
-            } else {
-                ""
-            }
+            if two { " and their stylization" } else { "" }
         ))
     }
 

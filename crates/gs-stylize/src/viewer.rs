@@ -26,14 +26,47 @@ pub const VIEWER_HTML: &str = "viewer.html";
 pub struct ViewerScene<'a> {
     /// The page's title line (the run, the style).
     pub title: String,
-    /// The Gaussians at slider 0 (the base model).
-    pub base: &'a GaussianSet,
-    /// The same Gaussians stylized, at slider 1; none: no slider.
-    pub stylized: Option<&'a GaussianSet>,
+    /// The Gaussians, still or animated.
+    pub shown: Shown<'a>,
     /// Cameras to jump between, with their names; the first is shown first.
     pub cameras: Vec<(String, Camera)>,
     /// The colour behind the Gaussians, linear RGB in `[0, 1]`.
     pub background: [f32; 3],
+}
+
+/// The Gaussians of a page.
+pub enum Shown<'a> {
+    /// The same Gaussians at every time: the base model (slider 0) and, for the slider, the
+    /// same Gaussians stylized (slider 1).
+    Still {
+        /// The base model's Gaussians.
+        base: &'a GaussianSet,
+        /// The stylized model's.
+        stylized: Option<&'a GaussianSet>,
+    },
+    /// Gaussians that change with time (a video's frames), made in the page.
+    Animated(Box<Animation>),
+}
+
+/// An animated scene: models' parameter groups and the modality's script that makes a frame's
+/// Gaussians from them (the page blends two models' groups linearly first, as `interpolate`
+/// blends two models of one modality).
+pub struct Animation {
+    /// JavaScript defining `frameAt(groups, frame)`: from a model's groups (by name, as
+    /// `Float32Array`s) the Gaussians of frame `frame` as `{means, quats, log_scales,
+    /// opacity_logits, sh}` `Float32Array`s of all `count` Gaussians in [`GaussianSet`]'s layout
+    /// (`sh` all coefficients of a Gaussian together), those not drawn with a zero quaternion.
+    pub script: &'static str,
+    /// Each model's groups, `(name, values)`: the base model's, then the stylized one's.
+    pub models: Vec<Vec<(String, Vec<f32>)>>,
+    /// Frames of the time slider (`frameAt`'s `frame` is `0..frames`).
+    pub frames: usize,
+    /// Gaussians of a frame (drawn or not).
+    pub count: usize,
+    /// SH degree of a frame's Gaussians.
+    pub degree: usize,
+    /// The frame the pivot is found in, as gs-core Gaussians (those drawn).
+    pub first: GaussianSet,
 }
 
 /// The most Gaussians a page holds for now (as 32-bit floats, about 630 bytes a Gaussian with
@@ -65,48 +98,79 @@ pub fn named_cameras(views: &[gs_core::model::View], labels: &[PathBuf]) -> Vec<
 
 /// The page of `scene`.
 pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
-    let base = scene.base;
     if scene.cameras.is_empty() {
         return Err("a viewer needs at least one camera".into());
     }
-    let mut models = vec![model_json(base, None)];
-    if let Some(stylized) = scene.stylized {
-        if (stylized.len(), stylized.sh_degree()) != (base.len(), base.sh_degree()) {
-            return Err(format!(
-                "the stylized model has {} Gaussians of SH degree {}, the base {} of degree {}: \
-                 a viewer's slider blends the same Gaussians",
-                stylized.len(),
-                stylized.sh_degree(),
-                base.len(),
-                base.sh_degree()
-            ));
-        }
-        models.push(model_json(stylized, Some(&base.quats)));
-    }
-    let cameras: Vec<_> = scene
-        .cameras
-        .iter()
-        .map(|(name, c)| {
-            json!({
-                "name": name, "rotation": c.rotation, "translation": c.translation,
-                "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
-                "width": c.width, "height": c.height,
-            })
-        })
-        .collect();
     let first = &scene.cameras[0].1;
-    let json = json!({
+    let mut json = json!({
         "title": scene.title,
-        "count": base.len(),
-        "degree": base.sh_degree(),
-        "models": models,
-        "cameras": cameras,
+        "cameras": scene.cameras.iter().map(|(name, c)| json!({
+            "name": name, "rotation": c.rotation, "translation": c.translation,
+            "fx": c.fx, "fy": c.fy, "cx": c.cx, "cy": c.cy,
+            "width": c.width, "height": c.height,
+        })).collect::<Vec<_>>(),
         "background": scene.background,
-        "pivot_distance": pivot_distance(base, first),
     });
+    let mut script = "";
+    match &scene.shown {
+        Shown::Still { base, stylized } => {
+            let mut models = vec![model_json(base, None)];
+            if let Some(stylized) = stylized {
+                if (stylized.len(), stylized.sh_degree()) != (base.len(), base.sh_degree()) {
+                    return Err(format!(
+                        "the stylized model has {} Gaussians of SH degree {}, the base {} of \
+                         degree {}: a viewer's slider blends the same Gaussians",
+                        stylized.len(),
+                        stylized.sh_degree(),
+                        base.len(),
+                        base.sh_degree()
+                    ));
+                }
+                models.push(model_json(stylized, Some(&base.quats)));
+            }
+            json["count"] = base.len().into();
+            json["degree"] = base.sh_degree().into();
+            json["models"] = models.into();
+            json["pivot_distance"] = pivot_distance(base, first).into();
+        }
+        Shown::Animated(animation) => {
+            let shapes: Vec<Vec<(&str, usize)>> = animation
+                .models
+                .iter()
+                .map(|m| m.iter().map(|(name, v)| (name.as_str(), v.len())).collect())
+                .collect();
+            if shapes.windows(2).any(|w| w[0] != w[1]) {
+                return Err(
+                    "the stylized model's parameter groups differ from the base's: a viewer's \
+                     slider blends two models of the same Gaussians"
+                        .into(),
+                );
+            }
+            let models: Vec<serde_json::Value> = animation
+                .models
+                .iter()
+                .map(|m| {
+                    m.iter()
+                        .map(|(name, values)| (name.clone(), base64_f32(values).into()))
+                        .collect::<serde_json::Map<_, _>>()
+                        .into()
+                })
+                .collect();
+            json["count"] = animation.count.into();
+            json["degree"] = animation.degree.into();
+            json["animation"] = json!({"frames": animation.frames, "models": models});
+            json["pivot_distance"] = pivot_distance(&animation.first, first).into();
+            script = animation.script;
+        }
+    }
     // In a <script> block "</" must not appear; "<\/" is the same JSON string.
     let text = json.to_string().replace("</", "<\\/");
-    Ok(PAGE.replacen("/*SCENE*/", &text, 1))
+    if script.contains("</") {
+        return Err("an animation script may not hold \"</\"".into());
+    }
+    Ok(PAGE
+        .replacen("/*SCENE*/", &text, 1)
+        .replacen("/*ANIMATION*/", script, 1))
 }
 
 /// The scene the viewer page at `path` holds (its JSON block), as [`viewer_page`] wrote it.
@@ -222,8 +286,10 @@ mod tests {
             Camera::look_at([0.0, 0.0, -3.0], [0.0; 3], [0.0, -1.0, 0.0], 1.0, 8, 6).unwrap();
         let scene = ViewerScene {
             title: "a </script> title".into(),
-            base: &set,
-            stylized: Some(&set),
+            shown: Shown::Still {
+                base: &set,
+                stylized: Some(&set),
+            },
             cameras: vec![("view 0".into(), camera.clone())],
             background: [1.0, 1.0, 1.0],
         };
@@ -237,10 +303,13 @@ mod tests {
         assert_eq!(read["count"], 3);
         assert_eq!(read["models"][1]["means"], base64_f32(&set.means));
         assert!(page.contains("a <\\/script> title"));
-        assert_eq!(page.matches("</script>").count(), 2, "only the page's own");
+        assert_eq!(page.matches("</script>").count(), 3, "only the page's own");
         let other = GaussianSet::zeros(4, 1);
         let e = viewer_page(&ViewerScene {
-            stylized: Some(&other),
+            shown: Shown::Still {
+                base: &set,
+                stylized: Some(&other),
+            },
             ..scene
         })
         .unwrap_err();

@@ -251,8 +251,10 @@ impl Modality for SceneStylizeConfig {
                 &out.join(viewer::VIEWER_HTML),
                 &viewer::ViewerScene {
                     title: format!("{}: {}", self.model_path().display(), self.style.label()),
-                    base: &base,
-                    stylized: Some(&stylized.gaussians),
+                    shown: viewer::Shown::Still {
+                        base: &base,
+                        stylized: Some(&stylized.gaussians),
+                    },
                     cameras: viewer::named_cameras(&dataset.views, &dataset.image_paths),
                     background: dataset.background,
                 },

@@ -17,8 +17,9 @@ use base_vegas::folded::{interpolate, view_time, FoldedGaussians};
 use base_vegas::model_file::{read_model, write_model, VideoRecord};
 use base_vegas::stylize::{run, VideoStylizeConfig, MODEL_PLY};
 use base_vegas::video_input::{load_video_with_progress, DEFAULT_FOLDER_FPS};
+use base_vegas::viewer::animation;
 use clap::{Args, Subcommand};
-use gs_core::mirror_pair::DEFAULT_DISTANCE;
+use gs_core::mirror_pair::{plane_camera, DEFAULT_DISTANCE};
 use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use gs_stylize::animation::{
     write_frames, write_frames_with, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF,
@@ -32,6 +33,7 @@ use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_json, write_pair, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
+use gs_stylize::viewer::Shown;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
@@ -46,7 +48,8 @@ use serde::Serialize;
 /// (the stylized frames, the size of the video), preview.png (the first frame, original | stylized), preview.gif (original |
 /// stylized, animated), stylized.mp4 (when ffmpeg is
 /// installed), model.ply (the stylized model), base.ply (the fit, when this run fitted),
-/// losses.json, losses.png, config.json and checkpoint/. The configuration comes from
+/// viewer.html (the video in a browser: a frame slider and a style slider from the fit to the
+/// stylized model), losses.json, losses.png, config.json and checkpoint/. The configuration comes from
 /// --config (the paper's defaults when absent), then the flags, then every --set
 /// field=value in order. Ctrl-C stops after the current step and writes a checkpoint; run
 /// the same command with --resume to continue.
@@ -398,7 +401,28 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 fn export(args: &VideoExportArgs) -> Result<(), Box<dyn Error>> {
     let export = &args.export;
     export.check(Binary::Video, args.all_frames)?;
-    let (model, _) = Video::read_model(&export.model)?;
+    let (model, record) = Video::read_model(&export.model)?;
+    if export.is_html() {
+        // The page plays every frame from the camera the video was fitted with.
+        let record = record.ok_or_else(|| {
+            format!(
+                "{}: the model records no frame size (a VeGaS PLY, not one of ours), so the \
+                 page has no camera; export frames instead",
+                export.model.display()
+            )
+        })?;
+        let stylized = match &export.b {
+            Some(b) => Some(Video::read_model(b)?.0),
+            None => None,
+        };
+        let camera = plane_camera(record.width, record.height, record.distance, false)?;
+        let shown = Shown::Animated(animation(&model, stylized.as_ref()));
+        println!(
+            "{}",
+            export.write_page(shown, vec![("frame".into(), camera)], [0.0; 3])?
+        );
+        return Ok(());
+    }
     let frames = model.frames();
     let chosen: Vec<usize> = if args.all_frames {
         (0..frames).collect()
