@@ -23,7 +23,7 @@ use gs_core::dataset::{Background, Dataset, DatasetError, ImageProgress, LoadOpt
 use gs_core::model::View;
 use gs_core::orbit::RobustBounds;
 use gs_core::sampler::BatchOrder;
-use gs_core::Image;
+use gs_core::{GaussianSet, Image};
 use gs_stylize::animation::{
     write_frames, write_mp4_or_warn, write_preview_gif, FRAMES_DIR, PREVIEW_GIF,
 };
@@ -34,6 +34,7 @@ use gs_stylize::outputs::{write_pair, PREVIEW_PNG};
 use gs_stylize::progress::with_loading_progress;
 use gs_stylize::rates::{GroupRate, GroupRates};
 use gs_stylize::stylize::check_patches_fit;
+use gs_stylize::viewer;
 use gs_stylize::{
     Batches, PreparedRun, RenderClamp, RunError, RunOptions, StyleSettings, StylizeError,
     StylizeJob, StylizeOutcome,
@@ -48,6 +49,10 @@ use crate::model_file::{self, read_authors, AuthorsFiles, DmisoFileError};
 pub const MODEL_FILE: &str = "model.safetensors";
 /// The model fitted by this run.
 pub const BASE_FILE: &str = "base.safetensors";
+
+/// The most times a run's viewer page holds (frames of its time slider).
+pub const VIEWER_TIMES: usize = 24;
+
 /// The frames of the sweep through time.
 pub const SWEEP_DIR: &str = "sweep";
 /// The sweep as a video, when `ffmpeg` is installed.
@@ -422,6 +427,60 @@ pub fn view_times(n: usize, times: Option<usize>) -> Result<Vec<f64>, DynamicSce
 }
 
 impl DynamicSceneStylizeConfig {
+    /// `viewer.html`: the base model (the one given, or this run's fit) and the stylized one at
+    /// up to [`VIEWER_TIMES`] times evenly spread over `[0, 1]` (fewer where the page would
+    /// hold more than [`viewer::MAX_GAUSSIANS`] Gaussians in all; none, said, where even one
+    /// time would), seen from the training cameras.
+    fn write_viewer(
+        &self,
+        out: &Path,
+        stylized: &Dmiso,
+        scene: &DynamicSceneInput,
+        run: &PreparedRun,
+    ) -> Result<(), DynamicSceneStylizeError> {
+        let count = gaussians_at(stylized, 0.0)
+            .map_err(StylizeError::Input)?
+            .len();
+        let times = (viewer::MAX_GAUSSIANS / count.max(1)).min(VIEWER_TIMES);
+        if times == 0 {
+            if run.options().progress {
+                eprintln!(
+                    "{}: not written for {count} Gaussians (a viewer holds at most {} for now)",
+                    viewer::VIEWER_HTML,
+                    viewer::MAX_GAUSSIANS
+                );
+            }
+            return Ok(());
+        }
+        let base_path = self.model.clone().unwrap_or_else(|| out.join(BASE_FILE));
+        let base = read_model(&base_path, self.iteration.as_deref(), run.loss_device())?;
+        let at = |m: &Dmiso| -> Result<Vec<GaussianSet>, StylizeError> {
+            (0..times)
+                .map(|k| {
+                    let t = if times > 1 {
+                        k as f64 / (times - 1) as f64
+                    } else {
+                        0.0
+                    };
+                    gaussians_at(m, t).map_err(StylizeError::Input)
+                })
+                .collect()
+        };
+        let (before, after) = (at(&base)?, at(stylized)?);
+        let animation =
+            viewer::Animation::snapshots(&before, Some(&after)).map_err(StylizeError::Input)?;
+        viewer::write_viewer(
+            &out.join(viewer::VIEWER_HTML),
+            &viewer::ViewerScene {
+                title: format!("{}: {}", base_path.display(), self.style.label()),
+                shown: viewer::Shown::Animated(animation),
+                cameras: viewer::named_cameras(&scene.train.views, &scene.train.image_paths),
+                background: scene.background.rgb(),
+            },
+        )?;
+        Ok(())
+    }
+
     /// The inputs of a run: its training views, each named by its picture, checked against
     /// the patch size and the batch size.
     fn scene_input(
@@ -739,6 +798,7 @@ impl Modality for DynamicSceneStylizeConfig {
             self.sweep_fps,
         )?;
         let wrote_mp4 = write_mp4_or_warn(&sweep_dir, self.sweep_fps, &out.join(SWEEP_MP4));
+        self.write_viewer(out, &model, &scene, run)?;
         Ok(DynamicSceneSummary {
             model,
             test_renders,

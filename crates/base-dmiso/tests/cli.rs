@@ -189,6 +189,24 @@ fn fit_stylize_interpolate_render_from_file_to_file() {
         serde_json::from_str(&std::fs::read_to_string(styled.join("losses.json")).unwrap())
             .unwrap();
     assert_eq!(losses.as_array().unwrap().len(), 3);
+    // The viewer: the fit and its stylization at 24 times, from the training cameras.
+    let scene = gs_stylize::viewer::read_scene(&styled.join("viewer.html")).unwrap();
+    assert_eq!(scene["animation"]["frames"], 24);
+    assert_eq!(scene["animation"]["models"].as_array().unwrap().len(), 2);
+    assert!(!scene["cameras"].as_array().unwrap().is_empty());
+    // And a page of the two by export: 5 times, an orbit of 16 views.
+    let page = dir.path().join("scene.html");
+    let said = run(bin()
+        .args(["export", "--model", s(&fitted.join("model.safetensors"))])
+        .args(["--b", s(&styled.join("model.safetensors"))])
+        .args(["--times", "5", "--out", s(&page)]));
+    let said = String::from_utf8_lossy(&said.stdout);
+    assert!(
+        said.contains("and their stylization, 16 camera(s)"),
+        "{said}"
+    );
+    let scene = gs_stylize::viewer::read_scene(&page).unwrap();
+    assert_eq!(scene["animation"]["frames"], 5);
 
     // Interpolation of the fit and its stylization: the Gaussians and the network's weights.
     let half = dir.path().join("half.safetensors");

@@ -198,7 +198,7 @@ impl ExportArgs {
     /// Writes `ply` to `--out` in its format and returns the line that says so.
     pub fn write_file(&self, ply: &PlyGaussians) -> Result<String, Box<dyn Error>> {
         let ExportFormat::Splats(format) = self.file_format()? else {
-            return Err("--format html: this binary writes no viewer page yet".into());
+            return Err("--format html writes a viewer page (write_html), not splats".into());
         };
         write_splats(&self.out, ply, format)?;
         Ok(format!(

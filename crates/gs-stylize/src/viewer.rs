@@ -69,6 +69,69 @@ pub struct Animation {
     pub first: GaussianSet,
 }
 
+/// The page's script of [`Animation::snapshots`].
+const SNAPSHOT_SCRIPT: &str = include_str!("viewer/snapshots.js");
+
+impl Animation {
+    /// Gaussians at a few times, a snapshot a frame of the page's time slider (for a model
+    /// whose Gaussians the page cannot make itself), with the same times of the stylized model
+    /// for the style slider (blended linearly in the page; each quaternion first turned to the
+    /// base's hemisphere, as `interpolate` does). Every snapshot must have the first's count and
+    /// SH degree.
+    pub fn snapshots(
+        base: &[GaussianSet],
+        stylized: Option<&[GaussianSet]>,
+    ) -> Result<Box<Self>, String> {
+        let first = base.first().ok_or("no snapshot to show")?;
+        let shape = (first.len(), first.sh_degree());
+        let all = base.iter().chain(stylized.into_iter().flatten());
+        if let Some(other) = all.clone().find(|s| (s.len(), s.sh_degree()) != shape) {
+            return Err(format!(
+                "snapshots of {} and {} Gaussians (SH degree {} and {}): a page's frames show \
+                 the same Gaussians",
+                shape.0,
+                other.len(),
+                shape.1,
+                other.sh_degree()
+            ));
+        }
+        if stylized.is_some_and(|s| s.len() != base.len()) {
+            return Err("the stylized model has another number of snapshots".into());
+        }
+        let groups = |sets: &[GaussianSet], align: Option<&[GaussianSet]>| {
+            let mut out: Vec<(String, Vec<f32>)> = Vec::new();
+            let gather = |f: &dyn Fn(usize, &GaussianSet) -> Vec<f32>| -> Vec<f32> {
+                sets.iter().enumerate().flat_map(|(k, s)| f(k, s)).collect()
+            };
+            out.push(("frames".into(), vec![sets.len() as f32]));
+            out.push(("means".into(), gather(&|_, s| s.means.clone())));
+            out.push((
+                "quats".into(),
+                gather(&|k, s| aligned_quats(&s.quats, align.map(|a| a[k].quats.as_slice()))),
+            ));
+            out.push(("log_scales".into(), gather(&|_, s| s.log_scales.clone())));
+            out.push((
+                "opacity_logits".into(),
+                gather(&|_, s| s.opacity_logits.clone()),
+            ));
+            out.push(("sh".into(), gather(&|_, s| s.sh())));
+            out
+        };
+        let mut models = vec![groups(base, None)];
+        if let Some(stylized) = stylized {
+            models.push(groups(stylized, Some(base)));
+        }
+        Ok(Box::new(Self {
+            script: SNAPSHOT_SCRIPT,
+            models,
+            frames: base.len(),
+            count: shape.0,
+            degree: shape.1,
+            first: first.clone(),
+        }))
+    }
+}
+
 /// The most Gaussians a page holds for now (as 32-bit floats, about 630 bytes a Gaussian with
 /// both models): a larger scene's run writes no viewer and says so.
 pub const MAX_GAUSSIANS: usize = 300_000;
@@ -188,10 +251,10 @@ pub fn read_scene(path: &Path) -> Result<serde_json::Value, String> {
     serde_json::from_str(&page[start..end]).map_err(|e| format!("{}: {e}", path.display()))
 }
 
-/// One model's arrays for the page; with `align_to`, its quaternions each turned to the
-/// hemisphere of the one they blend with (the same rotation; `interpolate`'s rule).
-fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value {
-    let mut quats = set.quats.clone();
+/// `quats`, each turned to the hemisphere of the one of `align_to` it blends with (the same
+/// rotation; `interpolate`'s rule).
+fn aligned_quats(quats: &[f32], align_to: Option<&[f32]>) -> Vec<f32> {
+    let mut quats = quats.to_vec();
     if let Some(other) = align_to {
         for (q, o) in quats.chunks_exact_mut(4).zip(other.chunks_exact(4)) {
             if q.iter().zip(o).map(|(a, b)| a * b).sum::<f32>() < 0.0 {
@@ -199,9 +262,15 @@ fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value 
             }
         }
     }
+    quats
+}
+
+/// One model's arrays for the page; with `align_to`, its quaternions turned as
+/// [`aligned_quats`] turns them.
+fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value {
     json!({
         "means": base64_f32(&set.means),
-        "quats": base64_f32(&quats),
+        "quats": base64_f32(&aligned_quats(&set.quats, align_to)),
         "log_scales": base64_f32(&set.log_scales),
         "opacity_logits": base64_f32(&set.opacity_logits),
         "sh": base64_f32(&set.sh()),

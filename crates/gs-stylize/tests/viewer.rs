@@ -12,7 +12,7 @@ mod browser;
 use std::sync::atomic::Ordering;
 
 use gs_core::{Camera, GaussianSet};
-use gs_stylize::viewer::{write_viewer, Shown, ViewerScene};
+use gs_stylize::viewer::{write_viewer, Animation, Shown, ViewerScene};
 use rand::{Rng, SeedableRng};
 
 /// A small scene of `n` Gaussians of SH degree 3 around the origin, from `seed`.
@@ -91,5 +91,80 @@ fn the_viewer_draws_what_gs_core_renders_at_every_slider_position() {
     assert!(
         page_requests.is_empty(),
         "the page made network requests: {page_requests:?}"
+    );
+}
+
+/// A page of snapshots (a dynamic scene's Gaussians at a few times): frame k at slider t draws
+/// gs-core's render of `interpolate`(base k, stylized k, t).
+#[test]
+fn a_page_of_snapshots_draws_each_time_as_gs_core_renders_it() {
+    let Some(chromium) = browser::chromium_or_skip() else {
+        return;
+    };
+    let base: Vec<GaussianSet> = (0..3)
+        .map(|k| {
+            let mut set = scene(250, 5);
+            set.means
+                .iter_mut()
+                .step_by(3)
+                .for_each(|x| *x += 0.3 * k as f32);
+            set
+        })
+        .collect();
+    let stylized: Vec<GaussianSet> = base
+        .iter()
+        .enumerate()
+        .map(|(k, b)| {
+            let mut s = scene(250, 10 + k as u64);
+            s.means.clone_from(&b.means);
+            s
+        })
+        .collect();
+    let background = [0.0f32, 0.0, 0.0];
+    let camera = Camera::look_at(
+        [0.0, -0.5, -4.0],
+        [0.3, 0.0, 0.0],
+        [0.0, -1.0, 0.0],
+        0.9,
+        160,
+        120,
+    )
+    .unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let page = dir.path().join("viewer.html");
+    write_viewer(
+        &page,
+        &ViewerScene {
+            title: "snapshots".into(),
+            shown: Shown::Animated(Animation::snapshots(&base, Some(&stylized)).unwrap()),
+            cameras: vec![("view 0".into(), camera.clone())],
+            background,
+        },
+    )
+    .unwrap();
+    let (port, requests, stop) = browser::proxy();
+    for (frame, t) in [(0usize, 0.0f32), (2, 1.0), (1, 0.5)] {
+        let blended = gs_core::interpolate::interpolate(&base[frame], &stylized[frame], t).unwrap();
+        let rendered = gs_core::raster::render(&blended, &camera, background);
+        let shot = browser::screenshot(
+            &chromium,
+            &page,
+            &format!("frame={frame}&t={t}&clean"),
+            (160, 120),
+            port,
+        );
+        let (psnr, pixels) = browser::psnr_over_model(&shot, &rendered.image, &rendered.alpha);
+        eprintln!("frame {frame}, slider {t}: {psnr:.1} dB over {pixels} pixels");
+        assert!(pixels > 2000, "{pixels} pixels");
+        assert!(psnr >= 30.0, "frame {frame}, slider {t}: {psnr:.1} dB");
+    }
+    stop.store(true, Ordering::SeqCst);
+    assert!(browser::page_requests(&requests).is_empty());
+    // Snapshots of other Gaussians are refused.
+    let other = vec![scene(10, 1)];
+    let e = Animation::snapshots(&base, Some(&other)).err().unwrap();
+    assert!(
+        e.contains("another number of snapshots") || e.contains("250 and 10"),
+        "{e}"
     );
 }

@@ -22,20 +22,23 @@ use base_dmiso::stylize::{
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
 use clap::{Args, Subcommand};
-use gs_core::dataset::nerf_synthetic::{default_render_split, load_with_times};
+use gs_core::dataset::nerf_synthetic::{default_render_split, load_with_times, TrainSplits};
 use gs_core::dataset::{Background, LoadOptions};
+use gs_core::orbit::RobustBounds;
+use gs_core::GaussianSet;
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::ModalityBinary;
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
-use gs_stylize::export::ExportArgs;
+use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::model_views::ModelViewFlags;
+use gs_stylize::model_views::{ModelViewFlags, ModelViews};
 use gs_stylize::outputs::{create_folder, into_new_folder, write_pair, PREVIEW_PNG};
 use gs_stylize::selftest::ExtraCheck;
 use gs_stylize::summary::write_summary;
+use gs_stylize::viewer::{Animation, Shown};
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_stylize::{open_device, resolve_config, Override};
 use gs_wgpu::backend::DeviceChoice;
@@ -51,8 +54,9 @@ use style_loss::compute_device;
 /// layer trained together. Writes to --out: model.safetensors, base.safetensors (the fit,
 /// when this run fitted), frames/ (the test views at their times), preview.png (the first
 /// sweep frame, original | stylized), sweep/ with preview.gif
-/// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), losses.json,
-/// losses.png, config.json and checkpoint/. The configuration comes from --config (the
+/// (original | stylized through time) and sweep.mp4 (when ffmpeg is installed), viewer.html
+/// (the scene in a browser at 24 times: a time slider and a style slider from the fit to the
+/// stylized model), losses.json, losses.png, config.json and checkpoint/. The configuration comes from --config (the
 /// paper's defaults when absent), then the flags, then every --set field=value in order.
 /// Ctrl-C stops after the current step and writes a checkpoint; run the same command with
 /// --resume to continue.
@@ -232,7 +236,8 @@ struct RenderArgs {
 /// The Gaussians the model renders at --time (in [0, 1]), written to --out in the format
 /// its name ends in (or --format); with --times N, the Gaussians at N evenly spaced times
 /// from 0 to 1, one file each, into the folder --out (00000.ply, ...; --format picks the
-/// format, default ply).
+/// format, default ply). A viewer page (--format html, or an .html name) holds the Gaussians at
+/// every one of those times (a time slider), and with --b those of its stylization.
 #[derive(Args, Debug)]
 struct DynamicSceneExportArgs {
     #[command(flatten)]
@@ -462,15 +467,55 @@ fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {
 /// Runs `export`.
 fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
     let export = &args.export;
-    export.check(Binary::DynamicScene, args.times.is_some())?;
+    export.check(
+        Binary::DynamicScene,
+        args.times.is_some() && !export.is_html(),
+    )?;
     let times: Vec<f64> = match args.times {
         Some(n) if n >= 2 => (0..n).map(|i| i as f64 / (n - 1) as f64).collect(),
         Some(n) => return Err(format!("--times {n}: give at least 2 (or --time for one)").into()),
         None if (0.0..=1.0).contains(&args.time) => vec![args.time],
         None => return Err(format!("--time {}: times lie in [0, 1]", args.time).into()),
     };
-    let (model, _) = DynamicScene::read_model(&export.model)?;
-    println!("{}", export.write_at(&model, &times, args.times.is_some())?);
+    let (model, recorded) = DynamicScene::read_model(&export.model)?;
+    if !export.is_html() {
+        println!("{}", export.write_at(&model, &times, args.times.is_some())?);
+        return Ok(());
+    }
+    // The page: the Gaussians at each time (a frame of its time slider), seen from the
+    // cameras.json of the model's folder or 16 views of an orbit made from them (up is +z).
+    let snapshots = |m: &Dmiso| -> Result<Vec<GaussianSet>, String> {
+        times.iter().map(|&t| gaussians_at(m, t)).collect()
+    };
+    let base = snapshots(&model)?;
+    let stylized = match &export.b {
+        Some(b) => Some(snapshots(&DynamicScene::read_model(b)?.0)?),
+        None => None,
+    };
+    let bounds =
+        RobustBounds::of(&base[0]).map_err(|e| format!("{}: {e}", export.model.display()))?;
+    let views = ModelViews {
+        orbit_views: 16,
+        up: [0.0, 0.0, 1.0],
+        ..ModelViews::default()
+    };
+    let (found, _) = views.views(
+        &export.model,
+        &bounds,
+        TrainSplits::default(),
+        &LoadOptions::default(),
+    )?;
+    let cameras = found
+        .into_iter()
+        .enumerate()
+        .map(|(i, v)| (format!("view {i}"), v.view.camera))
+        .collect();
+    let shown = Shown::Animated(
+        Animation::snapshots(&base, stylized.as_deref())
+            .map_err(|e| format!("--model {}: {e}", export.model.display()))?,
+    );
+    let background = background_of(None, recorded).rgb();
+    println!("{}", export.write_page(shown, cameras, background)?);
     Ok(())
 }
 
