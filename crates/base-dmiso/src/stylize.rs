@@ -429,7 +429,7 @@ pub fn view_times(n: usize, times: Option<usize>) -> Result<Vec<f64>, DynamicSce
 impl DynamicSceneStylizeConfig {
     /// `viewer.html`: the base model (the one given, or this run's fit) and the stylized one at
     /// up to [`VIEWER_TIMES`] times evenly spread over `[0, 1]` (fewer where the page would
-    /// hold more than [`viewer::MAX_GAUSSIANS`] Gaussians in all; none, said, where even one
+    /// hold more than [`viewer::MAX_ANIMATED_GAUSSIANS`] Gaussians in all; none, said, where even one
     /// time would), seen from the training cameras.
     fn write_viewer(
         &self,
@@ -441,13 +441,13 @@ impl DynamicSceneStylizeConfig {
         let count = gaussians_at(stylized, 0.0)
             .map_err(StylizeError::Input)?
             .len();
-        let times = (viewer::MAX_GAUSSIANS / count.max(1)).min(VIEWER_TIMES);
+        let times = (viewer::MAX_ANIMATED_GAUSSIANS / count.max(1)).min(VIEWER_TIMES);
         if times == 0 {
             if run.options().progress {
                 eprintln!(
                     "{}: not written for {count} Gaussians (a viewer holds at most {} for now)",
                     viewer::VIEWER_HTML,
-                    viewer::MAX_GAUSSIANS
+                    viewer::MAX_ANIMATED_GAUSSIANS
                 );
             }
             return Ok(());

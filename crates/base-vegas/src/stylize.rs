@@ -514,7 +514,7 @@ impl Modality for VideoStylizeConfig {
         // The viewer: the base model (the one given, or this run's fit) and the stylized one,
         // played frame by frame in the page.
         let count = model.params().len();
-        if count <= viewer::MAX_GAUSSIANS {
+        if count <= viewer::MAX_ANIMATED_GAUSSIANS {
             let base_path = self.model.clone().unwrap_or_else(|| out.join(BASE_PLY));
             let (base, _) = read_model(&base_path)?;
             let camera = plane_camera(w, h, self.distance, false).map_err(StylizeError::from)?;
@@ -535,7 +535,7 @@ impl Modality for VideoStylizeConfig {
             eprintln!(
                 "{}: not written for {count} Gaussians (a viewer holds at most {} for now)",
                 viewer::VIEWER_HTML,
-                viewer::MAX_GAUSSIANS
+                viewer::MAX_ANIMATED_GAUSSIANS
             );
         }
         Ok(VideoSummary {

@@ -13,6 +13,8 @@ use std::path::{Path, PathBuf};
 
 use crate::StylizeError;
 
+mod compact;
+
 use gs_core::{Camera, GaussianSet};
 use serde_json::json;
 
@@ -132,14 +134,36 @@ impl Animation {
     }
 }
 
-/// The most Gaussians a page holds for now (as 32-bit floats, about 630 bytes a Gaussian with
-/// both models): a larger scene's run writes no viewer and says so.
-pub const MAX_GAUSSIANS: usize = 300_000;
+/// The most Gaussians a still page holds (in the compact form above [`COMPACT_ABOVE`]: about
+/// 165 bytes a Gaussian with both models, 165 MB at this size): a larger scene's run writes no
+/// viewer and says so.
+pub const MAX_GAUSSIANS: usize = 1_000_000;
 
-/// Writes `scene`'s viewer to `path` (through a temporary name); an error names what cannot be
-/// shown (no camera, models of different Gaussians) or the file.
+/// Still pages of more Gaussians than this hold them in the compact form ([`compact`]); smaller
+/// ones hold every value as a 32-bit float (about 630 bytes a Gaussian with both models).
+pub const COMPACT_ABOVE: usize = 200_000;
+
+/// The most Gaussians an animated page holds (its models' parameters as 32-bit floats).
+pub const MAX_ANIMATED_GAUSSIANS: usize = 300_000;
+
+/// Writes `scene`'s viewer to `path` (through a temporary name), its Gaussians in the compact
+/// form when there are more than [`COMPACT_ABOVE`]; an error names what cannot be shown (no
+/// camera, models of different Gaussians) or the file.
 pub fn write_viewer(path: &Path, scene: &ViewerScene) -> Result<(), StylizeError> {
-    let page = viewer_page(scene).map_err(StylizeError::Input)?;
+    let compact = match &scene.shown {
+        Shown::Still { base, .. } => base.len() > COMPACT_ABOVE,
+        Shown::Animated(_) => false,
+    };
+    write_viewer_as(path, scene, compact)
+}
+
+/// [`write_viewer`], a still scene's Gaussians in the compact form or not as `compact` says.
+pub fn write_viewer_as(
+    path: &Path,
+    scene: &ViewerScene,
+    compact: bool,
+) -> Result<(), StylizeError> {
+    let page = viewer_page(scene, compact).map_err(StylizeError::Input)?;
     crate::outputs::write_atomic(path, page.as_bytes())
 }
 
@@ -159,8 +183,8 @@ pub fn named_cameras(views: &[gs_core::model::View], labels: &[PathBuf]) -> Vec<
         .collect()
 }
 
-/// The page of `scene`.
-pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
+/// The page of `scene`, a still scene's Gaussians in the compact form when `compact`.
+pub fn viewer_page(scene: &ViewerScene, compact: bool) -> Result<String, String> {
     if scene.cameras.is_empty() {
         return Err("a viewer needs at least one camera".into());
     }
@@ -177,7 +201,7 @@ pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
     let mut script = "";
     match &scene.shown {
         Shown::Still { base, stylized } => {
-            let mut models = vec![model_json(base, None)];
+            let mut models = vec![model_json(base, None, compact)];
             if let Some(stylized) = stylized {
                 if (stylized.len(), stylized.sh_degree()) != (base.len(), base.sh_degree()) {
                     return Err(format!(
@@ -189,7 +213,7 @@ pub fn viewer_page(scene: &ViewerScene) -> Result<String, String> {
                         base.sh_degree()
                     ));
                 }
-                models.push(model_json(stylized, Some(&base.quats)));
+                models.push(model_json(stylized, Some(&base.quats), compact));
             }
             json["count"] = base.len().into();
             json["degree"] = base.sh_degree().into();
@@ -265,12 +289,16 @@ fn aligned_quats(quats: &[f32], align_to: Option<&[f32]>) -> Vec<f32> {
     quats
 }
 
-/// One model's arrays for the page; with `align_to`, its quaternions turned as
-/// [`aligned_quats`] turns them.
-fn model_json(set: &GaussianSet, align_to: Option<&[f32]>) -> serde_json::Value {
+/// One model's arrays for the page (as floats, or in the compact form); with `align_to`, its
+/// quaternions turned as [`aligned_quats`] turns them.
+fn model_json(set: &GaussianSet, align_to: Option<&[f32]>, compact: bool) -> serde_json::Value {
+    let quats = aligned_quats(&set.quats, align_to);
+    if compact {
+        return compact::compact_json(set, &quats);
+    }
     json!({
         "means": base64_f32(&set.means),
-        "quats": base64_f32(&aligned_quats(&set.quats, align_to)),
+        "quats": base64_f32(&quats),
         "log_scales": base64_f32(&set.log_scales),
         "opacity_logits": base64_f32(&set.opacity_logits),
         "sh": base64_f32(&set.sh()),
@@ -362,7 +390,7 @@ mod tests {
             cameras: vec![("view 0".into(), camera.clone())],
             background: [1.0, 1.0, 1.0],
         };
-        let page = viewer_page(&scene).unwrap();
+        let page = viewer_page(&scene, false).unwrap();
         assert!(!page.contains("/*SCENE*/"));
         let dir = tempfile::tempdir().unwrap();
         let path = dir.path().join("viewer.html");
@@ -374,13 +402,16 @@ mod tests {
         assert!(page.contains("a <\\/script> title"));
         assert_eq!(page.matches("</script>").count(), 3, "only the page's own");
         let other = GaussianSet::zeros(4, 1);
-        let e = viewer_page(&ViewerScene {
-            shown: Shown::Still {
-                base: &set,
-                stylized: Some(&other),
+        let e = viewer_page(
+            &ViewerScene {
+                shown: Shown::Still {
+                    base: &set,
+                    stylized: Some(&other),
+                },
+                ..scene
             },
-            ..scene
-        })
+            true,
+        )
         .unwrap_err();
         assert!(e.contains("4 Gaussians") && e.contains("base 3"), "{e}");
     }

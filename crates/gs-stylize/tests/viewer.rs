@@ -12,7 +12,7 @@ mod browser;
 use std::sync::atomic::Ordering;
 
 use gs_core::{Camera, GaussianSet};
-use gs_stylize::viewer::{write_viewer, Animation, Shown, ViewerScene};
+use gs_stylize::viewer::{write_viewer, write_viewer_as, Animation, Shown, ViewerScene};
 use rand::{Rng, SeedableRng};
 
 /// A small scene of `n` Gaussians of SH degree 3 around the origin, from `seed`.
@@ -167,4 +167,58 @@ fn a_page_of_snapshots_draws_each_time_as_gs_core_renders_it() {
         e.contains("another number of snapshots") || e.contains("250 and 10"),
         "{e}"
     );
+}
+
+/// A page in the compact form (what scenes above `COMPACT_ABOVE` Gaussians get) still draws
+/// what gs-core renders of the unquantised models, within the format's quantisation.
+#[test]
+fn a_compact_page_draws_what_gs_core_renders_within_its_quantisation() {
+    let Some(chromium) = browser::chromium_or_skip() else {
+        return;
+    };
+    let base = scene(300, 1);
+    let mut stylized = scene(300, 2);
+    for (s, b) in stylized.means.iter_mut().zip(&base.means) {
+        *s = b + 0.1 * *s;
+    }
+    let background = [1.0f32, 1.0, 1.0];
+    let camera =
+        Camera::look_at([0.4, -0.6, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 160, 120).unwrap();
+    let dir = tempfile::tempdir().unwrap();
+    let (full, compact) = (
+        dir.path().join("full.html"),
+        dir.path().join("compact.html"),
+    );
+    let scene_of = || ViewerScene {
+        title: "compact".into(),
+        shown: Shown::Still {
+            base: &base,
+            stylized: Some(&stylized),
+        },
+        cameras: vec![("view 0".into(), camera.clone())],
+        background,
+    };
+    write_viewer_as(&full, &scene_of(), false).unwrap();
+    write_viewer_as(&compact, &scene_of(), true).unwrap();
+    let (full_size, compact_size) = (
+        std::fs::metadata(&full).unwrap().len(),
+        std::fs::metadata(&compact).unwrap().len(),
+    );
+    eprintln!("page: {full_size} bytes as floats, {compact_size} compact");
+    let (port, _, stop) = browser::proxy();
+    for t in [0.0f32, 1.0, 0.5] {
+        let blended = gs_core::interpolate::interpolate(&base, &stylized, t).unwrap();
+        let rendered = gs_core::raster::render(&blended, &camera, background);
+        let shot = browser::screenshot(
+            &chromium,
+            &compact,
+            &format!("camera=0&t={t}&clean"),
+            (160, 120),
+            port,
+        );
+        let (psnr, pixels) = browser::psnr_over_model(&shot, &rendered.image, &rendered.alpha);
+        eprintln!("compact, slider {t}: {psnr:.1} dB over {pixels} pixels");
+        assert!(psnr >= 30.0, "slider {t}: {psnr:.1} dB");
+    }
+    stop.store(true, Ordering::SeqCst);
 }

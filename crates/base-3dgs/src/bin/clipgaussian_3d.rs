@@ -43,7 +43,7 @@ use serde::Serialize;
 /// extra properties; also model.spz, model.splat, model.compressed.ply or model.glb when the
 /// input was one), preview.png (before | after of the first `preview_views` entry; the
 /// others preview_viewNNN.png), viewer.html (the scene in a browser, with a slider from the
-/// base model to the stylized one; up to 300,000 Gaussians), losses.json, losses.png,
+/// base model to the stylized one; up to 1,000,000 Gaussians), losses.json, losses.png,
 /// config.json (the resolved configuration) and checkpoint/. The configuration comes from `--config` (the paper's
 /// defaults when absent), then the flags, then every `--set field=value` in order. The
 /// output folder is checked before the scene is loaded. Ctrl-C stops after the current
