@@ -5,12 +5,16 @@
 use std::error::Error;
 use std::path::{Path, PathBuf};
 
+use gs_core::dataset::nerf_synthetic::TrainSplits;
+use gs_core::dataset::LoadOptions;
 use gs_core::model::{BaseModel, View};
+use gs_core::orbit::RobustBounds;
 use gs_core::ply::PlyGaussians;
 use gs_core::splats::{write_splats, SplatFormat};
 use gs_core::{Camera, GaussianSet};
 
 use crate::model_kind::{check_model, Binary};
+use crate::model_views::ModelViews;
 use crate::outputs::{create_folder, into_new_folder};
 use crate::progress::Progress;
 use crate::viewer::{write_viewer, Shown, ViewerScene};
@@ -122,6 +126,32 @@ impl ExportArgs {
             return Err("--b: only a viewer page (--format html) shows two models".into());
         }
         Ok(())
+    }
+
+    /// The cameras of a page of `--model` whose Gaussians are `set`: the cameras.json beside
+    /// the model (INRIA's layout), else 16 views of an orbit made from them with `up` upwards.
+    pub fn page_cameras(
+        &self,
+        set: &GaussianSet,
+        up: [f64; 3],
+    ) -> Result<Vec<(String, Camera)>, Box<dyn Error>> {
+        let bounds = RobustBounds::of(set).map_err(|e| format!("{}: {e}", self.model.display()))?;
+        let views = ModelViews {
+            orbit_views: 16,
+            up,
+            ..ModelViews::default()
+        };
+        let (found, _) = views.views(
+            &self.model,
+            &bounds,
+            TrainSplits::default(),
+            &LoadOptions::default(),
+        )?;
+        Ok(found
+            .into_iter()
+            .enumerate()
+            .map(|(i, v)| (format!("view {i}"), v.view.camera))
+            .collect())
     }
 
     /// Writes the viewer page of `base` (and `stylized`, `--b`'s Gaussians, for the slider)

@@ -11,13 +11,12 @@ use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use base_3dgs::dataset::nerf_synthetic::{Split, TrainSplits};
+use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
-use gs_core::orbit::RobustBounds;
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
@@ -25,7 +24,7 @@ use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::model_views::{ModelViewFlags, ModelViews};
+use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::open_device;
 use gs_stylize::outputs::into_new_folder;
 use gs_stylize::summary::write_summary;
@@ -257,24 +256,9 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
         println!("{}", args.write_file(&scene)?);
         return Ok(());
     }
-    // The page's cameras: a cameras.json beside the model, else 16 of an orbit made from it.
-    let bounds =
-        RobustBounds::of(&scene.gaussians).map_err(|e| format!("{}: {e}", args.model.display()))?;
-    let views = ModelViews {
-        orbit_views: 16,
-        ..ModelViews::default()
-    };
-    let (found, _) = views.views(
-        &args.model,
-        &bounds,
-        TrainSplits::default(),
-        &LoadOptions::default(),
-    )?;
-    let cameras = found
-        .into_iter()
-        .enumerate()
-        .map(|(i, v)| (format!("view {i}"), v.view.camera))
-        .collect();
+    // The page's cameras: a cameras.json beside the model, else 16 of an orbit made from it
+    // (3DGS's y-down frame).
+    let cameras = args.page_cameras(&scene.gaussians, [0.0, -1.0, 0.0])?;
     let stylized = match &args.b {
         Some(b) => Some(Scene::read_model(b)?.ply.gaussians),
         None => None,

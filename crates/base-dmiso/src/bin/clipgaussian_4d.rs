@@ -22,9 +22,8 @@ use base_dmiso::stylize::{
 use base_dmiso::{interpolate, Dmiso};
 use candle_core::Device;
 use clap::{Args, Subcommand};
-use gs_core::dataset::nerf_synthetic::{default_render_split, load_with_times, TrainSplits};
+use gs_core::dataset::nerf_synthetic::{default_render_split, load_with_times};
 use gs_core::dataset::{Background, LoadOptions};
-use gs_core::orbit::RobustBounds;
 use gs_core::GaussianSet;
 use gs_stylize::animation::{write_frames, write_mp4, write_preview_gif, FRAMES_DIR, PREVIEW_GIF};
 use gs_stylize::background::parse_background;
@@ -34,7 +33,7 @@ use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
-use gs_stylize::model_views::{ModelViewFlags, ModelViews};
+use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::outputs::{create_folder, into_new_folder, write_pair, PREVIEW_PNG};
 use gs_stylize::selftest::ExtraCheck;
 use gs_stylize::summary::write_summary;
@@ -492,24 +491,7 @@ fn export(args: &DynamicSceneExportArgs) -> Result<(), Box<dyn Error>> {
         Some(b) => Some(snapshots(&DynamicScene::read_model(b)?.0)?),
         None => None,
     };
-    let bounds =
-        RobustBounds::of(&base[0]).map_err(|e| format!("{}: {e}", export.model.display()))?;
-    let views = ModelViews {
-        orbit_views: 16,
-        up: [0.0, 0.0, 1.0],
-        ..ModelViews::default()
-    };
-    let (found, _) = views.views(
-        &export.model,
-        &bounds,
-        TrainSplits::default(),
-        &LoadOptions::default(),
-    )?;
-    let cameras = found
-        .into_iter()
-        .enumerate()
-        .map(|(i, v)| (format!("view {i}"), v.view.camera))
-        .collect();
+    let cameras = export.page_cameras(&base[0], [0.0, 0.0, 1.0])?;
     let shown = Shown::Animated(
         Animation::snapshots(&base, stylized.as_deref())
             .map_err(|e| format!("--model {}: {e}", export.model.display()))?,

@@ -333,22 +333,8 @@ pub fn encode(set: &GaussianSet) -> Result<SogFiles, String> {
     let mut files = SogFiles::new();
 
     // Positions: 16 bits of each axis's span of sign(x) ln(|x| + 1), truncated.
-    let mut mins = [f64::INFINITY; 3];
-    let mut maxs = [f64::NEG_INFINITY; 3];
-    for p in set.means.chunks_exact(3) {
-        for k in 0..3 {
-            let v = to_log(f64::from(p[k]));
-            mins[k] = mins[k].min(v);
-            maxs[k] = maxs[k].max(v);
-        }
-    }
-    let fraction = |i: usize, k: usize| -> u16 {
-        let span = maxs[k] - mins[k];
-        if span == 0.0 {
-            return 0;
-        }
-        (65535.0 * (to_log(f64::from(set.means[3 * i + k])) - mins[k]) / span) as u16
-    };
+    let positions = LogPositions::of(&set.means);
+    let fraction = |i: usize, k: usize| positions.level(set.means[3 * i + k], k);
     files.push((
         "means_l.webp".into(),
         picture(&|i| opaque([0, 1, 2].map(|k| fraction(i, k) as u8)))?,
@@ -359,24 +345,9 @@ pub fn encode(set: &GaussianSet) -> Result<SogFiles, String> {
     ));
 
     // Rotations: the unit quaternion's smallest three, the largest made positive.
-    const INDEX: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
     files.push((
         "quats.webp".into(),
-        picture(&|i| {
-            let q = &set.quats[4 * i..4 * i + 4];
-            let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
-            let q = [0, 1, 2, 3].map(|k| f64::from(q[k]) / norm);
-            let mut largest = 0;
-            for k in 1..4 {
-                if q[k].abs() > q[largest].abs() {
-                    largest = k;
-                }
-            }
-            let s = q[largest].signum() * std::f64::consts::SQRT_2;
-            let byte = |k: usize| (255.0 * (q[k] * s * 0.5 + 0.5)).clamp(0.0, 255.0) as u8;
-            let [a, b, c] = INDEX[largest];
-            [byte(a), byte(b), byte(c), 252 + largest as u8]
-        })?,
+        picture(&|i| smallest_three(&set.quats[4 * i..4 * i + 4]))?,
     ));
 
     // Log-scales and colours: a codebook each, pooled over the three axes or channels.
@@ -448,7 +419,10 @@ pub fn encode(set: &GaussianSet) -> Result<SogFiles, String> {
         "version": 2,
         "asset": {"generator": concat!("clipgaussian ", env!("CARGO_PKG_VERSION"))},
         "count": n,
-        "means": {"mins": mins, "maxs": maxs, "files": ["means_l.webp", "means_u.webp"]},
+        "means": {
+            "mins": positions.mins, "maxs": positions.maxs,
+            "files": ["means_l.webp", "means_u.webp"],
+        },
         "scales": {"codebook": scales.values, "files": ["scales.webp"]},
         "quats": {"files": ["quats.webp"]},
         "sh0": {"codebook": colours.values, "files": ["sh0.webp"]},
@@ -458,6 +432,64 @@ pub fn encode(set: &GaussianSet) -> Result<SogFiles, String> {
     }
     files.push((META_JSON.into(), meta.to_string().into_bytes()));
     Ok(files)
+}
+
+/// Positions stored as SOG stores them: each axis's `sign(x) ln(|x| + 1)` as a 16-bit fraction
+/// of its span over the Gaussians, truncated.
+#[derive(Clone, Copy, Debug)]
+pub struct LogPositions {
+    /// The least `sign(x) ln(|x| + 1)` of each axis.
+    pub mins: [f64; 3],
+    /// The greatest.
+    pub maxs: [f64; 3],
+}
+
+impl LogPositions {
+    /// The spans of `means` (`[N, 3]`).
+    pub fn of(means: &[f32]) -> Self {
+        let mut mins = [f64::INFINITY; 3];
+        let mut maxs = [f64::NEG_INFINITY; 3];
+        for p in means.chunks_exact(3) {
+            for k in 0..3 {
+                let v = to_log(f64::from(p[k]));
+                mins[k] = mins[k].min(v);
+                maxs[k] = maxs[k].max(v);
+            }
+        }
+        Self { mins, maxs }
+    }
+
+    /// The 16-bit level of `x` on axis `k` (0 where the axis spans nothing).
+    pub fn level(&self, x: f32, k: usize) -> u16 {
+        let span = self.maxs[k] - self.mins[k];
+        if span == 0.0 {
+            return 0;
+        }
+        (65535.0 * (to_log(f64::from(x)) - self.mins[k]) / span) as u16
+    }
+}
+
+/// A quaternion `(w, x, y, z)` as SOG stores it: the unit quaternion's three smallest
+/// components, a byte each (`(v sqrt 2 + 1) / 2`, truncated), with the largest made positive,
+/// and `252 +` the largest's index. A quaternion of no direction is four zero bytes (read as
+/// no rotation).
+pub fn smallest_three(q: &[f32]) -> [u8; 4] {
+    const INDEX: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
+    let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
+    if !(norm > 0.0) {
+        return [0; 4];
+    }
+    let q = [0, 1, 2, 3].map(|k| f64::from(q[k]) / norm);
+    let mut largest = 0;
+    for k in 1..4 {
+        if q[k].abs() > q[largest].abs() {
+            largest = k;
+        }
+    }
+    let s = q[largest].signum() * std::f64::consts::SQRT_2;
+    let byte = |k: usize| (255.0 * (q[k] * s * 0.5 + 0.5)).clamp(0.0, 255.0) as u8;
+    let [a, b, c] = INDEX[largest];
+    [byte(a), byte(b), byte(c), 252 + largest as u8]
 }
 
 /// Three bytes and an opaque alpha, as a texel.

@@ -1,8 +1,9 @@
 //! The compact form of a page's Gaussians, for large scenes (about 62 bytes a Gaussian instead
 //! of 236), quantised as PlayCanvas's SOG quantises them:
-//! - positions: 16 bits an axis of `sign(x) ln(|x| + 1)` between the axis's extremes;
-//! - rotations: the unit quaternion's smallest three components, a byte each
-//!   (`(v sqrt 2 + 1) / 2`), and `252 +` the index of the largest (made positive);
+//! - positions: 16 bits an axis of `sign(x) ln(|x| + 1)` between the axis's extremes
+//!   ([`LogPositions`]);
+//! - rotations: the unit quaternion's smallest three components, a byte each, and `252 +` the
+//!   index of the largest, made positive ([`smallest_three`]);
 //! - log-scales, and the SH coefficients (degree 0 and the rest each their own): a byte
 //!   indexing a 256-entry codebook of their values (splat-transform's `quantize1d`);
 //! - opacity: the 8-bit level of its sigmoid.
@@ -10,57 +11,22 @@
 //! The page decodes them back to floats (`decodeCompact` in `viewer.html`).
 
 use gs_core::splats::codebook::scalar_codebook;
+use gs_core::splats::sog::{smallest_three, LogPositions};
 use gs_core::GaussianSet;
 use serde_json::json;
 
 use super::base64;
 
-/// `sign(x) ln(|x| + 1)`.
-fn to_log(x: f64) -> f64 {
-    x.signum() * (x.abs() + 1.0).ln()
-}
-
 /// The compact form of `set`, with `quats` (its quaternions, turned as the page blends them).
 pub(super) fn compact_json(set: &GaussianSet, quats: &[f32]) -> serde_json::Value {
     let n = set.len();
-    let mut mins = [f64::INFINITY; 3];
-    let mut maxs = [f64::NEG_INFINITY; 3];
-    for p in set.means.chunks_exact(3) {
-        for k in 0..3 {
-            let v = to_log(f64::from(p[k]));
-            mins[k] = mins[k].min(v);
-            maxs[k] = maxs[k].max(v);
-        }
-    }
-    let mut positions = Vec::with_capacity(6 * n);
-    for p in set.means.chunks_exact(3) {
-        for k in 0..3 {
-            let span = maxs[k] - mins[k];
-            let level = if span > 0.0 {
-                (65535.0 * (to_log(f64::from(p[k])) - mins[k]) / span).round() as u16
-            } else {
-                0
-            };
-            positions.extend(level.to_le_bytes());
-        }
-    }
-    const INDEX: [[usize; 3]; 4] = [[1, 2, 3], [0, 2, 3], [0, 1, 3], [0, 1, 2]];
-    let mut rotations = Vec::with_capacity(4 * n);
-    for q in quats.chunks_exact(4) {
-        let norm = q.iter().map(|&v| f64::from(v).powi(2)).sum::<f64>().sqrt();
-        if !(norm > 0.0) {
-            // No direction: decoded as the zero quaternion the page culls, as gs-core culls it.
-            rotations.extend([0, 0, 0, 0]);
-            continue;
-        }
-        let q = [0, 1, 2, 3].map(|k| f64::from(q[k]) / norm);
-        let largest = (1..4).fold(0, |m, k| if q[k].abs() > q[m].abs() { k } else { m });
-        let s = q[largest].signum() * std::f64::consts::SQRT_2;
-        for &k in &INDEX[largest] {
-            rotations.push((255.0 * (q[k] * s * 0.5 + 0.5)).round().clamp(0.0, 255.0) as u8);
-        }
-        rotations.push(252 + largest as u8);
-    }
+    let ranges = &LogPositions::of(&set.means);
+    let positions: Vec<u8> = set
+        .means
+        .chunks_exact(3)
+        .flat_map(|p| (0..3).flat_map(move |k| ranges.level(p[k], k).to_le_bytes()))
+        .collect();
+    let rotations: Vec<u8> = quats.chunks_exact(4).flat_map(smallest_three).collect();
     let opacity: Vec<u8> = set
         .opacity_logits
         .iter()
@@ -82,8 +48,8 @@ pub(super) fn compact_json(set: &GaussianSet, quats: &[f32]) -> serde_json::Valu
     json!({
         "compact": true,
         "positions": base64(&positions),
-        "position_mins": mins,
-        "position_maxs": maxs,
+        "position_mins": ranges.mins,
+        "position_maxs": ranges.maxs,
         "rotations": base64(&rotations),
         "opacity_levels": base64(&opacity),
         "scales": base64(&scales.labels),
