@@ -154,38 +154,9 @@ impl ExportArgs {
             .collect())
     }
 
-    /// Writes the viewer page of `base` (and `stylized`, `--b`'s Gaussians, for the slider)
-    /// with `cameras` over `background` to `--out`; returns the line that says so. Models of
-    /// different Gaussians are refused naming both files.
-    pub fn write_html(
-        &self,
-        base: &GaussianSet,
-        stylized: Option<&GaussianSet>,
-        cameras: Vec<(String, Camera)>,
-        background: [f32; 3],
-    ) -> Result<String, Box<dyn Error>> {
-        if let (Some(b), Some(set)) = (&self.b, stylized) {
-            if (set.len(), set.sh_degree()) != (base.len(), base.sh_degree()) {
-                return Err(format!(
-                    "--b {}: {} Gaussians of SH degree {}, --model {} has {} of degree {}: the \
-                     slider blends two models of the same Gaussians (a model and its \
-                     stylization)",
-                    b.display(),
-                    set.len(),
-                    set.sh_degree(),
-                    self.model.display(),
-                    base.len(),
-                    base.sh_degree()
-                )
-                .into());
-            }
-        }
-        self.write_page(Shown::Still { base, stylized }, cameras, background)
-    }
-
-    /// Writes the viewer page of `shown` with `cameras` over `background` to `--out`; returns
-    /// the line that says so. An error of the page (models of other Gaussians) names `--model`
-    /// and `--b`.
+    /// Writes the viewer page of `shown` (`--model`'s Gaussians, and `--b`'s for the slider)
+    /// with `cameras` over `background` to `--out`; returns the line that says so. An error of
+    /// the page (models of other Gaussians) names `--model` and `--b`.
     pub fn write_page(
         &self,
         shown: Shown,

@@ -86,8 +86,8 @@ impl Animation {
     ) -> Result<Box<Self>, String> {
         let first = base.first().ok_or("no snapshot to show")?;
         let shape = (first.len(), first.sh_degree());
-        let all = base.iter().chain(stylized.into_iter().flatten());
-        if let Some(other) = all.clone().find(|s| (s.len(), s.sh_degree()) != shape) {
+        let mut all = base.iter().chain(stylized.into_iter().flatten());
+        if let Some(other) = all.find(|s| (s.len(), s.sh_degree()) != shape) {
             return Err(format!(
                 "snapshots of {} and {} Gaussians (SH degree {} and {}): a page's frames show \
                  the same Gaussians",

@@ -40,20 +40,26 @@ fn scene(n: usize, seed: u64) -> GaussianSet {
     set
 }
 
+/// A base scene of 300 Gaussians, its stylization (the same Gaussians moved, recoloured and
+/// resized), and a camera that sees them whole.
+fn base_and_stylized() -> (GaussianSet, GaussianSet, Camera) {
+    let base = scene(300, 1);
+    let mut stylized = scene(300, 2);
+    for (s, b) in stylized.means.iter_mut().zip(&base.means) {
+        *s = b + 0.1 * *s;
+    }
+    let camera =
+        Camera::look_at([0.4, -0.6, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 160, 120).unwrap();
+    (base, stylized, camera)
+}
+
 #[test]
 fn the_viewer_draws_what_gs_core_renders_at_every_slider_position() {
     let Some(chromium) = browser::chromium_or_skip() else {
         return;
     };
-    let base = scene(300, 1);
-    // The stylized model: the same Gaussians moved, recoloured and resized.
-    let mut stylized = scene(300, 2);
-    for (s, b) in stylized.means.iter_mut().zip(&base.means) {
-        *s = b + 0.1 * *s;
-    }
+    let (base, stylized, camera) = base_and_stylized();
     let background = [1.0f32, 1.0, 1.0];
-    let camera =
-        Camera::look_at([0.4, -0.6, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 160, 120).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let page = dir.path().join("viewer.html");
     write_viewer(
@@ -176,14 +182,8 @@ fn a_compact_page_draws_what_gs_core_renders_within_its_quantisation() {
     let Some(chromium) = browser::chromium_or_skip() else {
         return;
     };
-    let base = scene(300, 1);
-    let mut stylized = scene(300, 2);
-    for (s, b) in stylized.means.iter_mut().zip(&base.means) {
-        *s = b + 0.1 * *s;
-    }
+    let (base, stylized, camera) = base_and_stylized();
     let background = [1.0f32, 1.0, 1.0];
-    let camera =
-        Camera::look_at([0.4, -0.6, -4.0], [0.0; 3], [0.0, -1.0, 0.0], 0.8, 160, 120).unwrap();
     let dir = tempfile::tempdir().unwrap();
     let (full, compact) = (
         dir.path().join("full.html"),

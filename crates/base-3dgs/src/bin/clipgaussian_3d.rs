@@ -28,6 +28,7 @@ use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::open_device;
 use gs_stylize::outputs::into_new_folder;
 use gs_stylize::summary::write_summary;
+use gs_stylize::viewer::Shown;
 use gs_stylize::writable::{check_output_file, check_output_folder};
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
@@ -265,7 +266,14 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     };
     println!(
         "{}",
-        args.write_html(&scene.gaussians, stylized.as_ref(), cameras, [0.0; 3])?
+        args.write_page(
+            Shown::Still {
+                base: &scene.gaussians,
+                stylized: stylized.as_ref(),
+            },
+            cameras,
+            [0.0; 3],
+        )?
     );
     Ok(())
 }

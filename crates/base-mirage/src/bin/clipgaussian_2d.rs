@@ -34,6 +34,7 @@ use gs_stylize::evaluation::write_metrics;
 use gs_stylize::export::{gaussians_at, ExportArgs};
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::summary::write_summary;
+use gs_stylize::viewer::Shown;
 use gs_stylize::writable::check_output_file;
 use gs_stylize::{open_device, resolve_config, Override, StylizeError};
 use gs_wgpu::backend::{Backend, DeviceChoice};
@@ -409,7 +410,14 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     let base = gaussians_at(&file.model, 0.0)?;
     println!(
         "{}",
-        args.write_html(&base, stylized.as_ref(), cameras, [1.0; 3])?
+        args.write_page(
+            Shown::Still {
+                base: &base,
+                stylized: stylized.as_ref(),
+            },
+            cameras,
+            [1.0; 3],
+        )?
     );
     Ok(())
 }
