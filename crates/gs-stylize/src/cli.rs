@@ -32,9 +32,9 @@ pub struct StyleArgs {
     /// Any configuration field, e.g. `--set num_patches=16`; `FIELD.KEY=VALUE` sets one key of
     /// an object field, e.g. one parameter group's learning rate: `--set
     /// learning_rates.GROUP=0.005` (or `=frozen`; the groups are listed in the configuration's
-    /// `learning_rates`). `--set clip_precision=auto --set vgg_precision=auto` runs CLIP's linear
-    /// layers and VGG's backward in bf16 on a CPU with AVX-512 BF16 (f32 elsewhere, and where
-    /// $CLIPGAUSSIAN_CPU_BF16 is 0).
+    /// `learning_rates`). `--set clip_precision=auto --set vgg_precision=auto` times CLIP's
+    /// linear layers and VGG's backward in bf16 against f32 at start and keeps the faster
+    /// (bf16 only from 1.1 times as fast; $CLIPGAUSSIAN_CPU_BF16=0 or 1 forces f32 or bf16).
     #[arg(long = "set", value_name = "FIELD=VALUE")]
     pub set: Vec<String>,
     /// Continue the run from `<out>/checkpoint/` (a finished run: only with more --steps).

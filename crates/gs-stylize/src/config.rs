@@ -77,16 +77,18 @@ pub struct StyleSettings {
     /// Channel widths of the VGG-19 blocks (smaller only for test models).
     pub vgg_widths: [usize; 5],
     /// The format CLIP runs in: `f32`; `f16`, half precision throughout as the authors' fp16
-    /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (1.5 to
-    /// 1.8 times the f32 rate on a CPU with AVX-512 BF16); `auto`, `bf16` on such a CPU and
-    /// `f32` elsewhere.
+    /// CLIP on CUDA; `bf16`, the linear layers' products in bf16 with f32 activations (on a
+    /// CPU with AVX-512 BF16: 1.2 to 2 times the f32 rate on an AMD Zen 4, slower on an Intel
+    /// Sapphire Rapids); `auto`, `bf16` where the run's own products time at least 1.1 times
+    /// as fast as f32 at start, `f32` elsewhere ($CLIPGAUSSIAN_CPU_BF16 `0` or `1` forces it).
     /// The error of each against f32 is in docs/benchmarks.md.
     pub clip_precision: ClipPrecision,
     /// The format of VGG's products: `f32` (the forward summed exactly before each ReLU
     /// decides, as the f32 PyTorch network decides); `bf16`, on the layers of 256 channels and
     /// more, the backward's products in bf16 and the forward's in f32 by Winograd's F(2x2, 3x3)
     /// (the CPU only; its error against f32 is in docs/benchmarks.md);
-    /// `auto`, `bf16` on a CPU with AVX-512 BF16 and `f32` elsewhere.
+    /// `auto`, `bf16` where a layer of each bf16 width times at least 1.1 times as fast as f32
+    /// at start, `f32` elsewhere ($CLIPGAUSSIAN_CPU_BF16 forces it as for `clip_precision`).
     #[serde(default)]
     pub vgg_precision: VggPrecision,
     /// Megabytes of the views' cached ground truth (CLIP embedding and VGG features, about

@@ -438,6 +438,7 @@ fn build_loss(
         clip,
         vgg,
         direction,
+        ..
     } = models.clone();
     Ok((
         StyleLoss::new(clip, vgg, direction, weights, patches)?,

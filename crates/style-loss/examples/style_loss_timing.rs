@@ -13,6 +13,7 @@
 use std::time::Instant;
 
 use candle_core::{Device, Tensor};
+use style_loss::auto_precision::{choose_clip, choose_vgg, ClipProducts};
 use style_loss::{
     background_mask_from_color, style_rng, ClipConfig, ClipModel, ClipPrecision, LossWeights,
     NamedTensors, PatchSettings, StyleDirection, StyleLoss, Vgg19Features, Vgg19Widths,
@@ -40,21 +41,41 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let side: usize = std::env::var("STYLE_LOSS_SIZE").map_or(Ok(800), |s| s.parse())?;
     let patches: usize = std::env::var("STYLE_LOSS_PATCHES").map_or(Ok(64), |s| s.parse())?;
     let (height, width) = (side, side);
-    let start = Instant::now();
-    let precision: ClipPrecision = std::env::var("STYLE_LOSS_PRECISION")
+    let mut precision: ClipPrecision = std::env::var("STYLE_LOSS_PRECISION")
         .as_deref()
         .unwrap_or("f32")
         .parse()?;
+    let mut vgg_precision: VggPrecision = std::env::var("STYLE_LOSS_VGG_PRECISION")
+        .as_deref()
+        .unwrap_or("f32")
+        .parse()?;
+    // `auto` timed here, at this run's shapes, so that its cost and choice are reported.
+    let config = ClipConfig::vit_b_32();
+    if precision == ClipPrecision::Auto {
+        let start = Instant::now();
+        let choice = choose_clip(&device, ClipProducts::of(&config.vision, patches + 1))?;
+        precision = precision.resolve(&choice);
+        println!(
+            "auto: CLIP {precision} ({choice}), timed in {:.2} s",
+            seconds_since(start)
+        );
+    }
+    if vgg_precision == VggPrecision::Auto {
+        let start = Instant::now();
+        let choice = choose_vgg(&device, Vgg19Widths::default())?;
+        vgg_precision = vgg_precision.resolve(&choice);
+        println!(
+            "auto: VGG {vgg_precision} ({choice}), timed in {:.2} s",
+            seconds_since(start)
+        );
+    }
+    let start = Instant::now();
     let clip = ClipModel::from_tensors_with_precision(
-        &ClipConfig::vit_b_32(),
+        &config,
         &NamedTensors::random(&device),
         &device,
         precision,
     )?;
-    let vgg_precision: VggPrecision = std::env::var("STYLE_LOSS_VGG_PRECISION")
-        .as_deref()
-        .unwrap_or("f32")
-        .parse()?;
     let vgg = Vgg19Features::from_tensors_with_precision(
         &NamedTensors::random(&device),
         Vgg19Widths::default(),

@@ -19,6 +19,8 @@
 //!   augmentation (crop, perspective warp, resize), on the host and in the form a GPU runs it.
 //! - [`nn`], [`matmul`], [`torch_ties`]: differentiable building blocks, products in the
 //!   layouts candle's CUDA backend accepts, PyTorch's gradient at ties and exact zeros.
+//! - [`precision`], [`auto_precision`]: the formats CLIP and VGG run in, and how `auto` times
+//!   f32 against bf16 products to choose.
 //! - [`metrics`]: the paper's CLIP evaluation metrics.
 //! - [`compute_device`], [`memory`], [`transfers`]: the loss's device, the allocator setting,
 //!   the host-device traffic counts.
@@ -26,6 +28,7 @@
 //!   checkpoints, where model files come from, the error type.
 //! - `test_models` (feature `test-models`): random-weight models for tests and benchmarks.
 
+pub mod auto_precision;
 mod bf16_product;
 pub mod clip;
 pub mod compute_device;
@@ -49,6 +52,7 @@ pub mod perspective;
 pub mod pil_resize;
 pub mod precision;
 pub mod resize;
+mod seeded;
 pub mod style_direction;
 pub mod templates;
 pub mod tensor_file;

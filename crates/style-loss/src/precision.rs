@@ -1,14 +1,16 @@
-//! The floating-point formats CLIP ([`ClipPrecision`]) and VGG ([`VggPrecision`]) run in, and
-//! the choice their `auto` makes: bf16 products where the CPU multiplies bf16 natively.
+//! The floating-point formats CLIP ([`ClipPrecision`]) and VGG ([`VggPrecision`]) run in; how
+//! their `auto` chooses is the `auto_precision` module's.
 
 use std::fmt;
 use std::str::FromStr;
 
-use candle_core::{DType, Device};
+use candle_core::DType;
 use serde::{Deserialize, Serialize};
 
-/// Environment variable that, set to `0`, keeps `auto` at f32 on every CPU
-/// (for comparing runs, and for testing the fallback on a CPU that has the instructions).
+use crate::auto_precision::AutoChoice;
+
+/// Environment variable that forces `auto`: `0` to f32 products, `1` to bf16 products, on every
+/// CPU (for comparing runs, and for testing either path on any CPU).
 pub const CPU_BF16_ENV: &str = "CLIPGAUSSIAN_CPU_BF16";
 
 /// The format of CLIP's products and activations. The image, the embeddings CLIP returns and the
@@ -25,25 +27,19 @@ pub enum ClipPrecision {
     /// bfloat16 (f32's range, 8 bits of mantissa) for the linear layers' products only: the
     /// weights are held in bf16, each product rounds its input to bf16, sums in f32 and rounds
     /// its output to bf16, widened back to f32; the activations, attention and embeddings stay
-    /// f32. On a CPU with AVX-512 BF16 the products run 1.5 to 1.8 times the f32 rate.
+    /// f32. With AVX-512 BF16 the products ran 1.2 to 2 times the f32 rate on an AMD Zen 4,
+    /// and under it on an Intel Sapphire Rapids.
     Bf16,
-    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else (GPUs included);
-    /// see [`ClipPrecision::resolve`].
+    /// `bf16` where its products time at least 1.1 times as fast as f32 on this CPU, f32
+    /// everywhere else (GPUs included); see `auto_precision`.
     Auto,
 }
 
 impl ClipPrecision {
-    /// The format the model runs in on `device`: `Auto` becomes `Bf16` where [`auto_takes_bf16`],
-    /// `F32` elsewhere; the others stay.
-    pub fn resolve(self, device: &Device) -> ClipPrecision {
-        self.resolve_with(auto_takes_bf16(device))
-    }
-
-    /// [`ClipPrecision::resolve`] given whether bf16 products are native here.
-    pub fn resolve_with(self, native_bf16: bool) -> ClipPrecision {
+    /// The format the model runs in: `Auto` becomes what `auto` chose; the others stay.
+    pub fn resolve(self, auto: &AutoChoice) -> ClipPrecision {
         match self {
-            Self::Auto if native_bf16 => Self::Bf16,
-            Self::Auto => Self::F32,
+            Self::Auto => auto.clip(),
             other => other,
         }
     }
@@ -66,14 +62,6 @@ impl ClipPrecision {
     }
 }
 
-/// Whether `auto` takes bf16 products on `device`: a CPU that [`cpu_multiplies_bf16`], unless
-/// `CLIPGAUSSIAN_CPU_BF16` is `0`, `false`, `off` or `no`.
-pub fn auto_takes_bf16(device: &Device) -> bool {
-    let enabled = std::env::var(CPU_BF16_ENV)
-        .map_or(true, |v| !matches!(v.trim(), "0" | "false" | "off" | "no"));
-    device.is_cpu() && enabled && cpu_multiplies_bf16()
-}
-
 /// The format of VGG's convolution products. Activations, bias and ReLU are f32 in each.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
@@ -90,17 +78,16 @@ pub enum VggPrecision {
     /// than summed exactly. Narrower layers stay f32 both ways (their backward as with `F32`).
     /// The CPU only.
     Bf16,
-    /// `bf16` on a CPU with the AVX-512 BF16 dot product, f32 everywhere else.
+    /// `bf16` where its backward times at least 1.1 times as fast as f32 on this CPU, f32
+    /// everywhere else; see `auto_precision`.
     Auto,
 }
 
 impl VggPrecision {
-    /// The format on `device`: `Auto` becomes `Bf16` where [`auto_takes_bf16`], `F32`
-    /// elsewhere; the others stay.
-    pub fn resolve(self, device: &Device) -> VggPrecision {
+    /// The format the network runs in: `Auto` becomes what `auto` chose; the others stay.
+    pub fn resolve(self, auto: &AutoChoice) -> VggPrecision {
         match self {
-            Self::Auto if auto_takes_bf16(device) => Self::Bf16,
-            Self::Auto => Self::F32,
+            Self::Auto => auto.vgg(),
             other => other,
         }
     }
@@ -212,18 +199,28 @@ mod tests {
     }
 
     #[test]
-    fn auto_takes_bf16_only_where_the_cpu_multiplies_it() {
-        assert_eq!(ClipPrecision::Auto.resolve_with(true), ClipPrecision::Bf16);
-        assert_eq!(ClipPrecision::Auto.resolve_with(false), ClipPrecision::F32);
-        for fixed in [ClipPrecision::F32, ClipPrecision::F16, ClipPrecision::Bf16] {
-            assert_eq!(fixed.resolve_with(true), fixed);
-            assert_eq!(fixed.resolve_with(false), fixed);
+    fn auto_becomes_what_was_chosen_and_the_others_stay() {
+        for (choice, clip, vgg) in [
+            (
+                AutoChoice::Forced(true),
+                ClipPrecision::Bf16,
+                VggPrecision::Bf16,
+            ),
+            (
+                AutoChoice::NoInstructions,
+                ClipPrecision::F32,
+                VggPrecision::F32,
+            ),
+        ] {
+            assert_eq!(ClipPrecision::Auto.resolve(&choice), clip);
+            assert_eq!(VggPrecision::Auto.resolve(&choice), vgg);
+            for fixed in [ClipPrecision::F32, ClipPrecision::F16, ClipPrecision::Bf16] {
+                assert_eq!(fixed.resolve(&choice), fixed);
+            }
+            for fixed in [VggPrecision::F32, VggPrecision::Bf16] {
+                assert_eq!(fixed.resolve(&choice), fixed);
+            }
         }
-        // CLIP's and VGG's auto choose alike (the switch is tested through clipgaussian-2d).
-        assert_eq!(
-            ClipPrecision::Auto.resolve(&Device::Cpu) == ClipPrecision::Bf16,
-            VggPrecision::Auto.resolve(&Device::Cpu) == VggPrecision::Bf16
-        );
         // bf16 holds the matrices in bf16 and the activations in f32; f16 is half throughout.
         assert_eq!(ClipPrecision::Bf16.matrix_dtype(), DType::BF16);
         assert_eq!(ClipPrecision::Bf16.activation_dtype(), DType::F32);

@@ -6,6 +6,7 @@ use std::path::Path;
 
 use candle_core::{Device, Tensor};
 
+use crate::auto_precision::choose_vgg_with;
 use crate::clip::normalize_channels;
 use crate::cpu_elements::is_cpu_f32;
 use crate::custom_grad::attach_input_gradient;
@@ -196,7 +197,8 @@ impl Vgg19Features {
         let precision = match precision {
             // bf16 runs on the CPU's own kernels only.
             VggPrecision::Auto if !channels_last => VggPrecision::F32,
-            other => other.resolve(first.device()),
+            VggPrecision::Auto => choose_vgg_with(first.device(), widths, kernels)?.vgg(),
+            other => other,
         };
         let bf16 = precision == VggPrecision::Bf16;
         if bf16 && !channels_last {
@@ -301,6 +303,7 @@ mod tests {
     use candle_core::{DType, Device, Tensor, Var};
 
     use super::*;
+    use crate::seeded::seeded_values;
 
     /// Fixed random weights of a small VGG-19, named as torchvision's.
     fn small_vgg_tensors(widths: Vgg19Widths) -> NamedTensors {
@@ -431,14 +434,22 @@ mod tests {
         // Odd sizes (a dropped row and column at each pool), two images, and a flat image
         // (ties in every pooling window).
         for (n, h, w, flat) in [(2, 37, 45, false), (1, 16, 16, false), (1, 33, 19, true)] {
+            // Seeded: candle's f32 sums may decide a ReLU or a pool otherwise than the exact
+            // sums where an output lies within their rounding of 0 or of its neighbour, which
+            // moves the gradient by ~1e-3 (unseeded, the test once failed so at 2.0e-3); these
+            // inputs meet none.
+            let seeded = |dims: (usize, usize, usize, usize), seed: u64| {
+                let len = dims.0 * dims.1 * dims.2 * dims.3;
+                Tensor::from_vec(seeded_values(len, seed, 1.0), dims, &device).unwrap()
+            };
             let images = if flat {
                 Tensor::full(0.5f32, (n, 3, h, w), &device).unwrap()
             } else {
-                Tensor::rand(0f32, 1f32, (n, 3, h, w), &device).unwrap()
+                ((seeded((n, 3, h, w), 1) + 1.0).unwrap() * 0.5).unwrap()
             };
             let probes = [
-                Tensor::rand(-1f32, 1f32, (n, 7, h / 8, w / 8), &device).unwrap(),
-                Tensor::rand(-1f32, 1f32, (n, 9, h / 16, w / 16), &device).unwrap(),
+                seeded((n, 7, h / 8, w / 8), 2),
+                seeded((n, 9, h / 16, w / 16), 3),
             ];
             let (f_fast, g_fast) = features_and_gradient(&fast, &images, &probes);
             let (f_ref, g_ref) = features_and_gradient(&oracle, &images, &probes);

@@ -18,8 +18,10 @@ pub use config::{ClipConfig, ClipTextConfig, ClipVisionConfig};
 pub(crate) use preprocess::normalize_channels;
 pub use preprocess::{clip_preprocess, CLIP_MEAN, CLIP_STD};
 
+use crate::auto_precision::{choose_clip, ClipProducts};
 use crate::error::{Result, StyleLossError};
 use crate::nn::{l2_normalize, Linear};
+use crate::patches::PatchSettings;
 use crate::tensor_file::NamedTensors;
 use text::TextTower;
 use transformer::load_linear;
@@ -72,7 +74,14 @@ impl ClipModel {
         precision: ClipPrecision,
     ) -> Result<Self> {
         config.validate()?;
-        let precision = precision.resolve(device);
+        let precision = match precision {
+            // Timed on a batch of the paper's 64 patches and the whole view.
+            ClipPrecision::Auto => {
+                let images = PatchSettings::default().num_patches + 1;
+                choose_clip(device, ClipProducts::of(&config.vision, images))?.clip()
+            }
+            other => other,
+        };
         let text = TextTower::load(w, &config.text, precision)?;
         let text_projection = load_linear(
             w,
