@@ -352,6 +352,16 @@ pub enum RowChange {
     },
     /// The values were replaced: the moments restart at zero (3DGS's opacity reset).
     Reset,
+    /// Each row of `old` values grew to `new` (more SH coefficients): the old moments lead each
+    /// row, the new values' moments are zero.
+    Widen {
+        /// Rows of the group.
+        rows: usize,
+        /// Values per row before.
+        old: usize,
+        /// Values per row after.
+        new: usize,
+    },
 }
 
 /// The optimizer state `bytes` (saved by an optimizer of `groups`, whose trained groups held
@@ -381,6 +391,16 @@ pub fn rearrange_state(
                             .collect()
                     };
                     (gather(&m), gather(&v))
+                }
+                RowChange::Widen { rows, old, new } => {
+                    let widen = |values: &[f32]| -> Vec<f32> {
+                        let mut out = vec![0.0; rows * new];
+                        for (r, to) in out.chunks_exact_mut(*new).enumerate() {
+                            to[..*old].copy_from_slice(&values[r * old..(r + 1) * old]);
+                        }
+                        out
+                    };
+                    (widen(&m), widen(&v))
                 }
             })
         })
@@ -567,6 +587,43 @@ mod tests {
             &changes,
         );
         assert!(e.is_err(), "the saved lengths are checked");
+        // Rows of 2 widened to 3 (more SH coefficients): old moments first, zeros after; a
+        // group of no values (degree 0) widens to its row count's zeros.
+        let widened = [
+            RowChange::Widen {
+                rows: 3,
+                old: 2,
+                new: 3,
+            },
+            RowChange::Widen {
+                rows: 2,
+                old: 1,
+                new: 2,
+            },
+            RowChange::Keep,
+            RowChange::Keep,
+        ];
+        let bytes = rearrange_state(&saved, &groups, &lens, &widened).unwrap();
+        let mut wide = Adam::new(groups.clone(), &[9, 4, 3, 1], AdamHyper::default());
+        wide.restore_state(&bytes).unwrap();
+        let f = &first;
+        assert_eq!(
+            m(&wide, 0),
+            [f[0], f[1], 0.0, f[2], f[3], 0.0, f[4], f[5], 0.0]
+        );
+        let r = m(&adam, 1);
+        assert_eq!(m(&wide, 1), [r[0], 0.0, r[1], 0.0]);
+        let from_nothing = [RowChange::Widen {
+            rows: 2,
+            old: 0,
+            new: 9,
+        }];
+        let one = [GroupConfig::new("sh_rest", LrSchedule::Constant(0.1))];
+        let empty = Adam::new(one.to_vec(), &[0], AdamHyper::default()).save_state();
+        let bytes = rearrange_state(&empty, &one, &[Some(0)], &from_nothing).unwrap();
+        let mut nine = Adam::new(one.to_vec(), &[18], AdamHyper::default());
+        nine.restore_state(&bytes).unwrap();
+        assert_eq!(m(&nine, 0), vec![0.0; 18]);
     }
 
     #[test]

@@ -230,6 +230,31 @@ impl<T: Real> GaussianSet<T> {
         ]
     }
 
+    /// The Gaussians `rows` names, in that order (a row may repeat).
+    ///
+    /// # Panics
+    /// If a row is out of range.
+    pub fn gather(&self, rows: &[usize]) -> Self {
+        let mut out = Self {
+            len: rows.len(),
+            sh_degree: self.sh_degree,
+            means: Vec::new(),
+            log_scales: Vec::new(),
+            quats: Vec::new(),
+            opacity_logits: Vec::new(),
+            sh_dc: Vec::new(),
+            sh_rest: Vec::new(),
+        };
+        let widths = [3, 3, 4, 1, 3, 3 * (self.sh_coeffs() - 1)];
+        for ((to, from), w) in out.arrays_mut().into_iter().zip(self.arrays()).zip(widths) {
+            to.reserve(w * rows.len());
+            for &i in rows {
+                to.extend_from_slice(&from[w * i..w * (i + 1)]);
+            }
+        }
+        out
+    }
+
     /// The first Gaussian whose quaternion is zero (a rotation of no direction: it renders as
     /// nothing, or as NaN), if any.
     pub fn zero_rotation(&self) -> Option<usize> {

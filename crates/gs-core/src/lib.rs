@@ -41,6 +41,7 @@
 pub mod adam;
 pub mod camera;
 pub mod dataset;
+pub mod densify;
 pub mod device;
 mod error;
 pub mod fallible;

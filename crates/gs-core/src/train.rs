@@ -7,6 +7,7 @@
 use std::time::{Duration, Instant};
 
 use crate::adam::Adam;
+use crate::densify::ScreenStats;
 use crate::error::GsError;
 use crate::image::Image;
 use crate::model::{BaseModel, Forward, ModelError, View};
@@ -255,6 +256,8 @@ pub struct CpuTrainer<M> {
     mask: GradMask,
     /// The step's summed gradient of every group (empty for frozen groups), zero between steps.
     sum: Vec<Vec<f32>>,
+    /// The rendered Gaussians' densification statistics, when gathered.
+    screen_stats: Option<ScreenStats>,
 }
 
 impl<M: BaseModel> CpuTrainer<M> {
@@ -276,7 +279,19 @@ impl<M: BaseModel> CpuTrainer<M> {
             adam,
             trained,
             sum,
+            screen_stats: None,
         })
+    }
+
+    /// From the next step on, adds every view's view-space gradients of the rendered Gaussians
+    /// to `stats` ([`ScreenStats::add_view`]; one entry per rendered Gaussian).
+    pub fn gather_screen_stats(&mut self, stats: ScreenStats) {
+        self.screen_stats = Some(stats);
+    }
+
+    /// The statistics gathered since [`CpuTrainer::gather_screen_stats`], which stops.
+    pub fn take_screen_stats(&mut self) -> Option<ScreenStats> {
+        self.screen_stats.take()
     }
 
     /// One step over the views `batch` names of `views`, composited over `background`: for
@@ -312,8 +327,24 @@ impl<M: BaseModel> CpuTrainer<M> {
                 alpha: None,
                 depth: None,
             };
-            let grads =
-                raster::backward(gaussians.as_ref(), &view.camera, &rendered, &out, self.mask);
+            let (grads, screen) = raster::backward_with_screen_grads(
+                gaussians.as_ref(),
+                &view.camera,
+                &rendered,
+                &out,
+                self.mask,
+            );
+            if let Some(stats) = &mut self.screen_stats {
+                if stats.len() != screen.len() {
+                    return Err(model_failed(ModelError::from(format!(
+                        "densification statistics of {} Gaussians, {} rendered",
+                        stats.len(),
+                        screen.len()
+                    ))));
+                }
+                let size = (view.camera.width, view.camera.height);
+                stats.add_view(&rendered, &screen, size);
+            }
             drop(gaussians);
             self.model
                 .backward(view, tape, &grads.gaussians, &self.trained, &mut self.sum)

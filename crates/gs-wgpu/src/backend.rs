@@ -13,6 +13,7 @@ use crate::train::GpuTrainer;
 use crate::{AdapterChoice, GpuContext, GpuError, GpuGaussians, GpuModel, GpuParams};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig};
 use gs_core::camera::Camera;
+use gs_core::densify::ScreenStats;
 pub use gs_core::device::DeviceChoice;
 use gs_core::gaussians::GaussianSet;
 use gs_core::image::Image;
@@ -37,6 +38,9 @@ pub enum DeviceError {
     /// The optimizer's groups do not name the model's ([`gs_core::adam::groups_in_model_order`]).
     #[error("optimizer: {0}")]
     Groups(String),
+    /// The device cannot do what was asked (yet): the message names it and the way round.
+    #[error("{0}")]
+    Unsupported(String),
 }
 
 /// Opening the device a [`DeviceChoice`] names.
@@ -408,6 +412,31 @@ impl<M: GpuModel> Trainer<M> {
             }
         }
         Ok(())
+    }
+
+    /// From the next step on, adds every view's view-space gradients of the rendered Gaussians
+    /// to `stats` (3DGS's densification statistics, [`gs_core::densify::ScreenStats`]). The
+    /// cpu only for now.
+    pub fn gather_screen_stats(&mut self, stats: ScreenStats) -> Result<(), DeviceError> {
+        match &mut self.state {
+            State::Cpu(cpu) => {
+                cpu.gather_screen_stats(stats);
+                Ok(())
+            }
+            State::Gpu(_) => Err(DeviceError::Unsupported(
+                "densification statistics are gathered on the cpu only for now: use --device \
+                 cpu"
+                .into(),
+            )),
+        }
+    }
+
+    /// The statistics gathered since [`Trainer::gather_screen_stats`], which stops.
+    pub fn take_screen_stats(&mut self) -> Option<ScreenStats> {
+        match &mut self.state {
+            State::Cpu(cpu) => cpu.take_screen_stats(),
+            State::Gpu(_) => None,
+        }
     }
 
     /// The current values of every parameter group, in

@@ -68,6 +68,11 @@ pub struct Rendered<T: Real = f32> {
 }
 
 impl<T: Real> Rendered<T> {
+    /// Whether Gaussian `i` survived culling (3DGS's `radii > 0`).
+    pub fn is_visible(&self, i: usize) -> bool {
+        self.splats.get(i).is_some_and(Option::is_some)
+    }
+
     /// Number of Gaussians that survived culling.
     pub fn visible_count(&self) -> usize {
         self.splats.iter().filter(|s| s.is_some()).count()
@@ -198,6 +203,20 @@ pub fn backward<T: Real>(
     out_grads: &OutputGrads<'_, T>,
     mask: GradMask,
 ) -> Gradients<T> {
+    backward_with_screen_grads(gaussians, camera, rendered, out_grads, mask).0
+}
+
+/// [`backward`], and each Gaussian's dL/d(projected centre) in pixels: the gradient 3DGS
+/// accumulates for densification (its "view-space" gradient is this times `W / 2`, `H / 2`;
+/// see [`crate::densify::ScreenStats`]). Zero for a Gaussian culled in this view, and for every
+/// Gaussian when `mask` asks no geometry gradient (means, scales or rotations).
+pub fn backward_with_screen_grads<T: Real>(
+    gaussians: &GaussianSet<T>,
+    camera: &Camera,
+    rendered: &Rendered<T>,
+    out_grads: &OutputGrads<'_, T>,
+    mask: GradMask,
+) -> (Gradients<T>, Vec<[T; 2]>) {
     assert_eq!(
         gaussians.len(),
         rendered.splats.len(),
@@ -224,10 +243,11 @@ pub fn backward<T: Real>(
     };
     let (slots, bg_grad) = composite::backward(rendered, out_grads, needs.geometry);
     if !(needs.geometry || needs.opacity || needs.sh_dc || needs.sh_rest) {
-        return Gradients {
+        let gradients = Gradients {
             gaussians: grads,
             background: bg_grad,
         };
+        return (gradients, vec![[T::ZERO; 2]; n]);
     }
 
     let mut per_gaussian = vec![SplatGrad::<T>::default(); n];
@@ -273,10 +293,12 @@ pub fn backward<T: Real>(
             grads.sh_dc[3 * i..3 * i + 3].copy_from_slice(&p[11..14]);
         }
     }
-    Gradients {
+    let gradients = Gradients {
         gaussians: grads,
         background: bg_grad,
-    }
+    };
+    let screen = per_gaussian.iter().map(|g| g.mean2d).collect();
+    (gradients, screen)
 }
 
 #[cfg(test)]

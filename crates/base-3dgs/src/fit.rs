@@ -1,0 +1,394 @@
+//! The first stage in 3D: a 3DGS scene fitted to a dataset's pictures as INRIA's `train.py`
+//! does it (commit 54c035f; `docs/fidelity.md` lists what differs). One view a step, drawn
+//! without replacement each epoch; the loss `(1 - 0.2) L1 + 0.2 (1 - SSIM)` of the render
+//! clamped to `[0, 1]`; Adam (epsilon 1e-15) with INRIA's rates and the positions' exponential
+//! decay; one more SH degree every 1,000 steps; densification by the view-space gradient
+//! (`gs_core::densify`) and the opacity reset.
+//!
+//! A densification changes the number of Gaussians, so the fit runs in segments between such
+//! events, each a trainer whose optimizer moments follow the rows ([`rearrange_state`]).
+
+use std::ops::ControlFlow;
+
+use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RowChange};
+use gs_core::dataset::PointCloud;
+use gs_core::densify::{densify, raise_sh_degree, reset_opacity, DensifySettings, ScreenStats};
+use gs_core::gaussians::{GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
+use gs_core::image::Image;
+use gs_core::image_loss::{psnr, PhotometricObjective};
+use gs_core::model::{BaseModel, View};
+use gs_core::plane_neighbours::{mean_nearest_dist2, MIN_DIST2};
+use gs_core::render_clamp::{ClampedObjective, RenderClamp};
+use gs_core::sampler::{BatchOrder, ViewSampler};
+use gs_core::sh::C0 as SH_C0;
+use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig};
+use gs_core::GsError;
+use gs_wgpu::backend::{Backend, DeviceError, Trainer};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+/// INRIA's `OptimizationParams` and `ModelParams` defaults, each a setting.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SceneFitSettings {
+    /// Optimizer steps (`iterations`, 30,000).
+    pub steps: u64,
+    /// The highest SH degree (`sh_degree`, 3); the fit starts at 0 and adds one every
+    /// `sh_every` steps.
+    pub sh_degree: usize,
+    /// Steps between SH degree raises (1,000, fixed in `train.py`).
+    pub sh_every: u64,
+    /// Weight of the D-SSIM term (`lambda_dssim`, 0.2).
+    pub lambda_dssim: f32,
+    /// The positions' rate at the start and end of its decay, times the scene extent
+    /// (`position_lr_init` 1.6e-4, `position_lr_final` 1.6e-6).
+    pub position_lr: (f64, f64),
+    /// Steps of the positions' decay (`position_lr_max_steps`, 30,000).
+    pub position_lr_steps: u64,
+    /// The SH DC rate (`feature_lr`, 0.0025; the higher degrees take a twentieth).
+    pub feature_lr: f64,
+    /// `opacity_lr` (0.025).
+    pub opacity_lr: f64,
+    /// `scaling_lr` (0.005).
+    pub scaling_lr: f64,
+    /// `rotation_lr` (0.001).
+    pub rotation_lr: f64,
+    /// Random starting points when the dataset has none (NeRF-synthetic: 100,000 in the cube
+    /// `[-1.3, 1.3]^3`).
+    pub random_points: usize,
+    /// The densification; `None` fits the starting Gaussians only.
+    pub densify: Option<DensifySettings>,
+    /// The most Gaussians a densification may leave (`None`: no cap, as INRIA); when a
+    /// densification would pass it, the Gaussians of the largest gradients grow first.
+    pub max_gaussians: Option<usize>,
+    /// The colour pictures are composited over and renders drawn on.
+    pub background: [f32; 3],
+    /// Seed of the random points, the view order and the split samples.
+    pub seed: u64,
+}
+
+impl Default for SceneFitSettings {
+    fn default() -> Self {
+        Self {
+            steps: 30_000,
+            sh_degree: 3,
+            sh_every: 1000,
+            lambda_dssim: 0.2,
+            position_lr: (1.6e-4, 1.6e-6),
+            position_lr_steps: 30_000,
+            feature_lr: 0.0025,
+            opacity_lr: 0.025,
+            scaling_lr: 0.005,
+            rotation_lr: 0.001,
+            random_points: 100_000,
+            densify: Some(DensifySettings::default()),
+            max_gaussians: None,
+            background: [0.0; 3],
+            seed: 0,
+        }
+    }
+}
+
+impl SceneFitSettings {
+    /// A setting that cannot run, named as its flag.
+    pub fn check(&self) -> Result<(), String> {
+        if self.steps == 0 {
+            return Err("--steps: must be at least 1".into());
+        }
+        if self.sh_degree > MAX_SH_DEGREE {
+            return Err(format!(
+                "--sh-degree {}: must be at most {MAX_SH_DEGREE}",
+                self.sh_degree
+            ));
+        }
+        if self.sh_every == 0 {
+            return Err("sh_every: must be at least 1".into());
+        }
+        if !(0.0..=1.0).contains(&self.lambda_dssim) {
+            return Err(format!(
+                "--lambda-dssim {}: must be in [0, 1]",
+                self.lambda_dssim
+            ));
+        }
+        if self.random_points == 0 {
+            return Err("--random-points: must be at least 1".into());
+        }
+        if self.max_gaussians == Some(0) {
+            return Err("--max-gaussians: must be at least 1".into());
+        }
+        if let Some(d) = &self.densify {
+            d.check()?;
+        }
+        if self.background.iter().any(|c| !(0.0..=1.0).contains(c)) {
+            return Err(format!(
+                "--background {:?}: channels must be in [0, 1]",
+                self.background
+            ));
+        }
+        Ok(())
+    }
+
+    /// The optimizer's groups for a scene of camera extent `extent` (INRIA's
+    /// `training_setup`; the positions' rates scale with the extent).
+    pub fn groups(&self, extent: f64) -> Vec<GroupConfig> {
+        let schedule = |name: &str| match name {
+            "means" => LrSchedule::Exponential {
+                start: self.position_lr.0 * extent,
+                end: self.position_lr.1 * extent,
+                steps: self.position_lr_steps,
+            },
+            "scales" => LrSchedule::Constant(self.scaling_lr),
+            "rotations" => LrSchedule::Constant(self.rotation_lr),
+            "opacities" => LrSchedule::Constant(self.opacity_lr),
+            "sh_dc" => LrSchedule::Constant(self.feature_lr),
+            _ => LrSchedule::Constant(self.feature_lr / 20.0),
+        };
+        PARAM_NAMES
+            .iter()
+            .map(|&name| GroupConfig::new(name, schedule(name)))
+            .collect()
+    }
+
+    /// Whether the SH degree is raised after step `step`: INRIA raises it before the render of
+    /// every 1,000th iteration, so after steps 999, 1,999, 2,999.
+    fn raises_sh_after(&self, step: u64) -> bool {
+        (step + 1).is_multiple_of(self.sh_every)
+    }
+}
+
+/// Why a fit failed.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneFitError {
+    /// A setting or an input that cannot be fitted.
+    #[error("{0}")]
+    Settings(String),
+    /// The device failed.
+    #[error(transparent)]
+    Device(#[from] DeviceError),
+    /// A step failed.
+    #[error(transparent)]
+    Train(#[from] gs_core::train::TrainError<GsError>),
+    /// The optimizer state could not follow the Gaussians.
+    #[error(transparent)]
+    State(#[from] GsError),
+}
+
+/// The starting Gaussians (INRIA's `create_from_pcd`), SH degree 0: one at each of `points`
+/// (COLMAP's, or `settings.random_points` drawn in the cube `[-1.3, 1.3]^3` of grey 127/255
+/// when `None`, as INRIA's NeRF-synthetic reader writes and reads them back through a u8 PLY),
+/// its colour as the DC term, its three scales the square root of the mean squared distance
+/// to its three nearest neighbours (at least `1e-7`), no rotation, opacity 0.1.
+pub fn initial_gaussians(points: Option<&PointCloud>, settings: &SceneFitSettings) -> GaussianSet {
+    let (positions, colors) = match points {
+        Some(cloud) => (cloud.positions.clone(), cloud.colors.clone()),
+        None => {
+            let mut rng = ChaCha8Rng::seed_from_u64(settings.seed);
+            let positions: Vec<[f64; 3]> = (0..settings.random_points)
+                .map(|_| [0; 3].map(|_| rng.random::<f64>() * 2.6 - 1.3))
+                .collect();
+            let colors = vec![[127u8; 3]; positions.len()];
+            (positions, colors)
+        }
+    };
+    let n = positions.len();
+    let dist2 = mean_nearest_dist2::<3>(&positions, 3);
+    let mut set = GaussianSet::zeros(n, 0);
+    let opacity = (0.1f64 / 0.9).ln() as f32;
+    for i in 0..n {
+        let log_scale = (0.5 * dist2[i].max(MIN_DIST2).ln()) as f32;
+        for a in 0..3 {
+            set.means[3 * i + a] = positions[i][a] as f32;
+            set.log_scales[3 * i + a] = if log_scale.is_finite() {
+                log_scale
+            } else {
+                0.0
+            };
+            set.sh_dc[3 * i + a] = ((f64::from(colors[i][a]) / 255.0 - 0.5) / SH_C0) as f32;
+        }
+        set.opacity_logits[i] = opacity;
+    }
+    set
+}
+
+/// A fitted scene and its fit's record.
+#[derive(Clone, Debug)]
+pub struct SceneFit {
+    /// The Gaussians, at the fit's SH degree.
+    pub gaussians: GaussianSet,
+    /// Each step's training view PSNR (its render before the update), in step order.
+    pub psnr: Vec<f64>,
+    /// Gaussians after each densification: `(step, count)`.
+    pub counts: Vec<(u64, usize)>,
+    /// Steps taken (fewer than asked when stopped).
+    pub steps: u64,
+}
+
+/// Fits `views` to `images` (one per view) from `start` (see [`initial_gaussians`]) in a
+/// scene of camera extent `extent`, on `backend`. `on_step` is called after every step (return
+/// `ControlFlow::Break` to stop: the fit so far is returned).
+pub fn fit<F>(
+    views: &[View],
+    images: &[Image],
+    start: GaussianSet,
+    extent: f64,
+    settings: &SceneFitSettings,
+    backend: &Backend,
+    mut on_step: F,
+) -> Result<SceneFit, SceneFitError>
+where
+    F: FnMut(&StepReport) -> ControlFlow<()>,
+{
+    settings.check().map_err(SceneFitError::Settings)?;
+    if views.is_empty() || views.len() != images.len() {
+        return Err(SceneFitError::Settings(format!(
+            "{} views and {} pictures: one picture per view, at least one",
+            views.len(),
+            images.len()
+        )));
+    }
+    if start.is_empty() {
+        return Err(SceneFitError::Settings(
+            "the scene starts with no Gaussians (its point cloud is empty)".into(),
+        ));
+    }
+    if !(extent.is_finite() && extent > 0.0) {
+        return Err(SceneFitError::Settings(format!(
+            "the scene extent is {extent}: the cameras must not all stand at one point"
+        )));
+    }
+    let groups = settings.groups(extent);
+    let mut objective = PsnrLog {
+        inner: PhotometricObjective {
+            targets: images.to_vec(),
+            lambda: settings.lambda_dssim,
+        },
+        psnr: Vec::new(),
+    };
+    let mut sampler = ViewSampler::batches(views.len(), 1, BatchOrder::Shuffled, settings.seed);
+    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed ^ 0x5EED_D3A5);
+    let white = settings.background == [1.0; 3];
+    let densifying = settings.densify.as_ref();
+    let mut model = start;
+    let mut state: Option<Vec<u8>> = None;
+    let mut stats: Option<ScreenStats> = None;
+    let mut counts = Vec::new();
+    let mut done = 0;
+    while done < settings.steps {
+        let end = next_event(settings, done);
+        // The segment: a trainer from `done` to `end`.
+        let gathering = densifying.is_some_and(|d| d.gathers_at(done + 1));
+        let n = model.len();
+        let mut trainer = Trainer::new(backend, model, groups.clone(), AdamHyper::default())?;
+        if let Some(bytes) = &state {
+            trainer.restore_optimizer(bytes)?;
+        }
+        if gathering {
+            trainer.gather_screen_stats(stats.take().unwrap_or_else(|| ScreenStats::new(n)))?;
+        }
+        let mut stopped = false;
+        let config = TrainConfig {
+            steps: end,
+            background: settings.background,
+        };
+        let mut clamped = ClampedObjective::new(&mut objective, RenderClamp::Unit);
+        trainer.train(views, &mut clamped, &mut sampler, &config, |report| {
+            let flow = on_step(report);
+            stopped |= flow.is_break();
+            flow
+        })?;
+        done = trainer.step_count();
+        stats = trainer.take_screen_stats();
+        let mut bytes = trainer.save_optimizer();
+        model = trainer.into_model();
+        if stopped || done >= settings.steps {
+            break;
+        }
+        // The events after step `done`, in INRIA's order: densify, reset, then (at the next
+        // iteration's start) the SH degree.
+        if let Some(d) = densifying {
+            if d.densifies_at(done) {
+                let current = stats.take().ok_or_else(|| {
+                    SceneFitError::Settings("no statistics were gathered to densify".into())
+                })?;
+                let mut limited = d.clone();
+                limited.max_len = settings.max_gaussians;
+                let (dense, rows) = densify(
+                    &model,
+                    &current,
+                    extent as f32,
+                    &limited,
+                    d.prunes_large_at(done),
+                    &mut rng,
+                )
+                .map_err(SceneFitError::Settings)?;
+                bytes = rearrange(&bytes, &groups, &model, &rows)?;
+                model = dense;
+                counts.push((done, model.len()));
+            }
+            if d.resets_opacity_at(done, white) {
+                let rows = reset_opacity(&mut model);
+                bytes = rearrange(&bytes, &groups, &model, &rows)?;
+            }
+        }
+        if settings.raises_sh_after(done) && model.sh_degree() < settings.sh_degree {
+            if let Some((wider, rows)) = raise_sh_degree(&model) {
+                bytes = rearrange(&bytes, &groups, &model, &rows)?;
+                model = wider;
+            }
+        }
+        state = Some(bytes);
+    }
+    // The file holds every degree, as INRIA's (the ones not reached are zero).
+    while model.sh_degree() < settings.sh_degree {
+        match raise_sh_degree(&model) {
+            Some((wider, _)) => model = wider,
+            None => break,
+        }
+    }
+    Ok(SceneFit {
+        gaussians: model,
+        psnr: objective.psnr,
+        counts,
+        steps: done,
+    })
+}
+
+/// `bytes` (the optimizer of `groups` over `model`) with its moments following `rows`.
+fn rearrange(
+    bytes: &[u8],
+    groups: &[GroupConfig],
+    model: &GaussianSet,
+    rows: &[RowChange],
+) -> Result<Vec<u8>, GsError> {
+    let lens: Vec<Option<usize>> = model.group_lens().into_iter().map(Some).collect();
+    rearrange_state(bytes, groups, &lens, rows)
+}
+
+/// The next step after `done` at which the Gaussians change (a densification, an opacity
+/// reset, an SH degree raise), or the last step.
+fn next_event(settings: &SceneFitSettings, done: u64) -> u64 {
+    ((done + 1)..settings.steps)
+        .find(|&s| {
+            let densify = settings.densify.as_ref().is_some_and(|d| {
+                d.densifies_at(s) || d.resets_opacity_at(s, settings.background == [1.0; 3])
+            });
+            densify || settings.raises_sh_after(s)
+        })
+        .unwrap_or(settings.steps)
+}
+
+/// The fit's objective, also keeping the PSNR of every render it is given (one view a step,
+/// so the k-th is step k's).
+struct PsnrLog {
+    inner: PhotometricObjective,
+    psnr: Vec<f64>,
+}
+
+impl Objective for PsnrLog {
+    type Error = GsError;
+
+    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, GsError> {
+        let value = self.inner.evaluate(view, image)?;
+        self.psnr.push(psnr(image, &self.inner.targets[view]));
+        Ok(value)
+    }
+}
