@@ -9,9 +9,13 @@
 //! events, each a trainer whose optimizer moments follow the rows ([`rearrange_state`]).
 
 use std::ops::ControlFlow;
+use std::path::Path;
 
 use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RowChange};
-use gs_core::dataset::PointCloud;
+use gs_core::dataset::nerf_synthetic::{self, Split, TrainSplits};
+use gs_core::dataset::{
+    colmap, scene_extent, Dataset, DatasetError, Layout, LoadOptions, PointCloud,
+};
 use gs_core::densify::{densify, raise_sh_degree, reset_opacity, DensifySettings, ScreenStats};
 use gs_core::gaussians::{GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
 use gs_core::image::Image;
@@ -23,6 +27,7 @@ use gs_core::sampler::{BatchOrder, ViewSampler};
 use gs_core::sh::C0 as SH_C0;
 use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig};
 use gs_core::GsError;
+use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_wgpu::backend::{Backend, DeviceError, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -390,5 +395,116 @@ impl Objective for PsnrLog {
         let value = self.inner.evaluate(view, image)?;
         self.psnr.push(psnr(image, &self.inner.targets[view]));
         Ok(value)
+    }
+}
+
+/// What a fit trains on and is tested on.
+#[derive(Clone, Debug)]
+pub struct FitData {
+    /// The training views and their pictures; `extent` is theirs (INRIA's `cameras_extent`).
+    pub train: Dataset,
+    /// The held-out views and pictures (`--eval`), when any.
+    pub test: Option<(Vec<View>, Vec<Image>)>,
+}
+
+/// COLMAP's held-out views under `--eval`: every 8th of the pictures sorted by name (INRIA's
+/// `llffhold`).
+pub const LLFF_HOLD: usize = 8;
+
+/// The dataset in `data` with `options` (NeRF-synthetic or COLMAP), as INRIA's loaders read
+/// it: without `eval` every view trains (NeRF-synthetic's test split too); with it
+/// NeRF-synthetic's test split and every [`LLFF_HOLD`]th COLMAP picture by name are held out.
+pub fn load_fit_data(
+    data: &Path,
+    options: &LoadOptions,
+    eval: bool,
+) -> Result<FitData, DatasetError> {
+    match Layout::detect(data) {
+        Some(Layout::NerfSynthetic) => {
+            let splits = if eval {
+                TrainSplits::Train
+            } else {
+                TrainSplits::TrainAndTest
+            };
+            let train = nerf_synthetic::load_training(data, splits, options)?;
+            let test = if eval {
+                let test = nerf_synthetic::load(data, Split::Test, options)?;
+                Some((test.views, test.images))
+            } else {
+                None
+            };
+            Ok(FitData { train, test })
+        }
+        Some(Layout::Colmap) => {
+            let all = colmap::load(data, options)?;
+            if !eval {
+                return Ok(FitData {
+                    train: all,
+                    test: None,
+                });
+            }
+            let mut by_name: Vec<usize> = (0..all.views.len()).collect();
+            by_name.sort_by(|&a, &b| all.image_paths[a].cmp(&all.image_paths[b]));
+            let mut held = vec![false; all.views.len()];
+            for (k, &i) in by_name.iter().enumerate() {
+                held[i] = k % LLFF_HOLD == 0;
+            }
+            let mut train = all.clone();
+            let held = &held;
+            let keep = |held_out: bool| (0..all.views.len()).filter(move |&i| held[i] == held_out);
+            train.views = keep(false).map(|i| all.views[i].clone()).collect();
+            train.images = keep(false).map(|i| all.images[i].clone()).collect();
+            train.masks = keep(false).map(|i| all.masks[i].clone()).collect();
+            train.image_paths = keep(false).map(|i| all.image_paths[i].clone()).collect();
+            train.undistorted = keep(false).map(|i| all.undistorted[i].clone()).collect();
+            train.extent = scene_extent(&train.views);
+            let test_views = keep(true).map(|i| all.views[i].clone()).collect();
+            let test_images = keep(true).map(|i| all.images[i].clone()).collect();
+            Ok(FitData {
+                train,
+                test: Some((test_views, test_images)),
+            })
+        }
+        None => Err(DatasetError::Format {
+            path: data.to_path_buf(),
+            message: Layout::LOOKED_FOR.into(),
+        }),
+    }
+}
+
+/// The chart of a fit's PSNR against the step: each step's training view, and the mean of
+/// every 100 steps.
+pub fn psnr_chart(psnr: &[f64]) -> Chart {
+    let each = psnr
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| ((i + 1) as f64, p))
+        .collect();
+    let means = psnr
+        .chunks(100)
+        .enumerate()
+        .map(|(k, c)| {
+            let mid = (k * 100) as f64 + (c.len() as f64 + 1.0) / 2.0;
+            (mid, c.iter().sum::<f64>() / c.len() as f64)
+        })
+        .collect();
+    Chart {
+        title: "Fit PSNR (each step's training view, before its update)".into(),
+        x_label: "step".into(),
+        y_label: "PSNR (dB)".into(),
+        series: vec![
+            Series {
+                name: "each step".into(),
+                color: PALETTE[0],
+                points: each,
+                dashed: false,
+            },
+            Series {
+                name: "mean of 100 steps".into(),
+                color: PALETTE[1],
+                points: means,
+                dashed: false,
+            },
+        ],
     }
 }

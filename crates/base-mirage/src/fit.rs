@@ -97,8 +97,7 @@ fn check(settings: &PictureFitSettings) -> Result<(), FitError> {
     Ok(())
 }
 
-/// The name of the fit's PSNR chart in an output folder.
-pub const FIT_PSNR_PNG: &str = "fit_psnr.png";
+pub use gs_stylize::outputs::FIT_PSNR_PNG;
 
 /// The PSNR of one fit step: the render the step trained on against its camera's target,
 /// before the step's update.

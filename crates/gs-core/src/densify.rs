@@ -591,7 +591,7 @@ mod tests {
             .unwrap();
             let mut set = GaussianSet::<f64>::zeros(1, 0);
             set.means[2] = depth;
-            set.log_scales.fill((sigma as f64).ln());
+            set.log_scales.fill(f64::ln(sigma));
             set.opacity_logits[0] = 0.7;
             set.sh_dc.copy_from_slice(&[0.4, -0.2, 0.9]);
             let mut rng = ChaCha8Rng::seed_from_u64(seed as u64);

@@ -232,6 +232,8 @@ fn run_into<M: Modality>(
                 steps,
                 seconds,
                 psnr_db,
+                gaussians: None,
+                test_psnr_db: None,
             };
             write_json(&out.join(FIT_JSON), &report)?;
             model
@@ -269,6 +271,10 @@ pub struct FitWritten {
     pub line: String,
     /// The mean PSNR of the fit over the training views, dB.
     pub psnr_db: f64,
+    /// Gaussians of the fitted model.
+    pub gaussians: usize,
+    /// The mean PSNR over held-out test views, dB, when the fit held some out.
+    pub test_psnr_db: Option<f64>,
 }
 
 /// Runs a `fit` subcommand in the order of the module documentation: `load` reads the inputs
@@ -308,6 +314,8 @@ pub fn run_fit<I, F>(
             steps: command.steps,
             seconds,
             psnr_db: Some(written.psnr_db),
+            gaussians: Some(written.gaussians),
+            test_psnr_db: written.test_psnr_db,
         };
         write_json(&out.join(FIT_JSON), &report)?;
         Ok::<_, Box<dyn Error>>(written)

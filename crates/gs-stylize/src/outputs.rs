@@ -37,6 +37,13 @@ pub struct FitReport {
     /// The fitted model's mean PSNR over the training views, dB, where the modality measures
     /// it.
     pub psnr_db: Option<f64>,
+    /// Gaussians of the fitted model (absent from files written before it was recorded).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub gaussians: Option<usize>,
+    /// The fitted model's mean PSNR over the held-out test views, dB, when the fit held some
+    /// out.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub test_psnr_db: Option<f64>,
 }
 
 /// The losses of one step.
@@ -67,6 +74,8 @@ impl StepLosses {
 /// The before/after picture every modality writes: the original and the stylized result side
 /// by side (the first preview view in 3D, the first frame in video and 4D, the picture in 2D).
 pub const PREVIEW_PNG: &str = "preview.png";
+/// The plot of a fit's PSNR against the step, in an output folder.
+pub const FIT_PSNR_PNG: &str = "fit_psnr.png";
 
 /// The name of the before/after picture of the `k`-th preview view, view `view`: [`PREVIEW_PNG`]
 /// for the first, `preview_view{view:03}.png` for the others.

@@ -140,6 +140,8 @@ mod tests {
             steps: 3000,
             seconds: 44.4,
             psnr_db: Some(31.204),
+            gaussians: None,
+            test_psnr_db: None,
         };
         write_json(&out.join(FIT_JSON), &fit).unwrap();
         let text = write_summary("clipgaussian-2d stylize", Instant::now(), out).unwrap();

@@ -12,24 +12,38 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
+use base_3dgs::dataset::{inria_cameras, GroundTruth, ImageProgress};
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
+use base_3dgs::fit::{
+    self as scene_fit, initial_gaussians, load_fit_data, psnr_chart, FitData, SceneFit,
+    SceneFitSettings,
+};
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
+use gs_core::camera::Camera;
+use gs_core::densify::DensifySettings;
+use gs_core::image::Image;
+use gs_core::image_loss::mean_psnr;
+use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
+use gs_stylize::animation::write_frames;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::{ModalityBinary, PlyModel};
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
+use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::export::ExportArgs;
 use gs_stylize::model_kind::{check_model, Binary};
 use gs_stylize::model_views::ModelViewFlags;
 use gs_stylize::open_device;
 use gs_stylize::outputs::into_new_folder;
+use gs_stylize::outputs::{write_pair, FIT_PSNR_PNG, PREVIEW_PNG};
 use gs_stylize::summary::write_summary;
 use gs_stylize::viewer::Shown;
 use gs_stylize::writable::{check_output_file, check_output_folder};
+use gs_wgpu::backend::Backend;
 use gs_wgpu::backend::DeviceChoice;
 use serde::Serialize;
 
@@ -278,9 +292,227 @@ fn export(args: &ExportArgs) -> Result<(), Box<dyn Error>> {
     Ok(())
 }
 
-/// The 3D binary's own subcommands: none yet (a 3D fit is to come).
+/// The 3D binary's own subcommands.
 #[derive(Subcommand, Debug)]
-enum SceneCommand {}
+enum SceneCommand {
+    /// Fit a 3DGS scene to a dataset's pictures, as INRIA 3DGS's train.py (no stylization).
+    ///
+    /// Starts from the dataset's points (COLMAP's points3D) or, without them
+    /// (NeRF-synthetic), from --gaussians random points in the cube [-1.3, 1.3]^3; trains
+    /// L1 + 0.2 D-SSIM with INRIA's rates, one SH degree more every 1,000 steps, and
+    /// densifies (clone and split by the view-space gradient, prune) from step 500 to
+    /// 15,000 every 100, the opacities reset every 3,000. Writes to --out:
+    /// point_cloud/iteration_<steps>/point_cloud.ply and cameras.json (INRIA's layout, which
+    /// `stylize --model` and viewers read), frames/ (the test views with --eval, else the
+    /// training views), preview.png (the first of them: picture | fit), fit_psnr.png (each
+    /// step's PSNR) and fit.json (steps, time, Gaussians, training and test PSNR). Ctrl-C
+    /// stops the fit and writes nothing.
+    Fit(FitArgs),
+}
+
+/// Arguments of `fit`.
+#[derive(Args, Debug)]
+struct FitArgs {
+    /// The dataset folder: NeRF-synthetic or COLMAP (sparse/, or dense/ from
+    /// image_undistorter).
+    #[arg(long)]
+    data: PathBuf,
+    /// The output folder (created after the fit; files of the same names are replaced).
+    #[arg(long)]
+    out: PathBuf,
+    /// Optimizer steps (INRIA's --iterations).
+    #[arg(long, default_value_t = SceneFitSettings::default().steps)]
+    steps: u64,
+    /// Random starting Gaussians when the dataset has no points (NeRF-synthetic), as the
+    /// other binaries' `--gaussians`.
+    #[arg(long, default_value_t = SceneFitSettings::default().random_points)]
+    gaussians: usize,
+    /// The most Gaussians densification may make (default: no cap, as INRIA); past it, the
+    /// Gaussians of the largest gradients grow first. For a GPU or a machine of little memory.
+    #[arg(long)]
+    max_gaussians: Option<usize>,
+    /// The highest SH degree (INRIA's --sh_degree).
+    #[arg(long, default_value_t = SceneFitSettings::default().sh_degree)]
+    sh_degree: usize,
+    /// No densification after this step (INRIA's --densify_until_iter); 0 fits the starting
+    /// Gaussians only.
+    #[arg(long, default_value_t = DensifySettings::default().until)]
+    densify_until: u64,
+    /// Hold out the test views (INRIA's --eval): NeRF-synthetic's test split, every 8th COLMAP
+    /// picture by name; they are rendered and scored, not trained on.
+    #[arg(long)]
+    eval: bool,
+    /// Resolution divisor of the dataset images (3DGS's -r); `images_<r>/` is read when the
+    /// dataset has it.
+    #[arg(short = 'r', long, default_value_t = 1)]
+    resolution: u32,
+    /// With resolution 1, a picture wider than this is shrunk to it, pixels (INRIA's loader
+    /// at its default -r -1); 0 keeps every picture at its size.
+    #[arg(long, default_value_t = AUTHORS_MAX_WIDTH)]
+    max_width: u32,
+    /// The colour renders are drawn on and pictures composited over: white, black or R,G,B
+    /// in [0, 1] (default black, as INRIA).
+    #[arg(long, value_parser = parse_background, default_value = "black", conflicts_with = "white_background")]
+    background: [f32; 3],
+    /// The same as --background white (INRIA's -w).
+    #[arg(short = 'w', long)]
+    white_background: bool,
+    /// How a picture with transparency becomes the ground truth: file_colour (the stored
+    /// colours, alpha ignored, as the INRIA commit CLIPGaussian pins) or composited (over the
+    /// background, cut to 8 bits, as INRIA before August 2024).
+    #[arg(long, value_parser = parse_ground_truth, default_value = "file_colour")]
+    ground_truth: GroundTruth,
+    /// Seed of the random points, the view order and the split samples.
+    #[arg(long, default_value_t = 0)]
+    seed: u64,
+    /// Where to fit: cpu, or gpu / auto with --densify-until 0 (the densification runs on
+    /// the cpu for now).
+    #[arg(long, default_value_t = DeviceChoice::Cpu)]
+    device: DeviceChoice,
+    /// No progress bar.
+    #[arg(long)]
+    quiet: bool,
+}
+
+/// `file_colour` or `composited`, as the configurations name them.
+fn parse_ground_truth(text: &str) -> Result<GroundTruth, String> {
+    serde_json::from_value(serde_json::Value::String(text.into()))
+        .map_err(|_| format!("{text:?}: one of file_colour, composited"))
+}
+
+/// Runs `fit`.
+fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
+    let background = if args.white_background {
+        [1.0; 3]
+    } else {
+        args.background
+    };
+    let densify = (args.densify_until > 0).then(|| DensifySettings {
+        until: args.densify_until,
+        ..DensifySettings::default()
+    });
+    let settings = SceneFitSettings {
+        steps: args.steps,
+        sh_degree: args.sh_degree,
+        random_points: args.gaussians,
+        densify,
+        max_gaussians: args.max_gaussians,
+        background,
+        seed: args.seed,
+        ..SceneFitSettings::default()
+    };
+    settings.check()?;
+    if args.device != DeviceChoice::Cpu && settings.densify.is_some() {
+        return Err(format!(
+            "--device {}: the fit's densification runs on the cpu for now: use --device cpu, \
+             or --densify-until 0 to fit the starting Gaussians only on a GPU",
+            args.device
+        )
+        .into());
+    }
+    let options = |progress: &ImageProgress| LoadOptions {
+        background: Background::from_rgb(background),
+        ground_truth: args.ground_truth,
+        downscale: args.resolution,
+        max_width: args.max_width,
+        progress: Some(progress.clone()),
+    };
+    let command = FitCommand {
+        out: &args.out,
+        device: args.device,
+        progress: !args.quiet,
+        what: "the scene",
+        steps: settings.steps,
+        stages: Vec::new(),
+    };
+    run_fit(
+        &command,
+        |progress| Ok(load_fit_data(&args.data, &options(progress), args.eval)?),
+        |data, backend, on_step| {
+            let start = initial_gaussians(data.train.points.as_ref(), &settings);
+            Ok(scene_fit::fit(
+                &data.train.views,
+                &data.train.images,
+                start,
+                data.train.extent,
+                &settings,
+                backend,
+                on_step,
+            )?)
+        },
+        |data, fitted, backend, seconds| write_fit(args, data, fitted, backend, seconds),
+    )
+}
+
+/// Writes a fit's outputs (see `fit`'s help) and says what it did.
+fn write_fit(
+    args: &FitArgs,
+    data: &FitData,
+    fitted: SceneFit,
+    backend: &Backend,
+    seconds: f64,
+) -> Result<FitWritten, Box<dyn Error>> {
+    let out = &args.out;
+    let ply_dir = out
+        .join("point_cloud")
+        .join(format!("iteration_{}", fitted.steps));
+    std::fs::create_dir_all(&ply_dir)?;
+    let gaussians = fitted.gaussians;
+    write_ply(
+        &ply_dir.join("point_cloud.ply"),
+        &PlyGaussians::new(gaussians.clone()),
+        PlyFormat::BinaryLittleEndian,
+    )?;
+    let train = &data.train;
+    let names: Vec<(&Camera, String)> = train
+        .views
+        .iter()
+        .zip(&train.image_paths)
+        .map(|(v, p)| {
+            let stem = p.file_stem().map(|s| s.to_string_lossy().into_owned());
+            (&v.camera, stem.unwrap_or_default())
+        })
+        .collect();
+    inria_cameras::write(&out.join(inria_cameras::FILE_NAME), &names)?;
+    psnr_chart(&fitted.psnr).write_png(&out.join(FIT_PSNR_PNG))?;
+    let renderer = backend.renderer(&gaussians)?;
+    let render_all = |views: &[gs_core::model::View]| -> Result<Vec<Image>, Box<dyn Error>> {
+        views
+            .iter()
+            .map(|v| Ok(renderer.render(&v.camera, train.background)?))
+            .collect()
+    };
+    let train_renders = render_all(&train.views)?;
+    let psnr_db = mean_psnr(&train_renders, &train.images);
+    let (shown, pictures, test_psnr_db) = match &data.test {
+        Some((views, images)) => {
+            let renders = render_all(views)?;
+            let psnr = mean_psnr(&renders, images);
+            (renders, images.as_slice(), Some(psnr))
+        }
+        None => (train_renders, train.images.as_slice(), None),
+    };
+    write_frames(&out.join(FRAMES_DIR), &shown)?;
+    write_pair(&out.join(PREVIEW_PNG), &pictures[0], &shown[0])?;
+    let test = match test_psnr_db {
+        Some(p) => format!(", test {p:.2} dB"),
+        None => String::new(),
+    };
+    let line = format!(
+        "fitted {} ({} training views) in {seconds:.1} s: {} Gaussians, PSNR training \
+         {psnr_db:.2} dB{test}; wrote {}",
+        args.data.display(),
+        train.views.len(),
+        gaussians.len(),
+        out.display()
+    );
+    Ok(FitWritten {
+        line,
+        psnr_db,
+        gaussians: gaussians.len(),
+        test_psnr_db,
+    })
+}
 
 /// Write a scene in a splat format viewers open.
 ///
@@ -342,7 +574,9 @@ impl ModalityBinary for Scene {
     }
 
     fn own(command: &SceneCommand) -> Result<(), Box<dyn Error>> {
-        match *command {}
+        match command {
+            SceneCommand::Fit(args) => fit(args),
+        }
     }
 
     fn render(args: &RenderArgs) -> Result<(), Box<dyn Error>> {

@@ -400,7 +400,12 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 model.subs_per_core(),
                 args.out.display()
             );
-            Ok(FitWritten { line, psnr_db })
+            Ok(FitWritten {
+                line,
+                psnr_db,
+                gaussians: model.cores() * model.subs_per_core(),
+                test_psnr_db: None,
+            })
         },
     )
 }

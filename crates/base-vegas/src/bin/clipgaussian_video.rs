@@ -321,7 +321,12 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 settings.gaussians,
                 args.out.display()
             );
-            Ok(FitWritten { line, psnr_db })
+            Ok(FitWritten {
+                line,
+                psnr_db,
+                gaussians: settings.gaussians,
+                test_psnr_db: None,
+            })
         },
     )
 }

@@ -16,7 +16,7 @@
 
 use std::path::{Path, PathBuf};
 
-use serde::Deserialize;
+use serde::{Deserialize, Serialize};
 
 use super::{training_camera, DatasetError, DatasetView, LoadOptions};
 use crate::model::View;
@@ -127,6 +127,52 @@ pub fn beside(model: &Path) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
+/// One camera as INRIA's `camera_to_JSON` writes it.
+#[derive(Serialize)]
+struct Written<'a> {
+    id: usize,
+    img_name: &'a str,
+    width: u32,
+    height: u32,
+    position: [f64; 3],
+    rotation: [[f64; 3]; 3],
+    fy: f64,
+    fx: f64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cx: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    cy: Option<f64>,
+}
+
+/// Writes `cameras` (each with its picture's name, no folder or extension) as INRIA's
+/// `cameras.json` to `path` (through a temporary name, then renamed). A principal point off
+/// the picture's centre, which INRIA's format cannot say, is written as forks write it
+/// (`cx`, `cy`), which [`read`] takes.
+pub fn write(path: &Path, cameras: &[(&Camera, String)]) -> std::io::Result<()> {
+    let entries: Vec<Written> = cameras
+        .iter()
+        .enumerate()
+        .map(|(id, (camera, name))| {
+            let r = camera.rotation;
+            Written {
+                id,
+                img_name: name,
+                width: camera.width,
+                height: camera.height,
+                position: camera.centre(),
+                // Camera to world: the transpose of the world-to-camera rotation.
+                rotation: [0, 1, 2].map(|i| [0, 1, 2].map(|j| r[j][i])),
+                fy: camera.fy,
+                fx: camera.fx,
+                cx: (camera.cx != f64::from(camera.width) / 2.0).then_some(camera.cx),
+                cy: (camera.cy != f64::from(camera.height) / 2.0).then_some(camera.cy),
+            }
+        })
+        .collect();
+    let text = serde_json::to_string(&entries).map_err(std::io::Error::other)?;
+    crate::fs::write_atomic(path, text.as_bytes())
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -144,6 +190,57 @@ mod tests {
             r#"{{"id": 0, "img_name": "{name}", "width": 40, "height": 30, "position": {centre:?},
                "rotation": {r:?}, "fy": 50.0, "fx": 52.0}}"#
         )
+    }
+
+    #[test]
+    fn written_cameras_read_back_as_they_were() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join(FILE_NAME);
+        let a = Camera::look_at([0.3, 4.0, 1.0], [0.0; 3], [0.0, 0.0, 1.0], 0.9, 40, 30).unwrap();
+        let mut b = Camera::look_at(
+            [-2.0, 1.0, 0.5],
+            [0.1, 0.2, 0.0],
+            [0.0, 0.0, 1.0],
+            1.1,
+            33,
+            21,
+        )
+        .unwrap();
+        b.cx = 15.25;
+        super::write(&path, &[(&a, "r_0".into()), (&b, "r_1".into())]).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(
+            text.contains("\"img_name\":\"r_0\"") && text.contains("\"cx\":15.25"),
+            "{text}"
+        );
+        assert_eq!(
+            text.matches("\"cx\"").count(),
+            1,
+            "a centred point is not written"
+        );
+        let read = read(
+            &path,
+            &LoadOptions {
+                max_width: 0,
+                ..LoadOptions::default()
+            },
+        )
+        .unwrap();
+        for (view, (camera, name)) in read.iter().zip([(&a, "r_0"), (&b, "r_1")]) {
+            let c = &view.view.camera;
+            assert_eq!(view.picture, PathBuf::from(name));
+            for i in 0..3 {
+                assert!((c.translation[i] - camera.translation[i]).abs() < 1e-12);
+                for j in 0..3 {
+                    assert!((c.rotation[i][j] - camera.rotation[i][j]).abs() < 1e-12);
+                }
+            }
+            assert_eq!(
+                (c.fx, c.fy, c.cx, c.cy),
+                (camera.fx, camera.fy, camera.cx, camera.cy)
+            );
+            assert_eq!((c.width, c.height), (camera.width, camera.height));
+        }
     }
 
     #[test]
