@@ -14,7 +14,7 @@ use base_3dgs::fit::{fit, initial_gaussians, load_fit_data, SceneFitSettings};
 use fit_scene::{write_fit_scene, FitScene};
 use gs_core::densify::DensifySettings;
 use gs_core::image_loss::mean_psnr;
-use gs_core::ply::read_ply;
+use gs_core::ply::{read_ply, write_ply, PlyFormat};
 use gs_core::raster::render;
 use gs_wgpu::backend::Backend;
 
@@ -193,4 +193,87 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
         let psnr = mean_psnr(&renders, images);
         assert!(psnr > 22.0, "seed {seed}: test PSNR {psnr}");
     }
+}
+
+/// `stylize --data` without `--model` fits first (keeping base.ply and fit.json), then
+/// stylizes the fit; `--resume` after an interrupted stylization reuses base.ply instead of
+/// fitting again; a GPU run that would fit is refused before the fit.
+#[test]
+fn stylize_without_a_model_fits_first_and_keeps_the_fit() {
+    let dir = tempfile::tempdir().unwrap();
+    let models = style_loss::test_models::write_tiny_models(dir.path());
+    let data = dir.path().join("data");
+    write_fit_scene(&data, scene(3));
+    let out = dir.path().join("out");
+    let stylize = |extra: &[&str]| {
+        let mut cmd = bin();
+        cmd.args(["stylize", "--data", s(&data), "--out", s(&out), "--quiet"])
+            .args(["--fit-steps", "80", "--gaussians", "600", "--device", "cpu"])
+            .args(["--set", "checkpoint_every=1"])
+            .args(extra);
+        gs_stylize::test_support::tiny_style_flags(&mut cmd, &models);
+        cmd.output().unwrap()
+    };
+    let first = stylize(&["--steps", "2"]);
+    assert!(
+        first.status.success(),
+        "{}",
+        String::from_utf8_lossy(&first.stderr)
+    );
+    let base = read_ply(&out.join("base.ply")).unwrap();
+    assert_eq!(
+        base.gaussians.len(),
+        600,
+        "80 steps: before any densification"
+    );
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
+    assert_eq!(report["steps"], 80);
+    assert!(report["psnr_db"].as_f64().unwrap() > 18.0, "{report}");
+    let stylized = read_ply(&out.join("model.ply")).unwrap();
+    assert_eq!(stylized.gaussians.len(), 600);
+    assert_ne!(stylized.gaussians, base.gaussians);
+    // More steps from the checkpoint: the kept fit is read back, not made again (a marked
+    // copy of it stays as it is).
+    let mut marked = base.clone();
+    marked.gaussians.sh_dc[0] += 0.25;
+    write_ply(
+        &out.join("base.ply"),
+        &marked,
+        PlyFormat::BinaryLittleEndian,
+    )
+    .unwrap();
+    let marked_bytes = std::fs::read(out.join("base.ply")).unwrap();
+    let resumed = stylize(&["--steps", "3", "--resume"]);
+    assert!(
+        resumed.status.success(),
+        "{}",
+        String::from_utf8_lossy(&resumed.stderr)
+    );
+    assert_eq!(std::fs::read(out.join("base.ply")).unwrap(), marked_bytes);
+    let report: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
+    assert_eq!(report["steps"], 3, "{report}");
+
+    let gpu_out = dir.path().join("gpu");
+    let mut cmd = bin();
+    cmd.args([
+        "stylize",
+        "--data",
+        s(&data),
+        "--out",
+        s(&gpu_out),
+        "--quiet",
+    ])
+    .args(["--fit-steps", "10", "--device", "gpu", "--steps", "1"])
+    .env(gs_wgpu::backend::ALLOW_SOFTWARE_GPU, "1");
+    gs_stylize::test_support::tiny_style_flags(&mut cmd, &models);
+    let refused = cmd.output().unwrap();
+    let stderr = String::from_utf8_lossy(&refused.stderr);
+    assert!(!refused.status.success());
+    assert!(
+        stderr.contains("--device cpu") || stderr.contains("--device gpu"),
+        "{stderr}"
+    );
+    assert!(!gpu_out.join("base.ply").exists());
 }

@@ -51,7 +51,9 @@ use serde::Serialize;
 /// picture style.
 ///
 /// Without --data the run trains on views of the model itself (see --data) and says where
-/// its cameras came from.
+/// its cameras came from. Without --model it fits the dataset first, as `fit` does
+/// (--fit-steps, --gaussians; the cpu only for now), and keeps the fit as base.ply and
+/// fit.json.
 ///
 /// Writes to `--out`: model.ply (the stylized scene, in the input's PLY format with its
 /// extra properties; also model.spz, model.splat, model.compressed.ply or model.glb when the
@@ -71,7 +73,7 @@ struct StylizeArgs {
     #[serde(skip)]
     config: Option<PathBuf>,
     /// The trained scene: INRIA PLY, or SuperSplat compressed PLY, SPZ, .splat, glTF .glb or
-    /// SOG (`--ply` is the same flag).
+    /// SOG (`--ply` is the same flag); default: fit --data first.
     #[arg(long = "model", visible_alias = "ply", value_name = "PLY")]
     #[serde(rename = "model", skip_serializing_if = "Option::is_none")]
     ply: Option<PathBuf>,
@@ -107,7 +109,18 @@ struct StylizeArgs {
     #[arg(long, value_parser = parse_background)]
     #[serde(skip_serializing_if = "Option::is_none")]
     background: Option<[f32; 3]>,
-    /// The style, model files, device and run controls.
+    /// Without --model: random starting Gaussians of the fit that runs first, when the
+    /// dataset has no points (NeRF-synthetic), as the other binaries' `--gaussians` (default
+    /// 100,000, INRIA's).
+    #[arg(long = "gaussians")]
+    #[serde(rename = "fit_gaussians", skip_serializing_if = "Option::is_none")]
+    gaussians: Option<usize>,
+    /// Without --model: steps of that fit (default 30,000, INRIA's; see `fit`).
+    #[arg(long)]
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fit_steps: Option<u64>,
+    /// The style, model files, device and run controls; `--resume` also reuses
+    /// `<out>/base.ply`, the fit a run without --model made.
     #[command(flatten)]
     #[serde(skip)]
     style: StyleArgs,
@@ -630,6 +643,10 @@ mod tests {
             "30",
             "--height",
             "20",
+            "--gaussians",
+            "500",
+            "--fit-steps",
+            "40",
         ];
         let own_fields = [
             ("model", json!("m.ply")),
@@ -641,6 +658,8 @@ mod tests {
             ("resolution", json!(2)),
             ("max_width", json!(3)),
             ("background", json!([1.0, 1.0, 1.0])),
+            ("fit_gaussians", json!(500)),
+            ("fit_steps", json!(40)),
         ];
         gs_stylize::test_support::assert_flags_set::<SceneStylizeConfig>(
             &own_flags,

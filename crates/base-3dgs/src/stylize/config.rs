@@ -84,6 +84,11 @@ pub struct SceneStylizeConfig {
     /// paper's: `means` `1e-4 -> 1e-6` times the scene extent over 30,000 steps, 0.005, 0.001,
     /// 0.05, `feature_lr` 0.01 and a twentieth of it.
     pub learning_rates: GroupRates,
+    /// Random starting Gaussians of the fit that runs when `model` is not given and the
+    /// dataset has no points (NeRF-synthetic; `--gaussians`): INRIA's 100,000.
+    pub fit_gaussians: usize,
+    /// Steps of that fit (INRIA's 30,000; see `clipgaussian-3d fit`).
+    pub fit_steps: u64,
     /// The settings every modality shares (style, weights, patches, models).
     #[serde(flatten)]
     pub style: StyleSettings,
@@ -105,6 +110,8 @@ impl Default for SceneStylizeConfig {
             train_splits: TrainSplits::TrainAndTest,
             preview_views: vec![0],
             learning_rates: gaussian_stylization(0.01),
+            fit_gaussians: 100_000,
+            fit_steps: 30_000,
             style: StyleSettings::paper_3d(),
         }
     }
@@ -125,13 +132,20 @@ impl SceneStylizeConfig {
     /// ([`StyleSettings::validate`]), the learning rates and the resolution divisor.
     pub fn validate(&self) -> Result<(), StylizeError> {
         let bad = |field: &str, why: &str| Err(StylizeError::Config(format!("{field}: {why}")));
-        for (field, value, flag) in [
-            ("model", &self.model, "--model PLY"),
-            ("out", &self.out, "--out FOLDER"),
-        ] {
-            if value.is_none() {
-                return bad(field, &format!("is required ({flag})"));
-            }
+        if self.out.is_none() {
+            return bad("out", "is required (--out FOLDER)");
+        }
+        if self.model.is_none() && self.data.is_none() {
+            return bad(
+                "model",
+                "is required (--model PLY), unless --data gives a dataset to fit first",
+            );
+        }
+        if self.model.is_none() && (self.fit_steps == 0 || self.fit_gaussians == 0) {
+            return bad(
+                "fit_steps, fit_gaussians",
+                "the fit that runs without --model needs at least 1 step and 1 Gaussian",
+            );
         }
         self.views.validate(self.data.is_some())?;
         self.style.validate()?;
@@ -145,9 +159,9 @@ impl SceneStylizeConfig {
         Ok(())
     }
 
-    /// The required `model` path ([`SceneStylizeConfig::validate`] checked it is set).
-    pub fn model_path(&self) -> &Path {
-        self.model.as_deref().expect("validated: model is set")
+    /// The trained scene, when given (without it, the run fits one to `data` first).
+    pub fn model_path(&self) -> Option<&Path> {
+        self.model.as_deref()
     }
 
     /// The required `out` path.

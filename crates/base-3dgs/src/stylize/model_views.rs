@@ -4,6 +4,8 @@
 //! holds the stylized scene to what the base model shows, which is what the dataset's pictures
 //! stand for in a run with data.
 
+use std::path::Path;
+
 use gs_core::dataset::{Dataset, LoadOptions};
 use gs_core::model::View;
 use gs_core::orbit::RobustBounds;
@@ -19,10 +21,10 @@ use super::SceneStylizeConfig;
 /// progress.
 pub(crate) fn model_scene(
     config: &SceneStylizeConfig,
+    model_path: &Path,
     model: &GaussianSet,
     run: &PreparedRun,
 ) -> Result<Dataset, StylizeError> {
-    let model_path = config.model_path();
     let bounds = RobustBounds::of(model)
         .map_err(|e| StylizeError::Input(format!("model {}: {e}", model_path.display())))?;
     let options = LoadOptions {

@@ -5,8 +5,9 @@
 
 use std::path::{Path, PathBuf};
 
+use gs_core::image_loss::mean_psnr;
 use gs_core::model::BaseModel;
-use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
 use gs_core::GaussianSet;
 use gs_stylize::drive::{InputPixels, Modality, OnStep};
@@ -18,11 +19,14 @@ use gs_stylize::{
     StylizeJob, StylizeOutcome,
 };
 
+use gs_wgpu::backend::Backend;
+
 use super::config::BackgroundPixels;
 use super::model_views::model_scene;
 use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
+use crate::fit::{fit, initial_gaussians, SceneFitSettings};
 
 /// The stylized PLY in the output folder (`model.ply`, as the 2D and video runs name theirs).
 pub const MODEL_PLY: &str = "model.ply";
@@ -54,12 +58,11 @@ pub fn run(
     gs_stylize::drive::run(config, options)
 }
 
-/// The inputs of a 3D run: the trained scene (with the PLY's format, extra properties and
-/// comments, written back into the stylized PLY) and its dataset.
+/// The inputs of a 3D run: the trained scene when given (with the PLY's format, extra
+/// properties and comments, written back into the stylized PLY) and its dataset.
 #[derive(Debug)]
 pub struct SceneInput {
-    ply: PlyGaussians,
-    format: PlyFormat,
+    given: Option<(PlyGaussians, PlyFormat)>,
     dataset: Dataset,
 }
 
@@ -70,7 +73,7 @@ impl Modality for SceneStylizeConfig {
     type Outputs = SceneSummary;
     type Error = SceneStylizeError;
 
-    /// Unused: a 3D run starts from a trained scene, always given.
+    /// The scene a run without `model` fits first (INRIA PLY).
     const BASE_MODEL: &'static str = "base.ply";
     const FITTED: &'static str = "the scene";
 
@@ -87,7 +90,7 @@ impl Modality for SceneStylizeConfig {
     }
 
     fn given_model(&self) -> Option<&Path> {
-        Some(self.model_path())
+        self.model_path()
     }
 
     /// A NeRF-synthetic scene's sizes from its json files (and one picture header a split);
@@ -113,17 +116,21 @@ impl Modality for SceneStylizeConfig {
     }
 
     /// The PLY and the dataset (or, without data, the model's views and renders:
-    /// [`model_scene`]), with the preview views checked against it.
+    /// [`model_scene`]; without a model, the dataset its fit trains on), with the preview
+    /// views checked against it.
     fn load_inputs(
         &self,
         run: &PreparedRun,
         _model: Option<&Path>,
     ) -> Result<SceneInput, SceneStylizeError> {
-        let (ply, format) =
-            read_splats_with_format(self.model_path()).map_err(StylizeError::from)?;
-        let dataset = match self.data.as_deref() {
-            Some(data) => load_dataset(self, data, run.options().progress)?,
-            None => model_scene(self, &ply.gaussians, run)?,
+        let given = match self.model_path() {
+            Some(path) => Some(read_splats_with_format(path).map_err(StylizeError::from)?),
+            None => None,
+        };
+        let dataset = match (self.data.as_deref(), &given, self.model_path()) {
+            (Some(data), _, _) => load_dataset(self, data, run.options().progress)?,
+            (None, Some((ply, _)), Some(path)) => model_scene(self, path, &ply.gaussians, run)?,
+            _ => return Err(StylizeError::Input("--model or --data is required".into()).into()),
         };
         let count = dataset.views.len();
         if let Some(v) = self.preview_views.iter().find(|&&v| v >= count) {
@@ -133,46 +140,102 @@ impl Modality for SceneStylizeConfig {
             ))
             .into());
         }
-        Ok(SceneInput {
-            ply,
-            format,
-            dataset,
-        })
+        Ok(SceneInput { given, dataset })
     }
 
-    /// The scene the inputs read.
+    /// The scene the inputs read, or (`own_fit`, a resumed run that fitted) the fit it kept.
     fn read_model(
         &self,
         scene: &SceneInput,
-        _path: &Path,
-        _own_fit: bool,
+        path: &Path,
+        own_fit: bool,
         _run: &PreparedRun,
     ) -> Result<GaussianSet, SceneStylizeError> {
-        Ok(scene.ply.gaussians.clone())
+        match (&scene.given, own_fit) {
+            (Some((ply, _)), false) => Ok(ply.gaussians.clone()),
+            _ => Ok(read_ply(path).map_err(StylizeError::from)?.gaussians),
+        }
     }
 
     fn fit_steps(&self) -> u64 {
-        0
+        if self.model.is_some() {
+            0
+        } else {
+            self.fit_steps
+        }
     }
 
-    /// A 3D run does not fit its base model.
+    /// INRIA 3DGS's fit ([`crate::fit`]) of the training views, from the dataset's points or
+    /// `fit_gaussians` random ones; its densification runs on the cpu only for now.
     fn fit(
         &self,
-        _scene: &SceneInput,
-        _run: &PreparedRun,
-        _on_step: OnStep<'_>,
+        scene: &SceneInput,
+        run: &PreparedRun,
+        on_step: OnStep<'_>,
     ) -> Result<GaussianSet, SceneStylizeError> {
-        Err(no_fit().into())
+        if !matches!(run.backend(), Backend::Cpu) {
+            return Err(StylizeError::Input(
+                "without --model the run fits the scene first, and the fit's densification \
+                 runs on the cpu only for now: use --device cpu, or fit with \
+                 `clipgaussian-3d fit --device cpu` and pass its point_cloud.ply as --model"
+                    .into(),
+            )
+            .into());
+        }
+        let settings = SceneFitSettings {
+            steps: self.fit_steps,
+            random_points: self.fit_gaussians,
+            background: scene.dataset.background,
+            seed: self.style.seed,
+            ..SceneFitSettings::default()
+        };
+        let dataset = &scene.dataset;
+        let start = initial_gaussians(dataset.points.as_ref(), &settings);
+        let fitted = fit(
+            &dataset.views,
+            &dataset.images,
+            start,
+            dataset.extent,
+            &settings,
+            run.backend(),
+            on_step,
+        )
+        .map_err(|e| StylizeError::Input(format!("the fit: {e}")))?;
+        Ok(fitted.gaussians)
     }
 
-    /// A 3D run does not fit its base model.
+    /// Writes the fit as INRIA PLY at `path` ([`Self::BASE_MODEL`]).
     fn keep_fit(
         &self,
         _scene: &SceneInput,
-        _fit: GaussianSet,
-        _path: &Path,
+        fit: GaussianSet,
+        path: &Path,
     ) -> Result<GaussianSet, SceneStylizeError> {
-        Err(no_fit().into())
+        write_ply(
+            path,
+            &PlyGaussians::new(fit.clone()),
+            PlyFormat::BinaryLittleEndian,
+        )
+        .map_err(StylizeError::from)?;
+        Ok(fit)
+    }
+
+    /// The fit's mean PSNR over the training views.
+    fn fit_psnr(
+        &self,
+        scene: &SceneInput,
+        model: &mut GaussianSet,
+        run: &PreparedRun,
+    ) -> Result<Option<f64>, SceneStylizeError> {
+        let dataset = &scene.dataset;
+        let renderer = run.backend().renderer(model).map_err(StylizeError::from)?;
+        let renders = dataset
+            .views
+            .iter()
+            .map(|v| renderer.render(&v.camera, dataset.background))
+            .collect::<Result<Vec<_>, _>>()
+            .map_err(StylizeError::from)?;
+        Ok(Some(mean_psnr(&renders, &dataset.images)))
     }
 
     /// Every view of the dataset, one per step, the loss seeing the render clamped to [0, 1];
@@ -216,11 +279,14 @@ impl Modality for SceneStylizeConfig {
         run: &PreparedRun,
     ) -> Result<SceneSummary, SceneStylizeError> {
         let out = run.out();
-        let SceneInput {
-            ply,
-            format,
-            dataset,
-        } = scene;
+        let SceneInput { given, dataset } = scene;
+        let (ply, format) = match given {
+            Some(given) => given,
+            None => {
+                let base = read_ply(&out.join(Self::BASE_MODEL)).map_err(StylizeError::from)?;
+                (base, PlyFormat::BinaryLittleEndian)
+            }
+        };
         let stylized_ply = out.join(MODEL_PLY);
         let mut stylized = PlyGaussians {
             gaussians: outcome.model,
@@ -230,7 +296,7 @@ impl Modality for SceneStylizeConfig {
         };
         write_ply(&stylized_ply, &stylized, format).map_err(StylizeError::from)?;
         // A scene read from another splat format is written in it too (`model.spz`, ...).
-        if let Some(input) = SplatFormat::from_path(self.model_path()) {
+        if let Some(input) = self.model_path().and_then(SplatFormat::from_path) {
             if input != SplatFormat::Ply {
                 let path = out.join(format!("model{}", input.extension()));
                 write_splats(&path, &stylized, input).map_err(StylizeError::from)?;
@@ -250,7 +316,7 @@ impl Modality for SceneStylizeConfig {
             viewer::write_viewer(
                 &out.join(viewer::VIEWER_HTML),
                 &viewer::ViewerScene {
-                    title: format!("{}: {}", self.model_path().display(), self.style.label()),
+                    title: format!("{}: {}", self.scene_name(), self.style.label()),
                     shown: viewer::Shown::Still {
                         base: &base,
                         stylized: Some(&stylized.gaussians),
@@ -275,9 +341,14 @@ impl Modality for SceneStylizeConfig {
     }
 }
 
-/// Why a 3D run has no fit.
-fn no_fit() -> StylizeError {
-    StylizeError::Input("a 3D stylization starts from a trained scene: give it with --model".into())
+impl SceneStylizeConfig {
+    /// The scene's name in titles: the model's path, or the dataset's for a run that fitted.
+    fn scene_name(&self) -> String {
+        match (self.model_path(), self.data.as_deref()) {
+            (Some(path), _) | (None, Some(path)) => path.display().to_string(),
+            (None, None) => String::new(),
+        }
+    }
 }
 
 /// The dataset in `data`: NeRF-synthetic when `transforms_train.json` is there, COLMAP when
