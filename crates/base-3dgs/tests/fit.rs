@@ -16,7 +16,7 @@ use gs_core::densify::DensifySettings;
 use gs_core::image_loss::mean_psnr;
 use gs_core::ply::{read_ply, write_ply, PlyFormat};
 use gs_core::raster::render;
-use gs_wgpu::backend::Backend;
+use gs_wgpu::backend::{Backend, DeviceChoice, OpenDevice};
 
 fn scene(seed: u64) -> FitScene {
     FitScene {
@@ -104,38 +104,23 @@ fn the_binary_fits_a_scene_to_a_stated_test_psnr_and_writes_inrias_layout() {
     assert_eq!(std::fs::read_dir(out.join("frames")).unwrap().count(), 6);
 }
 
-/// The densification on the GPU is refused before any work, naming the way round.
-#[test]
-fn a_gpu_fit_with_densification_is_refused_at_once() {
-    let dir = tempfile::tempdir().unwrap();
-    let out = dir.path().join("out");
-    let output = bin()
-        .args([
-            "fit",
-            "--data",
-            "missing",
-            "--out",
-            s(&out),
-            "--device",
-            "gpu",
-        ])
-        .output()
-        .unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert!(!output.status.success());
-    assert!(
-        stderr.contains("--device gpu") && stderr.contains("--densify-until 0"),
-        "{stderr}"
-    );
-    assert!(!out.exists());
-}
-
 /// Densification inside the loop, on a shortened schedule (densify after steps 150, 200,
-/// 250; the opacity reset after 200), for two seeds of the scene: the Gaussians change at
-/// exactly those steps, never past the cap, and the fit still learns the held-out views.
+/// 250; the opacity reset after 200), for two seeds of the scene on the CPU and one on the GPU
+/// (lavapipe in CI, its statistics gathered on the device): the Gaussians change at exactly
+/// those steps, never past the cap, and the fit still learns the held-out views.
 #[test]
 fn the_loop_densifies_on_its_schedule_within_the_cap() {
-    for seed in [1, 2] {
+    let gpu = gs_wgpu::test_adapter_exists().then(|| {
+        DeviceChoice::Gpu
+            .open_with(true)
+            .expect("the adapter opens")
+    });
+    let mut runs = vec![(1, Backend::Cpu), (2, Backend::Cpu)];
+    if let Some(gpu) = gpu {
+        runs.push((1, gpu));
+    }
+    for (seed, backend) in runs {
+        let on = backend.describe();
         let dir = tempfile::tempdir().unwrap();
         let data = dir.path().join("data");
         write_fit_scene(&data, scene(seed));
@@ -164,7 +149,7 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
             start,
             train.extent,
             &settings,
-            &Backend::Cpu,
+            &backend,
             |report| {
                 steps = report.step;
                 ControlFlow::Continue(())
@@ -173,14 +158,11 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
         .unwrap();
         assert_eq!((fitted.steps, steps), (320, 320));
         let at: Vec<u64> = fitted.counts.iter().map(|c| c.0).collect();
-        assert_eq!(at, [150, 200, 250], "seed {seed}");
+        assert_eq!(at, [150, 200, 250], "seed {seed} on {on}");
         let mut before = 400;
         for &(step, count) in &fitted.counts {
-            assert!(count <= 900, "seed {seed} step {step}: {count}");
-            assert_ne!(
-                count, before,
-                "seed {seed} step {step}: the Gaussians changed"
-            );
+            assert!(count <= 900, "seed {seed} on {on}, step {step}: {count}");
+            assert_ne!(count, before, "seed {seed} on {on}, step {step}: unchanged");
             before = count;
         }
         assert_eq!(fitted.gaussians.len(), before);
@@ -191,13 +173,16 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
             .map(|v| render(&fitted.gaussians, &v.camera, [0.0; 3]).image)
             .collect();
         let psnr = mean_psnr(&renders, images);
-        assert!(psnr > 22.0, "seed {seed}: test PSNR {psnr}");
+        println!(
+            "seed {seed} on {on}: counts {:?}, test PSNR {psnr:.2} dB",
+            fitted.counts
+        );
+        assert!(psnr > 22.0, "seed {seed} on {on}: test PSNR {psnr}");
     }
 }
 
 /// `stylize --data` without `--model` fits first (keeping base.ply and fit.json), then
-/// stylizes the fit; `--resume` after an interrupted stylization reuses base.ply instead of
-/// fitting again; a GPU run that would fit is refused before the fit.
+/// stylizes the fit; `--resume` with more steps reuses base.ply instead of fitting again.
 #[test]
 fn stylize_without_a_model_fits_first_and_keeps_the_fit() {
     let dir = tempfile::tempdir().unwrap();
@@ -254,26 +239,4 @@ fn stylize_without_a_model_fits_first_and_keeps_the_fit() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(report["steps"], 3, "{report}");
-
-    let gpu_out = dir.path().join("gpu");
-    let mut cmd = bin();
-    cmd.args([
-        "stylize",
-        "--data",
-        s(&data),
-        "--out",
-        s(&gpu_out),
-        "--quiet",
-    ])
-    .args(["--fit-steps", "10", "--device", "gpu", "--steps", "1"])
-    .env(gs_wgpu::backend::ALLOW_SOFTWARE_GPU, "1");
-    gs_stylize::test_support::tiny_style_flags(&mut cmd, &models);
-    let refused = cmd.output().unwrap();
-    let stderr = String::from_utf8_lossy(&refused.stderr);
-    assert!(!refused.status.success());
-    assert!(
-        stderr.contains("--device cpu") || stderr.contains("--device gpu"),
-        "{stderr}"
-    );
-    assert!(!gpu_out.join("base.ply").exists());
 }

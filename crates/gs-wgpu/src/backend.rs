@@ -9,6 +9,7 @@
 use std::ops::ControlFlow;
 use std::sync::Arc;
 
+use crate::backward::GpuScreenStats;
 use crate::train::GpuTrainer;
 use crate::{AdapterChoice, GpuContext, GpuError, GpuGaussians, GpuModel, GpuParams};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig};
@@ -38,9 +39,6 @@ pub enum DeviceError {
     /// The optimizer's groups do not name the model's ([`gs_core::adam::groups_in_model_order`]).
     #[error("optimizer: {0}")]
     Groups(String),
-    /// The device cannot do what was asked (yet): the message names it and the way round.
-    #[error("{0}")]
-    Unsupported(String),
 }
 
 /// Opening the device a [`DeviceChoice`] names.
@@ -415,27 +413,25 @@ impl<M: GpuModel> Trainer<M> {
     }
 
     /// From the next step on, adds every view's view-space gradients of the rendered Gaussians
-    /// to `stats` (3DGS's densification statistics, [`gs_core::densify::ScreenStats`]). The
-    /// cpu only for now.
+    /// to `stats` (3DGS's densification statistics, [`gs_core::densify::ScreenStats`]): on a
+    /// GPU they are uploaded once and gathered on the device, nothing read back per step.
     pub fn gather_screen_stats(&mut self, stats: ScreenStats) -> Result<(), DeviceError> {
         match &mut self.state {
-            State::Cpu(cpu) => {
-                cpu.gather_screen_stats(stats);
-                Ok(())
-            }
-            State::Gpu(_) => Err(DeviceError::Unsupported(
-                "densification statistics are gathered on the cpu only for now: use --device \
-                 cpu"
-                .into(),
-            )),
+            State::Cpu(cpu) => cpu.gather_screen_stats(stats),
+            State::Gpu(gpu) => gpu.screen_stats = Some(GpuScreenStats::upload(&gpu.ctx, &stats)?),
         }
+        Ok(())
     }
 
-    /// The statistics gathered since [`Trainer::gather_screen_stats`], which stops.
+    /// The statistics gathered since [`Trainer::gather_screen_stats`] (read back from a GPU),
+    /// which stops.
     pub fn take_screen_stats(&mut self) -> Option<ScreenStats> {
         match &mut self.state {
             State::Cpu(cpu) => cpu.take_screen_stats(),
-            State::Gpu(_) => None,
+            State::Gpu(gpu) => gpu
+                .screen_stats
+                .take()
+                .map(|stats| stats.download(&gpu.ctx)),
         }
     }
 

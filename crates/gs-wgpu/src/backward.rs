@@ -2,10 +2,13 @@
 //! backward per Gaussian. Same gradients as [`gs_core::raster::backward`]; frozen parameter
 //! groups cost no work and no memory.
 
-use super::buffers::{read, storage, storage_from, storage_per_item, uniform, GpuGaussians};
+use super::buffers::{
+    per_item_from, read, storage, storage_from, storage_per_item, uniform, GpuGaussians,
+};
 use super::device::{Binding, GpuContext, GpuError};
-use super::forward::{part_bindings, GpuRendered, SPLAT_PARTS};
+use super::forward::{part_bindings, GpuRendered, SPLAT_BYTES, SPLAT_PARTS};
 use super::shaders::KernelId;
+use gs_core::densify::ScreenStats;
 use gs_core::gaussians::GaussianGrads;
 use gs_core::raster::{GradMask, Gradients, OutputGrads};
 
@@ -86,6 +89,60 @@ pub fn backward(
     rendered: &GpuRendered,
     out_grads: &OutputGrads<'_, f32>,
     mask: GradMask,
+) -> Result<GpuGradients, GpuError> {
+    backward_with_stats(ctx, gaussians, rendered, out_grads, mask, None)
+}
+
+/// 3DGS's densification statistics on the GPU (the twin of
+/// [`gs_core::densify::ScreenStats`]): per Gaussian, the summed view-space gradient norm and
+/// the count of views that showed it, added to by [`backward_with_stats`] on the device.
+pub struct GpuScreenStats {
+    len: usize,
+    grad_sum: wgpu::Buffer,
+    count: wgpu::Buffer,
+}
+
+impl GpuScreenStats {
+    /// `stats` uploaded.
+    pub fn upload(ctx: &GpuContext, stats: &ScreenStats) -> Result<Self, GpuError> {
+        Ok(Self {
+            len: stats.len(),
+            grad_sum: per_item_from(ctx, "densification gradient sums", &stats.grad_sum)?,
+            count: per_item_from(ctx, "densification view counts", &stats.count)?,
+        })
+    }
+
+    /// The statistics read back.
+    pub fn download(&self, ctx: &GpuContext) -> ScreenStats {
+        ScreenStats {
+            grad_sum: read(ctx, &self.grad_sum, self.len),
+            count: read(ctx, &self.count, self.len),
+        }
+    }
+
+    /// The number of Gaussians.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+}
+
+/// [`backward`], adding the view's densification statistics to `stats` (one entry per
+/// rendered Gaussian) on the device in the same submission: nothing is read back.
+///
+/// # Panics
+/// As [`backward`]; and if `stats` does not have one entry per Gaussian.
+pub fn backward_with_stats(
+    ctx: &GpuContext,
+    gaussians: &GpuGaussians,
+    rendered: &GpuRendered,
+    out_grads: &OutputGrads<'_, f32>,
+    mask: GradMask,
+    stats: Option<&GpuScreenStats>,
 ) -> Result<GpuGradients, GpuError> {
     let n = gaussians.len();
     assert_eq!(
@@ -191,6 +248,20 @@ pub fn backward(
             None => Binding::Whole(&placeholder),
         }));
         ctx.dispatch_items(&mut encoder, KernelId::ProjectBackward, &bindings, n as u32)?;
+    }
+    if let Some(stats) = stats.filter(|_| n > 0) {
+        assert_eq!(
+            stats.len, n,
+            "densification statistics of another Gaussian count"
+        );
+        let bindings = [
+            Binding::Whole(&view_buf),
+            Binding::PerItem(rendered.splats(), SPLAT_BYTES),
+            Binding::PerItem(&accum, SPLAT_GRAD_BYTES),
+            Binding::PerItem(&stats.grad_sum, 4),
+            Binding::PerItem(&stats.count, 4),
+        ];
+        ctx.dispatch_items(&mut encoder, KernelId::ScreenStats, &bindings, n as u32)?;
     }
     ctx.submit(encoder);
     Ok(GpuGradients {

@@ -172,6 +172,11 @@ impl GpuRendered {
     }
 
     /// The [`SPLAT_PARTS`] bindings of the splat array.
+    /// The splat array, one [`SPLAT_BYTES`] record per Gaussian.
+    pub(crate) fn splats(&self) -> &wgpu::Buffer {
+        &self.splats
+    }
+
     pub(crate) fn splat_bindings(&self) -> Vec<wgpu::BufferBinding<'_>> {
         splat_bindings(&self.splats, &self.filler, &self.view)
     }

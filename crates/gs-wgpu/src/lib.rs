@@ -74,7 +74,7 @@ mod test_context;
 mod train;
 
 pub use adam::GpuAdam;
-pub use backward::{backward, GpuGradients};
+pub use backward::{backward, backward_with_stats, GpuGradients, GpuScreenStats};
 pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
 pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions, ADAPTER_VARIABLE};
 pub use fit_error::FitError;

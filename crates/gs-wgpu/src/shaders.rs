@@ -88,6 +88,10 @@ const FILES: &[(&str, &str)] = &[
         include_str!("../../../shaders/check_finite.wgsl"),
     ),
     (
+        "screen_stats.wgsl",
+        include_str!("../../../shaders/screen_stats.wgsl"),
+    ),
+    (
         "add_into.wgsl",
         include_str!("../../../shaders/add_into.wgsl"),
     ),
@@ -183,10 +187,11 @@ pub(crate) enum KernelId {
     AdamStep,
     CheckFinite,
     AddInto,
+    ScreenStats,
 }
 
 impl KernelId {
-    const ALL: [KernelId; 14] = [
+    const ALL: [KernelId; 15] = [
         KernelId::ProjectForward,
         KernelId::BinCounts,
         KernelId::BinTiles,
@@ -201,6 +206,7 @@ impl KernelId {
         KernelId::AdamStep,
         KernelId::CheckFinite,
         KernelId::AddInto,
+        KernelId::ScreenStats,
     ];
 
     /// True for per-item kernels, run in chunks with a `Chunk` uniform (shaders/chunk.wgsl).
@@ -212,6 +218,7 @@ impl KernelId {
                 | KernelId::AdamStep
                 | KernelId::CheckFinite
                 | KernelId::AddInto
+                | KernelId::ScreenStats
         )
     }
 
@@ -241,6 +248,7 @@ impl KernelId {
             KernelId::AdamStep => ("adam_step.wgsl", &[U, W, R, W, W]),
             KernelId::CheckFinite => ("check_finite.wgsl", &[R, W]),
             KernelId::AddInto => ("add_into.wgsl", &[R, W]),
+            KernelId::ScreenStats => ("screen_stats.wgsl", &[U, R, R, W, W]),
         }
     }
 }

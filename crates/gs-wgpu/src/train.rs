@@ -10,7 +10,7 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use super::adam::GpuAdam;
-use super::backward::backward;
+use super::backward::{backward_with_stats, GpuScreenStats};
 use super::buffers::{read, storage, zeroed_f32};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
@@ -37,6 +37,8 @@ pub(crate) struct GpuTrainer<M> {
     /// gradient buffers may be its own scratch, rewritten by the next view's backward, so
     /// they are added here rather than kept.
     sum: Option<Vec<Option<wgpu::Buffer>>>,
+    /// The rendered Gaussians' densification statistics, gathered on the device when asked.
+    pub(crate) screen_stats: Option<GpuScreenStats>,
 }
 
 impl<M: GpuModel> GpuTrainer<M> {
@@ -86,6 +88,7 @@ impl<M: GpuModel> GpuTrainer<M> {
             scratch: GpuScratch::default(),
             trained,
             sum: None,
+            screen_stats: None,
         })
     }
 
@@ -147,7 +150,22 @@ impl<M: GpuModel> GpuTrainer<M> {
                 alpha: None,
                 depth: None,
             };
-            let grads = backward(ctx, &gaussians, &rendered, &out, self.mask).map_err(needs)?;
+            if let Some(stats) = &self.screen_stats {
+                if stats.len() != gaussians.len() {
+                    let message = format!(
+                        "densification statistics of {} Gaussians, {} rendered",
+                        stats.len(),
+                        gaussians.len()
+                    );
+                    return Err(TrainError::Model {
+                        step,
+                        source: message.into(),
+                    });
+                }
+            }
+            let stats = self.screen_stats.as_ref();
+            let grads = backward_with_stats(ctx, &gaussians, &rendered, &out, self.mask, stats)
+                .map_err(needs)?;
             drop(gaussians);
             let mut gpu = GpuStep {
                 ctx,

@@ -220,3 +220,63 @@ fn non_finite_and_extreme_parameters_get_zero_gradient() {
         true,
     );
 }
+
+/// 3DGS's densification statistics gathered on the device against the cpu's twin
+/// (`ScreenStats::add_view`) over two views, with Gaussians behind the camera and off the
+/// picture (counted by neither), on whole arrays and past a small binding limit (chunks).
+#[test]
+fn densification_statistics_match_the_cpus() {
+    use gs_core::densify::ScreenStats;
+    use gs_core::raster::backward_with_screen_grads;
+    use gs_wgpu::GpuScreenStats;
+
+    for small in [false, true] {
+        let Some(ctx) = gpu_with(GpuOptions {
+            max_binding_bytes: small.then_some(SMALL_BINDING),
+            ..GpuOptions::default()
+        }) else {
+            return;
+        };
+        let n = if small { 3000 } else { 300 };
+        let mut g = random_scene::<f32>(21, n, 1);
+        for v in &mut g.log_scales {
+            *v -= 1.0;
+        }
+        // Behind the cameras and far off to the side: culled in both views.
+        g.means[0..3].copy_from_slice(&[0.0, 0.0, -9.0]);
+        g.means[3..6].copy_from_slice(&[60.0, 0.0, 0.0]);
+        let mut cpu = ScreenStats::new(n);
+        let gg = GpuGaussians::upload(&ctx, &g).expect("upload");
+        let device = GpuScreenStats::upload(&ctx, &ScreenStats::new(n)).expect("stats");
+        for (k, cam) in [front_camera(40, 32), oblique_camera(48, 40)]
+            .iter()
+            .enumerate()
+        {
+            let rgb = f32s(weights(30 + k as u64, 3 * cam.pixel_count()));
+            let out = OutputGrads {
+                rgb: &rgb,
+                alpha: None,
+                depth: None,
+            };
+            let rendered = render(&g, cam, [0.1; 3]);
+            let (_, screen) = backward_with_screen_grads(&g, cam, &rendered, &out, GradMask::ALL);
+            cpu.add_view(&rendered, &screen, (cam.width, cam.height));
+            let r = gpu_backend::render(&ctx, &gg, cam, [0.1; 3]).expect("render");
+            gpu_backend::backward_with_stats(&ctx, &gg, &r, &out, GradMask::ALL, Some(&device))
+                .expect("backward");
+        }
+        let got = device.download(&ctx);
+        assert_eq!(got.count, cpu.count, "small binding {small}");
+        assert_eq!(
+            cpu.count[0] + cpu.count[1],
+            0,
+            "the culled ones count nowhere"
+        );
+        assert!(cpu.count.iter().filter(|&&c| c == 2).count() > n / 4);
+        assert_close(
+            &format!("gradient sums, small binding {small}"),
+            &cpu.grad_sum,
+            &got.grad_sum,
+        );
+    }
+}

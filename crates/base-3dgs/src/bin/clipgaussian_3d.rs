@@ -52,8 +52,7 @@ use serde::Serialize;
 ///
 /// Without --data the run trains on views of the model itself (see --data) and says where
 /// its cameras came from. Without --model it fits the dataset first, as `fit` does
-/// (--fit-steps, --gaussians; the cpu only for now), and keeps the fit as base.ply and
-/// fit.json.
+/// (--fit-steps, --gaussians), and keeps the fit as base.ply and fit.json.
 ///
 /// Writes to `--out`: model.ply (the stylized scene, in the input's PLY format with its
 /// extra properties; also model.spz, model.splat, model.compressed.ply or model.glb when the
@@ -378,9 +377,8 @@ struct FitArgs {
     /// Seed of the random points, the view order and the split samples.
     #[arg(long, default_value_t = 0)]
     seed: u64,
-    /// Where to fit: cpu, or gpu / auto with --densify-until 0 (the densification runs on
-    /// the cpu for now).
-    #[arg(long, default_value_t = DeviceChoice::Cpu)]
+    /// Where to fit: cpu, gpu, or auto (a real GPU when there is one, else the cpu).
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
     device: DeviceChoice,
     /// No progress bar.
     #[arg(long)]
@@ -415,14 +413,6 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         ..SceneFitSettings::default()
     };
     settings.check()?;
-    if args.device != DeviceChoice::Cpu && settings.densify.is_some() {
-        return Err(format!(
-            "--device {}: the fit's densification runs on the cpu for now: use --device cpu, \
-             or --densify-until 0 to fit the starting Gaussians only on a GPU",
-            args.device
-        )
-        .into());
-    }
     let options = |progress: &ImageProgress| LoadOptions {
         background: Background::from_rgb(background),
         ground_truth: args.ground_truth,

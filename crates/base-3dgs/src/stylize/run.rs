@@ -19,8 +19,6 @@ use gs_stylize::{
     StylizeJob, StylizeOutcome,
 };
 
-use gs_wgpu::backend::Backend;
-
 use super::config::BackgroundPixels;
 use super::model_views::model_scene;
 use super::SceneStylizeConfig;
@@ -166,22 +164,13 @@ impl Modality for SceneStylizeConfig {
     }
 
     /// INRIA 3DGS's fit ([`crate::fit`]) of the training views, from the dataset's points or
-    /// `fit_gaussians` random ones; its densification runs on the cpu only for now.
+    /// `fit_gaussians` random ones.
     fn fit(
         &self,
         scene: &SceneInput,
         run: &PreparedRun,
         on_step: OnStep<'_>,
     ) -> Result<GaussianSet, SceneStylizeError> {
-        if !matches!(run.backend(), Backend::Cpu) {
-            return Err(StylizeError::Input(
-                "without --model the run fits the scene first, and the fit's densification \
-                 runs on the cpu only for now: use --device cpu, or fit with \
-                 `clipgaussian-3d fit --device cpu` and pass its point_cloud.ply as --model"
-                    .into(),
-            )
-            .into());
-        }
         let settings = SceneFitSettings {
             steps: self.fit_steps,
             random_points: self.fit_gaussians,
