@@ -17,11 +17,13 @@ use gs_core::dataset::{
     colmap, scene_extent, Dataset, DatasetError, Layout, LoadOptions, PointCloud,
 };
 use gs_core::densify::{densify, raise_sh_degree, reset_opacity, DensifySettings, ScreenStats};
+use gs_core::fs::write_atomic;
 use gs_core::gaussians::{GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
 use gs_core::image::Image;
 use gs_core::image_loss::{psnr, PhotometricObjective};
 use gs_core::model::{BaseModel, View};
 use gs_core::plane_neighbours::{mean_nearest_dist2, MIN_DIST2};
+use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::sampler::{BatchOrder, ViewSampler};
 use gs_core::sh::C0 as SH_C0;
@@ -31,6 +33,7 @@ use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_wgpu::backend::{Backend, DeviceError, Trainer};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
 
 /// INRIA's `OptimizationParams` and `ModelParams` defaults, each a setting.
 #[derive(Clone, Debug, PartialEq)]
@@ -214,10 +217,12 @@ pub fn initial_gaussians(points: Option<&PointCloud>, settings: &SceneFitSetting
     set
 }
 
-/// A fitted scene and its fit's record.
-#[derive(Clone, Debug)]
+/// Where a fit stands between two steps: all it needs to go on exactly as if it had not
+/// stopped (the view order and the split samples follow from the settings' seed and the step).
+#[derive(Clone, Debug, PartialEq)]
 pub struct SceneFit {
-    /// The Gaussians, at the fit's SH degree.
+    /// The Gaussians, at the SH degree reached (every degree of the settings once finished,
+    /// as INRIA's file holds them).
     pub gaussians: GaussianSet,
     /// Each step's training view PSNR (its render before the update), in step order.
     pub psnr: Vec<f64>,
@@ -225,15 +230,35 @@ pub struct SceneFit {
     pub counts: Vec<(u64, usize)>,
     /// Steps taken (fewer than asked when stopped).
     pub steps: u64,
+    /// The optimizer's state ([`gs_core::adam::Adam::save_state`]'s format); `None` before
+    /// the first step.
+    pub optimizer: Option<Vec<u8>>,
+    /// The densification statistics gathered since the last densification, while gathering.
+    pub stats: Option<ScreenStats>,
 }
 
-/// Fits `views` to `images` (one per view) from `start` (see [`initial_gaussians`]) in a
-/// scene of camera extent `extent`, on `backend`. `on_step` is called after every step (return
-/// `ControlFlow::Break` to stop: the fit so far is returned).
+impl SceneFit {
+    /// A fit that has not started, from `start` (see [`initial_gaussians`]).
+    pub fn new(start: GaussianSet) -> Self {
+        Self {
+            gaussians: start,
+            psnr: Vec::new(),
+            counts: Vec::new(),
+            steps: 0,
+            optimizer: None,
+            stats: None,
+        }
+    }
+}
+
+/// Fits `views` to `images` (one per view) from `start` ([`SceneFit::new`], or a stopped fit
+/// to go on with) in a scene of camera extent `extent`, on `backend`. `on_step` is called after
+/// every step (return `ControlFlow::Break` to stop: the fit so far is returned, which goes on
+/// from there as if it had not stopped).
 pub fn fit<F>(
     views: &[View],
     images: &[Image],
-    start: GaussianSet,
+    start: SceneFit,
     extent: f64,
     settings: &SceneFitSettings,
     backend: &Backend,
@@ -250,7 +275,7 @@ where
             images.len()
         )));
     }
-    if start.is_empty() {
+    if start.gaussians.is_empty() {
         return Err(SceneFitError::Settings(
             "the scene starts with no Gaussians (its point cloud is empty)".into(),
         ));
@@ -261,22 +286,35 @@ where
         )));
     }
     let groups = settings.groups(extent);
+    let SceneFit {
+        gaussians: mut model,
+        psnr,
+        mut counts,
+        steps: mut done,
+        optimizer: mut state,
+        mut stats,
+    } = start;
+    if psnr.len() as u64 != done {
+        return Err(SceneFitError::Settings(format!(
+            "a fit stopped after step {done} holds {} PSNR values",
+            psnr.len()
+        )));
+    }
     let mut objective = PsnrLog {
         inner: PhotometricObjective {
             targets: images.to_vec(),
             lambda: settings.lambda_dssim,
         },
-        psnr: Vec::new(),
+        psnr,
     };
+    // One view a step: the order goes on from the steps taken.
     let mut sampler = ViewSampler::batches(views.len(), 1, BatchOrder::Shuffled, settings.seed);
-    let mut rng = ChaCha8Rng::seed_from_u64(settings.seed ^ 0x5EED_D3A5);
+    for _ in 0..done {
+        sampler.next_batch();
+    }
     let white = settings.background == [1.0; 3];
     let densifying = settings.densify.as_ref();
-    let mut model = start;
-    let mut state: Option<Vec<u8>> = None;
-    let mut stats: Option<ScreenStats> = None;
-    let mut counts = Vec::new();
-    let mut done = 0;
+    let mut stopped = false;
     while done < settings.steps {
         let end = next_event(settings, done);
         // The segment: a trainer from `done` to `end`.
@@ -289,7 +327,6 @@ where
         if gathering {
             trainer.gather_screen_stats(stats.take().unwrap_or_else(|| ScreenStats::new(n)))?;
         }
-        let mut stopped = false;
         let config = TrainConfig {
             steps: end,
             background: settings.background,
@@ -304,7 +341,8 @@ where
         stats = trainer.take_screen_stats();
         let mut bytes = trainer.save_optimizer();
         model = trainer.into_model();
-        if stopped || done >= settings.steps {
+        if done >= settings.steps {
+            state = Some(bytes);
             break;
         }
         // The events after step `done`, in INRIA's order: densify, reset, then (at the next
@@ -316,6 +354,10 @@ where
                 })?;
                 let mut limited = d.clone();
                 limited.max_len = settings.max_gaussians;
+                // The split samples of each densification from the seed and its step, so that
+                // a resumed fit draws the same ones.
+                let seed = settings.seed ^ done.wrapping_mul(SPLIT_SEED);
+                let mut rng = ChaCha8Rng::seed_from_u64(seed);
                 let (dense, rows) = densify(
                     &model,
                     &current,
@@ -341,9 +383,13 @@ where
             }
         }
         state = Some(bytes);
+        // Stopped: after the events of the step reached, as a fit that goes on would be.
+        if stopped {
+            break;
+        }
     }
-    // The file holds every degree, as INRIA's (the ones not reached are zero).
-    while model.sh_degree() < settings.sh_degree {
+    // A finished fit's file holds every degree, as INRIA's (those not reached are zero).
+    while done >= settings.steps && model.sh_degree() < settings.sh_degree {
         match raise_sh_degree(&model) {
             Some((wider, _)) => model = wider,
             None => break,
@@ -354,8 +400,13 @@ where
         psnr: objective.psnr,
         counts,
         steps: done,
+        optimizer: state,
+        stats,
     })
 }
+
+/// Mixed into the seed of each densification's split samples, times its step.
+const SPLIT_SEED: u64 = 0x9E37_79B9_7F4A_7C15;
 
 /// `bytes` (the optimizer of `groups` over `model`) with its moments following `rows`.
 fn rearrange(
@@ -507,4 +558,129 @@ pub fn psnr_chart(psnr: &[f64]) -> Chart {
             },
         ],
     }
+}
+
+/// The files of a stopped fit in its checkpoint folder: the Gaussians (INRIA PLY, exact f32),
+/// the optimizer's state, the statistics (Gaussians as u64, then the sums as f32, then the
+/// counts as u32, little-endian) and, written last so that it marks a whole checkpoint, the
+/// record of the steps.
+const CHECKPOINT_PLY: &str = "gaussians.ply";
+const CHECKPOINT_OPTIMIZER: &str = "optimizer.bin";
+const CHECKPOINT_STATS: &str = "stats.bin";
+const CHECKPOINT_STATE: &str = "fit_state.json";
+
+/// The record of a stopped fit's steps (`fit_state.json`).
+#[derive(Serialize, Deserialize)]
+struct CheckpointRecord {
+    steps: u64,
+    psnr: Vec<f64>,
+    counts: Vec<(u64, usize)>,
+    optimizer: bool,
+    stats: bool,
+}
+
+/// Writes `fit` into the folder `dir` (created), each file through a temporary name; the
+/// record last.
+pub fn save_checkpoint(dir: &Path, fit: &SceneFit) -> Result<(), SceneFitError> {
+    let io = |path: &Path, e: std::io::Error| {
+        SceneFitError::Settings(format!("checkpoint {}: {e}", path.display()))
+    };
+    std::fs::create_dir_all(dir).map_err(|e| io(dir, e))?;
+    let ply = dir.join(CHECKPOINT_PLY);
+    write_ply(
+        &ply,
+        &PlyGaussians::new(fit.gaussians.clone()),
+        PlyFormat::BinaryLittleEndian,
+    )
+    .map_err(|e| SceneFitError::Settings(e.to_string()))?;
+    if let Some(bytes) = &fit.optimizer {
+        let path = dir.join(CHECKPOINT_OPTIMIZER);
+        write_atomic(&path, bytes).map_err(|e| io(&path, e))?;
+    }
+    if let Some(stats) = &fit.stats {
+        let mut bytes = (stats.len() as u64).to_le_bytes().to_vec();
+        bytes.extend(stats.grad_sum.iter().flat_map(|v| v.to_le_bytes()));
+        bytes.extend(stats.count.iter().flat_map(|v| v.to_le_bytes()));
+        let path = dir.join(CHECKPOINT_STATS);
+        write_atomic(&path, &bytes).map_err(|e| io(&path, e))?;
+    }
+    let record = CheckpointRecord {
+        steps: fit.steps,
+        psnr: fit.psnr.clone(),
+        counts: fit.counts.clone(),
+        optimizer: fit.optimizer.is_some(),
+        stats: fit.stats.is_some(),
+    };
+    let path = dir.join(CHECKPOINT_STATE);
+    let text = serde_json::to_string(&record).map_err(|e| io(&path, e.into()))?;
+    write_atomic(&path, text.as_bytes()).map_err(|e| io(&path, e))
+}
+
+/// Whether `dir` holds a whole checkpoint of a stopped fit.
+pub fn has_checkpoint(dir: &Path) -> bool {
+    dir.join(CHECKPOINT_STATE).is_file()
+}
+
+/// The stopped fit in the folder `dir` ([`save_checkpoint`]); an error names the file.
+pub fn load_checkpoint(dir: &Path) -> Result<SceneFit, SceneFitError> {
+    let bad = |path: &Path, why: String| {
+        SceneFitError::Settings(format!("checkpoint {}: {why}", path.display()))
+    };
+    let read = |name: &str| {
+        let path = dir.join(name);
+        std::fs::read(&path).map_err(|e| bad(&path, e.to_string()))
+    };
+    let state_path = dir.join(CHECKPOINT_STATE);
+    let record: CheckpointRecord = serde_json::from_slice(&read(CHECKPOINT_STATE)?)
+        .map_err(|e| bad(&state_path, e.to_string()))?;
+    let gaussians = read_ply(&dir.join(CHECKPOINT_PLY))
+        .map_err(|e| SceneFitError::Settings(e.to_string()))?
+        .gaussians;
+    let optimizer = if record.optimizer {
+        Some(read(CHECKPOINT_OPTIMIZER)?)
+    } else {
+        None
+    };
+    let stats = if record.stats {
+        let path = dir.join(CHECKPOINT_STATS);
+        let bytes = read(CHECKPOINT_STATS)?;
+        let n = bytes
+            .get(..8)
+            .map(|b| u64::from_le_bytes(b.try_into().expect("8 bytes")) as usize)
+            .filter(|&n| n == gaussians.len() && bytes.len() == 8 + 8 * n)
+            .ok_or_else(|| {
+                bad(
+                    &path,
+                    format!(
+                        "does not hold the statistics of {} Gaussians",
+                        gaussians.len()
+                    ),
+                )
+            })?;
+        let word = |i: usize| -> [u8; 4] { bytes[8 + 4 * i..12 + 4 * i].try_into().expect("4") };
+        Some(ScreenStats {
+            grad_sum: (0..n).map(|i| f32::from_le_bytes(word(i))).collect(),
+            count: (0..n).map(|i| u32::from_le_bytes(word(n + i))).collect(),
+        })
+    } else {
+        None
+    };
+    if record.psnr.len() as u64 != record.steps {
+        return Err(bad(
+            &state_path,
+            format!(
+                "{} steps but {} PSNR values",
+                record.steps,
+                record.psnr.len()
+            ),
+        ));
+    }
+    Ok(SceneFit {
+        gaussians,
+        psnr: record.psnr,
+        counts: record.counts,
+        steps: record.steps,
+        optimizer,
+        stats,
+    })
 }

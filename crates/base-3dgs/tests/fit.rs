@@ -10,7 +10,10 @@ use std::path::Path;
 use std::process::Command;
 
 use base_3dgs::dataset::{inria_cameras, LoadOptions};
-use base_3dgs::fit::{fit, initial_gaussians, load_fit_data, SceneFitSettings};
+use base_3dgs::fit::{
+    fit, has_checkpoint, initial_gaussians, load_checkpoint, load_fit_data, save_checkpoint,
+    SceneFit, SceneFitSettings,
+};
 use fit_scene::{write_fit_scene, FitScene};
 use gs_core::densify::DensifySettings;
 use gs_core::image_loss::mean_psnr;
@@ -140,8 +143,8 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
             seed,
             ..SceneFitSettings::default()
         };
-        let start = initial_gaussians(None, &settings);
-        assert_eq!(start.len(), 400);
+        let start = SceneFit::new(initial_gaussians(None, &settings));
+        assert_eq!(start.gaussians.len(), 400);
         let mut steps = 0;
         let fitted = fit(
             &train.views,
@@ -239,4 +242,116 @@ fn stylize_without_a_model_fits_first_and_keeps_the_fit() {
     let report: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).unwrap()).unwrap();
     assert_eq!(report["steps"], 3, "{report}");
+}
+
+/// A fit stopped at a densification step and at a step between events, saved to a checkpoint
+/// and loaded back, goes on to the same bits as the fit that never stopped.
+#[test]
+fn a_stopped_fit_resumes_bit_identically() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    write_fit_scene(&data, scene(5));
+    let fit_data = load_fit_data(&data, &LoadOptions::default(), false).unwrap();
+    let train = &fit_data.train;
+    let settings = SceneFitSettings {
+        steps: 260,
+        random_points: 300,
+        sh_every: 90,
+        densify: Some(DensifySettings {
+            from: 100,
+            every: 50,
+            until: 240,
+            opacity_reset_every: 200,
+            ..DensifySettings::default()
+        }),
+        seed: 5,
+        ..SceneFitSettings::default()
+    };
+    let run = |start: SceneFit, stop_at: Option<u64>| {
+        fit(
+            &train.views,
+            &train.images,
+            start,
+            train.extent,
+            &settings,
+            &Backend::Cpu,
+            |report| {
+                if Some(report.step) == stop_at {
+                    ControlFlow::Break(())
+                } else {
+                    ControlFlow::Continue(())
+                }
+            },
+        )
+        .unwrap()
+    };
+    let start = || SceneFit::new(initial_gaussians(None, &settings));
+    let straight = run(start(), None);
+    assert_eq!(straight.steps, 260);
+    assert_eq!(straight.gaussians.sh_degree(), 3);
+    for stop in [150, 173, 179] {
+        let stopped = run(start(), Some(stop));
+        assert_eq!(stopped.steps, stop);
+        assert!(stopped.optimizer.is_some());
+        let checkpoint = dir.path().join(format!("checkpoint-{stop}"));
+        save_checkpoint(&checkpoint, &stopped).unwrap();
+        assert!(has_checkpoint(&checkpoint));
+        let loaded = load_checkpoint(&checkpoint).unwrap();
+        assert_eq!(loaded, stopped, "the checkpoint holds the fit exactly");
+        let resumed = run(loaded, None);
+        assert_eq!(resumed.counts, straight.counts, "stopped at {stop}");
+        assert_eq!(resumed.psnr, straight.psnr, "stopped at {stop}");
+        assert_eq!(resumed.gaussians, straight.gaussians, "stopped at {stop}");
+    }
+    // A checkpoint whose statistics do not fit its Gaussians is refused, naming the file.
+    let bad = dir.path().join("checkpoint-173");
+    assert!(
+        bad.join("stats.bin").is_file(),
+        "gathering between densifications"
+    );
+    std::fs::write(bad.join("stats.bin"), 5u64.to_le_bytes()).unwrap();
+    let Err(e) = load_checkpoint(&bad) else {
+        panic!("a bad stats.bin is refused");
+    };
+    let e = e.to_string();
+    assert!(
+        e.contains("stats.bin") && e.contains("statistics of"),
+        "{e}"
+    );
+}
+
+/// `fit --resume` without a checkpoint, and a fit into a folder holding one without
+/// `--resume`, are refused before any work.
+#[test]
+fn fit_resume_needs_a_checkpoint_and_a_checkpoint_needs_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let fails = |extra: &[&str], needle: &str| {
+        let output = bin()
+            .args([
+                "fit",
+                "--data",
+                "missing",
+                "--out",
+                s(&out),
+                "--device",
+                "cpu",
+            ])
+            .args(extra)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert!(!output.status.success());
+        assert!(stderr.contains(needle), "{stderr}");
+    };
+    fails(&["--resume"], "no checkpoint of a stopped fit");
+    let fitted = SceneFit::new(initial_gaussians(
+        None,
+        &SceneFitSettings {
+            random_points: 5,
+            ..SceneFitSettings::default()
+        },
+    ));
+    save_checkpoint(&out.join("checkpoint"), &fitted).unwrap();
+    fails(&[], "holds the checkpoint of a stopped fit: pass --resume");
 }

@@ -16,8 +16,8 @@ use base_3dgs::dataset::{inria_cameras, GroundTruth, ImageProgress};
 use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::fit::{
-    self as scene_fit, initial_gaussians, load_fit_data, psnr_chart, FitData, SceneFit,
-    SceneFitSettings,
+    self as scene_fit, has_checkpoint, initial_gaussians, load_checkpoint, load_fit_data,
+    psnr_chart, save_checkpoint, FitData, SceneFit, SceneFitSettings,
 };
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
@@ -32,6 +32,7 @@ use gs_stylize::animation::write_frames;
 use gs_stylize::animation::FRAMES_DIR;
 use gs_stylize::background::parse_background;
 use gs_stylize::binary::{ModalityBinary, PlyModel};
+use gs_stylize::checkpoint::checkpoint_dir;
 use gs_stylize::cli::{EvalStyleArgs, SplitArg, StyleArgs};
 use gs_stylize::drive::{run_fit, FitCommand, FitWritten};
 use gs_stylize::export::ExportArgs;
@@ -318,7 +319,8 @@ enum SceneCommand {
     /// `stylize --model` and viewers read), frames/ (the test views with --eval, else the
     /// training views), preview.png (the first of them: picture | fit), fit_psnr.png (each
     /// step's PSNR) and fit.json (steps, time, Gaussians, training and test PSNR). Ctrl-C
-    /// stops the fit and writes nothing.
+    /// stops after the current step and writes a checkpoint (a second Ctrl-C quits at once);
+    /// the same command with --resume goes on exactly where it stopped.
     Fit(FitArgs),
 }
 
@@ -383,6 +385,10 @@ struct FitArgs {
     /// No progress bar.
     #[arg(long)]
     quiet: bool,
+    /// Continue the fit a Ctrl-C stopped, from `<out>/checkpoint/` (the same command with
+    /// --resume; a larger --steps goes further).
+    #[arg(long)]
+    resume: bool,
 }
 
 /// `file_colour` or `composited`, as the configurations name them.
@@ -420,6 +426,25 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         max_width: args.max_width,
         progress: Some(progress.clone()),
     };
+    let checkpoint = checkpoint_dir(&args.out);
+    match (args.resume, has_checkpoint(&checkpoint)) {
+        (true, false) => {
+            return Err(format!(
+                "--resume: there is no checkpoint of a stopped fit in {}: run without --resume",
+                checkpoint.display()
+            )
+            .into())
+        }
+        (false, true) => {
+            return Err(format!(
+                "{} holds the checkpoint of a stopped fit: pass --resume to continue it, or \
+                 choose another output folder",
+                args.out.display()
+            )
+            .into())
+        }
+        _ => {}
+    }
     let command = FitCommand {
         out: &args.out,
         device: args.device,
@@ -432,8 +457,12 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         &command,
         |progress| Ok(load_fit_data(&args.data, &options(progress), args.eval)?),
         |data, backend, on_step| {
-            let start = initial_gaussians(data.train.points.as_ref(), &settings);
-            Ok(scene_fit::fit(
+            let start = if args.resume {
+                load_checkpoint(&checkpoint)?
+            } else {
+                SceneFit::new(initial_gaussians(data.train.points.as_ref(), &settings))
+            };
+            let fitted = scene_fit::fit(
                 &data.train.views,
                 &data.train.images,
                 start,
@@ -441,7 +470,17 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 &settings,
                 backend,
                 on_step,
-            )?)
+            )?;
+            if fitted.steps < settings.steps {
+                save_checkpoint(&checkpoint, &fitted)?;
+                let step = fitted.steps;
+                return Err(StylizeError::Interrupted {
+                    step,
+                    out: args.out.clone(),
+                }
+                .into());
+            }
+            Ok(fitted)
         },
         |data, fitted, backend, seconds| write_fit(args, data, fitted, backend, seconds),
     )
@@ -497,6 +536,11 @@ fn write_fit(
     };
     write_frames(&out.join(FRAMES_DIR), &shown)?;
     write_pair(&out.join(PREVIEW_PNG), &pictures[0], &shown[0])?;
+    // A finished fit needs no checkpoint.
+    let checkpoint = checkpoint_dir(out);
+    if checkpoint.exists() {
+        std::fs::remove_dir_all(&checkpoint)?;
+    }
     let test = match test_psnr_db {
         Some(p) => format!(", test {p:.2} dB"),
         None => String::new(),

@@ -24,7 +24,7 @@ use super::model_views::model_scene;
 use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
-use crate::fit::{fit, initial_gaussians, SceneFitSettings};
+use crate::fit::{fit, initial_gaussians, SceneFit, SceneFitSettings};
 
 /// The stylized PLY in the output folder (`model.ply`, as the 2D and video runs name theirs).
 pub const MODEL_PLY: &str = "model.ply";
@@ -179,7 +179,7 @@ impl Modality for SceneStylizeConfig {
             ..SceneFitSettings::default()
         };
         let dataset = &scene.dataset;
-        let start = initial_gaussians(dataset.points.as_ref(), &settings);
+        let start = SceneFit::new(initial_gaussians(dataset.points.as_ref(), &settings));
         let fitted = fit(
             &dataset.views,
             &dataset.images,
