@@ -20,14 +20,14 @@ use gs_core::densify::{densify, raise_sh_degree, reset_opacity, DensifySettings,
 use gs_core::fs::write_atomic;
 use gs_core::gaussians::{GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
 use gs_core::image::Image;
-use gs_core::image_loss::{psnr, PhotometricObjective};
+use gs_core::image_loss::{PhotometricObjective, PsnrLog};
 use gs_core::model::{BaseModel, View};
 use gs_core::plane_neighbours::{mean_nearest_dist2, MIN_DIST2};
 use gs_core::ply::{read_ply, write_ply, PlyFormat, PlyGaussians};
 use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::sampler::{BatchOrder, ViewSampler};
 use gs_core::sh::C0 as SH_C0;
-use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig};
+use gs_core::train::{StepReport, TrainConfig};
 use gs_core::GsError;
 use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_wgpu::backend::{Backend, DeviceError, Trainer};
@@ -305,7 +305,7 @@ where
             targets: images.to_vec(),
             lambda: settings.lambda_dssim,
         },
-        psnr,
+        log: psnr.into_iter().map(|p| (0, p)).collect(),
     };
     // One view a step: the order goes on from the steps taken.
     let mut sampler = ViewSampler::batches(views.len(), 1, BatchOrder::Shuffled, settings.seed);
@@ -397,7 +397,7 @@ where
     }
     Ok(SceneFit {
         gaussians: model,
-        psnr: objective.psnr,
+        psnr: objective.log.into_iter().map(|(_, p)| p).collect(),
         counts,
         steps: done,
         optimizer: state,
@@ -430,23 +430,6 @@ fn next_event(settings: &SceneFitSettings, done: u64) -> u64 {
             densify || settings.raises_sh_after(s)
         })
         .unwrap_or(settings.steps)
-}
-
-/// The fit's objective, also keeping the PSNR of every render it is given (one view a step,
-/// so the k-th is step k's).
-struct PsnrLog {
-    inner: PhotometricObjective,
-    psnr: Vec<f64>,
-}
-
-impl Objective for PsnrLog {
-    type Error = GsError;
-
-    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, GsError> {
-        let value = self.inner.evaluate(view, image)?;
-        self.psnr.push(psnr(image, &self.inner.targets[view]));
-        Ok(value)
-    }
 }
 
 /// What a fit trains on and is tested on.

@@ -13,11 +13,11 @@ use std::ops::ControlFlow;
 use std::path::Path;
 
 use gs_core::adam::{AdamHyper, GroupConfig, LrSchedule};
-use gs_core::image_loss::{check_fit_settings, psnr, PhotometricObjective};
+use gs_core::image_loss::{check_fit_settings, PhotometricObjective, PsnrLog};
 use gs_core::model::{GaussianLrs, View};
 use gs_core::sampler::ViewSampler;
-use gs_core::train::{Objective, ObjectiveValue, StepReport, TrainConfig};
-use gs_core::{GsError, Image};
+use gs_core::train::{StepReport, TrainConfig};
+use gs_core::Image;
 use gs_stylize::plot::{Chart, Series, PALETTE};
 use gs_stylize::StylizeError;
 use gs_wgpu::backend::{Backend, Trainer};
@@ -154,12 +154,12 @@ where
         half_h,
         settings.seed,
     );
-    let mut objective = PsnrLogging {
+    let mut objective = PsnrLog {
         inner: PhotometricObjective {
             targets: vec![picture.clone(), mirrored(picture)],
             lambda: settings.lambda_dssim,
         },
-        psnr: Vec::new(),
+        log: Vec::new(),
     };
     let mut trainer = Trainer::new(
         backend,
@@ -173,31 +173,19 @@ where
         background: settings.background,
     };
     trainer.train(&views, &mut objective, &mut sampler, &config, on_step)?;
+    // One view a step: entry k is step k + 1's; view 1 is the mirror camera.
+    let psnr = (1..)
+        .zip(objective.log)
+        .map(|(step, (view, psnr_db))| PsnrPoint {
+            step,
+            mirrored: view == 1,
+            psnr_db,
+        })
+        .collect();
     Ok(Fitted {
         model: trainer.into_model(),
-        psnr: objective.psnr,
+        psnr,
     })
-}
-
-/// The fit's objective, also keeping the PSNR of every render it is given: the trainer
-/// evaluates once per step, so the k-th is step k. View 1 is the mirror camera.
-struct PsnrLogging {
-    inner: PhotometricObjective,
-    psnr: Vec<PsnrPoint>,
-}
-
-impl Objective for PsnrLogging {
-    type Error = GsError;
-
-    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, GsError> {
-        let value = self.inner.evaluate(view, image)?;
-        self.psnr.push(PsnrPoint {
-            step: self.psnr.len() as u64 + 1,
-            mirrored: view == 1,
-            psnr_db: psnr(image, &self.inner.targets[view]),
-        });
-        Ok(value)
-    }
 }
 
 /// The chart of a fit's PSNR against the step, one curve per camera.

@@ -217,6 +217,28 @@ pub struct PhotometricObjective {
     pub lambda: f32,
 }
 
+/// A [`PhotometricObjective`] that also logs each render it is given: `(view, PSNR in dB)` in
+/// the order of evaluation (for a fit of one view a step, entry `k` is step `k + 1`'s render,
+/// before its update).
+#[derive(Clone, Debug)]
+pub struct PsnrLog {
+    /// The objective.
+    pub inner: PhotometricObjective,
+    /// The log.
+    pub log: Vec<(usize, f64)>,
+}
+
+impl Objective for PsnrLog {
+    type Error = GsError;
+
+    fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, GsError> {
+        let value = self.inner.evaluate(view, image)?;
+        self.log
+            .push((view, psnr(image, &self.inner.targets[view])));
+        Ok(value)
+    }
+}
+
 /// Checks the settings every photometric fit shares (MiraGe's, VeGaS's): at least one Gaussian
 /// and one step, a D-SSIM weight in `[0, 1]`, background channels in `[0, 1]`; the error starts
 /// with the field (`gaussians: must be at least 1`).

@@ -52,27 +52,17 @@ pub fn known_gaussians(count: usize, seed: u64) -> GaussianSet {
     g
 }
 
-/// Camera-to-world (Blender axes: the camera looks along its -z, z up) of a camera at `eye`
-/// looking at the origin.
-fn c2w(eye: [f64; 3]) -> [[f64; 4]; 4] {
-    let norm = |v: [f64; 3]| {
-        let n = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
-        [v[0] / n, v[1] / n, v[2] / n]
-    };
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let z = norm(eye);
-    let x = norm(cross([0.0, 0.0, 1.0], z));
-    let y = cross(z, x);
+/// Camera-to-world in Blender axes (the camera looks along its -z) of `camera`: the inverse
+/// of its world-to-camera pose, its y and z axes turned.
+fn blender_c2w(camera: &Camera) -> [[f64; 4]; 4] {
+    let r = camera.rotation;
+    let c = camera.centre();
+    let axis = |a: usize, sign: f64| [0, 1, 2].map(|i| sign * r[a][i]);
+    let (x, y, z) = (axis(0, 1.0), axis(1, -1.0), axis(2, -1.0));
     [
-        [x[0], y[0], z[0], eye[0]],
-        [x[1], y[1], z[1], eye[1]],
-        [x[2], y[2], z[2], eye[2]],
+        [x[0], y[0], z[0], c[0]],
+        [x[1], y[1], z[1], c[1]],
+        [x[2], y[2], z[2], c[2]],
         [0.0, 0.0, 0.0, 1.0],
     ]
 }
@@ -91,7 +81,17 @@ pub fn write_fit_scene(root: &Path, scene: FitScene) -> GaussianSet {
             let a: f64 = rng.random_range(0.0..std::f64::consts::TAU);
             let r = (1.0 - z * z).sqrt();
             let eye = [3.0 * r * a.cos(), 3.0 * r * a.sin(), 3.0 * z];
-            let m = c2w(eye);
+            let looking = Camera::look_at(
+                eye,
+                [0.0; 3],
+                [0.0, 0.0, 1.0],
+                FOV_X,
+                scene.size,
+                scene.size,
+            )
+            .unwrap();
+            let m = blender_c2w(&looking);
+            // The camera as the NeRF-synthetic reader makes it from the file.
             let camera = Camera::from_nerf(m, FOV_X, scene.size, scene.size).unwrap();
             let rendered = render(&set, &camera, [0.0; 3]);
             let mut img = image::RgbaImage::new(scene.size, scene.size);

@@ -25,19 +25,21 @@ use crate::Camera;
 /// The file's name in an INRIA output folder.
 pub const FILE_NAME: &str = "cameras.json";
 
-/// One camera as the file holds it.
-#[derive(Deserialize)]
+/// One camera as the file holds it, in the order INRIA's `camera_to_JSON` writes the fields.
+#[derive(Deserialize, Serialize)]
 struct Entry {
+    #[serde(default)]
+    id: usize,
     img_name: String,
     width: u32,
     height: u32,
     position: [f64; 3],
     rotation: [[f64; 3]; 3],
-    fx: f64,
     fy: f64,
-    #[serde(default)]
+    fx: f64,
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     cx: Option<f64>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     cy: Option<f64>,
 }
 
@@ -127,36 +129,19 @@ pub fn beside(model: &Path) -> Option<PathBuf> {
         .find(|p| p.is_file())
 }
 
-/// One camera as INRIA's `camera_to_JSON` writes it.
-#[derive(Serialize)]
-struct Written<'a> {
-    id: usize,
-    img_name: &'a str,
-    width: u32,
-    height: u32,
-    position: [f64; 3],
-    rotation: [[f64; 3]; 3],
-    fy: f64,
-    fx: f64,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    cx: Option<f64>,
-    #[serde(skip_serializing_if = "Option::is_none")]
-    cy: Option<f64>,
-}
-
 /// Writes `cameras` (each with its picture's name, no folder or extension) as INRIA's
 /// `cameras.json` to `path` (through a temporary name, then renamed). A principal point off
 /// the picture's centre, which INRIA's format cannot say, is written as forks write it
 /// (`cx`, `cy`), which [`read`] takes.
 pub fn write(path: &Path, cameras: &[(&Camera, String)]) -> std::io::Result<()> {
-    let entries: Vec<Written> = cameras
+    let entries: Vec<Entry> = cameras
         .iter()
         .enumerate()
         .map(|(id, (camera, name))| {
             let r = camera.rotation;
-            Written {
+            Entry {
                 id,
-                img_name: name,
+                img_name: name.clone(),
                 width: camera.width,
                 height: camera.height,
                 position: camera.centre(),
