@@ -447,21 +447,32 @@ fn a_bad_manifest_entry_is_refused_at_plan_naming_it() {
     }
 }
 
-/// A 3D job without a model is refused at plan, as its run would refuse it.
+/// A 3D job with a dataset and no model is planned (its run fits the scene first); one with
+/// neither is refused at plan, as its run would refuse it.
 #[test]
-fn a_3d_input_without_a_model_is_refused_at_plan() {
+fn a_3d_input_without_a_model_fits_first_and_without_data_is_refused_at_plan() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     std::fs::create_dir(&scene).unwrap();
-    let path = dir.path().join("manifest.json");
-    let manifest = serde_json::json!({
-        "modality": "3d",
-        "inputs": [{"data": "scene"}],
-        "styles": [{"style_prompt": "fire"}],
-    });
-    std::fs::write(&path, manifest.to_string()).unwrap();
-    let batch = dir.path().join("batch");
-    let out = run(&["batch", "plan", s(&path), "--out", s(&batch)]);
+    let plan = |input: serde_json::Value, name: &str| {
+        let path = dir.path().join(format!("{name}.json"));
+        let manifest = serde_json::json!({
+            "modality": "3d",
+            "inputs": [input],
+            "styles": [{"style_prompt": "fire"}],
+        });
+        std::fs::write(&path, manifest.to_string()).unwrap();
+        let batch = dir.path().join(name);
+        (run(&["batch", "plan", s(&path), "--out", s(&batch)]), batch)
+    };
+    let (out, batch) = plan(serde_json::json!({"data": "scene"}), "fits");
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(batch.join("jobs.json").is_file());
+    let (out, batch) = plan(serde_json::json!({"orbit_views": 8}), "nothing");
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(65), "{stderr}");
     assert!(

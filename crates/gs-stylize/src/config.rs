@@ -491,6 +491,8 @@ mod tests {
         train_splits: String,
         preview_views: Vec<usize>,
         learning_rates: crate::rates::GroupRates,
+        fit_gaussians: usize,
+        fit_steps: u64,
         #[serde(flatten)]
         style: StyleSettings,
     }
@@ -509,6 +511,8 @@ mod tests {
                 background_mask: "ground_truth_colour".into(),
                 train_splits: "train_and_test".into(),
                 preview_views: vec![0],
+                fit_gaussians: 100_000,
+                fit_steps: 30_000,
                 learning_rates: crate::rates::gaussian_stylization(0.01),
                 style: StyleSettings::paper_3d(),
             }
