@@ -18,11 +18,12 @@
 use std::sync::Mutex;
 
 use gs_core::adam::RowChange;
+use gs_core::densify::standard_normal;
 use gs_core::gaussians::GaussianGrads;
 use gs_core::model::{BaseModel, Forward, Group, ModelError, View};
 use gs_core::raster::GradMask;
 use gs_wgpu::GpuModel;
-use rand::{Rng, SeedableRng};
+use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 
 use crate::core_frame::frame;
@@ -199,13 +200,6 @@ fn sigmoid(x: f32) -> f64 {
     1.0 / (1.0 + (-(x as f64)).exp())
 }
 
-/// One standard normal value (Box-Muller).
-fn normal(rng: &mut impl Rng) -> f64 {
-    let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
-    let u2: f64 = rng.random();
-    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-}
-
 /// Per-core widths of the groups (`None`: not per core).
 fn row_widths() -> [Option<usize>; 9] {
     [
@@ -290,9 +284,9 @@ pub fn densify(
         let (r1, r2, r3) = (axis(0), axis(1), axis(2));
         for _ in 0..2 {
             let z = [
-                1e-8 * normal(&mut rng),
-                s2 * normal(&mut rng),
-                s3 * normal(&mut rng),
+                1e-8 * standard_normal(&mut rng),
+                s2 * standard_normal(&mut rng),
+                s3 * standard_normal(&mut rng),
             ];
             let centre = [0, 1, 2].map(|a| tri[0][a] + z[0] * r1[a] + z[1] * r2[a] + z[2] * r3[a]);
             // D-MiSo's `create_faces`: legs of the scales / 1.6 along the in-plane axes, the

@@ -15,9 +15,10 @@
 use rand::Rng;
 
 use crate::adam::RowChange;
-use crate::gaussians::{sh_coeff_count, GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
+use crate::gaussians::{row_widths, sh_coeff_count, GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
 use crate::mat::quat_to_rotation;
 use crate::raster::Rendered;
+use crate::real::Real;
 
 /// When and how 3DGS densifies (INRIA's `OptimizationParams` defaults), in 1-based steps.
 #[derive(Clone, Debug, PartialEq)]
@@ -178,26 +179,18 @@ impl ScreenStats {
     }
 }
 
-/// Values per Gaussian of each group of `set`, in [`PARAM_NAMES`] order.
-fn row_widths(set: &GaussianSet) -> [usize; 6] {
-    [3, 3, 4, 1, 3, 3 * (set.sh_coeffs() - 1)]
-}
-
 /// The largest of Gaussian `i`'s three scales (world units).
 fn max_scale(set: &GaussianSet, i: usize) -> f32 {
     let s = &set.log_scales[3 * i..3 * i + 3];
     s[0].max(s[1]).max(s[2]).exp()
 }
 
-fn sigmoid(x: f32) -> f32 {
-    1.0 / (1.0 + (-x).exp())
-}
-
-/// One standard normal value (Box-Muller).
-fn normal(rng: &mut impl Rng) -> f32 {
+/// One standard normal value (Box-Muller), for the split samples (3DGS's here, D-MiSo's on
+/// its triangles).
+pub fn standard_normal(rng: &mut impl Rng) -> f64 {
     let u1: f64 = rng.random_range(f64::MIN_POSITIVE..1.0);
     let u2: f64 = rng.random();
-    ((-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()) as f32
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
 }
 
 /// `set` densified after `stats` in a scene of camera extent `extent` (`cameras_extent`), as
@@ -270,7 +263,7 @@ pub fn densify(
     let children = kept.len() + cloned.len();
     for (row, &i) in (children..rows.len()).zip(&rows[children..]) {
         let s = [0, 1, 2].map(|a| set.log_scales[3 * i + a].exp());
-        let z = [0, 1, 2].map(|a| s[a] * normal(rng));
+        let z = [0, 1, 2].map(|a| s[a] * standard_normal(rng) as f32);
         let q = &set.quats[4 * i..4 * i + 4];
         let norm = q
             .iter()
@@ -289,7 +282,7 @@ pub fn densify(
     let world_limit = settings.max_world_fraction * extent;
     let survivors: Vec<usize> = (0..rows.len())
         .filter(|&row| {
-            let transparent = sigmoid(grown.opacity_logits[row]) < settings.min_opacity;
+            let transparent = grown.opacity_logits[row].sigmoid() < settings.min_opacity;
             let large = prune_large && max_scale(&grown, row) > world_limit;
             !(transparent || large)
         })
@@ -303,7 +296,7 @@ pub fn densify(
             settings.min_opacity, settings.max_world_fraction
         ));
     }
-    let changes = row_widths(set)
+    let changes = row_widths(set.sh_degree())
         .into_iter()
         .map(|width| RowChange::Rows {
             width,
@@ -532,7 +525,7 @@ mod tests {
     fn the_opacity_reset_caps_at_one_percent_and_restarts_its_moments() {
         let (mut set, _, _) = case();
         let changes = reset_opacity(&mut set);
-        assert!((sigmoid(set.opacity_logits[0]) - 0.01).abs() < 1e-6);
+        assert!((set.opacity_logits[0].sigmoid() - 0.01).abs() < 1e-6);
         assert_eq!(set.opacity_logits[5], logit(0.004), "lower ones stay");
         assert_eq!(changes[3], RowChange::Reset);
         assert!(changes

@@ -8,6 +8,13 @@ pub const fn sh_coeff_count(degree: usize) -> usize {
     (degree + 1) * (degree + 1)
 }
 
+/// Values per Gaussian of each parameter array of a set of SH degree `sh_degree`, in the order
+/// of [`PARAM_NAMES`]: means 3, log-scales 3, quaternions 4, opacity 1, DC 3, the rest
+/// `3 ((degree + 1)^2 - 1)`.
+pub const fn row_widths(sh_degree: usize) -> [usize; 6] {
+    [3, 3, 4, 1, 3, 3 * (sh_coeff_count(sh_degree) - 1)]
+}
+
 /// Highest spherical-harmonics degree the rasterizer evaluates.
 pub const MAX_SH_DEGREE: usize = 3;
 
@@ -245,7 +252,7 @@ impl<T: Real> GaussianSet<T> {
             sh_dc: Vec::new(),
             sh_rest: Vec::new(),
         };
-        let widths = [3, 3, 4, 1, 3, 3 * (self.sh_coeffs() - 1)];
+        let widths = row_widths(self.sh_degree);
         for ((to, from), w) in out.arrays_mut().into_iter().zip(self.arrays()).zip(widths) {
             to.reserve(w * rows.len());
             for &i in rows {

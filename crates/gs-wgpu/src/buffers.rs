@@ -229,8 +229,7 @@ impl GpuGaussians {
     /// Bytes of one Gaussian's record in each array, in the order of [`PARAM_NAMES`]
     /// (`sh_rest` is empty at degree 0).
     pub(crate) fn record_bytes(&self) -> [u64; 6] {
-        let rest = 3 * (gs_core::gaussians::sh_coeff_count(self.sh_degree) - 1);
-        [3, 3, 4, 1, 3, rest].map(|floats| 4 * floats as u64)
+        gs_core::gaussians::row_widths(self.sh_degree).map(|floats| 4 * floats as u64)
     }
 
     /// The six arrays as per-item bindings of a chunked kernel, in the order of
