@@ -13,9 +13,7 @@ use std::path::Path;
 
 use gs_core::adam::{rearrange_state, AdamHyper, GroupConfig, LrSchedule, RowChange};
 use gs_core::dataset::nerf_synthetic::{self, Split, TrainSplits};
-use gs_core::dataset::{
-    colmap, scene_extent, Dataset, DatasetError, Layout, LoadOptions, PointCloud,
-};
+use gs_core::dataset::{colmap, Dataset, DatasetError, Layout, LoadOptions, PointCloud};
 use gs_core::densify::{densify, raise_sh_degree, reset_opacity, DensifySettings, ScreenStats};
 use gs_core::fs::write_atomic;
 use gs_core::gaussians::{GaussianSet, MAX_SH_DEGREE, PARAM_NAMES};
@@ -63,11 +61,9 @@ pub struct SceneFitSettings {
     /// Random starting points when the dataset has none (NeRF-synthetic: 100,000 in the cube
     /// `[-1.3, 1.3]^3`).
     pub random_points: usize,
-    /// The densification; `None` fits the starting Gaussians only.
+    /// The densification (its `max_len` the cap a user can set); `None` fits the starting
+    /// Gaussians only.
     pub densify: Option<DensifySettings>,
-    /// The most Gaussians a densification may leave (`None`: no cap, as INRIA); when a
-    /// densification would pass it, the Gaussians of the largest gradients grow first.
-    pub max_gaussians: Option<usize>,
     /// The colour pictures are composited over and renders drawn on.
     pub background: [f32; 3],
     /// Seed of the random points, the view order and the split samples.
@@ -89,7 +85,6 @@ impl Default for SceneFitSettings {
             rotation_lr: 0.001,
             random_points: 100_000,
             densify: Some(DensifySettings::default()),
-            max_gaussians: None,
             background: [0.0; 3],
             seed: 0,
         }
@@ -119,9 +114,6 @@ impl SceneFitSettings {
         }
         if self.random_points == 0 {
             return Err("--random-points: must be at least 1".into());
-        }
-        if self.max_gaussians == Some(0) {
-            return Err("--max-gaussians: must be at least 1".into());
         }
         if let Some(d) = &self.densify {
             d.check()?;
@@ -157,9 +149,16 @@ impl SceneFitSettings {
     }
 
     /// Whether the SH degree is raised after step `step`: INRIA raises it before the render of
-    /// every 1,000th iteration, so after steps 999, 1,999, 2,999.
+    /// every 1,000th iteration, so after steps 999, 1,999, 2,999, until the highest degree.
     fn raises_sh_after(&self, step: u64) -> bool {
-        (step + 1).is_multiple_of(self.sh_every)
+        let next = step + 1;
+        next.is_multiple_of(self.sh_every) && next / self.sh_every <= self.sh_degree as u64
+    }
+
+    /// Whether renders are drawn on white (INRIA's `-w`, which also resets the opacities at
+    /// the densification's start).
+    fn white_background(&self) -> bool {
+        self.background == [1.0; 3]
     }
 }
 
@@ -312,7 +311,7 @@ where
     for _ in 0..done {
         sampler.next_batch();
     }
-    let white = settings.background == [1.0; 3];
+    let white = settings.white_background();
     let densifying = settings.densify.as_ref();
     let mut stopped = false;
     while done < settings.steps {
@@ -352,8 +351,6 @@ where
                 let current = stats.take().ok_or_else(|| {
                     SceneFitError::Settings("no statistics were gathered to densify".into())
                 })?;
-                let mut limited = d.clone();
-                limited.max_len = settings.max_gaussians;
                 // The split samples of each densification from the seed and its step, so that
                 // a resumed fit draws the same ones.
                 let seed = settings.seed ^ done.wrapping_mul(SPLIT_SEED);
@@ -362,7 +359,7 @@ where
                     &model,
                     &current,
                     extent as f32,
-                    &limited,
+                    d,
                     d.prunes_large_at(done),
                     &mut rng,
                 )
@@ -405,6 +402,21 @@ where
     })
 }
 
+/// The renders of `gaussians` at `views` over `background` on `backend` (a fit's training and
+/// held-out views, for their PSNR and frames).
+pub fn render_views(
+    gaussians: &GaussianSet,
+    views: &[View],
+    background: [f32; 3],
+    backend: &Backend,
+) -> Result<Vec<Image>, DeviceError> {
+    let renderer = backend.renderer(gaussians)?;
+    views
+        .iter()
+        .map(|v| renderer.render(&v.camera, background))
+        .collect()
+}
+
 /// Mixed into the seed of each densification's split samples, times its step.
 const SPLIT_SEED: u64 = 0x9E37_79B9_7F4A_7C15;
 
@@ -425,7 +437,7 @@ fn next_event(settings: &SceneFitSettings, done: u64) -> u64 {
     ((done + 1)..settings.steps)
         .find(|&s| {
             let densify = settings.densify.as_ref().is_some_and(|d| {
-                d.densifies_at(s) || d.resets_opacity_at(s, settings.background == [1.0; 3])
+                d.densifies_at(s) || d.resets_opacity_at(s, settings.white_background())
             });
             densify || settings.raises_sh_after(s)
         })
@@ -483,20 +495,10 @@ pub fn load_fit_data(
             for (k, &i) in by_name.iter().enumerate() {
                 held[i] = k % LLFF_HOLD == 0;
             }
-            let mut train = all.clone();
-            let held = &held;
-            let keep = |held_out: bool| (0..all.views.len()).filter(move |&i| held[i] == held_out);
-            train.views = keep(false).map(|i| all.views[i].clone()).collect();
-            train.images = keep(false).map(|i| all.images[i].clone()).collect();
-            train.masks = keep(false).map(|i| all.masks[i].clone()).collect();
-            train.image_paths = keep(false).map(|i| all.image_paths[i].clone()).collect();
-            train.undistorted = keep(false).map(|i| all.undistorted[i].clone()).collect();
-            train.extent = scene_extent(&train.views);
-            let test_views = keep(true).map(|i| all.views[i].clone()).collect();
-            let test_images = keep(true).map(|i| all.images[i].clone()).collect();
+            let (train, test) = all.partition(&held);
             Ok(FitData {
                 train,
-                test: Some((test_views, test_images)),
+                test: Some((test.views, test.images)),
             })
         }
         None => Err(DatasetError::Format {

@@ -4,6 +4,8 @@
 //! layout.
 
 mod fit_scene;
+#[allow(dead_code)]
+mod scene;
 
 use std::ops::ControlFlow;
 use std::path::Path;
@@ -137,9 +139,9 @@ fn the_loop_densifies_on_its_schedule_within_the_cap() {
                 every: 50,
                 until: 300,
                 opacity_reset_every: 200,
+                max_len: Some(900),
                 ..DensifySettings::default()
             }),
-            max_gaussians: Some(900),
             seed,
             ..SceneFitSettings::default()
         };
@@ -354,4 +356,37 @@ fn fit_resume_needs_a_checkpoint_and_a_checkpoint_needs_resume() {
     ));
     save_checkpoint(&out.join("checkpoint"), &fitted).unwrap();
     fails(&[], "holds the checkpoint of a stopped fit: pass --resume");
+}
+
+/// A COLMAP scene under `--eval` holds out every 8th picture by name (INRIA's `llffhold`):
+/// of the 4 pictures `r_0` to `r_3`, `r_0`; the training extent is that of the other 3.
+#[test]
+fn colmap_eval_holds_out_every_eighth_picture_by_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = scene::write_colmap_scene(dir.path());
+    let all = load_fit_data(&data, &LoadOptions::default(), false).unwrap();
+    assert!(all.test.is_none());
+    assert_eq!(all.train.views.len(), 4);
+    let held = load_fit_data(&data, &LoadOptions::default(), true).unwrap();
+    let names: Vec<String> = held
+        .train
+        .image_paths
+        .iter()
+        .map(|p| p.file_name().unwrap().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(names, ["r_1.png", "r_2.png", "r_3.png"]);
+    let (views, images) = held.test.unwrap();
+    assert_eq!((views.len(), images.len()), (1, 1));
+    let r0 = all
+        .train
+        .image_paths
+        .iter()
+        .position(|p| p.ends_with("r_0.png"))
+        .unwrap();
+    assert_eq!(views[0], all.train.views[r0]);
+    assert_eq!(
+        held.train.extent,
+        base_3dgs::dataset::scene_extent(&held.train.views)
+    );
+    assert_ne!(held.train.extent, all.train.extent);
 }

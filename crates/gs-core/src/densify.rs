@@ -105,6 +105,9 @@ impl DensifySettings {
                 return Err(format!("{name} = {v}: must be a positive number"));
             }
         }
+        if self.max_len == Some(0) {
+            return Err("max_gaussians = 0: must be at least 1 (--max-gaussians)".into());
+        }
         if !(0.0..1.0).contains(&self.min_opacity) {
             return Err(format!(
                 "min_opacity = {}: must be in [0, 1)",

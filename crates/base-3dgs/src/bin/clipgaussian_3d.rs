@@ -17,14 +17,13 @@ use base_3dgs::dataset::{Background, LoadOptions};
 use base_3dgs::evaluation::{evaluate_folders, write_metrics};
 use base_3dgs::fit::{
     self as scene_fit, has_checkpoint, initial_gaussians, load_checkpoint, load_fit_data,
-    psnr_chart, save_checkpoint, FitData, SceneFit, SceneFitSettings,
+    psnr_chart, render_views, save_checkpoint, FitData, SceneFit, SceneFitSettings,
 };
 use base_3dgs::render_views::{camera_from_file, dataset_cameras, render_to_folder};
 use base_3dgs::stylize::{run, Override, SceneStylizeConfig, StylizeError};
 use clap::{Args, Subcommand};
 use gs_core::camera::Camera;
 use gs_core::densify::DensifySettings;
-use gs_core::image::Image;
 use gs_core::image_loss::mean_psnr;
 use gs_core::ply::{write_ply, PlyFormat, PlyGaussians};
 use gs_core::splats::{read_splats_with_format, write_splats, SplatFormat};
@@ -406,6 +405,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
     };
     let densify = (args.densify_until > 0).then(|| DensifySettings {
         until: args.densify_until,
+        max_len: args.max_gaussians,
         ..DensifySettings::default()
     });
     let settings = SceneFitSettings {
@@ -413,7 +413,6 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         sh_degree: args.sh_degree,
         random_points: args.gaussians,
         densify,
-        max_gaussians: args.max_gaussians,
         background,
         seed: args.seed,
         ..SceneFitSettings::default()
@@ -517,18 +516,11 @@ fn write_fit(
         .collect();
     inria_cameras::write(&out.join(inria_cameras::FILE_NAME), &names)?;
     psnr_chart(&fitted.psnr).write_png(&out.join(FIT_PSNR_PNG))?;
-    let renderer = backend.renderer(&gaussians)?;
-    let render_all = |views: &[gs_core::model::View]| -> Result<Vec<Image>, Box<dyn Error>> {
-        views
-            .iter()
-            .map(|v| Ok(renderer.render(&v.camera, train.background)?))
-            .collect()
-    };
-    let train_renders = render_all(&train.views)?;
+    let train_renders = render_views(&gaussians, &train.views, train.background, backend)?;
     let psnr_db = mean_psnr(&train_renders, &train.images);
     let (shown, pictures, test_psnr_db) = match &data.test {
         Some((views, images)) => {
-            let renders = render_all(views)?;
+            let renders = render_views(&gaussians, views, train.background, backend)?;
             let psnr = mean_psnr(&renders, images);
             (renders, images.as_slice(), Some(psnr))
         }

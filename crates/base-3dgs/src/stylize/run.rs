@@ -24,7 +24,7 @@ use super::model_views::model_scene;
 use super::SceneStylizeConfig;
 use crate::dataset::nerf_synthetic;
 use crate::dataset::{colmap, Background, Dataset, DatasetError, Layout, LoadOptions};
-use crate::fit::{fit, initial_gaussians, SceneFit, SceneFitSettings};
+use crate::fit::{fit, initial_gaussians, render_views, SceneFit, SceneFitSettings};
 
 /// The stylized PLY in the output folder (`model.ply`, as the 2D and video runs name theirs).
 pub const MODEL_PLY: &str = "model.ply";
@@ -217,12 +217,7 @@ impl Modality for SceneStylizeConfig {
         run: &PreparedRun,
     ) -> Result<Option<f64>, SceneStylizeError> {
         let dataset = &scene.dataset;
-        let renderer = run.backend().renderer(model).map_err(StylizeError::from)?;
-        let renders = dataset
-            .views
-            .iter()
-            .map(|v| renderer.render(&v.camera, dataset.background))
-            .collect::<Result<Vec<_>, _>>()
+        let renders = render_views(model, &dataset.views, dataset.background, run.backend())
             .map_err(StylizeError::from)?;
         Ok(Some(mean_psnr(&renders, &dataset.images)))
     }

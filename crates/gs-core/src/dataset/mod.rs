@@ -283,6 +283,44 @@ impl Dataset {
         self.extent = scene_extent(&self.views);
     }
 
+    /// The frames `held_out` says (one flag per view) split off, in order: `(kept, held)`, each
+    /// with the extent of its own views and this dataset's background and points.
+    ///
+    /// # Panics
+    /// If `held_out` does not have one flag per view.
+    pub fn partition(self, held_out: &[bool]) -> (Dataset, Dataset) {
+        assert_eq!(held_out.len(), self.views.len(), "one flag per view");
+        let empty = || Dataset {
+            views: Vec::new(),
+            images: Vec::new(),
+            masks: Vec::new(),
+            image_paths: Vec::new(),
+            background: self.background,
+            extent: 0.0,
+            points: self.points.clone(),
+            undistorted: Vec::new(),
+        };
+        let (mut kept, mut held) = (empty(), empty());
+        let frames = self
+            .views
+            .into_iter()
+            .zip(self.images)
+            .zip(self.masks)
+            .zip(self.image_paths)
+            .zip(self.undistorted);
+        for (((((view, image), mask), path), undistorted), &out) in frames.zip(held_out) {
+            let to = if out { &mut held } else { &mut kept };
+            to.views.push(view);
+            to.images.push(image);
+            to.masks.push(mask);
+            to.image_paths.push(path);
+            to.undistorted.push(undistorted);
+        }
+        kept.extent = scene_extent(&kept.views);
+        held.extent = scene_extent(&held.views);
+        (kept, held)
+    }
+
     /// One line a run shows per distinct undistortion of its pictures (camera model, stored
     /// size, crop, new intrinsics) with how many views it applies to; empty when no picture was
     /// undistorted.
@@ -437,4 +475,59 @@ fn check_options(options: &LoadOptions) -> Result<(), DatasetError> {
         ));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::image::Image;
+    use crate::Camera;
+
+    /// Four views along x, each marked by its picture's name and colour.
+    fn four() -> Dataset {
+        let views: Vec<View> = (0..4)
+            .map(|i| {
+                let eye = [i as f64, 0.0, -4.0];
+                let camera = Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, 8, 6).unwrap();
+                View::still(camera)
+            })
+            .collect();
+        let extent = scene_extent(&views);
+        Dataset {
+            images: (0..4).map(|i| Image::filled(8, 6, [i as f32; 3])).collect(),
+            masks: vec![None; 4],
+            image_paths: (0..4).map(|i| PathBuf::from(format!("p{i}.png"))).collect(),
+            background: [0.5; 3],
+            extent,
+            points: None,
+            undistorted: vec![None; 4],
+            views,
+        }
+    }
+
+    #[test]
+    fn a_partition_keeps_each_frame_whole_in_order_with_its_own_extent() {
+        let all = four();
+        let (kept, held) = all.clone().partition(&[true, false, false, true]);
+        let names = |d: &Dataset| -> Vec<String> {
+            d.image_paths
+                .iter()
+                .map(|p| p.display().to_string())
+                .collect()
+        };
+        assert_eq!(names(&kept), ["p1.png", "p2.png"]);
+        assert_eq!(names(&held), ["p0.png", "p3.png"]);
+        assert_eq!(kept.views, [all.views[1].clone(), all.views[2].clone()]);
+        assert_eq!(held.images[1].data[0], 3.0);
+        assert_eq!((kept.masks.len(), held.undistorted.len()), (2, 2));
+        assert_eq!(kept.extent, scene_extent(&kept.views));
+        assert!(
+            held.extent > kept.extent,
+            "the held views stand further apart"
+        );
+        assert_eq!(held.background, [0.5; 3]);
+        let (everything, none) = all.partition(&[false; 4]);
+        assert_eq!((everything.views.len(), none.views.len()), (4, 0));
+        assert_eq!(none.extent, 0.0);
+    }
 }
