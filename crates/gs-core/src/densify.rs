@@ -171,6 +171,18 @@ impl ScreenStats {
         }
     }
 
+    /// An error when statistics of `len` Gaussians meet a view of `rendered` Gaussians (checked
+    /// by each backend's trainer before it renders).
+    pub fn check_rendered(len: usize, rendered: usize) -> Result<(), String> {
+        if len == rendered {
+            Ok(())
+        } else {
+            Err(format!(
+                "densification statistics of {len} Gaussians, {rendered} rendered"
+            ))
+        }
+    }
+
     /// The mean norm of Gaussian `i` (0 when no view saw it, as INRIA's `grads[grads.isnan()]
     /// = 0`).
     pub fn mean(&self, i: usize) -> f32 {
@@ -648,5 +660,8 @@ mod tests {
         assert!((stats.grad_sum[0] - (first + 6e-5)).abs() < 1e-9);
         assert_eq!(stats.count, [2, 0]);
         assert_eq!(stats.mean(1), 0.0);
+        assert!(ScreenStats::check_rendered(2, 2).is_ok());
+        let e = ScreenStats::check_rendered(2, 3).unwrap_err();
+        assert_eq!(e, "densification statistics of 2 Gaussians, 3 rendered");
     }
 }

@@ -315,6 +315,10 @@ impl<M: BaseModel> CpuTrainer<M> {
             // Render.
             let t0 = Instant::now();
             let Forward { gaussians, tape } = self.model.forward(view).map_err(model_failed)?;
+            if let Some(stats) = &self.screen_stats {
+                ScreenStats::check_rendered(stats.len(), gaussians.len())
+                    .map_err(|e| model_failed(ModelError::from(e)))?;
+            }
             let rendered = raster::render(gaussians.as_ref(), &view.camera, background);
             // The loss and its image gradient.
             let t1 = Instant::now();
@@ -335,13 +339,6 @@ impl<M: BaseModel> CpuTrainer<M> {
                 self.mask,
             );
             if let Some(stats) = &mut self.screen_stats {
-                if stats.len() != screen.len() {
-                    return Err(model_failed(ModelError::from(format!(
-                        "densification statistics of {} Gaussians, {} rendered",
-                        stats.len(),
-                        screen.len()
-                    ))));
-                }
                 let size = (view.camera.width, view.camera.height);
                 stats.add_view(&rendered, &screen, size);
             }

@@ -18,6 +18,7 @@ use super::memory::{trained_values, training_bytes};
 use super::model::{GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep};
 use super::shaders::KernelId;
 use gs_core::adam::{AdamHyper, GroupConfig};
+use gs_core::densify::ScreenStats;
 use gs_core::model::{ModelError, View};
 use gs_core::raster::{GradMask, OutputGrads};
 use gs_core::sampler::Batch;
@@ -151,17 +152,12 @@ impl<M: GpuModel> GpuTrainer<M> {
                 depth: None,
             };
             if let Some(stats) = &self.screen_stats {
-                if stats.len() != gaussians.len() {
-                    let message = format!(
-                        "densification statistics of {} Gaussians, {} rendered",
-                        stats.len(),
-                        gaussians.len()
-                    );
-                    return Err(TrainError::Model {
+                ScreenStats::check_rendered(stats.len(), gaussians.len()).map_err(|e| {
+                    TrainError::Model {
                         step,
-                        source: message.into(),
-                    });
-                }
+                        source: e.into(),
+                    }
+                })?;
             }
             let stats = self.screen_stats.as_ref();
             let grads = backward_with_stats(ctx, &gaussians, &rendered, &out, self.mask, stats)
