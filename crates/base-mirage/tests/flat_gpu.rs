@@ -11,7 +11,7 @@ use gs_core::raster::{backward, render, OutputGrads};
 use gs_core::GaussianSet;
 use gs_wgpu::{
     self as gpu, read_f32, test_context, GpuContext, GpuModel, GpuOptions, GpuParams, GpuScratch,
-    GpuStep,
+    GpuStep, ParameterBinding,
 };
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -68,66 +68,74 @@ fn assert_close(what: &str, want: &[f32], got: &[f32]) {
 
 #[test]
 fn the_gpu_construction_matches_the_cpu_one_forward_and_backward() {
-    let Some(ctx) = context(GpuOptions::default()) else {
-        return;
-    };
-    let mut model = model(30);
-    let view = View::still(plane_camera(W, H, 1.0, false).unwrap());
-    let bg = [0.1, 0.2, 0.3];
-    let params = GpuParams::upload(&ctx, &mut model).unwrap();
-    let mut scratch = GpuScratch::default();
-    let mut step = GpuStep {
-        ctx: &ctx,
-        params: &params,
-        scratch: &mut scratch,
-    };
-    let gaussians = model.gpu_forward(&mut step, &view).unwrap().gaussians;
-    let renderable = model.renderable();
-    assert_eq!(
-        gaussians.download(&ctx),
-        renderable,
-        "rendered Gaussians, bit for bit"
-    );
+    // Parameter blocks bound as uniforms (hardware adapters) and as read-only storage (software
+    // ones), whichever adapter runs this.
+    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
+        let Some(ctx) = context(GpuOptions {
+            parameter_binding: Some(binding),
+            ..GpuOptions::default()
+        }) else {
+            return;
+        };
+        let mut model = model(30);
+        let view = View::still(plane_camera(W, H, 1.0, false).unwrap());
+        let bg = [0.1, 0.2, 0.3];
+        let params = GpuParams::upload(&ctx, &mut model).unwrap();
+        let mut scratch = GpuScratch::default();
+        let mut step = GpuStep {
+            ctx: &ctx,
+            params: &params,
+            scratch: &mut scratch,
+        };
+        let gaussians = model.gpu_forward(&mut step, &view).unwrap().gaussians;
+        let renderable = model.renderable();
+        assert_eq!(
+            gaussians.download(&ctx),
+            renderable,
+            "rendered Gaussians, bit for bit"
+        );
 
-    let cpu_r = render(&renderable, &view.camera, bg);
-    let gpu_r = gpu::render(&ctx, &gaussians, &view.camera, bg).unwrap();
-    assert_close("image", &cpu_r.image.data, &gpu_r.image(&ctx).data);
+        let cpu_r = render(&renderable, &view.camera, bg);
+        let gpu_r = gpu::render(&ctx, &gaussians, &view.camera, bg).unwrap();
+        assert_close("image", &cpu_r.image.data, &gpu_r.image(&ctx).data);
 
-    let mut rng = ChaCha8Rng::seed_from_u64(4);
-    let dl: Vec<f32> = (0..3 * W * H)
-        .map(|_| rng.random_range(-1.0..1.0))
-        .collect();
-    let out = OutputGrads {
-        rgb: &dl,
-        alpha: None,
-        depth: None,
-    };
-    for trained in [[true; 6], [false, true, true, false, true, false]] {
-        let mask = model.grad_mask(&trained);
-        let cpu_grads = backward(&renderable, &view.camera, &cpu_r, &out, mask);
-        let mut want: Vec<Vec<f32>> = model.group_lens().iter().map(|&n| vec![0.0; n]).collect();
-        model
-            .backward(&view, (), &cpu_grads.gaussians, &trained, &mut want)
-            .unwrap();
-        let gpu_grads = gpu::backward(&ctx, &gaussians, &gpu_r, &out, mask).unwrap();
-        let got = model
-            .gpu_backward(&mut step, &view, (), gpu_grads, &trained)
-            .unwrap();
-        for (k, name) in PARAM_NAMES.iter().enumerate() {
-            let what = format!("trained {trained:?}: gradient of {name}");
-            match &got[k] {
-                Some(buffer) => {
-                    assert!(trained[k], "{what}: a frozen group got a gradient");
-                    let got = read_f32(&ctx, buffer, want[k].len());
-                    assert_close(&what, &want[k], &got);
-                    if k == 1 {
-                        for i in [0, 3, 4, 8] {
-                            assert_eq!(got[i], 0.0, "{what}[{i}]: flat axis or clamped");
+        let mut rng = ChaCha8Rng::seed_from_u64(4);
+        let dl: Vec<f32> = (0..3 * W * H)
+            .map(|_| rng.random_range(-1.0..1.0))
+            .collect();
+        let out = OutputGrads {
+            rgb: &dl,
+            alpha: None,
+            depth: None,
+        };
+        for trained in [[true; 6], [false, true, true, false, true, false]] {
+            let mask = model.grad_mask(&trained);
+            let cpu_grads = backward(&renderable, &view.camera, &cpu_r, &out, mask);
+            let mut want: Vec<Vec<f32>> =
+                model.group_lens().iter().map(|&n| vec![0.0; n]).collect();
+            model
+                .backward(&view, (), &cpu_grads.gaussians, &trained, &mut want)
+                .unwrap();
+            let gpu_grads = gpu::backward(&ctx, &gaussians, &gpu_r, &out, mask).unwrap();
+            let got = model
+                .gpu_backward(&mut step, &view, (), gpu_grads, &trained)
+                .unwrap();
+            for (k, name) in PARAM_NAMES.iter().enumerate() {
+                let what = format!("trained {trained:?}: gradient of {name}");
+                match &got[k] {
+                    Some(buffer) => {
+                        assert!(trained[k], "{what}: a frozen group got a gradient");
+                        let got = read_f32(&ctx, buffer, want[k].len());
+                        assert_close(&what, &want[k], &got);
+                        if k == 1 {
+                            for i in [0, 3, 4, 8] {
+                                assert_eq!(got[i], 0.0, "{what}[{i}]: flat axis or clamped");
+                            }
+                            assert!(got[10] != 0.0 && got[14] != 0.0, "{what}: on a bound");
                         }
-                        assert!(got[10] != 0.0 && got[14] != 0.0, "{what}: on a bound");
                     }
+                    None => assert!(!trained[k], "{what}: missing"),
                 }
-                None => assert!(!trained[k], "{what}: missing"),
             }
         }
     }

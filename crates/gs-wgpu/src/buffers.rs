@@ -92,13 +92,14 @@ fn write<T: bytemuck::Pod>(ctx: &GpuContext, buffer: &wgpu::Buffer, data: &[T]) 
     }
 }
 
-/// A uniform buffer holding `value`.
+/// A parameter block holding `value`, for a binding of [`crate::Access::Uniform`] (a uniform
+/// buffer, or read-only storage: [`crate::ParameterBinding`]).
 pub(crate) fn uniform<T: bytemuck::Pod>(ctx: &GpuContext, value: &T) -> wgpu::Buffer {
     ctx.device
         .create_buffer_init(&wgpu::util::BufferInitDescriptor {
             label: None,
             contents: bytemuck::bytes_of(value),
-            usage: wgpu::BufferUsages::UNIFORM,
+            usage: ctx.parameter_binding().usage(),
         })
 }
 

@@ -4,7 +4,7 @@
 use std::path::Path;
 use std::sync::{Arc, Mutex, Once};
 
-use super::shaders::{Kernel, KernelId, KernelSource, Kernels};
+use super::shaders::{CompileOptions, Kernel, KernelId, KernelSource, Kernels, ParameterBinding};
 
 /// Items (Gaussians, values) of a per-item kernel are run in chunks of a multiple of this
 /// many: one workgroup, and a binding offset aligned for every adapter (256 items of at
@@ -139,6 +139,9 @@ pub struct GpuOptions {
     /// A lower limit on the bytes one storage binding may hold than the adapter's, to
     /// exercise chunked kernels and split splat arrays on small scenes.
     pub max_binding_bytes: Option<u64>,
+    /// How kernels bind their parameter blocks; `None`: as read-only storage on a software
+    /// adapter (see [`ParameterBinding::Storage`]), as uniforms on every other.
+    pub parameter_binding: Option<ParameterBinding>,
 }
 
 impl Default for GpuOptions {
@@ -147,12 +150,14 @@ impl Default for GpuOptions {
             float_atomics: true,
             max_workgroups_per_dimension: None,
             max_binding_bytes: None,
+            parameter_binding: None,
         }
     }
 }
 
 /// Storage buffers the widest kernel binds (composite_backward: four splat parts, four
-/// gradient parts, the background's gradient and seven more).
+/// gradient parts, the background's gradient and seven more), and its view when parameter
+/// blocks are bound as storage.
 const STORAGE_BUFFERS_NEEDED: u32 = 16;
 
 /// A wgpu device with the rasterizer's kernels compiled for it.
@@ -160,7 +165,7 @@ pub struct GpuContext {
     pub(crate) device: wgpu::Device,
     pub(crate) queue: wgpu::Queue,
     info: wgpu::AdapterInfo,
-    float_atomics: bool,
+    compile: CompileOptions,
     max_workgroups: u32,
     max_binding: u64,
     max_buffer: u64,
@@ -287,10 +292,19 @@ impl GpuContext {
             adapter: info.name.clone(),
             message,
         };
-        if limits.max_storage_buffers_per_shader_stage < STORAGE_BUFFERS_NEEDED {
+        let parameters =
+            options
+                .parameter_binding
+                .unwrap_or(if info.device_type == wgpu::DeviceType::Cpu {
+                    ParameterBinding::Storage
+                } else {
+                    ParameterBinding::Uniform
+                });
+        let needed = STORAGE_BUFFERS_NEEDED + u32::from(parameters == ParameterBinding::Storage);
+        if limits.max_storage_buffers_per_shader_stage < needed {
             return Err(device_err(format!(
-                "binds at most {} storage buffers per shader stage, the rasterizer needs {}",
-                limits.max_storage_buffers_per_shader_stage, STORAGE_BUFFERS_NEEDED
+                "binds at most {} storage buffers per shader stage, the rasterizer needs {needed}",
+                limits.max_storage_buffers_per_shader_stage
             )));
         }
         let float_atomics = options.float_atomics
@@ -309,7 +323,11 @@ impl GpuContext {
             ..Default::default()
         }))
         .map_err(|e| device_err(e.to_string()))?;
-        let kernels = Kernels::new(&device, float_atomics);
+        let compile = CompileOptions {
+            float_atomics,
+            parameters,
+        };
+        let kernels = Kernels::new(&device, compile);
         Ok(Self {
             device,
             queue,
@@ -325,7 +343,7 @@ impl GpuContext {
                 .min(limits.max_buffer_size),
             max_buffer: limits.max_buffer_size,
             info,
-            float_atomics,
+            compile,
             kernels,
             extra_kernels: Mutex::new(Vec::new()),
         })
@@ -338,7 +356,7 @@ impl GpuContext {
             self.info.name,
             self.info.device_type,
             self.info.backend,
-            if self.float_atomics {
+            if self.compile.float_atomics {
                 ", f32 atomics"
             } else {
                 ", compare-exchange accumulation"
@@ -353,7 +371,12 @@ impl GpuContext {
 
     /// True when the backward pass accumulates with native f32 atomic add.
     pub fn float_atomics(&self) -> bool {
-        self.float_atomics
+        self.compile.float_atomics
+    }
+
+    /// How the kernels bind their parameter blocks.
+    pub fn parameter_binding(&self) -> ParameterBinding {
+        self.compile.parameters
     }
 
     pub(crate) fn kernel(&self, id: KernelId) -> &Kernel {
@@ -545,7 +568,7 @@ impl GpuContext {
             match cache.iter().find(|(name, _)| *name == kernel.name) {
                 Some((_, k)) => Arc::clone(k),
                 None => {
-                    let k = Arc::new(Kernel::extra(&self.device, kernel, self.float_atomics));
+                    let k = Arc::new(Kernel::extra(&self.device, kernel, self.compile));
                     cache.push((kernel.name, Arc::clone(&k)));
                     k
                 }

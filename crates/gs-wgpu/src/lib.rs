@@ -84,6 +84,6 @@ pub(crate) use model::gaussians_for_view;
 pub use model::{
     host_backward, host_forward, GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep,
 };
-pub use shaders::{Access, KernelSource};
+pub use shaders::{Access, KernelSource, ParameterBinding};
 pub use test_context::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
 pub use wgpu::Buffer;

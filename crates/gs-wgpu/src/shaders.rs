@@ -153,6 +153,57 @@ pub enum Access {
 
 use Access::{Read as R, Uniform as U, Write as W};
 
+/// How kernels bind their parameter blocks (the [`Access::Uniform`] bindings: the view, pass,
+/// chunk and Adam-step structs); the same layout either way.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ParameterBinding {
+    /// As uniform buffers (`var<uniform>`): hardware adapters.
+    Uniform,
+    /// As read-only storage buffers (`var<storage, read>`): software adapters. Mesa's lavapipe
+    /// (22.3) keeps memory for every dispatch of a kernel that reads uniforms, about 0.4 MB per
+    /// render and 1.3 MB per training step of a small scene, until the device closes; bound as
+    /// storage, nothing grows.
+    Storage,
+}
+
+impl ParameterBinding {
+    /// The usage of a buffer bound this way.
+    pub(crate) fn usage(self) -> wgpu::BufferUsages {
+        match self {
+            Self::Uniform => wgpu::BufferUsages::UNIFORM,
+            Self::Storage => wgpu::BufferUsages::STORAGE,
+        }
+    }
+
+    /// `text` with its parameter blocks declared this way.
+    fn declare(self, text: &str) -> String {
+        match self {
+            Self::Uniform => text.to_string(),
+            Self::Storage => text.replace("var<uniform>", "var<storage, read>"),
+        }
+    }
+
+    /// The binding type of a buffer of access `access`.
+    fn binding_type(self, access: Access) -> wgpu::BufferBindingType {
+        match (access, self) {
+            (Access::Uniform, Self::Uniform) => wgpu::BufferBindingType::Uniform,
+            (Access::Uniform, Self::Storage) | (Access::Read, _) => {
+                wgpu::BufferBindingType::Storage { read_only: true }
+            }
+            (Access::Write, _) => wgpu::BufferBindingType::Storage { read_only: false },
+        }
+    }
+}
+
+/// What a context compiles its kernels for.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct CompileOptions {
+    /// Accumulate with native f32 atomic add (else a compare-exchange loop).
+    pub(crate) float_atomics: bool,
+    /// How parameter blocks are bound.
+    pub(crate) parameters: ParameterBinding,
+}
+
 /// A per-item compute kernel that a crate other than gs-core brings (e.g. a base model's
 /// per-view construction of its Gaussians): WGSL with one entry point `main`, whose
 /// `//#import` lines name gs-core's shader files, run with
@@ -262,8 +313,14 @@ pub(crate) struct Kernel {
     pipeline: wgpu::ComputePipeline,
 }
 
-/// The layout of bindings `0..` of the given accesses, in order.
-fn group_layout(device: &wgpu::Device, name: &str, access: &[Access]) -> wgpu::BindGroupLayout {
+/// The layout of bindings `0..` of the given accesses, in order, parameter blocks bound as
+/// `parameters`.
+fn group_layout(
+    device: &wgpu::Device,
+    name: &str,
+    access: &[Access],
+    parameters: ParameterBinding,
+) -> wgpu::BindGroupLayout {
     let entries: Vec<wgpu::BindGroupLayoutEntry> = access
         .iter()
         .enumerate()
@@ -271,11 +328,7 @@ fn group_layout(device: &wgpu::Device, name: &str, access: &[Access]) -> wgpu::B
             binding: i as u32,
             visibility: wgpu::ShaderStages::COMPUTE,
             ty: wgpu::BindingType::Buffer {
-                ty: match a {
-                    Access::Uniform => wgpu::BufferBindingType::Uniform,
-                    Access::Read => wgpu::BufferBindingType::Storage { read_only: true },
-                    Access::Write => wgpu::BufferBindingType::Storage { read_only: false },
-                },
+                ty: parameters.binding_type(*a),
                 has_dynamic_offset: false,
                 min_binding_size: None,
             },
@@ -289,21 +342,20 @@ fn group_layout(device: &wgpu::Device, name: &str, access: &[Access]) -> wgpu::B
 }
 
 impl Kernel {
-    fn new(device: &wgpu::Device, id: KernelId, float_atomics: bool) -> Self {
+    fn new(device: &wgpu::Device, id: KernelId, options: CompileOptions) -> Self {
         let (name, access) = id.spec();
-        Self::compile(
-            device,
-            name,
-            &source(name, float_atomics),
-            access,
-            id.per_item(),
-        )
+        let text = source(name, options.float_atomics);
+        Self::compile(device, name, &text, access, id.per_item(), options)
     }
 
     /// Compiles a per-item kernel brought by another crate, its imports resolved.
-    pub(crate) fn extra(device: &wgpu::Device, kernel: &KernelSource, float_atomics: bool) -> Self {
-        let text = expand(kernel.name, kernel.wgsl, float_atomics);
-        Self::compile(device, kernel.name, &text, kernel.bindings, true)
+    pub(crate) fn extra(
+        device: &wgpu::Device,
+        kernel: &KernelSource,
+        options: CompileOptions,
+    ) -> Self {
+        let text = expand(kernel.name, kernel.wgsl, options.float_atomics);
+        Self::compile(device, kernel.name, &text, kernel.bindings, true, options)
     }
 
     fn compile(
@@ -312,9 +364,12 @@ impl Kernel {
         text: &str,
         access: &[Access],
         per_item: bool,
+        options: CompileOptions,
     ) -> Self {
-        let layout = group_layout(device, name, access);
-        let chunk_layout = per_item.then(|| group_layout(device, name, &[Access::Uniform]));
+        let parameters = options.parameters;
+        let layout = group_layout(device, name, access, parameters);
+        let chunk_layout =
+            per_item.then(|| group_layout(device, name, &[Access::Uniform], parameters));
         let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
             label: Some(name),
             bind_group_layouts: &[Some(&layout), chunk_layout.as_ref()],
@@ -322,7 +377,7 @@ impl Kernel {
         });
         let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
             label: Some(name),
-            source: wgpu::ShaderSource::Wgsl(text.into()),
+            source: wgpu::ShaderSource::Wgsl(parameters.declare(text).into()),
         });
         let pipeline = device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
             label: Some(name),
@@ -399,11 +454,11 @@ impl Kernel {
 pub(crate) struct Kernels(Vec<Kernel>);
 
 impl Kernels {
-    pub(crate) fn new(device: &wgpu::Device, float_atomics: bool) -> Self {
+    pub(crate) fn new(device: &wgpu::Device, options: CompileOptions) -> Self {
         Self(
             KernelId::ALL
                 .iter()
-                .map(|&id| Kernel::new(device, id, float_atomics))
+                .map(|&id| Kernel::new(device, id, options))
                 .collect(),
         )
     }
@@ -438,5 +493,26 @@ mod tests {
         let native = source("composite_backward.wgsl", true);
         assert!(cas.contains("atomicCompareExchangeWeak") && !cas.contains("atomic<f32>"));
         assert!(native.contains("atomic<f32>") && !native.contains("atomicCompareExchangeWeak"));
+    }
+
+    #[test]
+    fn parameter_blocks_are_declared_as_the_layout_binds_them() {
+        // Every `var<uniform>` of a kernel is one of its `Access::Uniform` bindings (or the
+        // chunk of a per-item kernel), so that bound as storage, text and layout agree.
+        for id in KernelId::ALL {
+            let (name, access) = id.spec();
+            let text = source(name, true);
+            let blocks = access.iter().filter(|&&a| a == Access::Uniform).count();
+            let declared = text.matches("var<uniform>").count();
+            assert_eq!(declared, blocks + usize::from(id.per_item()), "{name}");
+            let storage = ParameterBinding::Storage.declare(&text);
+            assert!(!storage.contains("var<uniform>"), "{name}");
+            assert_eq!(
+                storage.matches("var<storage, read>").count(),
+                text.matches("var<storage, read>").count() + declared,
+                "{name}"
+            );
+            assert_eq!(ParameterBinding::Uniform.declare(&text), text, "{name}");
+        }
     }
 }

@@ -7,7 +7,7 @@ mod common;
 
 use common::{gpu, gpu_with, weights};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_wgpu::{GpuAdam, GpuContext, GpuOptions};
+use gs_wgpu::{GpuAdam, GpuContext, GpuOptions, ParameterBinding};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
@@ -29,6 +29,22 @@ fn matches_the_cpu_adam_in_chunks_past_the_binding_limit() {
         return;
     };
     check_steps(&ctx);
+}
+
+#[test]
+fn matches_the_cpu_adam_with_parameter_blocks_bound_either_way() {
+    // Uniforms (hardware adapters) and read-only storage (software ones), in chunks.
+    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
+        let Some(ctx) = gpu_with(GpuOptions {
+            max_binding_bytes: Some(1024),
+            parameter_binding: Some(binding),
+            ..GpuOptions::default()
+        }) else {
+            return;
+        };
+        assert_eq!(ctx.parameter_binding(), binding);
+        check_steps(&ctx);
+    }
 }
 
 /// Ten Adam steps on both devices with a frozen group, both schedules and zero gradients.

@@ -14,7 +14,7 @@ use common::{
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
 use gs_core::{Camera, GaussianSet};
-use gs_wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions};
+use gs_wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions, ParameterBinding};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
@@ -128,6 +128,34 @@ fn arrays_past_the_binding_limit_give_the_same_gradients() {
         }
         check(
             &format!("split arrays, f32 atomics {float_atomics}"),
+            &ctx,
+            &g,
+            &oblique_camera(64, 48),
+            GradMask::ALL,
+            true,
+        );
+    }
+}
+
+#[test]
+fn parameter_blocks_bound_either_way_give_the_same_gradients() {
+    // Uniforms (hardware adapters) and read-only storage (software ones), whichever adapter
+    // runs this, in chunks and parts.
+    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
+        let Some(ctx) = gpu_with(GpuOptions {
+            max_binding_bytes: Some(SMALL_BINDING),
+            parameter_binding: Some(binding),
+            ..GpuOptions::default()
+        }) else {
+            return;
+        };
+        assert_eq!(ctx.parameter_binding(), binding);
+        let mut g = random_scene::<f32>(15, 3000, 3);
+        for v in &mut g.log_scales {
+            *v -= 1.0;
+        }
+        check(
+            &format!("{binding:?}"),
             &ctx,
             &g,
             &oblique_camera(64, 48),

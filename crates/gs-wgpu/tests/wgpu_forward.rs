@@ -12,7 +12,9 @@ use common::{
 };
 use gs_core::raster::render;
 use gs_core::{Camera, GaussianSet};
-use gs_wgpu::{self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions};
+use gs_wgpu::{
+    self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions, ParameterBinding,
+};
 
 /// Renders `case` on both backends and checks that the image, alpha and depth agree.
 fn check(case: &str, g: &GaussianSet, cam: &Camera, background: [f32; 3], ctx: &GpuContext) {
@@ -113,6 +115,34 @@ fn arrays_past_the_binding_limit_are_bound_in_chunks_and_parts() {
         *v -= 1.0;
     }
     check("split arrays", &g, &oblique_camera(64, 48), [0.1; 3], &ctx);
+}
+
+#[test]
+fn parameter_blocks_bound_either_way_render_as_the_cpu() {
+    // Hardware adapters bind the view, pass and chunk blocks as uniforms, software ones
+    // (lavapipe in CI) as read-only storage: both are checked on whichever adapter runs this,
+    // in chunks and parts as in the test above.
+    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
+        let Some(ctx) = gpu_with(GpuOptions {
+            max_binding_bytes: Some(SMALL_BINDING),
+            parameter_binding: Some(binding),
+            ..GpuOptions::default()
+        }) else {
+            return;
+        };
+        assert_eq!(ctx.parameter_binding(), binding);
+        let mut g = random_scene::<f32>(19, 3000, 3);
+        for v in &mut g.log_scales {
+            *v -= 1.0;
+        }
+        check(
+            &format!("{binding:?}"),
+            &g,
+            &oblique_camera(64, 48),
+            [0.4; 3],
+            &ctx,
+        );
+    }
 }
 
 #[test]
