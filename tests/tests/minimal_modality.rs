@@ -205,10 +205,7 @@ impl Modality for ColouredConfig {
             colours: colours(2),
         };
         let mut trainer = Trainer::new(run.backend(), model, fit_groups(), AdamHyper::default())?;
-        let mut objective = PhotometricObjective {
-            targets: inputs.images.clone(),
-            lambda: 0.2,
-        };
+        let mut objective = PhotometricObjective::new(inputs.images.clone(), 0.2);
         let config = TrainConfig {
             steps: self.fit_steps,
             background: BACKGROUND,

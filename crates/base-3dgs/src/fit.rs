@@ -300,10 +300,7 @@ where
         )));
     }
     let mut objective = PsnrLog {
-        inner: PhotometricObjective {
-            targets: images.to_vec(),
-            lambda: settings.lambda_dssim,
-        },
+        inner: PhotometricObjective::new(images.to_vec(), settings.lambda_dssim),
         log: psnr.into_iter().map(|p| (0, p)).collect(),
     };
     // One view a step: the order goes on from the steps taken.

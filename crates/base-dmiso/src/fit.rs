@@ -227,10 +227,7 @@ where
     };
     let mut model =
         initial_model(settings.points, net, settings.seed, device).map_err(FitError::Settings)?;
-    let mut objective = PhotometricObjective {
-        targets: images.to_vec(),
-        lambda: settings.lambda_dssim,
-    };
+    let mut objective = PhotometricObjective::new(images.to_vec(), settings.lambda_dssim);
     let batch = settings.batch.min(views.len());
     let mut sampler = ViewSampler::batches(
         views.len(),

@@ -142,10 +142,7 @@ fn a_model_trains_alike_on_the_cpu_and_on_wgpu() {
         trainer
             .train(
                 &views,
-                &mut PhotometricObjective {
-                    targets: targets.clone(),
-                    lambda: 0.2,
-                },
+                &mut PhotometricObjective::new(targets.clone(), 0.2),
                 &mut ViewSampler::batches(4, 2, BatchOrder::Consecutive, 0),
                 &TrainConfig {
                     steps: 3,

@@ -42,10 +42,10 @@ fn fit_table(counts: &[usize]) -> Result<(), Box<dyn std::error::Error>> {
     println!("|---|---|---|---|");
     for &count in counts {
         let model = initial_gaussians(count, settings.sh_degree, hw, hh, settings.seed);
-        let mut objective = PhotometricObjective {
-            targets: vec![picture.clone(), mirrored(&picture)],
-            lambda: settings.lambda_dssim,
-        };
+        let mut objective = PhotometricObjective::new(
+            vec![picture.clone(), mirrored(&picture)],
+            settings.lambda_dssim,
+        );
         let adam = Adam::new(
             fit_groups(extent(settings.distance)),
             &model.group_lens(),

@@ -155,10 +155,10 @@ where
         settings.seed,
     );
     let mut objective = PsnrLog {
-        inner: PhotometricObjective {
-            targets: vec![picture.clone(), mirrored(picture)],
-            lambda: settings.lambda_dssim,
-        },
+        inner: PhotometricObjective::new(
+            vec![picture.clone(), mirrored(picture)],
+            settings.lambda_dssim,
+        ),
         log: Vec::new(),
     };
     let mut trainer = Trainer::new(

@@ -39,10 +39,7 @@ fn objective(views: &[View]) -> PhotometricObjective {
         height: H,
         data: (0..3 * W * H).map(|i| (i % 17) as f32 / 17.0).collect(),
     };
-    PhotometricObjective {
-        targets: vec![target; views.len()],
-        lambda: 0.2,
-    }
+    PhotometricObjective::new(vec![target; views.len()], 0.2)
 }
 
 /// The model after `STEPS` steps of the loop.

@@ -146,10 +146,7 @@ where
         half_h,
         settings.seed,
     );
-    let mut objective = PhotometricObjective {
-        targets: training_targets(frames),
-        lambda: settings.lambda_dssim,
-    };
+    let mut objective = PhotometricObjective::new(training_targets(frames), settings.lambda_dssim);
     let mut trainer = Trainer::new(
         backend,
         model,

@@ -362,10 +362,7 @@ fn fit_demo(args: &FitDemoArgs) -> Result<()> {
     };
     let mut trainer = Trainer::new(&backend, initial, lrs.groups(), AdamHyper::default())?;
     let mut sampler = ViewSampler::new(views.len(), args.seed);
-    let mut objective = PhotometricObjective {
-        targets: targets.clone(),
-        lambda: 0.2,
-    };
+    let mut objective = PhotometricObjective::new(targets.clone(), 0.2);
     let bar = ProgressBar::new(args.steps).with_style(
         ProgressStyle::with_template(
             "{bar:40} {pos}/{len} steps, {elapsed} elapsed, ETA {eta}  {msg}",

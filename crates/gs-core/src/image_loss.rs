@@ -5,6 +5,7 @@ use rayon::prelude::*;
 
 use crate::image::Image;
 use crate::real::Real;
+use crate::render_clamp::RenderClamp;
 use crate::train::{Objective, ObjectiveValue};
 use crate::GsError;
 
@@ -53,7 +54,9 @@ pub fn l1<T: Real>(a: &[T], b: &[T]) -> LossGrad<T> {
     LossGrad { loss, grad }
 }
 
-fn window<T: Real>() -> [T; SSIM_WINDOW] {
+/// The SSIM window's weights: a Gaussian of sigma [`SSIM_SIGMA`] over [`SSIM_WINDOW`] taps,
+/// normalised to sum 1 (in f64, then rounded to `T`).
+pub fn ssim_window<T: Real>() -> [T; SSIM_WINDOW] {
     let half = (SSIM_WINDOW / 2) as f64;
     let raw: [f64; SSIM_WINDOW] = std::array::from_fn(|i| {
         (-((i as f64 - half).powi(2)) / (2.0 * SSIM_SIGMA * SSIM_SIGMA)).exp()
@@ -115,7 +118,7 @@ pub fn ssim<T: Real>(a: &[T], b: &[T], width: usize, height: usize) -> LossGrad<
             grad: Vec::new(),
         };
     }
-    let k = window::<T>();
+    let k = ssim_window::<T>();
     let (c1, c2) = (T::from_f64(SSIM_C1), T::from_f64(SSIM_C2));
     let two = T::from_f64(2.0);
     let inv_count = T::ONE / T::from_f64((3 * n).max(1) as f64);
@@ -198,6 +201,12 @@ pub fn psnr(a: &Image, b: &Image) -> f64 {
         .map(|(x, y)| ((x.clamp(0.0, 1.0) - y.clamp(0.0, 1.0)) as f64).powi(2))
         .sum::<f64>()
         / a.data.len().max(1) as f64;
+    psnr_of_mse(mse)
+}
+
+/// The PSNR in dB of a mean squared error of values in `[0, 1]`, floored at 1e-12 (so 120 dB at
+/// most); NaN stays NaN.
+pub fn psnr_of_mse(mse: f64) -> f64 {
     10.0 * (1.0 / mse.max(1e-12)).log10()
 }
 
@@ -208,13 +217,83 @@ pub fn mean_psnr(renders: &[Image], targets: &[Image]) -> f64 {
 }
 
 /// The fitting objective of 3DGS and MiraGe: `(1 - lambda) L1 + lambda (1 - SSIM)` against a
-/// target image per view.
+/// target image per view. A GPU trainer evaluates it on the device
+/// ([`Objective::photometric`]), with the targets uploaded once: they are fixed at
+/// construction, and each objective is told apart by an identity of its own (a clone shares it:
+/// its targets are the same).
 #[derive(Clone, Debug)]
 pub struct PhotometricObjective {
-    /// One target per view, in view order.
-    pub targets: Vec<Image>,
-    /// Weight of the D-SSIM term (0.2 in 3DGS and MiraGe).
+    targets: Vec<Image>,
+    lambda: f32,
+    id: u64,
+}
+
+impl PhotometricObjective {
+    /// The objective against `targets` (one per view, in view order) with D-SSIM weight
+    /// `lambda` (0.2 in 3DGS and MiraGe).
+    pub fn new(targets: Vec<Image>, lambda: f32) -> Self {
+        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+        Self {
+            targets,
+            lambda,
+            id: NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+        }
+    }
+
+    /// The targets, one per view.
+    pub fn targets(&self) -> &[Image] {
+        &self.targets
+    }
+
+    /// The D-SSIM weight.
+    pub fn lambda(&self) -> f32 {
+        self.lambda
+    }
+}
+
+/// A photometric objective as a device evaluates it where the render lives
+/// ([`Objective::photometric`]): `(1 - lambda) L1 + lambda (1 - SSIM)` of the render as `clamp`
+/// says against `targets[view]`.
+#[derive(Clone, Copy, Debug)]
+pub struct PhotometricForm<'a> {
+    /// One target per view.
+    pub targets: &'a [Image],
+    /// Tells these targets apart from any other objective's (the device keeps them uploaded).
+    pub targets_id: u64,
+    /// The D-SSIM weight.
     pub lambda: f32,
+    /// What the loss sees of the render.
+    pub clamp: RenderClamp,
+}
+
+/// What a device hands back of a photometric objective for one render: the means over every
+/// value (pixel and channel), summed in f64 from its partial sums.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhotometricSums {
+    /// Mean `|x - y|` of the seen render `x` and the target `y`.
+    pub l1: f64,
+    /// Mean SSIM.
+    pub ssim: f64,
+    /// Mean squared difference of the render and the target, both clamped to `[0, 1]` (PSNR's).
+    pub mse: f64,
+}
+
+impl PhotometricSums {
+    /// The objective's value of D-SSIM weight `lambda`: its loss and terms as
+    /// [`PhotometricObjective::evaluate`] gives them (dL/dimage stays on the device: empty).
+    pub fn value(&self, lambda: f32) -> ObjectiveValue {
+        let w1 = 1.0 - lambda;
+        let l1 = self.l1 as f32;
+        let d_ssim = 1.0 - self.ssim as f32;
+        ObjectiveValue {
+            loss: w1 * l1 + lambda * d_ssim,
+            terms: vec![
+                ("l1".to_string(), w1 * l1),
+                ("d_ssim".to_string(), lambda * d_ssim),
+            ],
+            grad: Vec::new(),
+        }
+    }
 }
 
 /// A [`PhotometricObjective`] that also logs each render it is given: `(view, PSNR in dB)` in
@@ -236,6 +315,15 @@ impl Objective for PsnrLog {
         self.log
             .push((view, psnr(image, &self.inner.targets[view])));
         Ok(value)
+    }
+
+    fn photometric(&self) -> Option<PhotometricForm<'_>> {
+        self.inner.photometric()
+    }
+
+    fn device_value(&mut self, view: usize, sums: &PhotometricSums) -> ObjectiveValue {
+        self.log.push((view, psnr_of_mse(sums.mse)));
+        self.inner.device_value(view, sums)
     }
 }
 
@@ -298,6 +386,15 @@ impl Objective for PhotometricObjective {
                 .collect(),
         })
     }
+
+    fn photometric(&self) -> Option<PhotometricForm<'_>> {
+        Some(PhotometricForm {
+            targets: &self.targets,
+            targets_id: self.id,
+            lambda: self.lambda,
+            clamp: RenderClamp::Off,
+        })
+    }
 }
 
 #[cfg(test)]
@@ -351,7 +448,7 @@ mod tests {
 
     #[test]
     fn blur_is_the_normalized_2d_gaussian_window() {
-        let k = window::<f64>();
+        let k = ssim_window::<f64>();
         assert!((k.iter().sum::<f64>() - 1.0).abs() < 1e-15);
         assert!((k[5] / k[6] - (1.0f64 / (2.0 * 1.5 * 1.5)).exp()).abs() < 1e-12);
         // At the centre of an 11x11 plane the blur is the full 2D weighted sum.
@@ -395,7 +492,7 @@ mod tests {
 
     #[test]
     fn blur_is_the_per_pixel_loop_bit_for_bit_at_any_size() {
-        let k = window::<f32>();
+        let k = ssim_window::<f32>();
         for (i, &(w, h)) in [(1, 1), (1, 9), (7, 1), (5, 3), (11, 11), (12, 4), (40, 23)]
             .iter()
             .enumerate()
@@ -444,10 +541,7 @@ mod tests {
             data: noise(seed, 3 * 64).iter().map(|v| *v as f32).collect(),
         };
         let (a, b) = (img(6), img(7));
-        let mut obj = PhotometricObjective {
-            targets: vec![b.clone()],
-            lambda: 0.2,
-        };
+        let mut obj = PhotometricObjective::new(vec![b.clone()], 0.2);
         let v = obj.evaluate(0, &a).unwrap();
         let l = l1(&a.data, &b.data);
         let s = ssim(&a.data, &b.data, 8, 8);

@@ -7,6 +7,7 @@
 //! the render to the loss: the cpu and the wgpu path clamp the same values the same way.
 
 use crate::image::Image;
+use crate::image_loss::{PhotometricForm, PhotometricSums};
 use crate::train::{Objective, ObjectiveValue};
 
 /// What the loss sees of a render.
@@ -76,6 +77,23 @@ impl<O: Objective> Objective for ClampedObjective<'_, O> {
                 Ok(value)
             }
         }
+    }
+
+    /// The inner objective's form, seeing the render as this clamp says (an inner clamp stays
+    /// when this one is off).
+    fn photometric(&self) -> Option<PhotometricForm<'_>> {
+        let form = self.objective.photometric()?;
+        Some(match self.clamp {
+            RenderClamp::Off => form,
+            RenderClamp::Unit => PhotometricForm {
+                clamp: RenderClamp::Unit,
+                ..form
+            },
+        })
+    }
+
+    fn device_value(&mut self, view: usize, sums: &PhotometricSums) -> ObjectiveValue {
+        self.objective.device_value(view, sums)
     }
 }
 

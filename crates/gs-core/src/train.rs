@@ -10,6 +10,7 @@ use crate::adam::Adam;
 use crate::densify::ScreenStats;
 use crate::error::GsError;
 use crate::image::Image;
+use crate::image_loss::{PhotometricForm, PhotometricSums};
 use crate::model::{BaseModel, Forward, ModelError, View};
 use crate::raster::{self, GradMask, OutputGrads};
 use crate::sampler::{Batch, ViewSampler};
@@ -72,6 +73,20 @@ pub trait Objective {
     type Error: std::error::Error + Send + Sync + 'static;
     /// Evaluates the loss of `image`, the render of view `view`.
     fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error>;
+
+    /// This objective as a photometric loss that a GPU evaluates where the render lives, reading
+    /// back its sums alone ([`Objective::device_value`] is then called instead of
+    /// [`Objective::evaluate`]); `None` (the default): every render is brought to `evaluate`.
+    fn photometric(&self) -> Option<PhotometricForm<'_>> {
+        None
+    }
+
+    /// The value of view `view` from the sums a device computed of [`Objective::photometric`]
+    /// (dL/dimage stays on the device); the default is the photometric loss's.
+    fn device_value(&mut self, view: usize, sums: &PhotometricSums) -> ObjectiveValue {
+        let _ = view;
+        sums.value(self.photometric().map_or(0.0, |form| form.lambda))
+    }
 }
 
 /// Settings of a loop of steps (gs-wgpu's `Trainer::train`).

@@ -48,10 +48,7 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
         .iter()
         .map(|v| render(&target, &v.camera, bg).image)
         .collect();
-    let mut objective = PhotometricObjective {
-        targets,
-        lambda: 0.2,
-    };
+    let mut objective = PhotometricObjective::new(targets, 0.2);
     let model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(&model, &views, &mut objective, bg);
 

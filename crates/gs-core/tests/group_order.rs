@@ -32,10 +32,8 @@ fn trained(groups: Vec<GroupConfig>) -> Result<GaussianSet, DeviceError> {
         .expect("a camera");
     let views = vec![View::still(camera)];
     let target: GaussianSet = random_scene(1, 20, 1);
-    let mut objective = PhotometricObjective {
-        targets: vec![render(&target, &views[0].camera, [0.0; 3]).image],
-        lambda: 0.2,
-    };
+    let mut objective =
+        PhotometricObjective::new(vec![render(&target, &views[0].camera, [0.0; 3]).image], 0.2);
     let start: GaussianSet = random_scene(2, 30, 1);
     let mut trainer = Trainer::new(&Backend::Cpu, start, groups, AdamHyper::default())?;
     let config = TrainConfig {

@@ -169,10 +169,7 @@ fn train_in_batches(
             gs_core::raster::render(&g.gaussians, &v.camera, [0.0; 3]).image
         })
         .collect();
-    let mut objective = PhotometricObjective {
-        targets,
-        lambda: 0.2,
-    };
+    let mut objective = PhotometricObjective::new(targets, 0.2);
     let mut trainer = Trainer::new(backend, start, groups(), adam()).unwrap();
     let mut losses = Vec::new();
     let result = trainer.train(

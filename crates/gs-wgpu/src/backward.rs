@@ -144,15 +144,55 @@ pub fn backward_with_stats(
     mask: GradMask,
     stats: Option<&GpuScreenStats>,
 ) -> Result<GpuGradients, GpuError> {
+    let pixels = rendered.width as usize * rendered.height as usize;
+    assert_eq!(
+        out_grads.rgb.len(),
+        3 * pixels,
+        "dL/dRGB has the wrong size"
+    );
+    for g in [out_grads.alpha, out_grads.depth].into_iter().flatten() {
+        assert_eq!(g.len(), pixels, "dL/dalpha or dL/ddepth has the wrong size");
+    }
+    let grad_rgb = storage_from(ctx, "dL/dRGB", out_grads.rgb)?;
+    let outputs = DeviceOutputGrads {
+        rgb: &grad_rgb,
+        alpha: out_grads.alpha,
+        depth: out_grads.depth,
+    };
+    backward_on_device(ctx, gaussians, rendered, &outputs, mask, stats)
+}
+
+/// The gradients of a loss with respect to a render's outputs, dL/dRGB already on the device
+/// (e.g. [`crate::photometric`]'s).
+pub struct DeviceOutputGrads<'a> {
+    /// dL/dRGB, HWC, on the device.
+    pub rgb: &'a wgpu::Buffer,
+    /// dL/dalpha, `[H, W]`, if the loss depends on it.
+    pub alpha: Option<&'a [f32]>,
+    /// dL/ddepth, `[H, W]`, if the loss depends on it.
+    pub depth: Option<&'a [f32]>,
+}
+
+/// [`backward_with_stats`] with dL/dRGB on the device: nothing of the image crosses to the host.
+///
+/// # Panics
+/// As [`backward_with_stats`]; and if dL/dRGB holds fewer values than the image.
+pub fn backward_on_device(
+    ctx: &GpuContext,
+    gaussians: &GpuGaussians,
+    rendered: &GpuRendered,
+    out_grads: &DeviceOutputGrads<'_>,
+    mask: GradMask,
+    stats: Option<&GpuScreenStats>,
+) -> Result<GpuGradients, GpuError> {
     let n = gaussians.len();
     assert_eq!(
         n as u32, rendered.view.scene[0],
         "backward needs the Gaussian set that was rendered"
     );
     let pixels = rendered.width as usize * rendered.height as usize;
-    assert_eq!(
-        out_grads.rgb.len(),
-        3 * pixels,
+    assert!(
+        out_grads.rgb.size() >= 12 * pixels as u64,
         "dL/dRGB has the wrong size"
     );
     for g in [out_grads.alpha, out_grads.depth].into_iter().flatten() {
@@ -182,7 +222,6 @@ pub fn backward_with_stats(
     view.scene[3] = bits;
     let view_buf = uniform(ctx, &view);
 
-    let grad_rgb = storage_from(ctx, "dL/dRGB", out_grads.rgb)?;
     let placeholder = storage(ctx, "unused", 0)?;
     let optional = |g: Option<&[f32]>, what: &str| match g {
         Some(g) => storage_from(ctx, what, g).map(Some),
@@ -218,7 +257,7 @@ pub fn backward_with_stats(
             &rendered.ranges,
             &rendered.final_t,
             &rendered.n_contrib,
-            &grad_rgb,
+            out_grads.rgb,
             grad_alpha.as_ref().unwrap_or(&placeholder),
             grad_depth.as_ref().unwrap_or(&placeholder),
         ]

@@ -162,6 +162,11 @@ impl GpuRendered {
         read(ctx, &self.depth, self.pixels())
     }
 
+    /// The RGB image on the device (HWC).
+    pub(crate) fn rgb(&self) -> &wgpu::Buffer {
+        &self.rgb
+    }
+
     /// Number of (tile, Gaussian) pairs composited.
     pub fn intersection_count(&self) -> usize {
         self.pairs as usize

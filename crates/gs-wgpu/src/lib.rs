@@ -15,6 +15,8 @@
 //! - [`render`] and [`backward`]: projection, SH colour, tile binning, a GPU radix sort by
 //!   depth and then by tile, front-to-back compositing, and the exact backward pass.
 //! - [`GpuAdam`]: Adam whose moments stay on the GPU.
+//! - [`photometric`]: a fit's photometric loss (L1 and D-SSIM) and dL/dimage where the render
+//!   lives; [`backward_on_device`] takes that gradient without a copy to the host.
 //! - [`GpuParams`], [`GpuStep`], [`GpuScratch`], [`GpuForward`]: a model's parameters on the
 //!   GPU and what its per-view construction there works with ([`GpuModel`]; [`host_forward`]
 //!   and [`host_backward`] are the provided twins).
@@ -67,6 +69,7 @@ mod fit_error;
 mod forward;
 mod memory;
 mod model;
+mod photometric;
 mod scan;
 mod shaders;
 mod sort;
@@ -74,7 +77,10 @@ mod test_context;
 mod train;
 
 pub use adam::GpuAdam;
-pub use backward::{backward, backward_with_stats, GpuGradients, GpuScreenStats};
+pub use backward::{
+    backward, backward_on_device, backward_with_stats, DeviceOutputGrads, GpuGradients,
+    GpuScreenStats,
+};
 pub use buffers::{read_f32, upload_f32, zeroed_f32, GpuGaussians};
 pub use device::{AdapterChoice, Binding, GpuContext, GpuError, GpuOptions, ADAPTER_VARIABLE};
 pub use fit_error::FitError;
@@ -84,6 +90,7 @@ pub(crate) use model::gaussians_for_view;
 pub use model::{
     host_backward, host_forward, GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep,
 };
+pub use photometric::{photometric, upload_target, GpuPhotometric};
 pub use shaders::{Access, KernelSource, ParameterBinding};
 pub use test_context::{test_adapter_exists, test_context, REQUIRE_GPU_TESTS};
 pub use wgpu::Buffer;

@@ -95,6 +95,26 @@ const FILES: &[(&str, &str)] = &[
         "add_into.wgsl",
         include_str!("../../../shaders/add_into.wgsl"),
     ),
+    (
+        "photometric.wgsl",
+        include_str!("../../../shaders/photometric.wgsl"),
+    ),
+    (
+        "ssim_rows.wgsl",
+        include_str!("../../../shaders/ssim_rows.wgsl"),
+    ),
+    (
+        "ssim_cols.wgsl",
+        include_str!("../../../shaders/ssim_cols.wgsl"),
+    ),
+    (
+        "ssim_grad_rows.wgsl",
+        include_str!("../../../shaders/ssim_grad_rows.wgsl"),
+    ),
+    (
+        "photometric_grad.wgsl",
+        include_str!("../../../shaders/photometric_grad.wgsl"),
+    ),
 ];
 
 const IMPORT: &str = "//#import ";
@@ -239,10 +259,14 @@ pub(crate) enum KernelId {
     CheckFinite,
     AddInto,
     ScreenStats,
+    SsimRows,
+    SsimCols,
+    SsimGradRows,
+    PhotometricGrad,
 }
 
 impl KernelId {
-    const ALL: [KernelId; 15] = [
+    const ALL: [KernelId; 19] = [
         KernelId::ProjectForward,
         KernelId::BinCounts,
         KernelId::BinTiles,
@@ -258,6 +282,10 @@ impl KernelId {
         KernelId::CheckFinite,
         KernelId::AddInto,
         KernelId::ScreenStats,
+        KernelId::SsimRows,
+        KernelId::SsimCols,
+        KernelId::SsimGradRows,
+        KernelId::PhotometricGrad,
     ];
 
     /// True for per-item kernels, run in chunks with a `Chunk` uniform (shaders/chunk.wgsl).
@@ -300,6 +328,10 @@ impl KernelId {
             KernelId::CheckFinite => ("check_finite.wgsl", &[R, W]),
             KernelId::AddInto => ("add_into.wgsl", &[R, W]),
             KernelId::ScreenStats => ("screen_stats.wgsl", &[U, R, R, W, W]),
+            KernelId::SsimRows => ("ssim_rows.wgsl", &[U, R, R, W, W, W, W, W]),
+            KernelId::SsimCols => ("ssim_cols.wgsl", &[U, R, R, R, R, R, W, W, W, W]),
+            KernelId::SsimGradRows => ("ssim_grad_rows.wgsl", &[U, R, R, R, W, W, W]),
+            KernelId::PhotometricGrad => ("photometric_grad.wgsl", &[U, R, R, R, R, R, R, W, W]),
         }
     }
 }

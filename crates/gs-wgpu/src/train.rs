@@ -1,28 +1,32 @@
 //! One training step on the GPU ([`GpuTrainer::step`]): gs-core's `CpuTrainer::step` (the
 //! same render, objective, backward and Adam, the same checks and report) over a model built on
 //! the GPU ([`GpuModel::gpu_forward`]), with the parameters, gradients and Adam moments staying
-//! there. Per step the image is read back, dL/dimage uploaded, and two `u32`s read (the
-//! tile-list size and the finiteness flag); a model on the provided host construction also
-//! moves its parameters (when they changed), its Gaussians and their gradient. A GPU failure
-//! inside the model is the device's failure.
+//! there. A photometric objective ([`Objective::photometric`]) is evaluated on the device too,
+//! its targets uploaded once: per step only its partial sums are read back, with two `u32`s
+//! (the tile-list size and the finiteness flag); any other objective gets the image read back
+//! and its dL/dimage uploaded. A model on the provided host construction also moves its
+//! parameters (when they changed), its Gaussians and their gradient. A GPU failure inside the
+//! model is the device's failure.
 
 use std::sync::Arc;
 use std::time::Instant;
 
 use super::adam::GpuAdam;
-use super::backward::{backward_with_stats, GpuScreenStats};
-use super::buffers::{read, storage, zeroed_f32};
+use super::backward::{backward_on_device, DeviceOutputGrads, GpuScreenStats};
+use super::buffers::{read, storage, storage_from, zeroed_f32};
 use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
 use super::memory::{trained_values, training_bytes};
 use super::model::{GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep};
+use super::photometric::{photometric, GpuTargets};
 use super::shaders::KernelId;
 use gs_core::adam::{AdamHyper, GroupConfig};
 use gs_core::densify::ScreenStats;
 use gs_core::model::{ModelError, View};
-use gs_core::raster::{GradMask, OutputGrads};
+use gs_core::raster::GradMask;
 use gs_core::sampler::Batch;
 use gs_core::train::{check_batch, checked_value, Objective, StepReport, StepTimes, TrainError};
+use gs_core::GsError;
 
 /// A model whose parameters and Adam moments live on one GPU, trained a step at a time.
 pub(crate) struct GpuTrainer<M> {
@@ -40,6 +44,8 @@ pub(crate) struct GpuTrainer<M> {
     sum: Option<Vec<Option<wgpu::Buffer>>>,
     /// The rendered Gaussians' densification statistics, gathered on the device when asked.
     pub(crate) screen_stats: Option<GpuScreenStats>,
+    /// The targets of the photometric objective last trained with, on the device.
+    targets: Option<GpuTargets>,
 }
 
 impl<M: GpuModel> GpuTrainer<M> {
@@ -90,6 +96,7 @@ impl<M: GpuModel> GpuTrainer<M> {
             trained,
             sum: None,
             screen_stats: None,
+            targets: None,
         })
     }
 
@@ -118,6 +125,18 @@ impl<M: GpuModel> GpuTrainer<M> {
         } else {
             0
         };
+        // A photometric objective runs on the device, its targets uploaded once.
+        let device_loss = match objective.photometric() {
+            Some(form) => {
+                if !self.targets.as_ref().is_some_and(|t| t.are_of(&form)) {
+                    self.targets = None;
+                    let uploaded = GpuTargets::upload(ctx, &form);
+                    self.targets = Some(uploaded.map_err(|e| device_failed(step, e))?);
+                }
+                Some((form.lambda, form.clamp))
+            }
+            None => None,
+        };
         let mut single = None;
         let mut times = StepTimes::default();
         let mut values = Vec::with_capacity(batch.views.len());
@@ -139,15 +158,30 @@ impl<M: GpuModel> GpuTrainer<M> {
                 training_bytes(&lens, &self.trained, gaussians.len(), pixels) + sum_bytes;
             let needs = |e: GpuError| device_failed(step, e.with_run_needs(run_needs));
             let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
-            let image = rendered.image(ctx);
             // The loss and its image gradient.
             let t1 = Instant::now();
-            let result = objective.evaluate(index, &image);
-            let value = checked_value(step, index, result, batch.divisor)?;
+            let (value, grad_rgb) = match (device_loss, &self.targets) {
+                (Some((lambda, clamp)), Some(targets)) => {
+                    let target = device_target(targets, index, &view.camera)?;
+                    let factor = 1.0 / batch.divisor.max(1) as f32;
+                    let evaluated = photometric(ctx, &rendered, target, lambda, clamp, factor)
+                        .map_err(needs)?;
+                    let value = objective.device_value(index, &evaluated.sums);
+                    // dL/dimage is on the device, already divided by the batch's divisor.
+                    (checked_value(step, index, Ok(value), 1)?, evaluated.grad)
+                }
+                _ => {
+                    let image = rendered.image(ctx);
+                    let result = objective.evaluate(index, &image);
+                    let value = checked_value(step, index, result, batch.divisor)?;
+                    let grad = storage_from(ctx, "dL/dRGB", &value.grad).map_err(needs)?;
+                    (value, grad)
+                }
+            };
             // Backward, through the rasterizer and the model.
             let t2 = Instant::now();
-            let out = OutputGrads {
-                rgb: &value.grad,
+            let out = DeviceOutputGrads {
+                rgb: &grad_rgb,
                 alpha: None,
                 depth: None,
             };
@@ -160,7 +194,7 @@ impl<M: GpuModel> GpuTrainer<M> {
                 })?;
             }
             let stats = self.screen_stats.as_ref();
-            let grads = backward_with_stats(ctx, &gaussians, &rendered, &out, self.mask, stats)
+            let grads = backward_on_device(ctx, &gaussians, &rendered, &out, self.mask, stats)
                 .map_err(needs)?;
             drop(gaussians);
             let mut gpu = GpuStep {
@@ -229,6 +263,31 @@ impl<M: GpuModel> GpuTrainer<M> {
         }
         Ok(())
     }
+}
+
+/// The target of view `view` on the device, or the error of gs-core's objective when its size is
+/// not the camera's.
+fn device_target<'a, E: std::error::Error>(
+    targets: &'a GpuTargets,
+    view: usize,
+    camera: &gs_core::Camera,
+) -> Result<&'a wgpu::Buffer, TrainError<E>> {
+    let Some((width, height, buffer)) = targets.get(view) else {
+        return Err(TrainError::Mismatch(format!(
+            "the objective has no target for view {view}"
+        )));
+    };
+    if (*width, *height) != (camera.width, camera.height) {
+        let e = GsError::SizeMismatch {
+            view,
+            render_w: camera.width,
+            render_h: camera.height,
+            target_w: *width,
+            target_h: *height,
+        };
+        return Err(TrainError::Mismatch(e.to_string()));
+    }
+    Ok(buffer)
 }
 
 /// The GPU's failure at step `step`.

@@ -76,10 +76,7 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
         .iter()
         .map(|v| render(ctx, &target_gpu, &v.camera, bg).unwrap().image(ctx))
         .collect();
-    let mut objective = PhotometricObjective {
-        targets,
-        lambda: 0.2,
-    };
+    let mut objective = PhotometricObjective::new(targets, 0.2);
     let model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(ctx, &model, &views, &mut objective);
 

@@ -1,0 +1,188 @@
+//! The photometric loss of a fit on the GPU, where the render lives: `(1 - lambda) L1 +
+//! lambda (1 - SSIM)` against a target kept on the device, with dL/dimage written there for the
+//! backward pass and only the loss's partial sums read back (a few floats per 256 values), the
+//! twin of gs-core's `PhotometricObjective` as `ClampedObjective` and the training step hand it
+//! on (shaders/photometric.wgsl and the four kernels after it: the row and column passes of the
+//! SSIM blur, then of its back-propagation).
+
+use gs_core::image_loss::{ssim_window, PhotometricForm, PhotometricSums, SSIM_WINDOW};
+use gs_core::render_clamp::RenderClamp;
+use gs_core::Image;
+
+use super::buffers::{per_item_from, read, storage, uniform};
+use super::device::{GpuContext, GpuError};
+use super::forward::GpuRendered;
+use super::shaders::KernelId;
+
+/// Threads of a workgroup of the photometric kernels (each writes one partial sum).
+const WORKGROUP: u32 = 256;
+
+/// The uniform of the photometric kernels (`Photometric` of shaders/photometric.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, bytemuck::Pod, bytemuck::Zeroable)]
+struct PhotometricUniform {
+    /// Width, height, 1 when the render is clamped, values.
+    size: [u32; 4],
+    /// The SSIM window, padded to 12.
+    window: [[f32; 4]; 3],
+    /// lambda, 1 / values, the factor of dL/dimage, unused.
+    weights: [f32; 4],
+}
+
+/// A photometric objective's targets on the device, one buffer per view (HWC), uploaded once
+/// for the objective whose identity they carry.
+pub(crate) struct GpuTargets {
+    id: u64,
+    images: Vec<(u32, u32, wgpu::Buffer)>,
+}
+
+impl GpuTargets {
+    /// The targets of `form`, uploaded.
+    pub(crate) fn upload(ctx: &GpuContext, form: &PhotometricForm<'_>) -> Result<Self, GpuError> {
+        let images = form
+            .targets
+            .iter()
+            .map(|t| Ok((t.width, t.height, per_item_from(ctx, "target", &t.data)?)))
+            .collect::<Result<_, GpuError>>()?;
+        Ok(Self {
+            id: form.targets_id,
+            images,
+        })
+    }
+
+    /// Whether these are the targets of `form`.
+    pub(crate) fn are_of(&self, form: &PhotometricForm<'_>) -> bool {
+        self.id == form.targets_id && self.images.len() == form.targets.len()
+    }
+
+    /// The target of view `view`: its width, height and values.
+    pub(crate) fn get(&self, view: usize) -> Option<&(u32, u32, wgpu::Buffer)> {
+        self.images.get(view)
+    }
+}
+
+/// What the device computed of the photometric loss of one render.
+pub struct GpuPhotometric {
+    /// The loss's means, for [`gs_core::train::Objective::device_value`].
+    pub sums: PhotometricSums,
+    /// dL/dimage, HWC, times the factor asked for.
+    pub grad: wgpu::Buffer,
+}
+
+/// The photometric loss of `rendered` against `target` (HWC, the render's size) with D-SSIM
+/// weight `lambda`, the render seen as `clamp` says; dL/dimage is multiplied by `factor` (the
+/// training step's `1 / divisor`). Values as gs-core's `PhotometricObjective` (wrapped in a
+/// `ClampedObjective` for [`RenderClamp::Unit`]) gives them, to f32 rounding.
+///
+/// # Panics
+/// If `target` holds fewer than the render's values.
+pub fn photometric(
+    ctx: &GpuContext,
+    rendered: &GpuRendered,
+    target: &wgpu::Buffer,
+    lambda: f32,
+    clamp: RenderClamp,
+    factor: f32,
+) -> Result<GpuPhotometric, GpuError> {
+    let (width, height) = (rendered.width, rendered.height);
+    let values = 3 * u64::from(width) * u64::from(height);
+    assert!(
+        target.size() >= 4 * values,
+        "the target holds fewer values than the render"
+    );
+    let values = u32::try_from(values).expect("at most u32::MAX values an image");
+    let window = ssim_window::<f32>();
+    let mut padded = [[0.0f32; 4]; 3];
+    for (k, w) in window.iter().enumerate().take(SSIM_WINDOW) {
+        padded[k / 4][k % 4] = *w;
+    }
+    let params = uniform(
+        ctx,
+        &PhotometricUniform {
+            size: [width, height, u32::from(clamp == RenderClamp::Unit), values],
+            window: padded,
+            weights: [lambda, 1.0 / values.max(1) as f32, factor, 0.0],
+        },
+    );
+    let bytes = 4 * u64::from(values);
+    let plane = |what| storage(ctx, what, bytes);
+    let moments = [
+        plane("SSIM: blurred x")?,
+        plane("SSIM: blurred y")?,
+        plane("SSIM: blurred x*x")?,
+        plane("SSIM: blurred y*y")?,
+        plane("SSIM: blurred x*y")?,
+    ];
+    let ssim_map = plane("SSIM map")?;
+    let partials_of_ssim = [
+        plane("SSIM: partial by mu")?,
+        plane("SSIM: partial by x*x")?,
+        plane("SSIM: partial by x*y")?,
+    ];
+    let grad = plane("dL/dRGB")?;
+    let workgroups = values.div_ceil(WORKGROUP);
+    let (gx, gy) = ctx.grid(workgroups);
+    let sums_len = 3 * gx as usize * gy as usize;
+    let partials = storage(ctx, "photometric partial sums", 4 * sums_len as u64)?;
+
+    let mut encoder = ctx.encoder();
+    let [mx, my, mxx, myy, mxy] = &moments;
+    let rgb = rendered.rgb();
+    ctx.dispatch(
+        &mut encoder,
+        KernelId::SsimRows,
+        &[&params, rgb, target, mx, my, mxx, myy, mxy],
+        workgroups,
+    );
+    let [d_mu, d_xx, d_xy] = &partials_of_ssim;
+    ctx.dispatch(
+        &mut encoder,
+        KernelId::SsimCols,
+        &[&params, mx, my, mxx, myy, mxy, &ssim_map, d_mu, d_xx, d_xy],
+        workgroups,
+    );
+    // The row pass of the partials' blur into three moment planes no longer needed.
+    ctx.dispatch(
+        &mut encoder,
+        KernelId::SsimGradRows,
+        &[&params, d_mu, d_xx, d_xy, mx, my, mxx],
+        workgroups,
+    );
+    ctx.dispatch(
+        &mut encoder,
+        KernelId::PhotometricGrad,
+        &[
+            &params, rgb, target, &ssim_map, mx, my, mxx, &grad, &partials,
+        ],
+        workgroups,
+    );
+    ctx.submit(encoder);
+    let partial: Vec<f32> = read(ctx, &partials, sums_len);
+    let mut totals = [0.0f64; 3];
+    for chunk in partial.chunks_exact(3) {
+        for (t, p) in totals.iter_mut().zip(chunk) {
+            *t += f64::from(*p);
+        }
+    }
+    let n = f64::from(values.max(1));
+    let sums = if values == 0 {
+        // No pixel: identical images, as gs-core's `ssim` says.
+        PhotometricSums {
+            l1: 0.0,
+            ssim: 1.0,
+            mse: 0.0,
+        }
+    } else {
+        PhotometricSums {
+            l1: totals[0] / n,
+            ssim: totals[1] / n,
+            mse: totals[2] / n,
+        }
+    };
+    Ok(GpuPhotometric { sums, grad })
+}
+
+/// A target image uploaded for [`photometric`] (tests, embedders).
+pub fn upload_target(ctx: &GpuContext, target: &Image) -> Result<wgpu::Buffer, GpuError> {
+    per_item_from(ctx, "target", &target.data)
+}
