@@ -28,9 +28,9 @@
 # Output: target/cuda/release/clipgaussian-2d, clipgaussian-3d, clipgaussian-video and
 # clipgaussian-4d (whose deformation network runs on the CUDA device too), and the timing
 # examples target/cuda/release/examples/{step_timing,style_loss_timing,vgg_op_timing,
-# benchmark_4d}; stripped copies of all eight (52-69 MB each, without the debug information) in
-# target/cuda/dist, which scripts/gpu_check.sh runs. With --pack, also target/cuda/dist.tar.xz:
-# the eight in one xz stream whose window spans them all, so the CUDA kernels they share are
+# benchmark_4d,make_fit_scene}; stripped copies of all nine (52-69 MB each, without the debug
+# information; make_fit_scene, the 3D fit's scene, is small) in target/cuda/dist, which
+# scripts/gpu_check.sh runs. With --pack, also target/cuda/dist.tar.xz: the nine in one xz stream whose window spans them all, so the CUDA kernels they share are
 # stored once (about 20 MB in all, under a 64 MiB upload to a GPU machine; about 2 minutes);
 # `scripts/gpu_check.sh --bin target/cuda/dist.tar.xz` unpacks it. With --cuda 12 the same
 # under target/cuda12. To run them, the loader needs the NVIDIA driver and that CUDA's cuBLAS,
@@ -166,12 +166,13 @@ cargo build --release \
     -p base-mirage -p base-3dgs -p base-vegas -p base-dmiso -p integration-tests -p style-loss \
     --features base-mirage/cuda,base-3dgs/cuda,base-vegas/cuda,base-dmiso/cuda,integration-tests/cuda,style-loss/cuda \
     --bins --example step_timing --example style_loss_timing --example vgg_op_timing \
-    --example benchmark_4d
+    --example benchmark_4d --example make_fit_scene
 # Only this build's binaries: nothing stale is packed or checked.
 rm -rf "$CARGO_TARGET_DIR/dist"
 mkdir -p "$CARGO_TARGET_DIR/dist"
 for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d \
-    examples/step_timing examples/style_loss_timing examples/vgg_op_timing examples/benchmark_4d; do
+    examples/step_timing examples/style_loss_timing examples/vgg_op_timing examples/benchmark_4d \
+    examples/make_fit_scene; do
     strip -o "$CARGO_TARGET_DIR/dist/$(basename "$binary")" "$CARGO_TARGET_DIR/release/$binary"
 done
 echo "built with CUDA $cuda_version (compute capability $CUDA_COMPUTE_CAP) in $CARGO_TARGET_DIR/release"

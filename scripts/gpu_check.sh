@@ -2,7 +2,8 @@
 # One command for a machine with an NVIDIA GPU: proves and times the GPU path from binaries built
 # elsewhere by scripts/build_cuda.sh (no Rust toolchain, no network needed here).
 #
-#   scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--dry-run]
+#   scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--fit-steps N]
+#                        [--fit-only] [--dry-run]
 #
 # DIR holds the binaries, or is the .tar.xz that `build_cuda.sh --pack` writes, unpacked here
 # into a temporary folder (default target/cuda/dist, what build_cuda.sh writes: clipgaussian-2d,
@@ -20,7 +21,13 @@
 #   5. the 4D stylization step (benchmark_4d stylize: a batch of 4 views of 800x800, 2000 cores
 #      of 500 sub-Gaussians) with the rasterizer, the network and the loss on the GPU;
 #   6. the authors' PyTorch loss on the same GPU (scripts/time_style_loss_torch.py cuda, f32 and
-#      f16) when the python3 on the PATH has torch and transformers.
+#      f16) when the python3 on the PATH has torch and transformers;
+#   7. with --fit-steps N (default 0: skipped), the 3D fit (`clipgaussian-3d fit --eval`, INRIA's
+#      schedule, densifying from 100,000 random points) of N steps on an 800x800 NeRF-synthetic
+#      scene of 100 training and 20 test views rendered from 20,000 known Gaussians by the
+#      make_fit_scene example; its time is compared with INRIA's published figures for a
+#      scene of its final size. --fit-only runs parts 1 and 7 alone (for a 30,000-step fit, give
+#      it --part-timeout 570).
 # A part that fails is recorded and the others still run; the exit status is that of the last
 # part that failed (0 when none did).
 # A part still running after SECONDS (default 150) is stopped and recorded with exit 124, so one
@@ -35,16 +42,29 @@ cd "$(dirname "$0")/.."
 bin=target/cuda/dist
 out=gpu_check.md
 part_timeout=150
+fit_steps=0
+fit_only=false
 dry_run=false
+usage="usage: scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--fit-steps N] [--fit-only] [--dry-run]"
 while [ $# -gt 0 ]; do
     case "$1" in
         --bin) bin=$2; shift 2 ;;
         --out) out=$2; shift 2 ;;
         --part-timeout) part_timeout=$2; shift 2 ;;
+        --fit-steps) fit_steps=$2; shift 2 ;;
+        --fit-only) fit_only=true; shift ;;
         --dry-run) dry_run=true; shift ;;
-        *) echo "usage: scripts/gpu_check.sh [--bin DIR] [--out FILE] [--part-timeout SECONDS] [--dry-run]" >&2; exit 2 ;;
+        *) echo "$usage" >&2; exit 2 ;;
     esac
 done
+if ! [[ "$fit_steps" =~ ^[0-9]+$ ]]; then
+    echo "--fit-steps: $fit_steps is not a whole number; $usage" >&2
+    exit 2
+fi
+if $fit_only && [ "$fit_steps" -eq 0 ]; then
+    echo "--fit-only runs the 3D fit alone: give it --fit-steps N" >&2
+    exit 2
+fi
 
 # A packed build: unpacked with python3's tarfile (the GPU machine may have no xz).
 if ! $dry_run && [[ "$bin" == *.tar.xz ]]; then
@@ -119,6 +139,7 @@ if command -v nvidia-smi >/dev/null 2>&1; then
 else
     part "GPU" echo "nvidia-smi not found"
 fi
+if ! $fit_only; then
 for binary in clipgaussian-2d clipgaussian-3d clipgaussian-video clipgaussian-4d; do
     if [ -x "$bin/$binary" ] || $dry_run; then
         part "$binary selftest" "$bin/$binary" selftest --device gpu
@@ -139,6 +160,18 @@ if $dry_run || python3 -c 'import torch, transformers' >/dev/null 2>&1; then
     part "the authors' loss in PyTorch, cuda f16" python3 scripts/time_style_loss_torch.py 16 3 cuda f16
 else
     part "the authors' loss in PyTorch" echo "python3 has no torch or transformers: skipped"
+fi
+fi
+if [ "$fit_steps" -gt 0 ]; then
+    scene=$(mktemp -d)
+    part "3D fit's scene (800x800, 100 + 20 views of 20,000 Gaussians)" \
+        "$bin/make_fit_scene" "$scene/data" 20000 100 20 800 1
+    part "3D fit, $fit_steps steps" "$bin/clipgaussian-3d" fit --data "$scene/data" \
+        --out "$scene/fit" --steps "$fit_steps" --eval --device gpu --quiet
+    if [ -f "$scene/fit/fit.json" ]; then
+        part "3D fit's report" cat "$scene/fit/fit.json"
+    fi
+    rm -rf "$scene"
 fi
 if ! $dry_run; then
     echo "wrote $out (exit $status)"

@@ -3,8 +3,9 @@
 // blur of SSIM's partials, dL/dimage `(1 - lambda) dL1 - lambda dSSIM` (L1's `sign(x - y) / values`,
 // 0 at a tie), zero where a clamped render lies outside [0, 1] or is NaN, times the batch's
 // factor; and per workgroup the sums of |x - y|, of SSIM and of the squared difference of the
-// render and the target clamped to [0, 1] (PSNR's), which the host adds in f64. One thread per
-// value of the `[3][height][width]` planes.
+// render and the target clamped to [0, 1] (PSNR's), which the host adds in f64, and the count of
+// non-finite values of dL/dimage (the training step's check). One thread per value of the
+// `[3][height][width]` planes.
 
 //#import photometric.wgsl
 
@@ -17,10 +18,11 @@
 @group(0) @binding(6) var<storage, read> row_xy: array<f32>;
 // dL/dimage, HWC.
 @group(0) @binding(7) var<storage, read_write> grad: array<f32>;
-// Per workgroup: the sums of |x - y|, SSIM and the clamped squared difference.
+// Per workgroup: the sums of |x - y|, SSIM and the clamped squared difference, and the count of
+// non-finite gradient values.
 @group(0) @binding(8) var<storage, read_write> partials: array<f32>;
 
-var<workgroup> sums: array<vec3f, 256>;
+var<workgroup> sums: array<vec4f, 256>;
 
 @compute @workgroup_size(256)
 fn main(
@@ -31,7 +33,7 @@ fn main(
     let i = flat_index(wid, nwg, lid, 256u);
     let width = params.size.x;
     let height = params.size.y;
-    var mine = vec3f(0.0);
+    var mine = vec4f(0.0);
     if i < params.size.w {
         let at = plane_position(i, width, height);
         let plane = at.x * width * height;
@@ -64,12 +66,13 @@ fn main(
         let g_ssim = g_mu + 2.0 * x * g_xx + y * g_xy;
         let lambda = params.weights.x;
         var g = (1.0 - lambda) * g1 - lambda * g_ssim;
-        if clamped && !(raw >= 0.0 && raw <= 1.0) {
+        if clamped && (is_nan(raw) || raw < 0.0 || raw > 1.0) {
             g = 0.0;
         }
-        grad[q] = g * params.weights.z;
+        g = g * params.weights.z;
+        grad[q] = g;
         let d = seen(raw, true) - clamp(y, 0.0, 1.0);
-        mine = vec3f(abs(x - y), ssim_map[i], d * d);
+        mine = vec4f(abs(x - y), ssim_map[i], d * d, select(1.0, 0.0, finite(g)));
     }
     sums[lid] = mine;
     for (var stride = 128u; stride > 0u; stride = stride / 2u) {
@@ -79,9 +82,10 @@ fn main(
         }
     }
     if lid == 0u {
-        let k = 3u * flat_workgroup(wid, nwg);
+        let k = 4u * flat_workgroup(wid, nwg);
         partials[k] = sums[0].x;
         partials[k + 1u] = sums[0].y;
         partials[k + 2u] = sums[0].z;
+        partials[k + 3u] = sums[0].w;
     }
 }

@@ -4,7 +4,9 @@
 //! and the training loop is the same for all.
 //!
 //! The clamp runs on the host image the objective receives, which is where both backends hand
-//! the render to the loss: the cpu and the wgpu path clamp the same values the same way.
+//! the render to the loss, so the cpu and the wgpu path clamp the same values the same way; a
+//! photometric objective on a GPU ([`crate::train::Objective::photometric`]) is clamped by the
+//! same rule in the device's kernel.
 
 use crate::image::Image;
 use crate::image_loss::{PhotometricForm, PhotometricSums};

@@ -27,9 +27,11 @@
 //!   the same `//#import` of gs-core's shader files.
 //!
 //! Per training step of a model with its own GPU construction (plain Gaussians, MiraGe), the
-//! only traffic between host and GPU is the rendered image read back, dL/dimage uploaded, and
-//! two `u32`s (the number of tile-Gaussian pairs, which sizes the pair lists, and whether every
-//! gradient is finite). A model on the provided [`host_forward`] / [`host_backward`] also moves
+//! only traffic between host and GPU is two `u32`s (the number of tile-Gaussian pairs, which
+//! sizes the pair lists, and whether every gradient is finite) and the objective's: a fit's
+//! photometric loss runs on the device ([`photometric`]) and reads back its partial sums (four
+//! floats per 256 values); any other objective gets the rendered image read back and its
+//! dL/dimage uploaded. A model on the provided [`host_forward`] / [`host_backward`] also moves
 //! its parameters (when they changed), its Gaussians and their gradient.
 //!
 //! Rendering a pipeline's own arrays and differentiating the render, on the cpu or (with

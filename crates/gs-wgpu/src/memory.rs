@@ -16,7 +16,8 @@ const SORT_BYTES: u64 = 5 * 4;
 /// (`trained[i]` adds Adam's two moments and a gradient for group `i`), and one view of
 /// `pixels` pixels rendering `gaussians` Gaussians (splats, splat gradients, sort buffers,
 /// images). The tile lists (8 bytes per tile-Gaussian pair) come on top: their size depends
-/// on how much of the image each Gaussian covers.
+/// on how much of the image each Gaussian covers; so do a fit's targets and its photometric
+/// loss's planes on the device, which the trainer adds when its objective is one.
 pub fn training_bytes(lens: &[usize], trained: &[bool], gaussians: usize, pixels: u64) -> u64 {
     let values: u64 = lens.iter().map(|&n| n as u64).sum();
     let trained_values = trained_values(lens, trained);

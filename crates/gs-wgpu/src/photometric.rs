@@ -9,13 +9,18 @@ use gs_core::image_loss::{ssim_window, PhotometricForm, PhotometricSums, SSIM_WI
 use gs_core::render_clamp::RenderClamp;
 use gs_core::Image;
 
-use super::buffers::{per_item_from, read, storage, uniform};
+use super::buffers::{read, storage, storage_from, uniform};
 use super::device::{GpuContext, GpuError};
 use super::forward::GpuRendered;
 use super::shaders::KernelId;
 
-/// Threads of a workgroup of the photometric kernels (each writes one partial sum).
+/// Threads of a workgroup of the photometric kernels (each workgroup writes one set of partial
+/// sums).
 const WORKGROUP: u32 = 256;
+
+/// Bytes per pixel of the loss's planes on the device: the five blurred moments, SSIM, its three
+/// partials and dL/dRGB, three channels of f32 each.
+pub(crate) const PHOTOMETRIC_PIXEL_BYTES: u64 = 10 * 12;
 
 /// The uniform of the photometric kernels (`Photometric` of shaders/photometric.wgsl).
 #[repr(C)]
@@ -42,7 +47,7 @@ impl GpuTargets {
         let images = form
             .targets
             .iter()
-            .map(|t| Ok((t.width, t.height, per_item_from(ctx, "target", &t.data)?)))
+            .map(|t| Ok((t.width, t.height, upload_target(ctx, t)?)))
             .collect::<Result<_, GpuError>>()?;
         Ok(Self {
             id: form.targets_id,
@@ -59,6 +64,11 @@ impl GpuTargets {
     pub(crate) fn get(&self, view: usize) -> Option<&(u32, u32, wgpu::Buffer)> {
         self.images.get(view)
     }
+
+    /// Bytes the targets hold on the device.
+    pub(crate) fn bytes(&self) -> u64 {
+        self.images.iter().map(|(_, _, b)| b.size()).sum()
+    }
 }
 
 /// What the device computed of the photometric loss of one render.
@@ -67,12 +77,15 @@ pub struct GpuPhotometric {
     pub sums: PhotometricSums,
     /// dL/dimage, HWC, times the factor asked for.
     pub grad: wgpu::Buffer,
+    /// Values of dL/dimage that are NaN or infinite (a training step stops on any).
+    pub non_finite_grads: u64,
 }
 
 /// The photometric loss of `rendered` against `target` (HWC, the render's size) with D-SSIM
 /// weight `lambda`, the render seen as `clamp` says; dL/dimage is multiplied by `factor` (the
 /// training step's `1 / divisor`). Values as gs-core's `PhotometricObjective` (wrapped in a
-/// `ClampedObjective` for [`RenderClamp::Unit`]) gives them, to f32 rounding.
+/// `ClampedObjective` for [`RenderClamp::Unit`]) gives them: the same arithmetic, the means
+/// summed in another order (f32 within 256 values, then f64).
 ///
 /// # Panics
 /// If `target` holds fewer than the render's values.
@@ -122,7 +135,7 @@ pub fn photometric(
     let grad = plane("dL/dRGB")?;
     let workgroups = values.div_ceil(WORKGROUP);
     let (gx, gy) = ctx.grid(workgroups);
-    let sums_len = 3 * gx as usize * gy as usize;
+    let sums_len = 4 * gx as usize * gy as usize;
     let partials = storage(ctx, "photometric partial sums", 4 * sums_len as u64)?;
 
     let mut encoder = ctx.encoder();
@@ -158,8 +171,8 @@ pub fn photometric(
     );
     ctx.submit(encoder);
     let partial: Vec<f32> = read(ctx, &partials, sums_len);
-    let mut totals = [0.0f64; 3];
-    for chunk in partial.chunks_exact(3) {
+    let mut totals = [0.0f64; 4];
+    for chunk in partial.chunks_exact(4) {
         for (t, p) in totals.iter_mut().zip(chunk) {
             *t += f64::from(*p);
         }
@@ -179,10 +192,15 @@ pub fn photometric(
             mse: totals[2] / n,
         }
     };
-    Ok(GpuPhotometric { sums, grad })
+    Ok(GpuPhotometric {
+        sums,
+        grad,
+        non_finite_grads: totals[3] as u64,
+    })
 }
 
-/// A target image uploaded for [`photometric`] (tests, embedders).
+/// A target image uploaded for [`photometric`], bound whole as a render's image is (an error
+/// past the adapter's binding limit).
 pub fn upload_target(ctx: &GpuContext, target: &Image) -> Result<wgpu::Buffer, GpuError> {
-    per_item_from(ctx, "target", &target.data)
+    storage_from(ctx, "target picture", &target.data)
 }

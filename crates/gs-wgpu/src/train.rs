@@ -18,7 +18,7 @@ use super::device::{Binding, GpuContext, GpuError};
 use super::forward::render;
 use super::memory::{trained_values, training_bytes};
 use super::model::{GpuForward, GpuModel, GpuParams, GpuScratch, GpuStep};
-use super::photometric::{photometric, GpuTargets};
+use super::photometric::{photometric, GpuTargets, PHOTOMETRIC_PIXEL_BYTES};
 use super::shaders::KernelId;
 use gs_core::adam::{AdamHyper, GroupConfig};
 use gs_core::densify::ScreenStats;
@@ -125,7 +125,8 @@ impl<M: GpuModel> GpuTrainer<M> {
         } else {
             0
         };
-        // A photometric objective runs on the device, its targets uploaded once.
+        // A photometric objective runs on the device, its targets uploaded once and checked
+        // against the step's cameras before any work.
         let device_loss = match objective.photometric() {
             Some(form) => {
                 if !self.targets.as_ref().is_some_and(|t| t.are_of(&form)) {
@@ -136,6 +137,15 @@ impl<M: GpuModel> GpuTrainer<M> {
                 Some((form.lambda, form.clamp))
             }
             None => None,
+        };
+        let loss_bytes = match (&device_loss, &self.targets) {
+            (Some(_), Some(targets)) => {
+                for &index in &batch.views {
+                    device_target(targets, index, &views[index].camera)?;
+                }
+                targets.bytes()
+            }
+            _ => 0,
         };
         let mut single = None;
         let mut times = StepTimes::default();
@@ -154,9 +164,20 @@ impl<M: GpuModel> GpuTrainer<M> {
                 self.model.gpu_forward(&mut gpu, view).map_err(|e| {
                     model_failed(step, e, training_bytes(&lens, &self.trained, 0, pixels))
                 })?;
-            let run_needs =
+            let mut run_needs =
                 training_bytes(&lens, &self.trained, gaussians.len(), pixels) + sum_bytes;
+            if loss_bytes > 0 {
+                run_needs += loss_bytes + PHOTOMETRIC_PIXEL_BYTES * pixels;
+            }
             let needs = |e: GpuError| device_failed(step, e.with_run_needs(run_needs));
+            if let Some(stats) = &self.screen_stats {
+                ScreenStats::check_rendered(stats.len(), gaussians.len()).map_err(|e| {
+                    TrainError::Model {
+                        step,
+                        source: e.into(),
+                    }
+                })?;
+            }
             let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
             // The loss and its image gradient.
             let t1 = Instant::now();
@@ -167,8 +188,17 @@ impl<M: GpuModel> GpuTrainer<M> {
                     let evaluated = photometric(ctx, &rendered, target, lambda, clamp, factor)
                         .map_err(needs)?;
                     let value = objective.device_value(index, &evaluated.sums);
-                    // dL/dimage is on the device, already divided by the batch's divisor.
-                    (checked_value(step, index, Ok(value), 1)?, evaluated.grad)
+                    // dL/dimage is on the device, already divided by the batch's divisor; its
+                    // values were checked there.
+                    let value = checked_value(step, index, Ok(value), 1)?;
+                    if evaluated.non_finite_grads > 0 {
+                        return Err(TrainError::NonFinite {
+                            step,
+                            view: index,
+                            what: "dL/dimage",
+                        });
+                    }
+                    (value, evaluated.grad)
                 }
                 _ => {
                     let image = rendered.image(ctx);
@@ -185,14 +215,6 @@ impl<M: GpuModel> GpuTrainer<M> {
                 alpha: None,
                 depth: None,
             };
-            if let Some(stats) = &self.screen_stats {
-                ScreenStats::check_rendered(stats.len(), gaussians.len()).map_err(|e| {
-                    TrainError::Model {
-                        step,
-                        source: e.into(),
-                    }
-                })?;
-            }
             let stats = self.screen_stats.as_ref();
             let grads = backward_on_device(ctx, &gaussians, &rendered, &out, self.mask, stats)
                 .map_err(needs)?;
@@ -265,8 +287,9 @@ impl<M: GpuModel> GpuTrainer<M> {
     }
 }
 
-/// The target of view `view` on the device, or the error of gs-core's objective when its size is
-/// not the camera's.
+/// The target of view `view` on the device, or, when there is none or its size is not the
+/// camera's, a mismatch naming what gs-core's objective names (which fails at its evaluation
+/// on the cpu, as `TrainError::Objective`: here before any work of the step).
 fn device_target<'a, E: std::error::Error>(
     targets: &'a GpuTargets,
     view: usize,

@@ -327,3 +327,44 @@ fn a_target_of_another_size_is_refused_as_on_the_host() {
     .to_string();
     assert!(e.contains(&host), "{e}");
 }
+
+#[test]
+fn a_non_finite_image_gradient_stops_the_step_as_on_the_cpu() {
+    // A Gaussian of colour 2.8e18: its squares (7.9e36) stay finite, SSIM's denominator does not,
+    // so the loss is finite and SSIM's gradient NaN where it shows.
+    let Some(ctx) = gpu_with(GpuOptions::default()) else {
+        return;
+    };
+    let views = ring_views(2, 24);
+    let mut start: GaussianSet = random_scene(4, 20, 0);
+    start.sh_dc[..3].fill(1e19);
+    start.opacity_logits[0] = 5.0;
+    let groups = GaussianLrs {
+        means: LrSchedule::Constant(0.001),
+        scales: 0.01,
+        rotations: 0.01,
+        opacities: 0.01,
+        feature: 0.01,
+    }
+    .groups();
+    let targets = vec![Image::filled(24, 24, [0.5; 3]); 2];
+    let mut errors = Vec::new();
+    for backend in [Backend::Cpu, Backend::Gpu(std::sync::Arc::new(ctx))] {
+        let mut trainer = Trainer::new(
+            &backend,
+            start.clone(),
+            groups.clone(),
+            AdamHyper::default(),
+        )
+        .unwrap();
+        let mut objective = PhotometricObjective::new(targets.clone(), 0.2);
+        let mut sampler = ViewSampler::batches(2, 2, BatchOrder::Consecutive, 0);
+        let e = trainer
+            .step(&views, sampler.next_batch(), [0.0; 3], &mut objective)
+            .expect_err("a NaN gradient of the image");
+        errors.push(e.to_string());
+        assert_eq!(trainer.step_count(), 0, "the parameters stay");
+    }
+    assert!(errors[0].contains("dL/dimage"), "{}", errors[0]);
+    assert_eq!(errors[0], errors[1], "cpu and GPU stop alike");
+}
