@@ -2,24 +2,14 @@
 
 mod common;
 
-use common::random_scene;
+use common::{random_scene, ring_views};
 use gs_core::adam::{Adam, AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{BaseModel, GaussianLrs, View};
 use gs_core::raster::render;
 use gs_core::sampler::ViewSampler;
 use gs_core::train::{CpuTrainer, Objective};
-use gs_core::{Camera, GaussianSet};
-
-fn ring_views(count: usize, size: u32) -> Vec<View> {
-    (0..count)
-        .map(|i| {
-            let a = i as f64 / count as f64 * std::f64::consts::TAU;
-            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
-            View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap())
-        })
-        .collect()
-}
+use gs_core::GaussianSet;
 
 fn mean_loss(
     model: &GaussianSet,

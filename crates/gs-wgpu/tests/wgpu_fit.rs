@@ -9,13 +9,13 @@ mod common;
 
 use std::ops::ControlFlow;
 
-use common::{gpu, random_scene};
+use common::{gpu, random_scene, ring_views};
 use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::PhotometricObjective;
 use gs_core::model::{GaussianLrs, View};
 use gs_core::sampler::ViewSampler;
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError};
-use gs_core::{Camera, GaussianSet, Image};
+use gs_core::{GaussianSet, Image};
 use gs_wgpu::backend::{Backend, Trainer};
 use gs_wgpu::{render, GpuContext, GpuGaussians, GpuOptions};
 
@@ -23,16 +23,6 @@ use gs_wgpu::{render, GpuContext, GpuGaussians, GpuOptions};
 fn gpu_backend() -> Backend {
     let ctx = common::gpu_with(GpuOptions::default()).expect("an adapter, as gpu() found");
     Backend::Gpu(std::sync::Arc::new(ctx))
-}
-
-fn ring_views(count: usize, size: u32) -> Vec<View> {
-    (0..count)
-        .map(|i| {
-            let a = i as f64 / count as f64 * std::f64::consts::TAU;
-            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
-            View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap())
-        })
-        .collect()
 }
 
 fn mean_loss(

@@ -12,10 +12,10 @@ mod common;
 
 use std::ops::ControlFlow;
 
-use common::{gpu, gpu_with, oblique_camera, random_scene};
+use common::{gpu, gpu_with, oblique_camera, random_scene, ring_views};
 use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::{psnr, PhotometricObjective, PsnrLog};
-use gs_core::model::{GaussianLrs, View};
+use gs_core::model::GaussianLrs;
 use gs_core::render_clamp::{ClampedObjective, RenderClamp};
 use gs_core::sampler::{BatchOrder, ViewSampler};
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig};
@@ -188,16 +188,6 @@ impl<O: Objective> Objective for OnTheHost<O> {
     fn evaluate(&mut self, view: usize, image: &Image) -> Result<ObjectiveValue, Self::Error> {
         self.0.evaluate(view, image)
     }
-}
-
-fn ring_views(count: usize, size: u32) -> Vec<View> {
-    (0..count)
-        .map(|i| {
-            let a = i as f64 / count as f64 * std::f64::consts::TAU;
-            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
-            View::still(Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size).unwrap())
-        })
-        .collect()
 }
 
 /// `steps` steps of batches of `batch` views, the loss on the device or on the host: the

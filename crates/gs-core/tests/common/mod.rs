@@ -32,6 +32,19 @@ pub fn oblique_camera(width: u32, height: u32) -> Camera {
     .unwrap()
 }
 
+/// `count` square views of `size` pixels on a ring of radius 3.5 around the origin, a little
+/// above it, looking at it (the fitting tests' cameras).
+pub fn ring_views(count: usize, size: u32) -> Vec<gs_core::model::View> {
+    (0..count)
+        .map(|i| {
+            let a = i as f64 / count as f64 * std::f64::consts::TAU;
+            let eye = [3.5 * a.cos(), -0.8, 3.5 * a.sin()];
+            let camera = Camera::look_at(eye, [0.0; 3], [0.0, -1.0, 0.0], 0.9, size, size);
+            gs_core::model::View::still(camera.unwrap())
+        })
+        .collect()
+}
+
 /// `n` random Gaussians of SH degree `degree` around the origin, sized to cover a few tiles of
 /// a small image.
 pub fn random_scene<T: Real>(seed: u64, n: usize, degree: usize) -> GaussianSet<T> {
