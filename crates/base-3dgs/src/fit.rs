@@ -234,6 +234,10 @@ pub struct SceneFit {
     pub optimizer: Option<Vec<u8>>,
     /// The densification statistics gathered since the last densification, while gathering.
     pub stats: Option<ScreenStats>,
+    /// Wall time of the runs of this fit that stopped (Ctrl-C) before, seconds: [`fit`] leaves
+    /// it as it is, a run that stops adds its own before its checkpoint, and `fit.json`
+    /// reports the sum.
+    pub seconds: f64,
 }
 
 impl SceneFit {
@@ -246,6 +250,7 @@ impl SceneFit {
             steps: 0,
             optimizer: None,
             stats: None,
+            seconds: 0.0,
         }
     }
 }
@@ -292,6 +297,7 @@ where
         steps: mut done,
         optimizer: mut state,
         mut stats,
+        seconds,
     } = start;
     if psnr.len() as u64 != done {
         return Err(SceneFitError::Settings(format!(
@@ -396,6 +402,7 @@ where
         steps: done,
         optimizer: state,
         stats,
+        seconds,
     })
 }
 
@@ -559,6 +566,9 @@ struct CheckpointRecord {
     counts: Vec<(u64, usize)>,
     optimizer: bool,
     stats: bool,
+    /// Wall time so far, seconds (0 in a checkpoint written before it was recorded).
+    #[serde(default)]
+    seconds: f64,
 }
 
 /// Writes `fit` into the folder `dir` (created), each file through a temporary name; the
@@ -592,6 +602,7 @@ pub fn save_checkpoint(dir: &Path, fit: &SceneFit) -> Result<(), SceneFitError> 
         counts: fit.counts.clone(),
         optimizer: fit.optimizer.is_some(),
         stats: fit.stats.is_some(),
+        seconds: fit.seconds,
     };
     let path = dir.join(CHECKPOINT_STATE);
     let text = serde_json::to_string(&record).map_err(|e| io(&path, e.into()))?;
@@ -664,5 +675,6 @@ pub fn load_checkpoint(dir: &Path) -> Result<SceneFit, SceneFitError> {
         steps: record.steps,
         optimizer,
         stats,
+        seconds: record.seconds,
     })
 }

@@ -322,6 +322,80 @@ fn a_stopped_fit_resumes_bit_identically() {
     );
 }
 
+/// `fit --resume` goes on from the checkpoint of a stopped fit to the end, removes the
+/// checkpoint, and reports the time of both runs: the stopped run's (1,000 s here) and its own.
+#[test]
+fn a_resumed_fit_finishes_and_reports_the_time_of_both_runs() {
+    let dir = tempfile::tempdir().unwrap();
+    let data = dir.path().join("data");
+    write_fit_scene(&data, scene(2));
+    let fit_data = load_fit_data(&data, &LoadOptions::default(), false).unwrap();
+    let train = &fit_data.train;
+    let settings = SceneFitSettings {
+        steps: 40,
+        random_points: 300,
+        ..SceneFitSettings::default()
+    };
+    let start = SceneFit::new(initial_gaussians(None, &settings));
+    let stop = |r: &gs_core::train::StepReport| {
+        if r.step == 20 {
+            ControlFlow::Break(())
+        } else {
+            ControlFlow::Continue(())
+        }
+    };
+    let backend = Backend::Cpu;
+    let mut stopped = fit(
+        &train.views,
+        &train.images,
+        start,
+        train.extent,
+        &settings,
+        &backend,
+        stop,
+    )
+    .unwrap();
+    assert_eq!(stopped.steps, 20);
+    stopped.seconds = 1000.0;
+    let out = dir.path().join("out");
+    save_checkpoint(&out.join("checkpoint"), &stopped).unwrap();
+    assert_eq!(
+        load_checkpoint(&out.join("checkpoint")).unwrap().seconds,
+        1000.0
+    );
+    let output = bin()
+        .args(["fit", "--data", s(&data), "--out", s(&out), "--quiet"])
+        .args([
+            "--steps",
+            "40",
+            "--gaussians",
+            "300",
+            "--device",
+            "cpu",
+            "--resume",
+        ])
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout);
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    assert!(
+        !out.join("checkpoint").exists(),
+        "a finished fit keeps no checkpoint"
+    );
+    assert!(out
+        .join("point_cloud/iteration_40/point_cloud.ply")
+        .is_file());
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
+    let seconds = report["seconds"].as_f64().unwrap();
+    assert!((1000.0..1300.0).contains(&seconds), "fit.json: {report}");
+    assert!(stdout.contains(" in 10"), "{stdout}");
+}
+
 /// `fit --resume` without a checkpoint, and a fit into a folder holding one without
 /// `--resume`, are refused before any work.
 #[test]

@@ -275,12 +275,15 @@ pub struct FitWritten {
     pub gaussians: usize,
     /// The mean PSNR over held-out test views, dB, when the fit held some out.
     pub test_psnr_db: Option<f64>,
+    /// The fit's wall time, seconds: this run's, and that of any stopped run it went on from.
+    pub seconds: f64,
 }
 
 /// Runs a `fit` subcommand in the order of the module documentation: `load` reads the inputs
 /// (reporting each picture to the progress it is given), `fit` fits them on the opened
 /// device calling its per-step callback, and `write` writes the outputs into `command.out`
-/// (made by then) from the inputs, the fit, the device and the fit's wall time in seconds;
+/// (made by then) from the inputs, the fit, the device and this run's wall time in seconds
+/// (to which a fit that went on from a stopped one adds that one's, [`FitWritten::seconds`]);
 /// then `fit.json` ([`FitReport`], as a `stylize` that fits writes it) is written and the
 /// line printed.
 pub fn run_fit<I, F>(
@@ -312,7 +315,7 @@ pub fn run_fit<I, F>(
         let written = write(&inputs, fitted, &backend, seconds)?;
         let report = FitReport {
             steps: command.steps,
-            seconds,
+            seconds: written.seconds,
             psnr_db: Some(written.psnr_db),
             gaussians: Some(written.gaussians),
             test_psnr_db: written.test_psnr_db,

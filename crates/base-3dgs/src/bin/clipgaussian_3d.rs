@@ -10,6 +10,7 @@ use gs_core::wide_pictures::AUTHORS_MAX_WIDTH;
 use std::error::Error;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
+use std::time::Instant;
 
 use base_3dgs::dataset::nerf_synthetic::Split;
 use base_3dgs::dataset::{inria_cameras, GroundTruth, ImageProgress};
@@ -456,12 +457,13 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
         &command,
         |progress| Ok(load_fit_data(&args.data, &options(progress), args.eval)?),
         |data, backend, on_step| {
+            let started = Instant::now();
             let start = if args.resume {
                 load_checkpoint(&checkpoint)?
             } else {
                 SceneFit::new(initial_gaussians(data.train.points.as_ref(), &settings))
             };
-            let fitted = scene_fit::fit(
+            let mut fitted = scene_fit::fit(
                 &data.train.views,
                 &data.train.images,
                 start,
@@ -471,6 +473,8 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 on_step,
             )?;
             if fitted.steps < settings.steps {
+                // The time of this run counts in the fit's when it goes on.
+                fitted.seconds += started.elapsed().as_secs_f64();
                 save_checkpoint(&checkpoint, &fitted)?;
                 let step = fitted.steps;
                 return Err(StylizeError::Interrupted {
@@ -498,6 +502,7 @@ fn write_fit(
         .join("point_cloud")
         .join(format!("iteration_{}", fitted.steps));
     std::fs::create_dir_all(&ply_dir)?;
+    let fitted_seconds = fitted.seconds;
     let gaussians = fitted.gaussians;
     write_ply(
         &ply_dir.join("point_cloud.ply"),
@@ -537,6 +542,8 @@ fn write_fit(
         Some(p) => format!(", test {p:.2} dB"),
         None => String::new(),
     };
+    // A fit that went on from a stopped one took that one's time too.
+    let seconds = seconds + fitted_seconds;
     let line = format!(
         "fitted {} ({} training views) in {seconds:.1} s: {} Gaussians, PSNR training \
          {psnr_db:.2} dB{test}; wrote {}",
@@ -550,6 +557,7 @@ fn write_fit(
         psnr_db,
         gaussians: gaussians.len(),
         test_psnr_db,
+        seconds,
     })
 }
 

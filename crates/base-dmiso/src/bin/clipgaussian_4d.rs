@@ -405,6 +405,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 psnr_db,
                 gaussians: model.cores() * model.subs_per_core(),
                 test_psnr_db: None,
+                seconds,
             })
         },
     )

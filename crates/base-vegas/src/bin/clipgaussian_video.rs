@@ -326,6 +326,7 @@ fn fit(args: &FitArgs) -> Result<(), Box<dyn Error>> {
                 psnr_db,
                 gaussians: settings.gaussians,
                 test_psnr_db: None,
+                seconds,
             })
         },
     )
