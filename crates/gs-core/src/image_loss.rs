@@ -1,6 +1,9 @@
 //! Image losses with their gradients: L1 and SSIM as 3DGS computes them (11x11 Gaussian window,
 //! sigma 1.5, zero padding, per channel, averaged over every pixel and channel).
 
+use std::any::Any;
+use std::sync::{Arc, Mutex, MutexGuard};
+
 use rayon::prelude::*;
 
 use crate::image::Image;
@@ -218,25 +221,24 @@ pub fn mean_psnr(renders: &[Image], targets: &[Image]) -> f64 {
 
 /// The fitting objective of 3DGS and MiraGe: `(1 - lambda) L1 + lambda (1 - SSIM)` against a
 /// target image per view. A GPU trainer evaluates it on the device
-/// ([`Objective::photometric`]), with the targets uploaded once: they are fixed at
-/// construction, and each objective is told apart by an identity of its own (a clone shares it:
-/// its targets are the same).
+/// ([`Objective::photometric`]), keeping the targets there in the objective's [`DeviceSlot`]
+/// for as long as the objective lives (every trainer of a fit finds them there); they are fixed
+/// at construction. A clone shares the slot: its targets are the same.
 #[derive(Clone, Debug)]
 pub struct PhotometricObjective {
     targets: Vec<Image>,
     lambda: f32,
-    id: u64,
+    device: DeviceSlot,
 }
 
 impl PhotometricObjective {
     /// The objective against `targets` (one per view, in view order) with D-SSIM weight
     /// `lambda` (0.2 in 3DGS and MiraGe).
     pub fn new(targets: Vec<Image>, lambda: f32) -> Self {
-        static NEXT: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
         Self {
             targets,
             lambda,
-            id: NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            device: DeviceSlot::default(),
         }
     }
 
@@ -251,6 +253,30 @@ impl PhotometricObjective {
     }
 }
 
+/// What a compute device keeps of an objective between steps (a GPU's copy of its targets),
+/// of a type only that device knows; dropped with the objective (and its clones).
+#[derive(Clone, Default)]
+pub struct DeviceSlot(Arc<Mutex<Option<Box<dyn Any + Send + Sync>>>>);
+
+impl DeviceSlot {
+    /// The slot's content, locked.
+    pub fn lock(&self) -> MutexGuard<'_, Option<Box<dyn Any + Send + Sync>>> {
+        // A device that panicked while filling the slot left it as it was: still usable.
+        self.0
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner())
+    }
+}
+
+impl std::fmt::Debug for DeviceSlot {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let filled = self.lock().is_some();
+        f.debug_struct("DeviceSlot")
+            .field("filled", &filled)
+            .finish()
+    }
+}
+
 /// A photometric objective as a device evaluates it where the render lives
 /// ([`Objective::photometric`]): `(1 - lambda) L1 + lambda (1 - SSIM)` of the render as `clamp`
 /// says against `targets[view]`.
@@ -258,8 +284,8 @@ impl PhotometricObjective {
 pub struct PhotometricForm<'a> {
     /// One target per view.
     pub targets: &'a [Image],
-    /// Tells these targets apart from any other objective's (the device keeps them uploaded).
-    pub targets_id: u64,
+    /// Where the device keeps its copy of the targets.
+    pub device: &'a DeviceSlot,
     /// The D-SSIM weight.
     pub lambda: f32,
     /// What the loss sees of the render.
@@ -390,7 +416,7 @@ impl Objective for PhotometricObjective {
     fn photometric(&self) -> Option<PhotometricForm<'_>> {
         Some(PhotometricForm {
             targets: &self.targets,
-            targets_id: self.id,
+            device: &self.device,
             lambda: self.lambda,
             clamp: RenderClamp::Off,
         })

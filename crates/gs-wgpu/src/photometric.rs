@@ -8,6 +8,7 @@
 use gs_core::image_loss::{ssim_window, PhotometricForm, PhotometricSums, SSIM_WINDOW};
 use gs_core::render_clamp::RenderClamp;
 use gs_core::Image;
+use std::sync::{Arc, Weak};
 
 use super::buffers::{read, storage, storage_from, uniform};
 use super::device::{GpuContext, GpuError};
@@ -34,30 +35,41 @@ struct PhotometricUniform {
     weights: [f32; 4],
 }
 
-/// A photometric objective's targets on the device, one buffer per view (HWC), uploaded once
-/// for the objective whose identity they carry.
+/// A photometric objective's targets on one device, one buffer per view (HWC), kept in the
+/// objective's [`gs_core::image_loss::DeviceSlot`].
 pub(crate) struct GpuTargets {
-    id: u64,
+    /// The context they were uploaded to (compared by address; never upgraded).
+    ctx: Weak<GpuContext>,
     images: Vec<(u32, u32, wgpu::Buffer)>,
 }
 
 impl GpuTargets {
-    /// The targets of `form`, uploaded.
-    pub(crate) fn upload(ctx: &GpuContext, form: &PhotometricForm<'_>) -> Result<Self, GpuError> {
+    /// The targets of `form` on `ctx`: those its slot keeps when they are on `ctx`, else
+    /// uploaded (the slot's earlier content freed first) and kept there.
+    pub(crate) fn of(
+        ctx: &Arc<GpuContext>,
+        form: &PhotometricForm<'_>,
+    ) -> Result<Arc<Self>, GpuError> {
+        let mut slot = form.device.lock();
+        let kept = slot.as_ref().and_then(|b| b.downcast_ref::<Arc<Self>>());
+        if let Some(targets) = kept {
+            let here = std::ptr::eq(targets.ctx.as_ptr(), Arc::as_ptr(ctx));
+            if here && targets.images.len() == form.targets.len() {
+                return Ok(Arc::clone(targets));
+            }
+        }
+        *slot = None;
         let images = form
             .targets
             .iter()
             .map(|t| Ok((t.width, t.height, upload_target(ctx, t)?)))
             .collect::<Result<_, GpuError>>()?;
-        Ok(Self {
-            id: form.targets_id,
+        let targets = Arc::new(Self {
+            ctx: Arc::downgrade(ctx),
             images,
-        })
-    }
-
-    /// Whether these are the targets of `form`.
-    pub(crate) fn are_of(&self, form: &PhotometricForm<'_>) -> bool {
-        self.id == form.targets_id && self.images.len() == form.targets.len()
+        });
+        *slot = Some(Box::new(Arc::clone(&targets)));
+        Ok(targets)
     }
 
     /// The target of view `view`: its width, height and values.
@@ -203,4 +215,51 @@ pub fn photometric(
 /// past the adapter's binding limit).
 pub fn upload_target(ctx: &GpuContext, target: &Image) -> Result<wgpu::Buffer, GpuError> {
     storage_from(ctx, "target picture", &target.data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::{test_context, GpuOptions};
+    use gs_core::image_loss::PhotometricObjective;
+    use gs_core::train::Objective;
+
+    #[test]
+    fn targets_are_uploaded_once_per_objective_and_device() {
+        let Some(first) = test_context(GpuOptions::default()) else {
+            return;
+        };
+        let first = Arc::new(first);
+        let second = Arc::new(test_context(GpuOptions::default()).expect("as the first"));
+        let targets = vec![Image::filled(4, 3, [0.5; 3]), Image::filled(4, 3, [0.1; 3])];
+        let objective = PhotometricObjective::new(targets.clone(), 0.2);
+        let form = objective.photometric().expect("photometric");
+        let kept = GpuTargets::of(&first, &form).unwrap();
+        // A later trainer of the same objective (a clone too) on the same device finds them.
+        assert!(Arc::ptr_eq(&kept, &GpuTargets::of(&first, &form).unwrap()));
+        let clone = objective.clone();
+        let clone_form = clone.photometric().expect("photometric");
+        assert!(Arc::ptr_eq(
+            &kept,
+            &GpuTargets::of(&first, &clone_form).unwrap()
+        ));
+        assert_eq!(kept.bytes(), 2 * 4 * 3 * 3 * 4);
+        assert_eq!(
+            read::<f32>(&first, &kept.get(1).unwrap().2, 3),
+            vec![0.1f32; 3]
+        );
+        // Another objective, or another device, has its own.
+        let other = PhotometricObjective::new(targets, 0.2);
+        let other_form = other.photometric().expect("photometric");
+        assert!(!Arc::ptr_eq(
+            &kept,
+            &GpuTargets::of(&first, &other_form).unwrap()
+        ));
+        let moved = GpuTargets::of(&second, &form).unwrap();
+        assert!(!Arc::ptr_eq(&kept, &moved));
+        assert!(Arc::ptr_eq(
+            &moved,
+            &GpuTargets::of(&second, &form).unwrap()
+        ));
+    }
 }

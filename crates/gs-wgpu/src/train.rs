@@ -2,7 +2,7 @@
 //! same render, objective, backward and Adam, the same checks and report) over a model built on
 //! the GPU ([`GpuModel::gpu_forward`]), with the parameters, gradients and Adam moments staying
 //! there. A photometric objective ([`Objective::photometric`]) is evaluated on the device too,
-//! its targets uploaded once: per step only its partial sums are read back, with two `u32`s
+//! its targets uploaded once and kept in the objective: per step only its partial sums are read back, with two `u32`s
 //! (the tile-list size and the finiteness flag); any other objective gets the image read back
 //! and its dL/dimage uploaded. A model on the provided host construction also moves its
 //! parameters (when they changed), its Gaussians and their gradient. A GPU failure inside the
@@ -44,8 +44,6 @@ pub(crate) struct GpuTrainer<M> {
     sum: Option<Vec<Option<wgpu::Buffer>>>,
     /// The rendered Gaussians' densification statistics, gathered on the device when asked.
     pub(crate) screen_stats: Option<GpuScreenStats>,
-    /// The targets of the photometric objective last trained with, on the device.
-    targets: Option<GpuTargets>,
 }
 
 impl<M: GpuModel> GpuTrainer<M> {
@@ -96,7 +94,6 @@ impl<M: GpuModel> GpuTrainer<M> {
             trained,
             sum: None,
             screen_stats: None,
-            targets: None,
         })
     }
 
@@ -125,28 +122,20 @@ impl<M: GpuModel> GpuTrainer<M> {
         } else {
             0
         };
-        // A photometric objective runs on the device, its targets uploaded once and checked
-        // against the step's cameras before any work.
+        // A photometric objective runs on the device, its targets uploaded once (kept in the
+        // objective) and checked against the step's cameras before any work.
         let device_loss = match objective.photometric() {
             Some(form) => {
-                if !self.targets.as_ref().is_some_and(|t| t.are_of(&form)) {
-                    self.targets = None;
-                    let uploaded = GpuTargets::upload(ctx, &form);
-                    self.targets = Some(uploaded.map_err(|e| device_failed(step, e))?);
+                let targets = GpuTargets::of(&self.ctx, &form);
+                let targets = targets.map_err(|e| device_failed(step, e))?;
+                for &index in &batch.views {
+                    device_target(&targets, index, &views[index].camera)?;
                 }
-                Some((form.lambda, form.clamp))
+                Some((form.lambda, form.clamp, targets))
             }
             None => None,
         };
-        let loss_bytes = match (&device_loss, &self.targets) {
-            (Some(_), Some(targets)) => {
-                for &index in &batch.views {
-                    device_target(targets, index, &views[index].camera)?;
-                }
-                targets.bytes()
-            }
-            _ => 0,
-        };
+        let loss_bytes = device_loss.as_ref().map_or(0, |(_, _, t)| t.bytes());
         let mut single = None;
         let mut times = StepTimes::default();
         let mut values = Vec::with_capacity(batch.views.len());
@@ -181,8 +170,9 @@ impl<M: GpuModel> GpuTrainer<M> {
             let rendered = render(ctx, &gaussians, &view.camera, background).map_err(needs)?;
             // The loss and its image gradient.
             let t1 = Instant::now();
-            let (value, grad_rgb) = match (device_loss, &self.targets) {
-                (Some((lambda, clamp)), Some(targets)) => {
+            let (value, grad_rgb) = match &device_loss {
+                Some((lambda, clamp, targets)) => {
+                    let (lambda, clamp) = (*lambda, *clamp);
                     let target = device_target(targets, index, &view.camera)?;
                     let factor = 1.0 / batch.divisor.max(1) as f32;
                     let evaluated = photometric(ctx, &rendered, target, lambda, clamp, factor)
@@ -200,7 +190,7 @@ impl<M: GpuModel> GpuTrainer<M> {
                     }
                     (value, evaluated.grad)
                 }
-                _ => {
+                None => {
                     let image = rendered.image(ctx);
                     let result = objective.evaluate(index, &image);
                     let value = checked_value(step, index, result, batch.divisor)?;
