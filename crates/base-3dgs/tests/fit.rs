@@ -41,6 +41,24 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
+/// Runs `fit --data data --out out --quiet` with `extra`, checks that it succeeds, and returns
+/// what it printed and its `fit.json`.
+fn fit_with_binary(data: &Path, out: &Path, extra: &[&str]) -> (String, serde_json::Value) {
+    let output = bin()
+        .args(["fit", "--data", s(data), "--out", s(out), "--quiet"])
+        .args(extra)
+        .output()
+        .unwrap();
+    let stdout = String::from_utf8_lossy(&output.stdout).into_owned();
+    assert!(
+        output.status.success(),
+        "{stdout}{}",
+        String::from_utf8_lossy(&output.stderr)
+    );
+    let report = serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
+    (stdout, report)
+}
+
 /// 300 steps from 3,000 random points (no densification yet at INRIA's schedule) reach
 /// 24 dB on the held-out views (27.3 dB measured for seed 0), and the outputs are INRIA's
 /// layout: the PLY at every SH degree, cameras.json of the training views.
@@ -50,31 +68,20 @@ fn the_binary_fits_a_scene_to_a_stated_test_psnr_and_writes_inrias_layout() {
     let data = dir.path().join("data");
     write_fit_scene(&data, scene(0));
     let out = dir.path().join("out");
-    let output = bin()
-        .args(["fit", "--data", s(&data), "--out", s(&out), "--quiet"])
-        .args([
-            "--steps",
-            "300",
-            "--gaussians",
-            "3000",
-            "--eval",
-            "--device",
-            "cpu",
-        ])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let args = [
+        "--steps",
+        "300",
+        "--gaussians",
+        "3000",
+        "--eval",
+        "--device",
+        "cpu",
+    ];
+    let (stdout, report) = fit_with_binary(&data, &out, &args);
     assert!(
         stdout.contains("(24 training views)") && stdout.contains(", test "),
         "{stdout}"
     );
-    let report: serde_json::Value =
-        serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
     let test_psnr = report["test_psnr_db"].as_f64().unwrap();
     assert!(test_psnr > 24.0, "{report}");
     assert!(
@@ -363,25 +370,16 @@ fn a_resumed_fit_finishes_and_reports_the_time_of_both_runs() {
         load_checkpoint(&out.join("checkpoint")).unwrap().seconds,
         1000.0
     );
-    let output = bin()
-        .args(["fit", "--data", s(&data), "--out", s(&out), "--quiet"])
-        .args([
-            "--steps",
-            "40",
-            "--gaussians",
-            "300",
-            "--device",
-            "cpu",
-            "--resume",
-        ])
-        .output()
-        .unwrap();
-    let stdout = String::from_utf8_lossy(&output.stdout);
-    assert!(
-        output.status.success(),
-        "{stdout}{}",
-        String::from_utf8_lossy(&output.stderr)
-    );
+    let args = [
+        "--steps",
+        "40",
+        "--gaussians",
+        "300",
+        "--device",
+        "cpu",
+        "--resume",
+    ];
+    let (stdout, report) = fit_with_binary(&data, &out, &args);
     assert!(
         !out.join("checkpoint").exists(),
         "a finished fit keeps no checkpoint"
@@ -389,8 +387,6 @@ fn a_resumed_fit_finishes_and_reports_the_time_of_both_runs() {
     assert!(out
         .join("point_cloud/iteration_40/point_cloud.ply")
         .is_file());
-    let report: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
     let seconds = report["seconds"].as_f64().unwrap();
     assert!((1000.0..1300.0).contains(&seconds), "fit.json: {report}");
     assert!(stdout.contains(" in 10"), "{stdout}");
