@@ -308,17 +308,22 @@ impl PhotometricSums {
     /// The objective's value of D-SSIM weight `lambda`: its loss and terms as
     /// [`PhotometricObjective::evaluate`] gives them (dL/dimage stays on the device: empty).
     pub fn value(&self, lambda: f32) -> ObjectiveValue {
-        let w1 = 1.0 - lambda;
-        let l1 = self.l1 as f32;
-        let d_ssim = 1.0 - self.ssim as f32;
-        ObjectiveValue {
-            loss: w1 * l1 + lambda * d_ssim,
-            terms: vec![
-                ("l1".to_string(), w1 * l1),
-                ("d_ssim".to_string(), lambda * d_ssim),
-            ],
-            grad: Vec::new(),
-        }
+        photometric_value(self.l1 as f32, self.ssim as f32, lambda, Vec::new())
+    }
+}
+
+/// The photometric objective's value from its mean L1 and mean SSIM: `(1 - lambda) l1 +
+/// lambda (1 - ssim)`, its two weighted terms, and `grad`.
+fn photometric_value(l1: f32, ssim: f32, lambda: f32, grad: Vec<f32>) -> ObjectiveValue {
+    let w1 = 1.0 - lambda;
+    let d_ssim = 1.0 - ssim;
+    ObjectiveValue {
+        loss: w1 * l1 + lambda * d_ssim,
+        terms: vec![
+            ("l1".to_string(), w1 * l1),
+            ("d_ssim".to_string(), lambda * d_ssim),
+        ],
+        grad,
     }
 }
 
@@ -397,20 +402,13 @@ impl Objective for PhotometricObjective {
         let l = l1(&image.data, &target.data);
         let s = ssim(&image.data, &target.data, w, h);
         let w1 = 1.0 - self.lambda;
-        let d_ssim = 1.0 - s.loss;
-        Ok(ObjectiveValue {
-            loss: w1 * l.loss + self.lambda * d_ssim,
-            terms: vec![
-                ("l1".to_string(), w1 * l.loss),
-                ("d_ssim".to_string(), self.lambda * d_ssim),
-            ],
-            grad: l
-                .grad
-                .iter()
-                .zip(&s.grad)
-                .map(|(g1, gs)| w1 * g1 - self.lambda * gs)
-                .collect(),
-        })
+        let grad = l
+            .grad
+            .iter()
+            .zip(&s.grad)
+            .map(|(g1, gs)| w1 * g1 - self.lambda * gs)
+            .collect();
+        Ok(photometric_value(l.loss, s.loss, self.lambda, grad))
     }
 
     fn photometric(&self) -> Option<PhotometricForm<'_>> {

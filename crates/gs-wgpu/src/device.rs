@@ -180,6 +180,11 @@ impl std::fmt::Debug for GpuContext {
     }
 }
 
+/// True for a software rasterizer's adapter (e.g. lavapipe).
+fn is_software(info: &wgpu::AdapterInfo) -> bool {
+    info.device_type == wgpu::DeviceType::Cpu
+}
+
 /// Preference of an adapter type: lower is better; `None` when the choice excludes it.
 fn rank(kind: wgpu::DeviceType, choice: AdapterChoice) -> Option<u8> {
     match kind {
@@ -292,14 +297,11 @@ impl GpuContext {
             adapter: info.name.clone(),
             message,
         };
-        let parameters =
-            options
-                .parameter_binding
-                .unwrap_or(if info.device_type == wgpu::DeviceType::Cpu {
-                    ParameterBinding::Storage
-                } else {
-                    ParameterBinding::Uniform
-                });
+        let parameters = options.parameter_binding.unwrap_or(if is_software(&info) {
+            ParameterBinding::Storage
+        } else {
+            ParameterBinding::Uniform
+        });
         let needed = STORAGE_BUFFERS_NEEDED + u32::from(parameters == ParameterBinding::Storage);
         if limits.max_storage_buffers_per_shader_stage < needed {
             return Err(device_err(format!(
@@ -366,7 +368,7 @@ impl GpuContext {
 
     /// True when the adapter is a software rasterizer (e.g. lavapipe).
     pub fn is_software(&self) -> bool {
-        self.info.device_type == wgpu::DeviceType::Cpu
+        is_software(&self.info)
     }
 
     /// True when the backward pass accumulates with native f32 atomic add.

@@ -5,7 +5,7 @@
 //! on (shaders/photometric.wgsl and the four kernels after it: the row and column passes of the
 //! SSIM blur, then of its back-propagation).
 
-use gs_core::image_loss::{ssim_window, PhotometricForm, PhotometricSums, SSIM_WINDOW};
+use gs_core::image_loss::{ssim_window, PhotometricForm, PhotometricSums};
 use gs_core::render_clamp::RenderClamp;
 use gs_core::Image;
 use std::sync::{Arc, Weak};
@@ -118,7 +118,7 @@ pub fn photometric(
     let values = u32::try_from(values).expect("at most u32::MAX values an image");
     let window = ssim_window::<f32>();
     let mut padded = [[0.0f32; 4]; 3];
-    for (k, w) in window.iter().enumerate().take(SSIM_WINDOW) {
+    for (k, w) in window.iter().enumerate() {
         padded[k / 4][k % 4] = *w;
     }
     let params = uniform(
@@ -189,7 +189,7 @@ pub fn photometric(
             *t += f64::from(*p);
         }
     }
-    let n = f64::from(values.max(1));
+    let n = f64::from(values);
     let sums = if values == 0 {
         // No pixel: identical images, as gs-core's `ssim` says.
         PhotometricSums {

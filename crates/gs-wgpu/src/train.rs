@@ -2,9 +2,9 @@
 //! same render, objective, backward and Adam, the same checks and report) over a model built on
 //! the GPU ([`GpuModel::gpu_forward`]), with the parameters, gradients and Adam moments staying
 //! there. A photometric objective ([`Objective::photometric`]) is evaluated on the device too,
-//! its targets uploaded once and kept in the objective: per step only its partial sums are read back, with two `u32`s
-//! (the tile-list size and the finiteness flag); any other objective gets the image read back
-//! and its dL/dimage uploaded. A model on the provided host construction also moves its
+//! its targets uploaded once and kept in the objective: per step only its partial sums are
+//! read back, with two `u32`s (the tile-list size and the finiteness flag); any other objective
+//! gets the image read back and its dL/dimage uploaded. A model on the provided host construction also moves its
 //! parameters (when they changed), its Gaussians and their gradient. A GPU failure inside the
 //! model is the device's failure.
 
