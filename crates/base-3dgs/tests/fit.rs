@@ -11,7 +11,7 @@ use std::ops::ControlFlow;
 use std::path::Path;
 use std::process::Command;
 
-use base_3dgs::dataset::{inria_cameras, LoadOptions};
+use base_3dgs::dataset::{inria_cameras, Dataset, LoadOptions};
 use base_3dgs::fit::{
     fit, has_checkpoint, initial_gaussians, load_checkpoint, load_fit_data, save_checkpoint,
     SceneFit, SceneFitSettings,
@@ -57,6 +57,31 @@ fn fit_with_binary(data: &Path, out: &Path, extra: &[&str]) -> (String, serde_js
     );
     let report = serde_json::from_slice(&std::fs::read(out.join("fit.json")).unwrap()).unwrap();
     (stdout, report)
+}
+
+/// `fit` of `train` from `start` on the cpu, stopped after step `stop_at` when given.
+fn fit_on_the_cpu(
+    train: &Dataset,
+    settings: &SceneFitSettings,
+    start: SceneFit,
+    stop_at: Option<u64>,
+) -> SceneFit {
+    fit(
+        &train.views,
+        &train.images,
+        start,
+        train.extent,
+        settings,
+        &Backend::Cpu,
+        |report| {
+            if Some(report.step) == stop_at {
+                ControlFlow::Break(())
+            } else {
+                ControlFlow::Continue(())
+            }
+        },
+    )
+    .unwrap()
 }
 
 /// 300 steps from 3,000 random points (no densification yet at INRIA's schedule) reach
@@ -276,24 +301,7 @@ fn a_stopped_fit_resumes_bit_identically() {
         seed: 5,
         ..SceneFitSettings::default()
     };
-    let run = |start: SceneFit, stop_at: Option<u64>| {
-        fit(
-            &train.views,
-            &train.images,
-            start,
-            train.extent,
-            &settings,
-            &Backend::Cpu,
-            |report| {
-                if Some(report.step) == stop_at {
-                    ControlFlow::Break(())
-                } else {
-                    ControlFlow::Continue(())
-                }
-            },
-        )
-        .unwrap()
-    };
+    let run = |start, stop_at| fit_on_the_cpu(train, &settings, start, stop_at);
     let start = || SceneFit::new(initial_gaussians(None, &settings));
     let straight = run(start(), None);
     assert_eq!(straight.steps, 260);
@@ -344,24 +352,7 @@ fn a_resumed_fit_finishes_and_reports_the_time_of_both_runs() {
         ..SceneFitSettings::default()
     };
     let start = SceneFit::new(initial_gaussians(None, &settings));
-    let stop = |r: &gs_core::train::StepReport| {
-        if r.step == 20 {
-            ControlFlow::Break(())
-        } else {
-            ControlFlow::Continue(())
-        }
-    };
-    let backend = Backend::Cpu;
-    let mut stopped = fit(
-        &train.views,
-        &train.images,
-        start,
-        train.extent,
-        &settings,
-        &backend,
-        stop,
-    )
-    .unwrap();
+    let mut stopped = fit_on_the_cpu(train, &settings, start, Some(20));
     assert_eq!(stopped.steps, 20);
     stopped.seconds = 1000.0;
     let out = dir.path().join("out");

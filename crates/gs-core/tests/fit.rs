@@ -2,10 +2,10 @@
 
 mod common;
 
-use common::{random_scene, ring_views};
-use gs_core::adam::{Adam, AdamHyper, LrSchedule};
+use common::{fit_lrs, random_scene, ring_views};
+use gs_core::adam::{Adam, AdamHyper};
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{BaseModel, GaussianLrs, View};
+use gs_core::model::{BaseModel, View};
 use gs_core::raster::render;
 use gs_core::sampler::ViewSampler;
 use gs_core::train::{CpuTrainer, Objective};
@@ -42,13 +42,7 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let model: GaussianSet = random_scene(2, 150, 1);
     let before = mean_loss(&model, &views, &mut objective, bg);
 
-    let lrs = GaussianLrs {
-        means: LrSchedule::Constant(0.004),
-        scales: 0.01,
-        rotations: 0.01,
-        opacities: 0.05,
-        feature: 0.05,
-    };
+    let lrs = fit_lrs();
     let adam = Adam::new(lrs.groups(), &model.group_lens(), AdamHyper::default());
     let mut trainer = CpuTrainer::new(model, adam).unwrap();
     let mut sampler = ViewSampler::new(views.len(), 5);

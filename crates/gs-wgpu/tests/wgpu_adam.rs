@@ -5,9 +5,9 @@
 #[path = "../../gs-core/tests/common/mod.rs"]
 mod common;
 
-use common::{gpu, gpu_with, weights};
+use common::{gpu, gpu_per_parameter_binding, gpu_with, weights};
 use gs_core::adam::{Adam, AdamHyper, GroupConfig, LrSchedule};
-use gs_wgpu::{GpuAdam, GpuContext, GpuOptions, ParameterBinding};
+use gs_wgpu::{GpuAdam, GpuContext, GpuOptions};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
@@ -34,15 +34,10 @@ fn matches_the_cpu_adam_in_chunks_past_the_binding_limit() {
 #[test]
 fn matches_the_cpu_adam_with_parameter_blocks_bound_either_way() {
     // Uniforms (hardware adapters) and read-only storage (software ones), in chunks.
-    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
-        let Some(ctx) = gpu_with(GpuOptions {
-            max_binding_bytes: Some(1024),
-            parameter_binding: Some(binding),
-            ..GpuOptions::default()
-        }) else {
-            return;
-        };
-        assert_eq!(ctx.parameter_binding(), binding);
+    for ctx in gpu_per_parameter_binding(GpuOptions {
+        max_binding_bytes: Some(1024),
+        ..GpuOptions::default()
+    }) {
         check_steps(&ctx);
     }
 }

@@ -8,13 +8,13 @@
 mod common;
 
 use common::{
-    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_with, oblique_camera, poisoned_scene,
-    random_scene, stacked_scene, weights, SMALL_BINDING,
+    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_per_parameter_binding, gpu_with,
+    oblique_camera, poisoned_scene, random_scene, stacked_scene, weights, SMALL_BINDING,
 };
 use gs_core::gaussians::PARAM_NAMES;
 use gs_core::raster::{backward, render, GradMask, OutputGrads};
 use gs_core::{Camera, GaussianSet};
-use gs_wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions, ParameterBinding};
+use gs_wgpu::{self as gpu_backend, GpuContext, GpuGaussians, GpuOptions};
 
 fn f32s(v: Vec<f64>) -> Vec<f32> {
     v.into_iter().map(|x| x as f32).collect()
@@ -141,15 +141,11 @@ fn arrays_past_the_binding_limit_give_the_same_gradients() {
 fn parameter_blocks_bound_either_way_give_the_same_gradients() {
     // Uniforms (hardware adapters) and read-only storage (software ones), whichever adapter
     // runs this, in chunks and parts.
-    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
-        let Some(ctx) = gpu_with(GpuOptions {
-            max_binding_bytes: Some(SMALL_BINDING),
-            parameter_binding: Some(binding),
-            ..GpuOptions::default()
-        }) else {
-            return;
-        };
-        assert_eq!(ctx.parameter_binding(), binding);
+    for ctx in gpu_per_parameter_binding(GpuOptions {
+        max_binding_bytes: Some(SMALL_BINDING),
+        ..GpuOptions::default()
+    }) {
+        let binding = ctx.parameter_binding();
         let mut g = random_scene::<f32>(15, 3000, 3);
         for v in &mut g.log_scales {
             *v -= 1.0;

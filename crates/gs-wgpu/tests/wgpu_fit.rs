@@ -9,10 +9,10 @@ mod common;
 
 use std::ops::ControlFlow;
 
-use common::{gpu, random_scene, ring_views};
-use gs_core::adam::{AdamHyper, LrSchedule};
+use common::{fit_lrs, gpu, random_scene, ring_views};
+use gs_core::adam::AdamHyper;
 use gs_core::image_loss::PhotometricObjective;
-use gs_core::model::{GaussianLrs, View};
+use gs_core::model::View;
 use gs_core::sampler::ViewSampler;
 use gs_core::train::{Objective, ObjectiveValue, TrainConfig, TrainError};
 use gs_core::{GaussianSet, Image};
@@ -45,16 +45,6 @@ fn mean_loss(
     total / views.len() as f32
 }
 
-fn lrs() -> GaussianLrs {
-    GaussianLrs {
-        means: LrSchedule::Constant(0.004),
-        scales: 0.01,
-        rotations: 0.01,
-        opacities: 0.05,
-        feature: 0.05,
-    }
-}
-
 #[test]
 fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let Some(ctx) = gpu() else { return };
@@ -71,7 +61,8 @@ fn fitting_a_random_set_to_another_scene_lowers_the_loss_tenfold() {
     let before = mean_loss(ctx, &model, &views, &mut objective);
 
     let backend = gpu_backend();
-    let mut trainer = Trainer::new(&backend, model, lrs().groups(), AdamHyper::default()).unwrap();
+    let mut trainer =
+        Trainer::new(&backend, model, fit_lrs().groups(), AdamHyper::default()).unwrap();
     let mut sampler = ViewSampler::new(views.len(), 5);
     let mut reports = 0;
     let config = TrainConfig {
@@ -118,7 +109,7 @@ fn a_non_finite_gradient_stops_the_run_with_the_parameters_of_the_step_before() 
         let mut trainer = Trainer::new(
             &backend,
             start.clone(),
-            lrs().groups(),
+            fit_lrs().groups(),
             AdamHyper::default(),
         )
         .unwrap();

@@ -7,14 +7,12 @@
 mod common;
 
 use common::{
-    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_with, oblique_camera, poisoned_scene,
-    random_scene, stacked_scene, SMALL_BINDING,
+    degenerate_cases, edge_on_flat, front_camera, gpu, gpu_per_parameter_binding, gpu_with,
+    oblique_camera, poisoned_scene, random_scene, stacked_scene, SMALL_BINDING,
 };
 use gs_core::raster::render;
 use gs_core::{Camera, GaussianSet};
-use gs_wgpu::{
-    self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions, ParameterBinding,
-};
+use gs_wgpu::{self as gpu_backend, GpuContext, GpuError, GpuGaussians, GpuOptions};
 
 /// Renders `case` on both backends and checks that the image, alpha and depth agree.
 fn check(case: &str, g: &GaussianSet, cam: &Camera, background: [f32; 3], ctx: &GpuContext) {
@@ -122,15 +120,11 @@ fn parameter_blocks_bound_either_way_render_as_the_cpu() {
     // Hardware adapters bind the view, pass and chunk blocks as uniforms, software ones
     // (lavapipe in CI) as read-only storage: both are checked on whichever adapter runs this,
     // in chunks and parts as in the test above.
-    for binding in [ParameterBinding::Uniform, ParameterBinding::Storage] {
-        let Some(ctx) = gpu_with(GpuOptions {
-            max_binding_bytes: Some(SMALL_BINDING),
-            parameter_binding: Some(binding),
-            ..GpuOptions::default()
-        }) else {
-            return;
-        };
-        assert_eq!(ctx.parameter_binding(), binding);
+    for ctx in gpu_per_parameter_binding(GpuOptions {
+        max_binding_bytes: Some(SMALL_BINDING),
+        ..GpuOptions::default()
+    }) {
+        let binding = ctx.parameter_binding();
         let mut g = random_scene::<f32>(19, 3000, 3);
         for v in &mut g.log_scales {
             *v -= 1.0;

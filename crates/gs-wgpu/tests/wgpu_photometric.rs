@@ -12,7 +12,9 @@ mod common;
 
 use std::ops::ControlFlow;
 
-use common::{gpu, gpu_with, oblique_camera, random_scene, ring_views};
+use common::{
+    fit_lrs, gpu, gpu_per_parameter_binding, gpu_with, oblique_camera, random_scene, ring_views,
+};
 use gs_core::adam::{AdamHyper, LrSchedule};
 use gs_core::image_loss::{psnr, PhotometricObjective, PsnrLog};
 use gs_core::model::GaussianLrs;
@@ -160,16 +162,8 @@ fn the_device_loss_is_gs_cores_on_every_size_weight_and_clamp() {
 
 #[test]
 fn the_device_loss_is_the_same_with_parameter_blocks_bound_either_way() {
-    for binding in [
-        gs_wgpu::ParameterBinding::Uniform,
-        gs_wgpu::ParameterBinding::Storage,
-    ] {
-        let Some(ctx) = gpu_with(GpuOptions {
-            parameter_binding: Some(binding),
-            ..GpuOptions::default()
-        }) else {
-            return;
-        };
+    for ctx in gpu_per_parameter_binding(GpuOptions::default()) {
+        let binding = ctx.parameter_binding();
         check(
             &ctx,
             &format!("{binding:?}"),
@@ -218,13 +212,7 @@ fn train(
         inner: PhotometricObjective::new(targets, 0.2),
         log: Vec::new(),
     };
-    let lrs = GaussianLrs {
-        means: LrSchedule::Constant(0.004),
-        scales: 0.01,
-        rotations: 0.01,
-        opacities: 0.05,
-        feature: 0.05,
-    };
+    let lrs = fit_lrs();
     let start: GaussianSet = random_scene(2, 60, 1);
     let mut trainer = Trainer::new(&backend, start, lrs.groups(), AdamHyper::default()).unwrap();
     let mut sampler = ViewSampler::batches(4, batch, BatchOrder::Shuffled, 9);

@@ -102,6 +102,35 @@ pub fn gpu_with(options: gs_wgpu::GpuOptions) -> Option<gs_wgpu::GpuContext> {
     gs_wgpu::test_context(options)
 }
 
+/// A GPU context of its own for each way of binding parameter blocks (uniforms, as hardware
+/// adapters do; read-only storage, as software ones do), with `options` otherwise; none where
+/// there is no adapter (as [`gpu`]).
+pub fn gpu_per_parameter_binding(options: gs_wgpu::GpuOptions) -> Vec<gs_wgpu::GpuContext> {
+    use gs_wgpu::ParameterBinding;
+    [ParameterBinding::Uniform, ParameterBinding::Storage]
+        .into_iter()
+        .map_while(|binding| {
+            let ctx = gpu_with(gs_wgpu::GpuOptions {
+                parameter_binding: Some(binding),
+                ..options
+            })?;
+            assert_eq!(ctx.parameter_binding(), binding);
+            Some(ctx)
+        })
+        .collect()
+}
+
+/// The learning rates of the fitting tests.
+pub fn fit_lrs() -> gs_core::model::GaussianLrs {
+    gs_core::model::GaussianLrs {
+        means: gs_core::adam::LrSchedule::Constant(0.004),
+        scales: 0.01,
+        rotations: 0.01,
+        opacities: 0.05,
+        feature: 0.05,
+    }
+}
+
 /// The binding limit, bytes, under which the split-array tests run: sixteen times smaller
 /// than a 1 MiB binding, so that a few thousand Gaussians of degree 3 run in 256-Gaussian
 /// chunks and their splats in parts of 1024.
